@@ -1,0 +1,1 @@
+"""Command modules of the ``mpipe`` command line, one per subcommand."""

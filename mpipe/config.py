@@ -1,0 +1,238 @@
+"""Loading YAML into validated frozen dataclasses.
+
+A configuration class is a frozen dataclass whose fields carry their unit, meaning and
+check in ``dataclasses.field(metadata=...)``: keys ``unit``, ``doc`` and ``check``
+(a callable returning an error message or ``None``). :func:`build` walks the YAML mapping
+against the type hints, and every problem becomes a :class:`ConfigError` naming the file,
+the key path and what was expected. A class may define ``_check(self, where)`` for checks
+across fields; it raises through ``where.error(key, message)``.
+
+Supported field types: ``float``, ``int``, ``str``, ``bool``, ``X | None``, ``Literal``,
+nested configuration dataclasses and ``tuple[X, ...]`` of any of these.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+import typing
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+
+class ConfigError(ValueError):
+    """A configuration file or mapping does not describe a valid set-up."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Where:
+    """Position inside a configuration source, for error messages.
+
+    Attributes
+    ----------
+    source : str
+        File name (or another description of where the mapping came from).
+    path : str
+        Dotted key path inside it, e.g. ``bore.segments[1].radius``.
+    """
+
+    source: str
+    path: str = ""
+
+    def child(self, key: str | int) -> Where:
+        """Return the position of a key or list index below this one."""
+        if isinstance(key, int):
+            return Where(self.source, f"{self.path}[{key}]")
+        return Where(self.source, f"{self.path}.{key}" if self.path else key)
+
+    def error(self, key: str | None, message: str) -> ConfigError:
+        """Build an error for ``key`` below this position (or for this position itself)."""
+        where = self.child(key) if key else self
+        return ConfigError(f"{where.source}: {where.path or '<top level>'}: {message}")
+
+
+def spec(
+    unit: str = "", doc: str = "", check: Callable[[Any], str | None] | None = None, **kwargs
+):
+    """Declare a configuration field with its unit, meaning and check.
+
+    Parameters
+    ----------
+    unit : str
+        SI unit of the value ("" for dimensionless or non-numeric).
+    doc : str
+        One-line meaning, shown by ``mpipe config-keys``-style documentation.
+    check : callable, optional
+        ``check(value) -> message | None``.
+    **kwargs
+        Passed to :func:`dataclasses.field` (``default``, ``default_factory``).
+    """
+    return dataclasses.field(metadata={"unit": unit, "doc": doc, "check": check}, **kwargs)
+
+
+def between(lo: float, hi: float, what: str = "") -> Callable[[float], str | None]:
+    """Check that a number lies in ``[lo, hi]``; ``what`` hints at the likely mistake."""
+
+    def check(value: float) -> str | None:
+        if not lo <= value <= hi:
+            hint = f" ({what})" if what else ""
+            return f"expected a value in [{lo:g}, {hi:g}], got {value:g}{hint}"
+        return None
+
+    return check
+
+
+def positive(value: float) -> str | None:
+    """Check that a number is strictly positive."""
+    return None if value > 0 else f"expected a positive value, got {value:g}"
+
+
+def load_yaml(path: str | Path) -> Mapping:
+    """Read a YAML file that must hold a mapping, with errors naming the file."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read configuration file: {exc.strerror}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{path}: expected a mapping of keys at the top level")
+    return data
+
+
+def build(cls: type, data: Any, where: Where):
+    """Build the configuration dataclass ``cls`` from a parsed YAML value.
+
+    Parameters
+    ----------
+    cls : type
+        A frozen dataclass declared with :func:`spec` fields.
+    data : Any
+        The parsed YAML value (must be a mapping).
+    where : Where
+        Its position, for error messages.
+
+    Returns
+    -------
+    cls
+        The validated instance.
+
+    Raises
+    ------
+    ConfigError
+        Naming the file, key path and what was expected.
+    """
+    if not isinstance(data, Mapping):
+        raise where.error(None, f"expected a mapping, got {_describe(data)}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    unknown = [k for k in data if k not in fields]
+    if unknown:
+        raise where.error(
+            str(unknown[0]), f"unknown key; expected one of: {', '.join(sorted(fields))}"
+        )
+    values = {}
+    for name, f in fields.items():
+        if name not in data:
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                raise where.error(name, "missing required key")
+            continue
+        child = where.child(name)
+        value = _convert(hints[name], data[name], child)
+        check = f.metadata.get("check")
+        if check is not None and value is not None:
+            message = check(value)
+            if message:
+                unit = f.metadata.get("unit")
+                raise child.error(None, message + (f" [{unit}]" if unit else ""))
+        values[name] = value
+    obj = cls(**values)
+    hook = getattr(obj, "_check", None)
+    if hook is not None:
+        hook(where)
+    return obj
+
+
+def _convert(tp: Any, value: Any, where: Where):
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        inner = [a for a in args if a is not type(None)]
+        if len(inner) == 1:
+            return _convert(inner[0], value, where)
+        errors = []
+        for a in inner:
+            try:
+                return _convert(a, value, where)
+            except ConfigError as exc:
+                errors.append(str(exc))
+        raise where.error(None, f"value {value!r} matches none of the allowed forms")
+    if origin is typing.Literal:
+        if value not in args:
+            choices = ", ".join(repr(a) for a in args)
+            raise where.error(None, f"expected one of {choices}, got {value!r}")
+        return value
+    if origin is tuple:
+        if not isinstance(value, list | tuple):
+            raise where.error(None, f"expected a list, got {_describe(value)}")
+        return tuple(_convert(args[0], v, where.child(i)) for i, v in enumerate(value))
+    if dataclasses.is_dataclass(tp):
+        return build(tp, value, where)
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise where.error(None, f"expected a number, got {_describe(value)}")
+        if not math.isfinite(value):
+            raise where.error(None, f"expected a finite number, got {value!r}")
+        return float(value)
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise where.error(None, f"expected an integer, got {_describe(value)}")
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise where.error(None, f"expected true or false, got {_describe(value)}")
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise where.error(None, f"expected a string, got {_describe(value)}")
+        return value
+    raise TypeError(f"configuration type {tp!r} is not supported")  # programming error
+
+
+def _describe(value: Any) -> str:
+    if value is None:
+        return "nothing (null)"
+    if isinstance(value, str):
+        return f"the string {value!r}"
+    if isinstance(value, Mapping):
+        return "a mapping"
+    if isinstance(value, list):
+        return "a list"
+    return f"{type(value).__name__} {value!r}"
+
+
+def describe_keys(cls: type, prefix: str = "") -> list[tuple[str, str, str]]:
+    """List ``(key path, unit, meaning)`` for every key of a configuration class.
+
+    Used to document configuration files from the code that reads them.
+    """
+    rows = []
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        key = f"{prefix}{f.name}"
+        rows.append((key, f.metadata.get("unit", ""), f.metadata.get("doc", "")))
+        tp = hints[f.name]
+        inner = [a for a in (typing.get_args(tp) or (tp,)) if dataclasses.is_dataclass(a)]
+        if inner:
+            sub = "[]." if typing.get_origin(tp) is tuple else "."
+            rows.extend(describe_keys(inner[0], key + sub))
+    return rows

@@ -1,0 +1,56 @@
+"""Safe writing of result files: atomic replacement, and no overwriting without force."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Callable, Iterable
+from contextlib import contextmanager
+from pathlib import Path
+
+from mpipe.errors import OutputExistsError
+
+
+def check_writable(paths: Iterable[str | Path], force: bool) -> None:
+    """Refuse to overwrite existing outputs unless ``force`` is set.
+
+    Raises
+    ------
+    OutputExistsError
+        Naming the first existing file.
+    """
+    if force:
+        return
+    for p in paths:
+        if Path(p).exists():
+            raise OutputExistsError(f"{p} exists; use --force to overwrite it")
+
+
+@contextmanager
+def atomic_path(path: str | Path):
+    """Yield a temporary path beside ``path``; move it into place only on success.
+
+    A crash or an exception leaves any previous file untouched and no partial file behind.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_atomic(path: str | Path, writer: Callable[[Path], None]) -> Path:
+    """Write a file through ``writer(tmp_path)`` and move it into place atomically."""
+    with atomic_path(path) as tmp:
+        writer(tmp)
+    return Path(path)
+
+
+def write_text_atomic(path: str | Path, text: str) -> Path:
+    """Write text to ``path`` atomically."""
+    return write_atomic(path, lambda tmp: tmp.write_text(text))
