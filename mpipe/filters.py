@@ -1,0 +1,134 @@
+"""Filters shared by the measurement chain and the model comparison.
+
+The same filters must be applied to the measured signals and to the model output before
+they are compared (physics.md F.2 and J), so both stages take them from here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal
+
+
+@dataclass(frozen=True)
+class LowPass:
+    """A linear-phase FIR low-pass filter.
+
+    Attributes
+    ----------
+    taps : ndarray
+        Symmetric impulse response, odd length.
+    fs : float
+        Sample rate in Hz.
+    cutoff_hz : float
+        Frequency of the -6 dB point in Hz.
+    """
+
+    taps: np.ndarray
+    fs: float
+    cutoff_hz: float
+
+    @property
+    def delay(self) -> int:
+        """Group delay in samples, (N - 1) / 2."""
+        return (self.taps.size - 1) // 2
+
+
+def design_lowpass(
+    fs: float,
+    cutoff_hz: float = 7250.0,
+    transition_hz: float = 1500.0,
+    stopband_db: float = 60.0,
+) -> LowPass:
+    """Design the linear-phase Kaiser-window FIR low-pass of physics.md F.2.
+
+    Parameters
+    ----------
+    fs : float
+        Sample rate in Hz.
+    cutoff_hz : float
+        -6 dB frequency in Hz (the paper: 7.25 kHz).
+    transition_hz : float
+        Width of the transition band in Hz, centred on the cut-off.
+    stopband_db : float
+        Stop-band attenuation in dB.
+
+    Returns
+    -------
+    LowPass
+        Odd-length symmetric filter (type I), so its delay is an integer number of samples.
+
+    Raises
+    ------
+    ValueError
+        If the band does not fit below the Nyquist frequency.
+    """
+    nyq = fs / 2
+    if not (0 < cutoff_hz - transition_hz / 2 and cutoff_hz + transition_hz / 2 < nyq):
+        raise ValueError(
+            f"low-pass cut-off {cutoff_hz:g} Hz with a {transition_hz:g} Hz transition does not "
+            f"fit below the Nyquist frequency {nyq:g} Hz (sample rate {fs:g} Hz)"
+        )
+    numtaps, beta = signal.kaiserord(stopband_db, transition_hz / nyq)
+    numtaps |= 1
+    taps = signal.firwin(numtaps, cutoff_hz, window=("kaiser", beta), fs=fs)
+    return LowPass(taps=taps, fs=float(fs), cutoff_hz=float(cutoff_hz))
+
+
+def apply_lowpass(x: np.ndarray, lp: LowPass, axis: int = -1) -> np.ndarray:
+    """Filter with ``lp`` and remove its delay, so the output is aligned with the input.
+
+    The signal is extended at both ends by its edge value over the filter length, so the
+    first and last ``lp.delay`` samples are not pulled towards zero.
+
+    Parameters
+    ----------
+    x : ndarray
+        Signal(s), any units.
+    lp : LowPass
+        Filter from :func:`design_lowpass`.
+    axis : int
+        Time axis.
+
+    Returns
+    -------
+    ndarray
+        Same shape as ``x``.
+    """
+    x = np.asarray(x, dtype=float)
+    d = lp.delay
+    padded = np.pad(np.moveaxis(x, axis, -1), [(0, 0)] * (x.ndim - 1) + [(d, d)], mode="edge")
+    y = signal.fftconvolve(padded, lp.taps.reshape((1,) * (x.ndim - 1) + (-1,)), mode="valid")
+    return np.moveaxis(y, -1, axis)
+
+
+def highpass_zero_phase(
+    x: np.ndarray, fs: float, cutoff_hz: float = 20.0, order: int = 2, axis: int = -1
+) -> np.ndarray:
+    """Zero-phase Butterworth high-pass (forward-backward), physics.md J.
+
+    The measured flow has no DC (the three-microphone system is singular at DC), so the
+    model output is passed through this filter before it is compared with measured data.
+
+    Parameters
+    ----------
+    x : ndarray
+        Signal(s), any units.
+    fs : float
+        Sample rate in Hz.
+    cutoff_hz : float
+        Cut-off frequency in Hz.
+    order : int
+        Butterworth order of each pass (the forward-backward magnitude is squared).
+    axis : int
+        Time axis.
+
+    Returns
+    -------
+    ndarray
+        Same shape as ``x``.
+    """
+    sos = signal.butter(order, cutoff_hz, btype="highpass", fs=fs, output="sos")
+    return signal.sosfiltfilt(sos, np.asarray(x, dtype=float), axis=axis)
