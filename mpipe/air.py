@@ -113,7 +113,9 @@ def air_properties(
         )
     if model == "keefe":
         if humidity != 0.0:
-            raise ValueError("the 'keefe' air model is for dry air; use model 'ernoult' for humidity")
+            raise ValueError(
+                "the 'keefe' air model is for dry air; use model 'ernoult' for humidity"
+            )
         dt = temperature_c - _KEEFE_REFERENCE_C
         return Air(
             temperature_c=float(temperature_c),

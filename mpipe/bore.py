@@ -39,8 +39,12 @@ class Segment:
     In YAML give ``radius`` for a cylinder or ``radius_start`` and ``radius_end`` for a cone.
     """
 
-    x_start: float = spec("m", "position of the upstream end", between(*LENGTH_RANGE, _POSITION_HINT))
-    x_end: float = spec("m", "position of the downstream end", between(*LENGTH_RANGE, _POSITION_HINT))
+    x_start: float = spec(
+        "m", "position of the upstream end", between(*LENGTH_RANGE, _POSITION_HINT)
+    )
+    x_end: float = spec(
+        "m", "position of the downstream end", between(*LENGTH_RANGE, _POSITION_HINT)
+    )
     radius: float | None = spec(
         "m", "radius of a cylinder", between(*RADIUS_RANGE, _RADIUS_HINT), default=None
     )
@@ -61,7 +65,8 @@ class Segment:
         cone = self.radius_start is not None or self.radius_end is not None
         if cylinder == cone or (cone and (self.radius_start is None or self.radius_end is None)):
             raise where.error(
-                None, "give either 'radius' (cylinder) or both 'radius_start' and 'radius_end' (cone)"
+                None,
+                "give either 'radius' (cylinder) or both 'radius_start' and 'radius_end' (cone)",
             )
 
     @property
@@ -108,7 +113,9 @@ class Radiation:
     model: str = spec(
         "",
         f"radiation model, one of {', '.join(RADIATION_MODELS)}",
-        lambda v: None if v in RADIATION_MODELS else f"expected one of {RADIATION_MODELS}, got {v!r}",
+        lambda v: (
+            None if v in RADIATION_MODELS else f"expected one of {RADIATION_MODELS}, got {v!r}"
+        ),
         default="flanged",
     )
     flange_radius: float | None = spec(
@@ -139,7 +146,8 @@ class Bore:
         if abs(self.segments[0].x_start) > JOIN_TOLERANCE:
             raise where.error(
                 "segments[0].x_start",
-                f"the bore must start at the mouthpiece entry x = 0, got {self.segments[0].x_start:g} m",
+                "the bore must start at the mouthpiece entry x = 0, "
+                f"got {self.segments[0].x_start:g} m",
             )
         for i in range(1, len(self.segments)):
             prev, seg = self.segments[i - 1], self.segments[i]

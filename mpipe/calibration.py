@@ -51,7 +51,9 @@ class Microphone:
     name: str = spec("", "label")
     position: float = spec("m", "axial position from the mouthpiece entry", between(0.0, 5.0))
     channel: int = spec("", "channel in the recording, counted from 1", between(1, 64))
-    sensitivity: float = spec("Pa", "pressure per unit of the recorded signal", positive, default=1.0)
+    sensitivity: float = spec(
+        "Pa", "pressure per unit of the recorded signal", positive, default=1.0
+    )
     calibration: str | None = spec(
         "",
         "optional CSV (frequency_hz, magnitude, phase_deg) of the complex relative "
@@ -69,9 +71,7 @@ class Calibration:
     air: AirSettings = spec("", "air conditions")
     bore: Bore = spec("", "bore geometry and termination")
     microphones: tuple[Microphone, ...] = spec("", "the three wall microphones, upstream first")
-    reference_plane: float = spec(
-        "m", "position where p0, u0 are reconstructed", between(0.0, 5.0)
-    )
+    reference_plane: float = spec("m", "position where p0, u0 are reconstructed", between(0.0, 5.0))
     source: str = spec("", "file the calibration was read from (set by the loader)", default="")
 
     def _check(self, where: Where) -> None:

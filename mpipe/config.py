@@ -55,9 +55,7 @@ class Where:
         return ConfigError(f"{where.source}: {where.path or '<top level>'}: {message}")
 
 
-def spec(
-    unit: str = "", doc: str = "", check: Callable[[Any], str | None] | None = None, **kwargs
-):
+def spec(unit: str = "", doc: str = "", check: Callable[[Any], str | None] | None = None, **kwargs):
     """Declare a configuration field with its unit, meaning and check.
 
     Parameters
