@@ -11,6 +11,12 @@ from pathlib import Path
 from mpipe.errors import OutputExistsError
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def check_writable(paths: Iterable[str | Path], force: bool) -> None:
     """Refuse to overwrite existing outputs unless ``force`` is set.
 
@@ -38,6 +44,8 @@ def atomic_path(path: str | Path):
     os.close(fd)
     try:
         yield Path(tmp)
+        # mkstemp creates 0600 files; results are meant to be shared like any other file
+        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -69,3 +69,15 @@ def test_missing_output_triggers_redo(tmp_path):
     (tmp_path / "s" / "out.txt").unlink()
     rec = run_stage(tmp_path / "s", "demo", {"take": src}, {}, make_work(calls))
     assert rec.status == "done" and len(calls) == 2
+
+
+def test_atomic_files_get_ordinary_permissions(tmp_path):
+    import os
+    import stat
+
+    from mpipe.io import write_text_atomic
+
+    out = write_text_atomic(tmp_path / "a.txt", "x")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert stat.S_IMODE(out.stat().st_mode) == 0o666 & ~mask
