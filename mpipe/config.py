@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import types
 import typing
 from collections.abc import Callable, Mapping
@@ -22,6 +23,8 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+
+_YAML11_FLOAT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
 
 
 class ConfigError(ValueError):
@@ -186,6 +189,9 @@ def _convert(tp: Any, value: Any, where: Where):
     if dataclasses.is_dataclass(tp):
         return build(tp, value, where)
     if tp is float:
+        if isinstance(value, str) and _YAML11_FLOAT.fullmatch(value.strip()):
+            # PyYAML follows YAML 1.1, where 8.66e6 (no dot, no exponent sign) is a string
+            value = float(value)
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise where.error(None, f"expected a number, got {_describe(value)}")
         if not math.isfinite(value):

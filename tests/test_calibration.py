@@ -101,3 +101,11 @@ def test_missing_and_malformed_files(tmp_path):
     bad.write_text("- a list\n")
     with pytest.raises(ConfigError, match="expected a mapping"):
         load_calibration(bad)
+
+
+def test_exponent_without_sign_or_dot_reads_as_number(tmp_path):
+    # YAML 1.1 (PyYAML) reads 75e-4 as a string; users write numbers that way
+    text = SHIPPED.read_text().replace("radius: 0.0075", "radius: 75e-4")
+    path = tmp_path / "cal.yaml"
+    path.write_text(text)
+    assert load_calibration(path).bore.segments[2].radius == 0.0075

@@ -1,0 +1,167 @@
+"""Accuracy and speed of the inversion (issue 5).
+
+Run: ``.venv/bin/python benchmarks/bench_inversion.py`` (about two minutes on one core).
+
+1. Table 1, noise-free, one 20 ms steady window: error of each of the 8 parameters after
+   step 2 (target < 0.1 %), and step-1 errors beside the paper's step 1.
+2. 40 dB SNR noise on p and u: each parameter within 3 %.
+3. A take whose p_m rises slowly by 20 %: the p_m track within 2 % in every window.
+Speed: wall time and evaluations per warm-started 20 ms window on one core, against a cold
+start measured in the same run; and the two start methods of the objective compared.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+
+import numpy as np
+
+from mpipe.calibration import load_calibration
+from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWindow
+from mpipe.inversion.rosenbrock import rosenbrock
+from mpipe.inversion.step1 import step1
+from mpipe.inversion.tracking import invert_window, start_point
+from mpipe.model import prepare_bore, simulate
+from mpipe.pipeline import PARAMETER_NAMES, ExecutorConfig, InversionConfig
+from mpipe.reed import ReedParameters
+from mpipe.reflection import reflection_function
+
+ROOT = Path(__file__).resolve().parents[1]
+FS = 100_000.0
+TABLE1 = ReedParameters(
+    k=8.66e6, S=7.62e-5, y_m=4e-4, p_m=1800.0, lam=0.013, m=0.05, g=3000.0, k_c=8.23e10
+)
+PAPER_STEP1 = {"k": 8.72e6, "S": 9.66e-5, "y_m": 4.4e-4, "p_m": 1683.0}
+
+
+def errors(reed, truth=TABLE1):
+    return {n: 100 * (getattr(reed, n) / getattr(truth, n) - 1) for n in PARAMETER_NAMES}
+
+
+def show(label, errs):
+    print(f"  {label:28s} " + " ".join(f"{n}={e:+.3f}%" for n, e in errs.items()))
+
+
+def main():
+    cal = load_calibration(ROOT / "calibration" / "simplified_clarinet.yaml")
+    air = cal.air_properties()
+    kernel = prepare_bore(reflection_function(cal.bore, air, fs=FS), air)
+    cfg = InversionConfig()
+    sim = simulate(TABLE1, kernel, 40000)
+    w0, n = 30000, 2000
+    simulate(TABLE1, kernel, 100)  # compile
+    invert_window(
+        sim.p,
+        sim.u,
+        FS,
+        w0,
+        kernel,
+        air.rho,
+        dataclasses.replace(cfg, max_evaluations=5),
+        zero_mean=False,
+    )
+
+    print("1. Table 1, noise-free, 20 ms window at 0.30 s")
+    s1 = step1(sim.p[w0 : w0 + n], sim.u[w0 : w0 + n], FS, rho=air.rho, lam=cfg.lam)
+    for b in ("closing", "opening"):
+        fit = s1.branch(b)
+        print(
+            f"  step 1 {b:8s}: k={fit.k:.3g} S={fit.S:.3g} y_m={fit.y_m:.3g} p_m={s1.p_m:.4g}"
+            f" F1={fit.f1:.3g}  errors k {100 * (fit.k / TABLE1.k - 1):+.1f}% "
+            f"S {100 * (fit.S / TABLE1.S - 1):+.1f}% y_m {100 * (fit.y_m / TABLE1.y_m - 1):+.1f}%"
+            f" p_m {100 * (s1.p_m / TABLE1.p_m - 1):+.1f}%"
+        )
+    print(
+        "  paper step 1: "
+        + ", ".join(
+            f"{k} {v:.3g} ({100 * (v / getattr(TABLE1, k) - 1):+.1f}%)"
+            for k, v in PAPER_STEP1.items()
+        )
+    )
+    t = time.perf_counter()
+    cold = invert_window(sim.p, sim.u, FS, w0, kernel, air.rho, cfg, zero_mean=False)
+    t_cold = time.perf_counter() - t
+    show("step 2 (cold, from step 1)", errors(cold.reed))
+    print(
+        f"  cold: {cold.search.n_evaluations} evaluations, {t_cold:.2f} s, "
+        f"F2 {cold.search.f:.3g} Pa, {cold.search.message}"
+    )
+
+    print("2. 40 dB SNR on p and u")
+    rng = np.random.default_rng(1)
+    snr = 10 ** (-40 / 20)
+    pn = sim.p + snr * np.std(sim.p) * rng.standard_normal(sim.p.size)
+    un = sim.u + snr * np.std(sim.u) * rng.standard_normal(sim.u.size)
+    noisy = invert_window(pn, un, FS, w0, kernel, air.rho, cfg, zero_mean=False)
+    show("step 2 (cold)", errors(noisy.reed))
+    print(
+        f"  max |error| {max(abs(e) for e in errors(noisy.reed).values()):.2f} % "
+        f"({noisy.search.n_evaluations} evaluations)"
+    )
+
+    print("3. p_m rising by 20 % over 0.5 s; windows every 20 ms from 0.30 s, warm-started")
+    n_take = 90000
+    ramp = np.ones(n_take) * 1800.0
+    t_take = np.arange(1, n_take + 1) / FS
+    rise = t_take > 0.3
+    ramp[rise] = 1800.0 * (1 + 0.2 * np.minimum((t_take[rise] - 0.3) / 0.5, 1.0))
+    take = simulate(TABLE1, kernel, n_take, mouth_pressure=ramp)
+    starts = list(range(30000, n_take - n + 1, n))
+    warm = None
+    wall, evals, pm_err = [], [], []
+    for i, s in enumerate(starts):
+        o = invert_window(take.p, take.u, FS, s, kernel, air.rho, cfg, zero_mean=False, warm=warm)
+        if o.reed is None:
+            print(f"  window {i} failed: {o.row['error']}")
+            warm = None
+            continue
+        warm = o.reed
+        true_pm = float(np.mean(ramp[s : s + n]))
+        pm_err.append(100 * (o.reed.p_m / true_pm - 1))
+        if i:
+            wall.append(o.row["wall_time_s"])
+            evals.append(o.row["n_evaluations"])
+    print(f"  p_m errors per window [%]: {np.round(pm_err, 3).tolist()}")
+    print(f"  max |p_m error| {np.max(np.abs(pm_err)):.3f} % over {len(pm_err)} windows")
+    print("Speed (one core, 20 ms windows)")
+    print(
+        f"  warm: median {np.median(wall):.3f} s/window, median {np.median(evals):.0f} "
+        f"evaluations; cold: {t_cold:.2f} s, {cold.search.n_evaluations} evaluations; "
+        f"cold/warm time ratio {t_cold / np.median(wall):.1f}"
+    )
+
+    print("Start methods of the objective (Table 1 window, 3000-evaluation budget, 8 params)")
+    target = TargetWindow(sim.p[w0 : w0 + n], sim.u[w0 : w0 + n], sim.p[:w0], sim.u[:w0], FS, False)
+    x0_reed = start_point(s1, cfg)
+    lo = np.array([cfg.bounds.absolute(k, target.p.max())[0] for k in PARAMETER_NAMES])
+    hi = np.array([cfg.bounds.absolute(k, target.p.max())[1] for k in PARAMETER_NAMES])
+    for method in ("history", "rest"):
+        obj = F2Objective(kernel, target, ObjectiveSettings(start=method), x0_reed, PARAMETER_NAMES)
+        xt = TABLE1.as_vector()
+        t = time.perf_counter()
+        for _ in range(20):
+            f_true = obj(xt)
+        per_eval = (time.perf_counter() - t) / 20
+        t = time.perf_counter()
+        r = rosenbrock(
+            obj,
+            x0_reed.as_vector(),
+            lower=lo,
+            upper=hi,
+            max_evaluations=3000,
+            infeasible_at=obj.penalty,
+        )
+        dt = time.perf_counter() - t
+        errs = np.abs(r.x / xt - 1) * 100
+        print(
+            f"  {method:8s}: {1e3 * per_eval:.2f} ms/evaluation, F2 at truth {f_true:.3g} Pa; "
+            f"search {r.n_evaluations} evaluations in {dt:.1f} s, max |error| "
+            f"{errs.max():.2f} %, median {np.median(errs):.2f} %"
+        )
+    _ = ExecutorConfig
+
+
+if __name__ == "__main__":
+    main()

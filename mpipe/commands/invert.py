@@ -1,0 +1,176 @@
+"""``mpipe invert``: reed parameters window by window from mouthpiece signals."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from mpipe import __version__
+from mpipe.calibration import load_calibration
+from mpipe.errors import UserError
+from mpipe.io import check_writable, write_text_atomic
+from mpipe.pipeline import load_pipeline
+
+log = logging.getLogger(__name__)
+
+#: Files written into the output directory.
+OUTPUTS = (
+    "windows.csv",
+    "signals.png",
+    "flow_pressure.png",
+    "history.png",
+    "tracks.png",
+    "resynthesis.wav",
+    "run.json",
+)
+
+
+def add_parser(sub) -> None:
+    """Register the ``invert`` subcommand."""
+    p = sub.add_parser(
+        "invert",
+        help="estimate reed parameters window by window (step 1 + step 2)",
+        description="Invert the mouthpiece pressure and flow of `mpipe separate` (measured, "
+        "zero-mean flow) or `mpipe simulate` (model output) window by window; write "
+        "DIR/windows.csv, plots and the resynthesised pressure.",
+    )
+    p.add_argument("mouthpiece", help="npz with keys fs, p, u (Pa, m^3/s)")
+    p.add_argument("--pipeline", required=True, help="pipeline YAML")
+    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory")
+    p.add_argument("--start", type=float, default=0.0, metavar="S", help="first time in s")
+    p.add_argument("--end", type=float, default=None, metavar="S", help="last time in s")
+    p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    p.set_defaults(func=run)
+
+
+def load_mouthpiece(path: str | Path) -> tuple[float, np.ndarray, np.ndarray]:
+    """Read ``fs`` (Hz), ``p`` (Pa) and ``u`` (m^3/s) from an npz, naming what is wrong."""
+    try:
+        data = np.load(path)
+    except (OSError, ValueError) as exc:
+        raise UserError(f"{path}: cannot read npz file: {exc}") from None
+    with data:
+        missing = [k for k in ("fs", "p", "u") if k not in data.files]
+        if missing:
+            raise UserError(f"{path}: missing key {missing[0]!r} (expected fs, p, u)")
+        fs = float(np.asarray(data["fs"]).ravel()[0])
+        p = np.asarray(data["p"], dtype=float).ravel()
+        u = np.asarray(data["u"], dtype=float).ravel()
+    if p.shape != u.shape:
+        raise UserError(f"{path}: p and u differ in length ({p.size} and {u.size})")
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(u))):
+        raise UserError(f"{path}: p or u contains non-finite samples")
+    return fs, p, u
+
+
+def run(args: argparse.Namespace) -> int:
+    """Execute ``mpipe invert``."""
+    from mpipe import resynthesis as rs
+    from mpipe.inversion.tracking import ProgressBar, track, write_table
+    from mpipe.model import prepare_bore
+    from mpipe.reflection import reflection_function
+
+    out = Path(args.output)
+    check_writable([out / name for name in (*OUTPUTS, "windows.parquet")], args.force)
+    cfg = load_pipeline(args.pipeline)
+    inv = cfg.inversion
+    fs, p, u = load_mouthpiece(args.mouthpiece)
+    if abs(fs - inv.sample_rate) > 1e-6 * fs:
+        raise UserError(
+            f"{args.mouthpiece}: fs = {fs:g} Hz but {args.pipeline}: inversion.sample_rate = "
+            f"{inv.sample_rate:g} Hz"
+        )
+    cal = load_calibration(cfg.calibration_path)
+    air = cal.air_properties()
+    kernel = prepare_bore(reflection_function(cal.bore, air, fs=fs), air)
+    from mpipe.inversion.tracking import plan_windows
+
+    n_windows = len(plan_windows(p.size, fs, inv.window_s, inv.hop_s, args.start, args.end))
+    bar = ProgressBar(n_windows)
+    try:
+        result = track(
+            p,
+            u,
+            fs,
+            kernel,
+            air.rho,
+            inv,
+            cfg.executor,
+            start_s=args.start,
+            end_s=args.end,
+            progress=bar,
+        )
+    except ValueError as exc:
+        raise UserError(f"{args.mouthpiece}: {exc}") from None
+    finally:
+        bar.close()
+    table = result.table
+    write_table(table, out)
+    res = rs.resynthesise(table, p, u, fs, kernel, inv, result.zero_mean)
+    ok = table[table["error"] == ""]
+    t = np.arange(p.size) / fs
+    if len(ok):
+        first = ok.iloc[0]
+        i0, i1 = int(round(first["t_start_s"] * fs)), int(round(first["t_end_s"] * fs))
+        rs.plot_signals(
+            t[i0:i1],
+            p[i0:i1],
+            u[i0:i1],
+            res.p[i0:i1],
+            res.u[i0:i1],
+            out / "signals.png",
+            title=f"window at {first['t_start_s']:.3f} s",
+        )
+        from mpipe.inversion.step1 import step1
+
+        s1 = step1(
+            p[i0:i1],
+            u[i0:i1],
+            fs,
+            rho=air.rho,
+            lam=inv.lam,
+            solver=inv.step1_solver,
+            zero_mean=result.zero_mean,
+        )
+        rs.plot_flow_pressure(
+            p[i0:i1], u[i0:i1], fs, s1, out / "flow_pressure.png", zero_mean=result.zero_mean
+        )
+        w = int(first["window"])
+        if w in result.histories:
+            rs.plot_history(result.histories[w], out / "history.png")
+    rs.plot_tracks(table, out / "tracks.png")
+    rs.write_wav(out / "resynthesis.wav", res.p, fs)
+    run_info = {
+        "mpipe_version": __version__,
+        "mouthpiece": str(Path(args.mouthpiece).resolve()),
+        "pipeline": cfg.source,
+        "calibration": str(cfg.calibration_path),
+        "zero_mean_flow": result.zero_mean,
+        "start_s": args.start,
+        "end_s": args.end,
+    }
+    write_text_atomic(out / "run.json", json.dumps(run_info, indent=2) + "\n")
+    cols = [
+        "t_start_s",
+        "k",
+        "S",
+        "y_m",
+        "p_m",
+        "m",
+        "g",
+        "lam",
+        "k_c",
+        "relative_residual",
+        "n_evaluations",
+    ]
+    with np.printoptions(precision=4):
+        sys.stdout.write(table[cols].to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+        sys.stdout.write("\n")
+    failed = int((table["error"] != "").sum())
+    sys.stdout.write(f"{len(table)} windows, {failed} failed; results in {out}\n")
+    return 1 if failed == len(table) else 0

@@ -1,0 +1,270 @@
+"""The pipeline file: which calibration to use and how to run each stage.
+
+One YAML file per analysis (see ``pipelines/simplified_clarinet.yaml``). It is parsed once
+into the frozen dataclasses below; unknown keys are errors naming the file and the key path.
+
+Extending
+---------
+A stage adds its own section by declaring a configuration dataclass (``spec`` fields) and
+adding one field to :class:`PipelineConfig`, with a default so that older pipeline files stay
+valid. The loader needs no change: :func:`mpipe.config.build` walks the type hints.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+from mpipe.config import ConfigError, Where, between, build, load_yaml, spec
+
+#: Reed parameters that step 2 may optimise (physics.md I); y_c and alpha stay fixed.
+PARAMETER_NAMES = ("k", "S", "y_m", "p_m", "m", "g", "lam", "k_c")
+
+
+def _bounds_check(value: tuple[float, ...]) -> str | None:
+    if len(value) != 2:
+        return f"expected two numbers [lower, upper], got {len(value)}"
+    lo, hi = value
+    if not 0 < lo < hi:
+        return f"expected 0 < lower < upper, got [{lo:g}, {hi:g}]"
+    return None
+
+
+def _bound(unit: str, doc: str, lo: float, hi: float):
+    return spec(unit, doc, _bounds_check, default=(lo, hi))
+
+
+@dataclass(frozen=True)
+class ParameterBounds:
+    """Search bounds of the reed parameters in step 2 (physics.md I, "Bounds")."""
+
+    k: tuple[float, ...] = _bound("Pa/m", "reed stiffness per unit area", 1e6, 1e8)
+    S: tuple[float, ...] = _bound("m^2", "effective reed area", 1e-5, 5e-4)
+    y_m: tuple[float, ...] = _bound("m", "rest opening of the reed channel", 1e-4, 1e-3)
+    p_m: tuple[float, ...] = _bound(
+        "", "mouth pressure relative to max(p) over the window (dimensionless factors)", 0.5, 2.0
+    )
+    m: tuple[float, ...] = _bound("kg/m^2", "reed mass per unit area", 0.005, 0.5)
+    g: tuple[float, ...] = _bound("1/s", "reed damping coefficient", 1e2, 2e4)
+    lam: tuple[float, ...] = _bound("m", "effective reed width lambda", 5e-3, 20e-3)
+    k_c: tuple[float, ...] = _bound("Pa/m^alpha", "reed-lay contact stiffness", 1e9, 1e13)
+
+    def absolute(self, name: str, max_p: float) -> tuple[float, float]:
+        """Bounds of parameter ``name`` in SI units; ``max_p`` (Pa) scales the p_m factors."""
+        lo, hi = getattr(self, name)
+        if name == "p_m":
+            return lo * max_p, hi * max_p
+        return float(lo), float(hi)
+
+
+def _check_free(value: tuple[str, ...]) -> str | None:
+    bad = [v for v in value if v not in PARAMETER_NAMES]
+    if bad:
+        return f"unknown parameter {bad[0]!r}; expected some of {', '.join(PARAMETER_NAMES)}"
+    if len(set(value)) != len(value):
+        return "a parameter is listed twice"
+    if not value:
+        return "expected at least one free parameter"
+    return None
+
+
+@dataclass(frozen=True)
+class InversionConfig:
+    """Settings of the two-step inversion and of the window tracking (physics.md H, I, J)."""
+
+    lam: float = spec(
+        "m",
+        "reed width lambda: fixed in step 1, start value of step 2",
+        between(1e-3, 0.05, "metres: a reed is about 0.013 m wide"),
+        default=0.013,
+    )
+    y_c: float = spec(
+        "m",
+        "displacement where reed-lay contact begins (fixed)",
+        between(0.0, 2e-3),
+        default=2.4e-4,
+    )
+    alpha: float = spec("", "exponent of the contact force (fixed)", between(1.0, 4.0), default=2.0)
+    m: float = spec(
+        "kg/m^2", "start value of the reed mass per unit area", between(1e-4, 10.0), default=0.05
+    )
+    g: float = spec("1/s", "start value of the reed damping", between(1.0, 1e6), default=3000.0)
+    k_c: float = spec(
+        "Pa/m^alpha", "start value of the contact stiffness", between(1e6, 1e15), default=8.23e10
+    )
+    free: tuple[str, ...] = spec(
+        "", "parameters optimised in step 2", _check_free, default=PARAMETER_NAMES
+    )
+    bounds: ParameterBounds = spec("", "search bounds per parameter", default=ParameterBounds())
+    step1_solver: Literal["lstsq", "nelder-mead"] = spec(
+        "", "step-1 solver: exact linear least squares, or the paper's Nelder-Mead", default="lstsq"
+    )
+    seed_branch: Literal["closing", "opening"] = spec(
+        "", "step-1 branch whose k, S, y_m start step 2 (the paper: closing)", default="closing"
+    )
+    optimiser: Literal["rosenbrock", "powell", "nelder-mead"] = spec(
+        "", "step-2 search method", default="rosenbrock"
+    )
+    initial_step: float = spec(
+        "",
+        "initial step of every log-scaled parameter (0.05 = 5 %)",
+        between(1e-4, 1.0),
+        default=0.05,
+    )
+    step_tolerance: float = spec(
+        "", "stop when every step is below this (log units)", between(1e-9, 0.1), default=1e-4
+    )
+    f_tolerance: float = spec(
+        "",
+        "stop when F2 falls by less than this fraction over a stage (0: off; with noisy "
+        "targets F2 has a floor and this rule stops the search early)",
+        between(0.0, 0.5),
+        default=0.0,
+    )
+    max_evaluations: int = spec(
+        "", "evaluation budget of step 2 per window", between(1, 1_000_000), default=8000
+    )
+    warm_max_evaluations: int = spec(
+        "",
+        "evaluation budget of a window warm-started from its predecessor",
+        between(1, 1_000_000),
+        default=150,
+    )
+    warm_initial_step: float = spec(
+        "", "initial log step of a warm-started window", between(1e-5, 1.0), default=0.01
+    )
+    start: Literal["history", "rest"] = spec(
+        "",
+        "how each model run starts: from the measured history before the window, or from rest "
+        "into steady state followed by synchronisation",
+        default="history",
+    )
+    lead_s: float = spec(
+        "s",
+        "reed lead-in driven by the measured pressure before the window (start: history)",
+        between(0.0, 0.05),
+        default=0.01,
+    )
+    settle_s: float = spec(
+        "s",
+        "simulated time from rest before the window (start: rest)",
+        between(0.01, 2.0),
+        default=0.25,
+    )
+    window_s: float = spec("s", "analysis window length", between(1e-3, 1.0), default=0.02)
+    hop_s: float = spec("s", "hop between window starts", between(1e-3, 10.0), default=0.02)
+    signal: Literal["measured", "model", "auto"] = spec(
+        "",
+        "measured: zero-mean flow, model output is high- and low-passed before comparison; "
+        "model: flow with its mean, compared raw; auto: decide from mean(u)/rms(u)",
+        default="auto",
+    )
+    highpass_hz: float = spec(
+        "Hz",
+        "cut-off of the zero-phase high-pass applied to model output",
+        between(1.0, 200.0),
+        default=20.0,
+    )
+    lowpass_hz: float = spec(
+        "Hz",
+        "cut-off of the linear-phase FIR applied to model output",
+        between(1e3, 2e4),
+        default=7250.0,
+    )
+    sample_rate: float = spec(
+        "Hz",
+        "model sample rate; must equal the signals' rate",
+        between(1e3, 1e6),
+        default=100_000.0,
+    )
+
+    def _check(self, where: Where) -> None:
+        for name in PARAMETER_NAMES:
+            lo, hi = getattr(self.bounds, name)
+            start = {"lam": self.lam, "m": self.m, "g": self.g, "k_c": self.k_c}.get(name)
+            if start is not None and not lo <= start <= hi:
+                raise where.error(
+                    name, f"start value {start:g} lies outside bounds.{name} [{lo:g}, {hi:g}]"
+                )
+
+
+@dataclass(frozen=True)
+class ExecutorConfig:
+    """Where the windows run."""
+
+    kind: Literal["local", "dask"] = spec(
+        "", "local: processes on this machine; dask: a Dask distributed cluster", default="local"
+    )
+    workers: int = spec(
+        "",
+        "number of local worker processes (0: one per CPU; 1: in this process)",
+        between(0, 4096),
+        default=0,
+    )
+    scheduler: str | None = spec(
+        "", "Dask scheduler address, e.g. tcp://10.0.0.5:8786 (kind: dask)", default=None
+    )
+    chunks: int = spec(
+        "",
+        "contiguous warm-start chains per worker (0: one chain per worker)",
+        between(0, 100000),
+        default=0,
+    )
+
+    def _check(self, where: Where) -> None:
+        if self.kind == "dask" and not self.scheduler:
+            raise where.error("scheduler", "executor kind 'dask' needs a scheduler address")
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """A whole pipeline file."""
+
+    calibration: str = spec("", "calibration file, relative to the pipeline file")
+    inversion: InversionConfig = spec("", "step 1, step 2 and tracking", default=InversionConfig())
+    executor: ExecutorConfig = spec("", "parallel execution", default=ExecutorConfig())
+    source: str = spec("", "file the pipeline was read from (set by the loader)", default="")
+
+    @property
+    def calibration_path(self) -> Path:
+        """Absolute path of the calibration file."""
+        return (Path(self.source).parent / self.calibration).resolve()
+
+
+def load_pipeline(path: str | Path) -> PipelineConfig:
+    """Read and validate a pipeline file.
+
+    Parameters
+    ----------
+    path : str or Path
+        YAML file.
+
+    Returns
+    -------
+    PipelineConfig
+
+    Raises
+    ------
+    ConfigError
+        Naming the file, the key path and what was expected; also when the calibration
+        file it refers to does not exist.
+    """
+    data = dict(load_yaml(path))
+    if "source" in data:
+        raise ConfigError(f"{path}: source: this key is set by the loader, remove it")
+    data["source"] = str(Path(path).resolve())
+    cfg = build(PipelineConfig, data, Where(str(path)))
+    if not cfg.calibration_path.is_file():
+        raise ConfigError(f"{path}: calibration: no such file {cfg.calibration_path}")
+    return cfg
+
+
+__all__ = [
+    "PARAMETER_NAMES",
+    "ExecutorConfig",
+    "InversionConfig",
+    "ParameterBounds",
+    "PipelineConfig",
+    "load_pipeline",
+]

@@ -1,0 +1,308 @@
+"""Resynthesis: the model driven by each window's estimated parameters, and its plots.
+
+Figures (matplotlib, Agg backend, PNG), after the paper:
+
+- target against resynthesis for p and u (Figs. 9 and 11): :func:`plot_signals`;
+- flow against pressure difference with the step-1 fits of both branches (Fig. 8):
+  :func:`plot_flow_pressure`;
+- objective history of step 2 (Fig. 7): :func:`plot_history`;
+- parameter tracks over the take: :func:`plot_tracks`.
+
+References
+----------
+Chatziioannou & van Walstijn 2012, Figs. 7-9 and 11; physics.md J ("Resynthesis").
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from mpipe.filters import design_lowpass  # noqa: E402
+from mpipe.inversion.objective import (  # noqa: E402
+    ObjectiveSettings,
+    TargetWindow,
+    run_model,
+)
+from mpipe.inversion.step1 import Step1Result, flow_signals  # noqa: E402
+from mpipe.io import write_atomic  # noqa: E402
+from mpipe.model import BoreKernel  # noqa: E402
+from mpipe.pipeline import PARAMETER_NAMES, InversionConfig  # noqa: E402
+from mpipe.reed import ReedParameters  # noqa: E402
+
+log = logging.getLogger(__name__)
+
+_UNITS = {
+    "k": "Pa/m",
+    "S": "m²",
+    "y_m": "m",
+    "p_m": "Pa",
+    "m": "kg/m²",
+    "g": "1/s",
+    "lam": "m",
+    "k_c": "Pa/m²",
+}
+
+
+@dataclass(frozen=True)
+class Resynthesis:
+    """Resynthesised signals over a take.
+
+    Attributes
+    ----------
+    fs : float
+        Sample rate, Hz.
+    p : ndarray
+        Resynthesised mouthpiece pressure, Pa; NaN outside the inverted windows.
+    u : ndarray
+        Resynthesised flow, m^3/s (filtered like the target when it is zero-mean).
+    """
+
+    fs: float
+    p: np.ndarray
+    u: np.ndarray
+
+
+def reed_from_row(row: pd.Series | dict) -> ReedParameters:
+    """Reed parameters of one row of the per-window table."""
+    return ReedParameters(**{name: float(row[name]) for name in (*PARAMETER_NAMES, "y_c", "alpha")})
+
+
+def resynthesise(
+    table: pd.DataFrame,
+    p: np.ndarray,
+    u: np.ndarray,
+    fs: float,
+    kernel: BoreKernel,
+    config: InversionConfig,
+    zero_mean: bool,
+) -> Resynthesis:
+    """Run the model with each window's parameters and stitch the windows together.
+
+    Each window is run the way step 2 ran it (``config.start``), so the resynthesis shows
+    exactly what F2 compared. Failed windows stay NaN.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        Per-window results of :func:`mpipe.inversion.tracking.track`.
+    p, u : ndarray
+        Target pressure (Pa) and flow (m^3/s) of the take.
+    fs : float
+        Sample rate, Hz.
+    kernel : BoreKernel
+        Prepared bore.
+    config : InversionConfig
+        Start method and filters.
+    zero_mean : bool
+        Whether the target flow is zero-mean.
+
+    Returns
+    -------
+    Resynthesis
+    """
+    p_out = np.full(len(p), np.nan)
+    u_out = np.full(len(p), np.nan)
+    settings = ObjectiveSettings(
+        start=config.start,
+        lead_s=config.lead_s,
+        settle_s=config.settle_s,
+        lowpass=design_lowpass(fs, config.lowpass_hz) if zero_mean else None,
+        highpass_hz=config.highpass_hz,
+    )
+    for _, row in table.iterrows():
+        if row["error"] or not np.isfinite(row["k"]):
+            continue
+        i0 = int(round(row["t_start_s"] * fs))
+        i1 = int(round(row["t_end_s"] * fs))
+        target = TargetWindow(p[i0:i1], u[i0:i1], p[:i0], u[:i0], fs, zero_mean)
+        out = run_model(reed_from_row(row), kernel, target, settings, penalty=np.inf)
+        if out.feasible:
+            p_out[i0:i1] = out.p
+            u_out[i0:i1] = out.u
+    return Resynthesis(fs=fs, p=p_out, u=u_out)
+
+
+def plot_signals(
+    t: np.ndarray,
+    p: np.ndarray,
+    u: np.ndarray,
+    p_res: np.ndarray,
+    u_res: np.ndarray,
+    path: str | Path,
+    title: str = "",
+) -> Path:
+    """Target against resynthesised pressure and flow (paper Figs. 9 and 11).
+
+    Parameters
+    ----------
+    t : ndarray
+        Time, s.
+    p, u : ndarray
+        Target pressure (Pa) and flow (m^3/s).
+    p_res, u_res : ndarray
+        Resynthesised pressure and flow.
+    path : str or Path
+        PNG file, written atomically.
+    title : str
+        Figure title.
+
+    Returns
+    -------
+    Path
+    """
+    fig, (a1, a2) = plt.subplots(2, 1, sharex=True, figsize=(8, 5))
+    a1.plot(t, p, color="0.6", lw=2, label="target")
+    a1.plot(t, p_res, color="k", lw=0.8, label="resynthesised")
+    a1.set_ylabel("pressure [Pa]")
+    a1.legend(loc="upper right")
+    a2.plot(t, u, color="0.6", lw=2, label="target")
+    a2.plot(t, u_res, color="k", lw=0.8, label="resynthesised")
+    a2.set_ylabel("flow [m³/s]")
+    a2.set_xlabel("time [s]")
+    if title:
+        a1.set_title(title)
+    return _save(fig, path)
+
+
+def plot_flow_pressure(
+    p: np.ndarray,
+    u: np.ndarray,
+    fs: float,
+    s1: Step1Result,
+    path: str | Path,
+    zero_mean: bool = False,
+) -> Path:
+    """Flow against pressure difference with the step-1 fits of both branches (Fig. 8).
+
+    Parameters
+    ----------
+    p, u : ndarray
+        Window pressure (Pa) and flow (m^3/s).
+    fs : float
+        Sample rate, Hz.
+    s1 : Step1Result
+        Step-1 fits of the window.
+    path : str or Path
+        PNG file.
+    zero_mean : bool
+        The flow is zero-mean; the fitted curves are centred like the fit.
+
+    Returns
+    -------
+    Path
+    """
+    d = np.column_stack(flow_signals(p, s1.p_m, fs, s1.rho))
+    if zero_mean:
+        d = d - d.mean(axis=0)
+    dp = s1.p_m - np.asarray(p)
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    ax.plot(dp, u, ".", color="0.7", ms=3, label="target")
+    for name, mask, style in (("closing", d[:, 2] < 0, "k-"), ("opening", d[:, 2] > 0, "k--")):
+        fit = s1.branch(name)
+        order = np.argsort(dp[mask])
+        ax.plot(
+            dp[mask][order],
+            (d[mask] @ fit.c)[order],
+            style,
+            lw=1,
+            label=f"step 1, {name} (k={fit.k:.3g} Pa/m)",
+        )
+    ax.set_xlabel("pressure difference p_m - p [Pa]")
+    ax.set_ylabel("flow [m³/s]")
+    ax.legend(fontsize=8)
+    return _save(fig, path)
+
+
+def plot_history(history: np.ndarray, path: str | Path, f1: float | None = None) -> Path:
+    """Objective history of step 2 (Fig. 7, lower plot).
+
+    Parameters
+    ----------
+    history : ndarray
+        Best F2 after each evaluation, Pa.
+    path : str or Path
+        PNG file.
+    f1 : float, optional
+        Step-1 F1 of the seed branch, shown in the title.
+
+    Returns
+    -------
+    Path
+    """
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.semilogy(np.arange(1, len(history) + 1), history, "k-")
+    ax.set_xlabel("evaluations")
+    ax.set_ylabel("F2 [Pa]")
+    if f1 is not None:
+        ax.set_title(f"step 1 F1 = {f1:.3g} (m³/s)²")
+    return _save(fig, path)
+
+
+def plot_tracks(table: pd.DataFrame, path: str | Path) -> Path:
+    """Every parameter against window time.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        Per-window results.
+    path : str or Path
+        PNG file.
+
+    Returns
+    -------
+    Path
+    """
+    t = 0.5 * (table["t_start_s"] + table["t_end_s"])
+    fig, axes = plt.subplots(3, 3, sharex=True, figsize=(10, 7))
+    names = [*PARAMETER_NAMES, "relative_residual"]
+    for ax, name in zip(axes.ravel(), names, strict=True):
+        ax.plot(t, table[name], "k.-", ms=4)
+        ax.set_title(f"{name} [{_UNITS.get(name, '-')}]", fontsize=9)
+    for ax in axes[-1]:
+        ax.set_xlabel("time [s]")
+    return _save(fig, path)
+
+
+def write_wav(path: str | Path, p: np.ndarray, fs: float, full_scale: float | None = None) -> Path:
+    """Write a pressure signal as a floating-point WAV file.
+
+    Parameters
+    ----------
+    path : str or Path
+        WAV file, written atomically.
+    p : ndarray
+        Pressure, Pa (NaN samples are written as 0).
+    fs : float
+        Sample rate, Hz.
+    full_scale : float, optional
+        Pressure in Pa written as 1.0; default ``max |p|``.
+
+    Returns
+    -------
+    Path
+    """
+    import soundfile
+
+    x = np.nan_to_num(np.asarray(p, dtype=float))
+    scale = full_scale or float(np.max(np.abs(x))) or 1.0
+    return write_atomic(
+        path,
+        lambda tmp: soundfile.write(tmp, x / scale, int(round(fs)), subtype="FLOAT", format="WAV"),
+    )
+
+
+def _save(fig, path: str | Path) -> Path:
+    fig.tight_layout()
+    try:
+        return write_atomic(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    finally:
+        plt.close(fig)
