@@ -19,7 +19,7 @@ from mpipe.config import ConfigError
 from mpipe.errors import UserError
 
 # Command modules under mpipe/commands, in the order `mpipe --help` lists them.
-COMMANDS = ("impedance", "simulate", "synth_take", "invert")
+COMMANDS = ("impedance", "invert", "separate", "simulate", "synth_take")
 
 
 def build_parser() -> argparse.ArgumentParser:

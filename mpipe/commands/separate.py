@@ -1,0 +1,153 @@
+"""``mpipe separate``: mouthpiece pressure and flow from a three-microphone take.
+
+Outputs in ``DIR``:
+
+``mouthpiece.npz``
+    ``fs`` (Hz), ``p`` (Pa) and ``u`` (m^3/s, into the bore) at the mouthpiece entry,
+    ``p0`` (Pa) and ``u0`` (m^3/s) at the reference plane, ``temperature_c`` (degC per
+    sample), all after the 7.25 kHz low-pass.
+``mouthpiece.wav``
+    32-bit float, two channels at ``fs``: channel 1 is ``p / 10 kPa``, channel 2 is
+    ``u / (1e-3 m^3/s)`` (fixed scales, so files compare across takes).
+``blocks.csv``
+    The per-block propagation parameters of the wave separation.
+``impedance.csv``, ``impedance.png``
+    Measured and theoretical normalised input impedance with coherence (paper Fig. 10).
+``validation.csv``
+    The resonance metrics of the validation.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from mpipe.calibration import load_calibration
+from mpipe.errors import UserError
+from mpipe.io import check_writable, write_atomic
+from mpipe.separation import SeparationConfig, separate
+from mpipe.translation import TranslationConfig, translate
+from mpipe.validation import ValidationConfig, plot_impedance, validate
+
+log = logging.getLogger(__name__)
+
+# Fixed scales of the WAV output: full scale is 10 kPa and 1e-3 m^3/s.
+WAV_PRESSURE_SCALE_PA = 1e4
+WAV_FLOW_SCALE_M3_S = 1e-3
+
+OUTPUTS = (
+    "mouthpiece.npz",
+    "mouthpiece.wav",
+    "blocks.csv",
+    "impedance.csv",
+    "impedance.png",
+    "validation.csv",
+)
+
+
+def add_parser(sub) -> None:
+    """Register the ``separate`` subcommand."""
+    p = sub.add_parser(
+        "separate",
+        help="wave separation, translation to the mouthpiece and impedance check of a take",
+        description="Separate the waves of a three-microphone take, rebuild pressure and "
+        "flow at the mouthpiece entry, and validate them against the theoretical input "
+        "impedance.",
+    )
+    p.add_argument(
+        "inputs",
+        nargs="+",
+        metavar="FILE",
+        help="TAKE (one multichannel file) or TAKE1 TAKE2 TAKE3 (mono files), "
+        "then CALIBRATION.yaml",
+    )
+    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory")
+    p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    p.add_argument(
+        "--fixed-mach",
+        type=float,
+        metavar="M",
+        help="hold the Mach number of the mean flow at M instead of estimating it",
+    )
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Execute ``mpipe separate``."""
+    from mpipe.takes import read_take
+
+    if len(args.inputs) not in (2, 4):
+        raise UserError(
+            f"expected TAKE CALIBRATION.yaml or TAKE1 TAKE2 TAKE3 CALIBRATION.yaml, got "
+            f"{len(args.inputs)} file(s)"
+        )
+    *takes, cal_path = args.inputs
+    if not cal_path.lower().endswith((".yaml", ".yml")):
+        raise UserError(f"{cal_path}: the last argument must be the calibration YAML file")
+    out = Path(args.output)
+    paths = [out / name for name in OUTPUTS]
+    check_writable(paths, args.force)
+
+    log.info("reading calibration %s", cal_path)
+    cal = load_calibration(cal_path)
+    log.info("reading take %s", ", ".join(takes))
+    take = read_take(takes if len(takes) == 3 else takes[0], cal)
+    sep_cfg = SeparationConfig()
+    if args.fixed_mach is not None:
+        if not -0.05 <= args.fixed_mach <= 0.1:
+            raise UserError(
+                f"--fixed-mach: expected a value in [-0.05, 0.1], got {args.fixed_mach}"
+            )
+        sep_cfg = dataclasses.replace(sep_cfg, mach=args.fixed_mach)
+    try:
+        log.info("stage 1/3: wave separation")
+        sep = separate(take.pressures, take.fs, cal, sep_cfg)
+        log.info("stage 2/3: translation to the mouthpiece entry")
+        tr = translate(sep.p0, sep.u0, take.fs, cal, TranslationConfig(), sep.temperature_track())
+        log.info("stage 3/3: impedance validation")
+        t_eff = float(np.median(sep.blocks["temperature_c"]))
+        val = validate(tr.p, tr.u, take.fs, cal, ValidationConfig(), t_eff)
+    except ValueError as exc:
+        raise UserError(f"{takes[0]}: {exc}") from None
+
+    out.mkdir(parents=True, exist_ok=True)
+    arrays = {
+        "fs": np.float64(take.fs),
+        "p": tr.p,
+        "u": tr.u,
+        "p0": tr.p0,
+        "u0": tr.u0,
+        "temperature_c": tr.temperature_c,
+    }
+    write_atomic(out / "mouthpiece.npz", lambda tmp: _save_npz(tmp, arrays))
+    write_atomic(out / "mouthpiece.wav", lambda tmp: _write_wav(tmp, tr.p, tr.u, take.fs))
+    write_atomic(out / "blocks.csv", lambda tmp: sep.blocks.to_csv(tmp, index=False))
+    write_atomic(out / "impedance.csv", lambda tmp: val.table().to_csv(tmp, index=False))
+    write_atomic(out / "validation.csv", lambda tmp: val.resonances.to_csv(tmp, index=False))
+    write_atomic(out / "impedance.png", lambda tmp: plot_impedance(val, tmp, 2000.0))
+
+    b = sep.blocks
+    print(
+        f"{len(b)} blocks: T {b.temperature_c.min():.2f}..{b.temperature_c.max():.2f} degC, "
+        f"eta {b.loss_scale.median():.3f}, M {b.mach.median():.4f}, "
+        f"median residual {np.nanmedian(b.residual):.2e}"
+    )
+    print(val.summary())
+    print(f"wrote {', '.join(str(p) for p in paths)}")
+    return 0
+
+
+def _save_npz(path: Path, arrays: dict) -> None:
+    with open(path, "wb") as fh:
+        np.savez(fh, **arrays)
+
+
+def _write_wav(path: Path, p: np.ndarray, u: np.ndarray, fs: float) -> None:
+    import soundfile as sf
+
+    data = np.column_stack([p / WAV_PRESSURE_SCALE_PA, u / WAV_FLOW_SCALE_M3_S])
+    sf.write(path, data.astype(np.float32), int(round(fs)), subtype="FLOAT", format="WAV")

@@ -1,0 +1,165 @@
+"""Tests of the adaptive three-microphone wave separation (physics.md E).
+
+The reference fields are built independently of mpipe.separation: the waves at the
+reference plane are carried to the microphones with the cylinder transfer matrices of
+mpipe.ducts (no flow), or with the convected two-wave field written out (with flow).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from mpipe import ducts
+from mpipe.calibration import load_calibration
+from mpipe.separation import (
+    Geometry,
+    SeparationConfig,
+    Theta,
+    cross_spectra,
+    fixed_config,
+    residual_cost,
+    separate,
+    separation_filters,
+)
+
+CAL = load_calibration(Path(__file__).parents[1] / "calibration" / "simplified_clarinet.yaml")
+FS = 25_000.0
+
+
+def _offsets():
+    return np.array([m.position for m in CAL.microphones]) - CAL.reference_plane
+
+
+def mic_spectra(P0, U0, freqs, temperature_c=20.0, mach=0.0):
+    """Microphone spectra of the field with P0, U0 at the reference plane."""
+    air = CAL.air_properties(temperature_c)
+    omega = 2 * np.pi * np.asarray(freqs, dtype=float)
+    d = _offsets()
+    if mach == 0.0:
+        out = []
+        for x in d:
+            t_inv = ducts.invert(ducts.cylinder_matrix(omega, CAL.main_radius, x, air))
+            out.append(t_inv[:, 0, 0] * P0 + t_inv[:, 0, 1] * U0)
+        return np.stack(out, axis=-1)
+    gamma, zc = ducts.propagation(omega, CAL.main_radius, air)
+    k0 = -1j * gamma
+    a, b = (P0 + zc * U0) / 2, (P0 - zc * U0) / 2
+    kp, km = k0 / (1 + mach), k0 / (1 - mach)
+    return a[:, None] * np.exp(-1j * kp[:, None] * d) + b[:, None] * np.exp(1j * km[:, None] * d)
+
+
+def random_take(n, temperature_c=20.0, mach=0.0, seed=0):
+    """Periodic band-limited random p0, u0 (20 Hz - 7.5 kHz) and the microphone signals."""
+    rng = np.random.default_rng(seed)
+    freqs = np.fft.rfftfreq(n, 1 / FS)
+    z0 = CAL.air_properties(temperature_c).impedance(np.pi * CAL.main_radius**2)
+    shape = ((freqs > 20) & (freqs < 7500)).astype(float)
+    P0 = 1e-1 * shape * (rng.normal(size=freqs.size) + 1j * rng.normal(size=freqs.size))
+    U0 = 1e-1 * shape * (rng.normal(size=freqs.size) + 1j * rng.normal(size=freqs.size)) / z0
+    x = np.fft.irfft(mic_spectra(P0, U0, freqs, temperature_c, mach), n, axis=0)
+    return x, np.fft.irfft(P0, n), np.fft.irfft(U0, n)
+
+
+def band_nrmse(est, ref, fs=FS, lo=50.0, hi=7000.0, trim_s=0.05):
+    """RMS error over RMS reference, both band-passed (zero phase), ends trimmed."""
+    sos = signal.butter(4, [lo, hi], "bandpass", fs=fs, output="sos")
+    trim = int(trim_s * fs)
+    e = signal.sosfiltfilt(sos, est - ref)[trim:-trim]
+    r = signal.sosfiltfilt(sos, ref)[trim:-trim]
+    return float(np.sqrt(np.mean(e**2) / np.mean(r**2)))
+
+
+def test_single_frequency_fields_separate_exactly():
+    geo = Geometry.from_calibration(CAL)
+    freqs = np.array([100.0, 440.0, 1234.5, 3000.0, 6999.0])
+    P0 = np.array([1.0, 2.0 - 1j, 0.5j, 3.0, -1.0])
+    U0 = np.array([1e-5, -2e-6j, 4e-6, 1e-6 + 1e-6j, 3e-7])
+    for mach in (0.0, 0.01):
+        th = Theta(CAL.air_properties(20.0).c, 1.0, mach)
+        g_p, g_u = separation_filters(freqs, th, geo)
+        mics = mic_spectra(P0, U0, freqs, 20.0, mach)
+        np.testing.assert_allclose(np.sum(g_p * mics, axis=1), P0, rtol=1e-7, atol=1e-12)
+        np.testing.assert_allclose(np.sum(g_u * mics, axis=1), U0, rtol=1e-7, atol=1e-16)
+
+
+def test_flow_is_unmeasurable_at_dc():
+    geo = Geometry.from_calibration(CAL)
+    g_p, g_u = separation_filters(np.array([0.0, 50.0]), Theta(343.0), geo)
+    assert np.all(g_u[0] == 0)
+    # a uniform static pressure is reproduced
+    np.testing.assert_allclose(np.sum(g_p[0]), 1.0, atol=1e-6)
+
+
+@pytest.mark.parametrize("temperature_c, mach", [(20.0, 0.0), (27.0, 0.008)])
+def test_residual_minimum_at_true_theta(temperature_c, mach):
+    x, _, _ = random_take(4000, temperature_c, mach)
+    geo = Geometry.from_calibration(CAL)
+    sp = cross_spectra(x, FS, 1000, 100.0, 7000.0, 300.0)
+    true = Theta(CAL.air_properties(temperature_c).c, 1.0, mach)
+    j0 = residual_cost(true, sp, geo)
+    assert j0 < 1e-4
+    for d in (
+        (0.3, 0, 0),
+        (-0.3, 0, 0),
+        (0, 0.1, 0),
+        (0, -0.1, 0),
+        (0, 0, 0.002),
+        (0, 0, -0.002),
+    ):
+        other = Theta(true.c + d[0], true.eta + d[1], true.mach + d[2])
+        assert residual_cost(other, sp, geo) > j0
+
+
+def test_clean_take_reconstructs_and_estimates_theta():
+    # (a) and (c) in short: air 5 degC off the configuration and Mach 0.01
+    x, p0, u0 = random_take(int(0.6 * FS), temperature_c=25.0, mach=0.01)
+    res = separate(x, FS, CAL, SeparationConfig())
+    b = res.blocks[res.blocks.trusted]
+    assert abs(np.median(b.temperature_c) - 25.0) < 0.1
+    assert abs(np.median(b.mach) - 0.01) < 5e-4
+    assert band_nrmse(res.p0, p0) < 5e-3
+    assert band_nrmse(res.u0, u0) < 5e-3
+    for col in ("time_s", "temperature_c", "c_m_s", "loss_scale", "mach", "residual", "coherence"):
+        assert col in res.blocks
+
+
+def test_fixed_theta_matches_true_field():
+    x, p0, u0 = random_take(int(0.4 * FS))
+    res = separate(x, FS, CAL, fixed_config(SeparationConfig()))
+    assert np.allclose(res.blocks.temperature_c, 20.0)
+    assert band_nrmse(res.p0, p0) < 1e-3
+    assert band_nrmse(res.u0, u0) < 1e-3
+
+
+def test_drifting_temperature_is_tracked():
+    # (d) in short: the take is cut from two fields 3 degC apart, cross-faded linearly
+    n = int(1.2 * FS)
+    a, _, _ = random_take(n, 20.0, seed=3)
+    b, _, _ = random_take(n, 23.0, seed=3)
+    w = np.linspace(0, 1, n)[:, None]
+    x = (1 - w) * a + w * b
+    res = separate(x, FS, CAL, SeparationConfig(mach=0.0))
+    bl = res.blocks[res.blocks.trusted]
+    truth = 20.0 + 3.0 * bl.time_s / (n / FS)
+    # a cross-fade of two temperatures is not one temperature; allow for that
+    assert np.max(np.abs(bl.temperature_c - truth)) < 0.6
+    assert bl.temperature_c.iloc[-1] - bl.temperature_c.iloc[0] > 2.0
+
+
+def test_config_checks_and_bad_input():
+    with pytest.raises(ValueError, match="fmax_hz"):
+        SeparationConfig(fmin_hz=5000.0, fmax_hz=100.0).validate()
+    with pytest.raises(ValueError, match="shape"):
+        separate(np.zeros((100, 2)), FS, CAL, SeparationConfig())
+    with pytest.raises(ValueError, match="singular"):
+        separate(
+            np.zeros((1000, 3)),
+            FS,
+            CAL,
+            dataclasses.replace(SeparationConfig(), band_edge_hz=8500.0),
+        )
