@@ -19,7 +19,7 @@ from mpipe.config import ConfigError
 from mpipe.errors import UserError
 
 # Command modules under mpipe/commands, in the order `mpipe --help` lists them.
-COMMANDS = ("impedance", "invert", "separate", "simulate", "synth_take")
+COMMANDS = ("impedance", "simulate", "synth_take", "separate", "invert", "run")
 
 
 def build_parser() -> argparse.ArgumentParser:

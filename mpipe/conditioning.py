@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import pandas as pd
 from scipy import signal
 
 from mpipe.filters import LowPass, apply_lowpass, highpass_zero_phase
@@ -244,3 +245,88 @@ def is_zero_mean(u: np.ndarray, threshold: float = 0.2) -> bool:
     if ac == 0.0:
         return abs(float(np.mean(u))) == 0.0
     return abs(float(np.mean(u))) / ac < threshold
+
+
+def steady_windows(
+    p: np.ndarray,
+    fs: float,
+    starts: list[int],
+    window_n: int,
+    tolerance: float = 0.02,
+    fmin: float = 60.0,
+    fmax: float = 2000.0,
+    min_rms: float = 50.0,
+) -> pd.DataFrame:
+    """Classify analysis windows as steady, transient or silent (physics.md J).
+
+    Step 1 needs a time-invariant pressure-flow relation over the window (paper section 5),
+    so only windows whose playing period and RMS pressure change by less than
+    ``tolerance`` (relative) from both neighbours count as steady.
+
+    Parameters
+    ----------
+    p : ndarray
+        Mouthpiece pressure, Pa.
+    fs : float
+        Sample rate, Hz.
+    starts : list of int
+        Window start samples, increasing.
+    window_n : int
+        Window length, samples.
+    tolerance : float
+        Largest relative change of period and RMS between neighbouring windows.
+    fmin, fmax : float
+        Range of playing frequencies searched, Hz.
+    min_rms : float
+        Windows with a lower RMS pressure (Pa, mean removed) are silent.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``window, start, t_start_s, t_end_s, f0_hz, rms_pa, steady, reason``.
+    """
+    p = np.asarray(p, dtype=float)
+    rows = []
+    for i, s in enumerate(starts):
+        x = p[s : s + window_n]
+        rms = float(np.sqrt(np.mean((x - x.mean()) ** 2)))
+        period = estimate_period(x, fs, fmin, fmax) if rms >= min_rms else 0.0
+        rows.append(
+            {
+                "window": i,
+                "start": int(s),
+                "t_start_s": s / fs,
+                "t_end_s": (s + window_n) / fs,
+                "f0_hz": fs / period if period > 0 else float("nan"),
+                "rms_pa": rms,
+            }
+        )
+    table = pd.DataFrame(rows)
+    f0 = table["f0_hz"].to_numpy() if rows else np.array([])
+    rms = table["rms_pa"].to_numpy() if rows else np.array([])
+    steady, reason = [], []
+    for i in range(len(rows)):
+        if rms[i] < min_rms:
+            steady.append(False)
+            reason.append("silent")
+            continue
+        if not np.isfinite(f0[i]):
+            steady.append(False)
+            reason.append("no period found")
+            continue
+        worst = 0.0
+        for j in (i - 1, i + 1):
+            if 0 <= j < len(rows) and np.isfinite(f0[j]) and rms[j] >= min_rms:
+                worst = max(worst, abs(f0[j] / f0[i] - 1), abs(rms[j] / rms[i] - 1))
+            elif 0 <= j < len(rows):
+                worst = np.inf
+        steady.append(bool(worst <= tolerance))
+        if worst <= tolerance:
+            reason.append("")
+        elif np.isinf(worst):
+            reason.append("next to a silent or aperiodic window")
+        else:
+            reason.append(f"transient (change {worst:.1%})")
+    table["steady"] = steady
+    table["reason"] = reason
+    return table

@@ -16,7 +16,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from mpipe.config import ConfigError, Where, between, build, load_yaml, spec
+from mpipe.config import ConfigError, Where, between, build, load_yaml, positive, spec
+from mpipe.separation import SeparationConfig
+from mpipe.translation import TranslationConfig
+from mpipe.validation import ValidationConfig
 
 #: Reed parameters that step 2 may optimise (physics.md I); y_c and alpha stay fixed.
 PARAMETER_NAMES = ("k", "S", "y_m", "p_m", "m", "g", "lam", "k_c")
@@ -100,6 +103,14 @@ class InversionConfig:
     step1_solver: Literal["lstsq", "nelder-mead"] = spec(
         "", "step-1 solver: exact linear least squares, or the paper's Nelder-Mead", default="lstsq"
     )
+    step1_p_m: Literal["estimate", "max"] = spec(
+        "",
+        "step-1 mouth pressure (Pa). estimate: the p_m in [1, 2] max p that minimises the "
+        "step-1 misfit profiled over the flow coefficients, leaving out samples in reed-lay "
+        "contact (dp/k > y_c) and with the reed shut; max: the paper's p_m = max p over the "
+        "window, leaving out shut-reed samples only (18 % low on the paper's Table 1 case)",
+        default="estimate",
+    )
     seed_branch: Literal["closing", "opening"] = spec(
         "", "step-1 branch whose k, S, y_m start step 2 (the paper: closing)", default="closing"
     )
@@ -160,12 +171,6 @@ class InversionConfig:
         "model: flow with its mean, compared raw; auto: decide from mean(u)/rms(u)",
         default="auto",
     )
-    highpass_hz: float = spec(
-        "Hz",
-        "cut-off of the zero-phase high-pass applied to model output",
-        between(1.0, 200.0),
-        default=20.0,
-    )
     lowpass_hz: float = spec(
         "Hz",
         "cut-off of the linear-phase FIR applied to model output",
@@ -218,11 +223,74 @@ class ExecutorConfig:
 
 
 @dataclass(frozen=True)
+class ConditioningConfig:
+    """Choice of the windows that are inverted (physics.md J: steady state only)."""
+
+    steady_tolerance: float = spec(
+        "",
+        "largest relative change of the playing period and of the RMS pressure from one "
+        "window to the next for a window to count as steady",
+        between(0.0, 1.0),
+        default=0.02,
+    )
+    f0_min_hz: float = spec(
+        "Hz", "lowest playing frequency searched", between(20.0, 5000.0), default=60.0
+    )
+    f0_max_hz: float = spec(
+        "Hz", "highest playing frequency searched", between(20.0, 5000.0), default=2000.0
+    )
+    min_rms_pa: float = spec("Pa", "windows quieter than this are silent", positive, default=50.0)
+    edge_s: float = spec(
+        "s",
+        "time left out at both ends of the take (filter edges)",
+        between(0.0, 10.0),
+        default=0.05,
+    )
+    invert_transients: bool = spec(
+        "",
+        "invert unsteady windows too (the paper: step 1 is unreliable there)",
+        default=False,
+    )
+
+    def _check(self, where: Where) -> None:
+        if self.f0_max_hz <= self.f0_min_hz:
+            raise where.error("f0_max_hz", "expected f0_max_hz > f0_min_hz")
+
+
+@dataclass(frozen=True)
+class ResynthesisConfig:
+    """What the resynthesis stage shows."""
+
+    overlay_windows: int = spec(
+        "",
+        "windows drawn as target-versus-resynthesis overlays (paper Figs. 9, 11)",
+        between(1, 20),
+        default=3,
+    )
+    wav_full_scale_pa: float = spec(
+        "Pa", "pressure mapped to full scale in the resynthesis WAV", positive, default=1e4
+    )
+
+
+@dataclass(frozen=True)
 class PipelineConfig:
     """A whole pipeline file."""
 
     calibration: str = spec("", "calibration file, relative to the pipeline file")
+    separation: SeparationConfig = spec(
+        "", "three-microphone wave separation", default=SeparationConfig()
+    )
+    translation: TranslationConfig = spec(
+        "", "translation to the mouthpiece and low-pass", default=TranslationConfig()
+    )
+    validation: ValidationConfig = spec(
+        "", "impedance validation against theory", default=ValidationConfig()
+    )
+    conditioning: ConditioningConfig = spec(
+        "", "steady-window selection", default=ConditioningConfig()
+    )
     inversion: InversionConfig = spec("", "step 1, step 2 and tracking", default=InversionConfig())
+    resynthesis: ResynthesisConfig = spec("", "resynthesis outputs", default=ResynthesisConfig())
     executor: ExecutorConfig = spec("", "parallel execution", default=ExecutorConfig())
     source: str = spec("", "file the pipeline was read from (set by the loader)", default="")
 

@@ -116,15 +116,22 @@ def resynthesise(
         lead_s=config.lead_s,
         settle_s=config.settle_s,
         lowpass=design_lowpass(fs, config.lowpass_hz) if zero_mean else None,
-        highpass_hz=config.highpass_hz,
     )
     for _, row in table.iterrows():
-        if row["error"] or not np.isfinite(row["k"]):
+        err = row["error"]
+        # a table read back from CSV may hold NaN for "no error"
+        if (isinstance(err, str) and err) or not np.isfinite(row["k"]):
             continue
         i0 = int(round(row["t_start_s"] * fs))
         i1 = int(round(row["t_end_s"] * fs))
         target = TargetWindow(p[i0:i1], u[i0:i1], p[:i0], u[:i0], fs, zero_mean)
-        out = run_model(reed_from_row(row), kernel, target, settings, penalty=np.inf)
+        try:
+            reed = reed_from_row(row)
+        except ValueError as exc:
+            # one unusable window must not stop the resynthesis of the others
+            log.warning("window at %.3f s not resynthesised: %s", row["t_start_s"], exc)
+            continue
+        out = run_model(reed, kernel, target, settings, penalty=np.inf)
         if out.feasible:
             p_out[i0:i1] = out.p
             u_out[i0:i1] = out.u

@@ -46,15 +46,11 @@ from mpipe.conditioning import (
     steady_state,
     synchronise,
 )
-from mpipe.filters import LowPass
+from mpipe.filters import LowPass, apply_lowpass
 from mpipe.model import BoreKernel, ModelState, reed_coefficients, simulate
 from mpipe.reed import ReedParameters, check_stability
 
 StartMethod = Literal["history", "rest"]
-
-# Model time simulated past the window before filtering, s: covers the end effects of the
-# 20 Hz forward-backward high-pass and of the FIR on the window's last samples.
-_FILTER_PAD_S = 0.03
 
 
 @dataclass(frozen=True)
@@ -99,15 +95,12 @@ class ObjectiveSettings:
         Simulated time from rest before the compared segment, s (rest start).
     lowpass : LowPass or None
         The measurement's FIR, applied to model output of zero-mean targets.
-    highpass_hz : float
-        The measurement's high-pass cut-off, Hz, applied likewise.
     """
 
     start: StartMethod = "history"
     lead_s: float = 0.01
     settle_s: float = 0.25
     lowpass: LowPass | None = None
-    highpass_hz: float = 20.0
 
 
 @dataclass(frozen=True)
@@ -206,6 +199,27 @@ def _pad_history(x: np.ndarray, n: int) -> np.ndarray:
     return np.concatenate([np.zeros(n - x.size), x])
 
 
+def _measured_pressure(p: np.ndarray, lp, ctx: int, n: int) -> np.ndarray:
+    """Model pressure as the measurement chain delivers it: the FIR low-pass only.
+
+    The separation keeps the pressure's DC (the three-microphone system is singular only
+    for the flow), so no high-pass is applied to p. A zero-phase IIR high-pass on a short
+    record would distort the window's ends by several per cent and bias F2.
+    """
+    return apply_lowpass(p, lp)[ctx : ctx + n]
+
+
+def _measured_flow(u: np.ndarray, lp, ctx: int, n: int, target: TargetWindow) -> np.ndarray:
+    """Model flow as measured: low-passed, with the window mean of the measured flow.
+
+    The measured flow has no DC over the take; over a 20 ms window its mean is what the
+    take's high-pass left. The model's mean flow is replaced by that mean (u does not enter
+    F2; this only puts the two flows on one footing in plots and residuals).
+    """
+    y = apply_lowpass(u, lp)[ctx : ctx + n]
+    return y - y.mean() + float(np.mean(target.u))
+
+
 def mean_flow_estimate(reed: ReedParameters, p: np.ndarray, rho: float) -> float:
     """Mean flow of the quasi-static reed over a pressure record, m^3/s.
 
@@ -290,7 +304,6 @@ def run_model(
     except ValueError as exc:
         return infeasible(f"unstable: {exc}")
     filt = target.zero_mean
-    hp = settings.highpass_hz if filt else None
     lp = settings.lowpass if filt else None
     lag, steady = 0, True
     with np.errstate(all="ignore"):
@@ -312,9 +325,9 @@ def run_model(
                 y_prev=y_prev,
                 dp=float(dp_lead[-1]),
             )
-            # Run on past the window when filtering: the zero-phase filters distort the
-            # last samples of a record, and the measured record goes on past the window.
-            n_pad = int(round(_FILTER_PAD_S * fs)) if filt else 0
+            # Run on past the window when filtering: the linear-phase FIR needs its
+            # half-length of signal on both sides of the window.
+            n_pad = lp.delay + 1 if filt else 0
             try:
                 sim = simulate(reed, kernel, n + n_pad, state=state)
             except ValueError as exc:
@@ -323,16 +336,14 @@ def run_model(
             if not np.all(np.isfinite(p_mod)):
                 return infeasible("diverged")
             if filt:
-                # Filter history + window together: the high-pass needs the long record.
-                keep = min(p_hist.size, 4 * n_taps)
-                cut = slice(keep, keep + n)
-                p_mod = match_measurement(np.concatenate([p_hist[-keep:], p_mod]), fs, lp, hp)[cut]
-                u_mod = match_measurement(np.concatenate([u_hist[-keep:], u_mod]), fs, lp, hp)[cut]
+                ctx = lp.delay + 1
+                p_mod = _measured_pressure(np.concatenate([p_hist[-ctx:], p_mod]), lp, ctx, n)
+                u_mod = _measured_flow(np.concatenate([u_hist[-ctx:], u_mod]), lp, ctx, n, target)
         else:
             period = _target_period(target)
             n_lags = max(int(math.ceil(period)), 1)
             n_settle = int(round(settings.settle_s * fs))
-            n_pad = int(round(_FILTER_PAD_S * fs)) if filt else 0
+            n_pad = lp.delay + 1 if filt else 0
             try:
                 sim = simulate(reed, kernel, n_settle + n + n_lags + n_pad)
             except ValueError as exc:
@@ -341,8 +352,8 @@ def run_model(
             if not np.all(np.isfinite(p_all)):
                 return infeasible("diverged")
             if filt:
-                p_all = match_measurement(p_all, fs, lp, hp)
-                u_all = match_measurement(u_all, fs, lp, hp)
+                p_all = match_measurement(p_all, fs, lp, None)
+                u_all = match_measurement(u_all, fs, lp, None)
             seg_p, seg_u = (
                 p_all[n_settle : p_all.size - n_pad],
                 u_all[n_settle : p_all.size - n_pad],
@@ -354,6 +365,8 @@ def run_model(
             steady = st.steady
             lag = synchronise(target.p, seg_p, n_lags)
             p_mod, u_mod = seg_p[lag : lag + n], seg_u[lag : lag + n]
+            if filt:
+                u_mod = u_mod - u_mod.mean() + target.u.mean()
     if np.std(p_mod) < 0.01 * np.std(target.p):
         return infeasible("silent")
     f2 = float(np.linalg.norm(target.p - p_mod))

@@ -215,6 +215,14 @@ def rosenbrock(
 
     z = np.zeros(n)
     f = evaluate(z)
+    if not math.isfinite(f):
+        # Every comparison with an infeasible start would count as a success (inf <= inf)
+        # and the steps would grow without bound: report the start as infeasible instead.
+        return SearchResult(
+            x=to_x(z), f=f, n_iterations=0, n_evaluations=n_eval, n_stages=0,
+            converged=False, message="infeasible start point", history=np.asarray(history),
+            method="rosenbrock",
+        )  # fmt: skip
     directions = np.eye(n)
     steps = steps0.copy()
     n_trials = 0
@@ -237,7 +245,7 @@ def rosenbrock(
                 n_trials += 1
                 inside = bool(np.all(trial >= z_lo) and np.all(trial <= z_hi))
                 f_trial = evaluate(trial) if inside else math.inf
-                if f_trial <= f:
+                if math.isfinite(f_trial) and f_trial <= f:
                     z, f = trial, f_trial
                     advances[i] += steps[i]
                     succeeded[i] = True

@@ -14,6 +14,7 @@ Chatziioannou & van Walstijn 2012, sections 3 and 4.2; physics.md H, I, J.
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import os
@@ -32,7 +33,7 @@ from mpipe.filters import design_lowpass
 from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWindow
 from mpipe.inversion.rosenbrock import SearchResult, minimise
 from mpipe.inversion.step1 import Step1Result, step1
-from mpipe.io import write_atomic
+from mpipe.io import write_atomic, write_text_atomic
 from mpipe.model import BoreKernel
 from mpipe.pipeline import PARAMETER_NAMES, ExecutorConfig, InversionConfig
 from mpipe.reed import ReedParameters
@@ -158,7 +159,7 @@ def start_point(
         k_c=config.k_c,
     )
     for name, v in values.items():
-        lo, hi = config.bounds.absolute(name, s1.p_m)
+        lo, hi = config.bounds.absolute(name, s1.max_p)
         if not math.isfinite(v):
             v = math.sqrt(lo * hi)
         values[name] = float(np.clip(v, lo, hi))
@@ -222,8 +223,17 @@ def invert_window(
         pw, uw = p[start : start + n], u[start : start + n]
         if pw.size < n:
             raise ValueError(f"window at {start / fs:.4f} s runs past the end of the take")
+        estimate = config.step1_p_m == "estimate"
         s1 = step1(
-            pw, uw, fs, rho=rho, lam=config.lam, solver=config.step1_solver, zero_mean=zero_mean
+            pw,
+            uw,
+            fs,
+            rho=rho,
+            lam=config.lam,
+            p_m=config.step1_p_m,
+            solver=config.step1_solver,
+            zero_mean=zero_mean,
+            y_c=config.y_c if estimate else None,
         )
         row.update(step1_p_m=s1.p_m)
         for b in ("closing", "opening"):
@@ -236,7 +246,6 @@ def invert_window(
             lead_s=config.lead_s,
             settle_s=config.settle_s,
             lowpass=design_lowpass(fs, config.lowpass_hz) if zero_mean else None,
-            highpass_hz=config.highpass_hz,
         )
         objective = F2Objective(kernel, target, settings, base, config.free)
         x0 = np.array([getattr(base, name) for name in config.free])
@@ -275,6 +284,28 @@ def invert_window(
     return WindowOutcome(row=row, step1=s1, search=search, reed=reed)
 
 
+def _checkpoint_path(checkpoint: Path, start: int) -> Path:
+    return checkpoint / f"w{start:010d}.json"
+
+
+def _save_window(checkpoint: Path, start: int, row: dict, history) -> None:
+    record = {
+        "row": {k: (v.item() if isinstance(v, np.generic) else v) for k, v in row.items()},
+        "history": None if history is None else np.asarray(history, dtype=float).tolist(),
+    }
+    write_text_atomic(_checkpoint_path(checkpoint, start), json.dumps(record))
+
+
+def load_checkpoint(checkpoint: str | Path, start: int) -> tuple[dict, np.ndarray | None] | None:
+    """The saved result of the window starting at sample ``start``, or None."""
+    path = _checkpoint_path(Path(checkpoint), start)
+    if not path.exists():
+        return None
+    record = json.loads(path.read_text())
+    hist = record["history"]
+    return record["row"], None if hist is None else np.asarray(hist)
+
+
 def _run_chain(
     p: np.ndarray,
     u: np.ndarray,
@@ -285,14 +316,30 @@ def _run_chain(
     config: InversionConfig,
     zero_mean: bool,
     report: Callable[[int], None] | None = None,
+    checkpoint: Path | None = None,
+    warm: ReedParameters | None = None,
 ) -> list[tuple[dict, np.ndarray | None]]:
-    """Invert a contiguous chain of windows, each warm-started from its predecessor."""
+    """Invert a contiguous chain of windows, each warm-started from its predecessor.
+
+    With ``checkpoint`` (a folder), each finished window is saved there as it completes and
+    windows already saved are read back instead of recomputed, so an interrupted run
+    resumes where it stopped, with the same warm starts.
+    """
+    from mpipe.resynthesis import reed_from_row
+
     out = []
-    warm = None
     for s in starts:
-        o = invert_window(p, u, fs, s, kernel, rho, config, zero_mean=zero_mean, warm=warm)
-        warm = o.reed
-        out.append((o.row, None if o.search is None else o.search.history))
+        saved = None if checkpoint is None else load_checkpoint(checkpoint, s)
+        if saved is not None:
+            row, hist = saved
+            warm = reed_from_row(row) if not row.get("error") else None
+        else:
+            o = invert_window(p, u, fs, s, kernel, rho, config, zero_mean=zero_mean, warm=warm)
+            warm = o.reed
+            row, hist = o.row, None if o.search is None else o.search.history
+            if checkpoint is not None:
+                _save_window(checkpoint, s, row, hist)
+        out.append((row, hist))
         if report is not None:
             report(1)
     return out
@@ -300,9 +347,9 @@ def _run_chain(
 
 def _chain_task(args) -> list[tuple[dict, np.ndarray | None]]:
     # Top-level function: picklable for process pools and Dask.
-    p, u, fs, starts, kernel, rho, config, zero_mean, queue = args
+    p, u, fs, starts, kernel, rho, config, zero_mean, queue, checkpoint, warm = args
     report = None if queue is None else queue.put
-    return _run_chain(p, u, fs, starts, kernel, rho, config, zero_mean, report)
+    return _run_chain(p, u, fs, starts, kernel, rho, config, zero_mean, report, checkpoint, warm)
 
 
 def split_chains(starts: Sequence[int], n_chains: int) -> list[list[int]]:
@@ -394,6 +441,8 @@ def track(
     end_s: float | None = None,
     progress: ProgressBar | None = None,
     client=None,
+    starts: Sequence[int] | None = None,
+    checkpoint: str | Path | None = None,
 ) -> Tracking:
     """Invert every window of a take.
 
@@ -419,6 +468,11 @@ def track(
         Updated as windows finish.
     client : distributed.Client, optional
         An existing Dask client (overrides the scheduler address).
+    starts : sequence of int, optional
+        Window start samples to invert (default: every window of the span); the
+        conditioning stage passes the steady windows only.
+    checkpoint : str or Path, optional
+        Folder where each finished window is saved; windows found there are not redone.
 
     Returns
     -------
@@ -435,7 +489,12 @@ def track(
     if abs(kernel.fs - fs) > 1e-6 * fs:
         raise ValueError(f"signals at {fs:g} Hz but the bore kernel is at {kernel.fs:g} Hz")
     zero_mean = detect_zero_mean(u, config.signal)
-    starts = plan_windows(p.size, fs, config.window_s, config.hop_s, start_s, end_s)
+    if starts is None:
+        starts = plan_windows(p.size, fs, config.window_s, config.hop_s, start_s, end_s)
+    starts = [int(s) for s in starts]
+    if checkpoint is not None:
+        checkpoint = Path(checkpoint)
+        checkpoint.mkdir(parents=True, exist_ok=True)
     if not starts:
         raise ValueError(
             f"no {config.window_s:g} s window fits between {start_s:g} s and "
@@ -443,6 +502,21 @@ def track(
         )
     workers = executor.workers or os.cpu_count() or 1
     n_chains = executor.chunks or (1 if executor.kind == "local" and workers == 1 else workers)
+    # One cold start, shared: the first window is inverted from step 1 and every chain
+    # is warm-started from its result. Independent cold starts per chain can settle in
+    # different local minima, and each costs tens of warm windows.
+    results: list[tuple[dict, np.ndarray | None]] = []
+    update = progress.update if progress is not None else None
+    warm0 = None
+    if n_chains > 1 and len(starts) > 1:
+        from mpipe.resynthesis import reed_from_row
+
+        results = _run_chain(
+            p, u, fs, starts[:1], kernel, rho, config, zero_mean, update, checkpoint
+        )
+        if not results[0][0].get("error"):
+            warm0 = reed_from_row(results[0][0])
+        starts = starts[1:]
     chains = split_chains(starts, n_chains)
     log.info(
         "%d windows in %d chains (%s executor), %s flow",
@@ -451,19 +525,23 @@ def track(
         executor.kind,
         "zero-mean" if zero_mean else "full",
     )
-    results: list[tuple[dict, np.ndarray | None]] = []
-    update = progress.update if progress is not None else None
     if executor.kind == "dask" or client is not None:
-        results = _track_dask(
-            p, u, fs, chains, kernel, rho, config, zero_mean, executor, client, update
-        )
+        results += _track_dask(
+            p, u, fs, chains, kernel, rho, config, zero_mean, executor, client, update,
+            checkpoint, warm0,
+        )  # fmt: skip
     elif workers == 1:
         for chain in chains:
-            results.extend(_run_chain(p, u, fs, chain, kernel, rho, config, zero_mean, update))
+            results.extend(
+                _run_chain(
+                    p, u, fs, chain, kernel, rho, config, zero_mean, update, checkpoint, warm0
+                )
+            )
     else:
-        results = _track_processes(
-            p, u, fs, chains, kernel, rho, config, zero_mean, workers, update
-        )
+        results += _track_processes(
+            p, u, fs, chains, kernel, rho, config, zero_mean, workers, update, checkpoint,
+            warm0,
+        )  # fmt: skip
     results.sort(key=lambda r: r[0]["t_start_s"])
     histories = {}
     for i, (row, hist) in enumerate(results):
@@ -474,7 +552,9 @@ def track(
     return Tracking(table=table, histories=histories, zero_mean=zero_mean)
 
 
-def _track_processes(p, u, fs, chains, kernel, rho, config, zero_mean, workers, update):
+def _track_processes(
+    p, u, fs, chains, kernel, rho, config, zero_mean, workers, update, checkpoint, warm0=None
+):
     import multiprocessing
 
     results = []
@@ -482,7 +562,10 @@ def _track_processes(p, u, fs, chains, kernel, rho, config, zero_mean, workers, 
         queue = manager.Queue() if update is not None else None
         with ProcessPoolExecutor(max_workers=min(workers, len(chains))) as pool:
             futures = [
-                pool.submit(_chain_task, (p, u, fs, c, kernel, rho, config, zero_mean, queue))
+                pool.submit(
+                    _chain_task,
+                    (p, u, fs, c, kernel, rho, config, zero_mean, queue, checkpoint, warm0),
+                )
                 for c in chains
             ]
             pending = set(futures)
@@ -502,7 +585,10 @@ def _track_processes(p, u, fs, chains, kernel, rho, config, zero_mean, workers, 
     return results
 
 
-def _track_dask(p, u, fs, chains, kernel, rho, config, zero_mean, executor, client, update):
+def _track_dask(
+    p, u, fs, chains, kernel, rho, config, zero_mean, executor, client, update, checkpoint,
+    warm0=None,
+):  # fmt: skip
     from distributed import Client
     from distributed import as_completed as dask_completed
 
@@ -513,7 +599,20 @@ def _track_dask(p, u, fs, chains, kernel, rho, config, zero_mean, executor, clie
         # Scatter the large arrays once instead of shipping them with every task.
         p_f, u_f, k_f = client.scatter([p, u, kernel], broadcast=True)
         futures = [
-            client.submit(_dask_chain, p_f, u_f, fs, c, k_f, rho, config, zero_mean, pure=False)
+            client.submit(
+                _dask_chain,
+                p_f,
+                u_f,
+                fs,
+                c,
+                k_f,
+                rho,
+                config,
+                zero_mean,
+                checkpoint,
+                warm0,
+                pure=False,
+            )
             for c in chains
         ]
         results = []
@@ -528,8 +627,9 @@ def _track_dask(p, u, fs, chains, kernel, rho, config, zero_mean, executor, clie
             client.close()
 
 
-def _dask_chain(p, u, fs, starts, kernel, rho, config, zero_mean):
-    return _run_chain(p, u, fs, starts, kernel, rho, config, zero_mean, None)
+def _dask_chain(p, u, fs, starts, kernel, rho, config, zero_mean, checkpoint=None, warm=None):
+    # The checkpoint folder must be reachable from the workers (a shared file system).
+    return _run_chain(p, u, fs, starts, kernel, rho, config, zero_mean, None, checkpoint, warm)
 
 
 def write_table(table: pd.DataFrame, directory: str | Path, stem: str = "windows") -> list[Path]:
@@ -553,7 +653,7 @@ def write_table(table: pd.DataFrame, directory: str | Path, stem: str = "windows
     written = [
         write_atomic(
             directory / f"{stem}.csv",
-            lambda tmp: table.to_csv(tmp, index=False, float_format="%.9g"),
+            lambda tmp: table.to_csv(tmp, index=False, float_format="%.17g"),
         )
     ]
     try:

@@ -135,3 +135,31 @@ def test_palmer_matches_gram_schmidt_when_all_advances_nonzero():
 def test_scipy_search_rejects_unknown_method():
     with pytest.raises(ValueError, match="method"):
         scipy_search(banana, np.array([1.0, 1.0]), method="bfgs")
+
+
+def test_infeasible_start_returns_at_once():
+    from mpipe.inversion.rosenbrock import rosenbrock as search
+
+    calls = []
+
+    def nowhere(x):
+        calls.append(x)
+        return float("inf")
+
+    res = search(
+        nowhere, np.array([1.0, 2.0]), lower=[1e-3] * 2, upper=[1e3] * 2, max_evaluations=50
+    )
+    assert not res.converged and res.message == "infeasible start point"
+    assert len(calls) == 1 and not np.isfinite(res.f)
+
+
+def test_infeasible_trials_are_failures_not_successes():
+    from mpipe.inversion.rosenbrock import rosenbrock as search
+
+    # feasible only inside a disc; the minimum of the quadratic lies on its rim
+    def f(x):
+        return float("inf") if np.hypot(*np.log(x)) > 0.5 else float(np.sum(np.log(x) - 1) ** 2)
+
+    res = search(f, np.array([1.0, 1.0]), lower=[1e-3] * 2, upper=[1e3] * 2, max_evaluations=3000)
+    assert np.isfinite(res.f) and np.hypot(*np.log(res.x)) <= 0.5
+    assert res.n_evaluations <= 3000

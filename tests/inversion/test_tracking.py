@@ -127,3 +127,32 @@ def test_sample_rate_mismatch(take):
     kernel, rho, sim = take
     with pytest.raises(ValueError, match="Hz"):
         track(sim.p, sim.u, 44100.0, kernel, rho, LIGHT)
+
+
+def test_interrupted_tracking_resumes_without_redoing_windows(take, tmp_path, monkeypatch):
+    import mpipe.inversion.tracking as tracking
+
+    kernel, rho, sim = take
+    ckpt = tmp_path / "windows.d"
+    first = track(
+        sim.p, sim.u, FS, kernel, rho, LIGHT, ExecutorConfig(workers=1), start_s=0.30,
+        end_s=0.34, checkpoint=ckpt,
+    )  # fmt: skip
+    assert len(list(ckpt.glob("w*.json"))) == 2
+    # an interruption after the first window: its file survives, the second is lost
+    sorted(ckpt.glob("w*.json"))[1].unlink()
+    calls = []
+    real = tracking.invert_window
+
+    def counting(*args, **kwargs):
+        calls.append(args[3])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(tracking, "invert_window", counting)
+    resumed = track(
+        sim.p, sim.u, FS, kernel, rho, LIGHT, ExecutorConfig(workers=1), start_s=0.30,
+        end_s=0.34, checkpoint=ckpt,
+    )  # fmt: skip
+    assert calls == [32000]  # only the lost window is redone, warm-started as before
+    cols = ["t_start_s", "k", "p_m", "f2", "warm"]
+    pd.testing.assert_frame_equal(resumed.table[cols], first.table[cols], rtol=1e-12)

@@ -1,0 +1,467 @@
+"""``mpipe run``: every stage of the pipeline over one or more takes, resumable.
+
+Each stage writes into ``OUT/<take>/<stage>/`` and records a manifest (input hashes,
+resolved configuration, package version, timings; see :mod:`mpipe.manifest`). A stage whose
+manifest matches its inputs is skipped, so an interrupted run resumes; the inversion also
+keeps one file per finished window, so it resumes mid-stage. This module only wires the
+stages together: the physics lives in the stage modules.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from mpipe import __version__
+from mpipe.calibration import Calibration, load_calibration
+from mpipe.io import write_atomic
+from mpipe.manifest import StageRecord, run_stage
+from mpipe.pipeline import PipelineConfig
+from mpipe.report import Section, write_report
+
+log = logging.getLogger(__name__)
+
+STAGES = (
+    "separation",
+    "translation",
+    "validation",
+    "conditioning",
+    "inversion",
+    "resynthesis",
+)
+
+
+@dataclass(frozen=True)
+class TakeRun:
+    """What ``mpipe run`` did for one take.
+
+    Attributes
+    ----------
+    name : str
+        Take name (folder under the output directory).
+    folder : Path
+        ``OUT/<take>``.
+    records : dict
+        Stage name to :class:`mpipe.manifest.StageRecord`.
+    report : Path
+        The HTML report.
+    """
+
+    name: str
+    folder: Path
+    records: dict
+    report: Path
+
+
+def take_name(paths: Sequence[str | Path]) -> str:
+    """Folder name of a take: the stem of its (first) audio file."""
+    return Path(paths[0]).stem
+
+
+def _save_npz(path: Path, **arrays) -> None:
+    with open(path, "wb") as fh:
+        np.savez(fh, **arrays)
+
+
+def _load_npz(path: Path) -> dict:
+    with np.load(path) as data:
+        return {k: data[k] for k in data.files}
+
+
+def _plot_blocks(blocks: pd.DataFrame, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(8, 6))
+    for ax, col, label in zip(
+        axes,
+        ("temperature_c", "loss_scale", "mach"),
+        ("effective temperature [°C]", "loss scale η [-]", "Mach number [-]"),
+        strict=True,
+    ):
+        ax.plot(blocks["time_s"], blocks[col], ".-", lw=1)
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("time [s]")
+    axes[0].set_title("Propagation parameters tracked by the wave separation")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, format="png")
+    plt.close(fig)
+
+
+def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
+    from mpipe.separation import separate
+    from mpipe.takes import read_take
+
+    def work(folder: Path):
+        take = read_take(take_paths if len(take_paths) == 3 else take_paths[0], cal)
+        sep = separate(take.pressures, take.fs, cal, cfg.separation)
+        temps = sep.temperature_track()
+        write_atomic(
+            folder / "reference.npz",
+            lambda t: _save_npz(
+                t, fs=np.float64(take.fs), p0=sep.p0, u0=sep.u0, temperature_c=temps
+            ),
+        )
+        write_atomic(folder / "blocks.csv", lambda t: sep.blocks.to_csv(t, index=False))
+        write_atomic(folder / "blocks.png", lambda t: _plot_blocks(sep.blocks, t))
+        b = sep.blocks
+        summary = {
+            "duration_s": take.pressures.shape[0] / take.fs,
+            "fs_hz": take.fs,
+            "blocks": len(b),
+            "temperature_c_median": float(np.median(b.temperature_c)),
+            "temperature_c_range": [float(b.temperature_c.min()), float(b.temperature_c.max())],
+            "loss_scale_median": float(np.median(b.loss_scale)),
+            "mach_median": float(np.median(b.mach)),
+            "residual_median": float(np.nanmedian(b.residual)),
+        }
+        outputs = {"reference": "reference.npz", "blocks": "blocks.csv", "plot": "blocks.png"}
+        return outputs, summary
+
+    return work
+
+
+def _stage_translation(folder_sep: Path, cal: Calibration, cfg: PipelineConfig):
+    from mpipe.commands.separate import _write_wav
+    from mpipe.translation import translate
+
+    def work(folder: Path):
+        ref = _load_npz(folder_sep / "reference.npz")
+        fs = float(ref["fs"])
+        tr = translate(ref["p0"], ref["u0"], fs, cal, cfg.translation, ref["temperature_c"])
+        write_atomic(
+            folder / "mouthpiece.npz",
+            lambda t: _save_npz(
+                t, fs=np.float64(fs), p=tr.p, u=tr.u, p0=tr.p0, u0=tr.u0,
+                temperature_c=tr.temperature_c,
+            ),
+        )  # fmt: skip
+        write_atomic(folder / "mouthpiece.wav", lambda t: _write_wav(t, tr.p, tr.u, fs))
+        summary = {"p_rms_pa": float(np.std(tr.p)), "u_rms_m3_s": float(np.std(tr.u))}
+        return {"mouthpiece": "mouthpiece.npz", "wav": "mouthpiece.wav"}, summary
+
+    return work
+
+
+def _stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg: PipelineConfig):
+    from mpipe.validation import plot_impedance, validate
+
+    def work(folder: Path):
+        mp = _load_npz(mouthpiece)
+        t_eff = float(np.median(pd.read_csv(blocks)["temperature_c"]))
+        val = validate(mp["p"], mp["u"], float(mp["fs"]), cal, cfg.validation, t_eff)
+        write_atomic(folder / "impedance.csv", lambda t: val.table().to_csv(t, index=False))
+        write_atomic(folder / "validation.csv", lambda t: val.resonances.to_csv(t, index=False))
+        write_atomic(folder / "impedance.png", lambda t: plot_impedance(val, t, 2000.0))
+        summary = {
+            "verdict": val.verdict,
+            "passed": bool(val.passed),
+            "failures": list(val.failures),
+            "band_error_db": float(val.band_error_db),
+            "text": val.summary(),
+            "temperature_c": t_eff,
+        }
+        outputs = {"impedance": "impedance.csv", "resonances": "validation.csv",
+                   "plot": "impedance.png"}  # fmt: skip
+        return outputs, summary
+
+    return work
+
+
+def _stage_conditioning(mouthpiece: Path, cfg: PipelineConfig):
+    from mpipe.conditioning import steady_windows
+    from mpipe.inversion.tracking import detect_zero_mean, plan_windows
+
+    c, inv = cfg.conditioning, cfg.inversion
+
+    def work(folder: Path):
+        mp = _load_npz(mouthpiece)
+        fs = float(mp["fs"])
+        n = mp["p"].size
+        end = n / fs - c.edge_s
+        starts = plan_windows(n, fs, inv.window_s, inv.hop_s, c.edge_s, end)
+        window_n = int(round(inv.window_s * fs))
+        table = steady_windows(
+            mp["p"], fs, starts, window_n, c.steady_tolerance, c.f0_min_hz, c.f0_max_hz,
+            c.min_rms_pa,
+        )  # fmt: skip
+        table["invert"] = table["steady"] | (c.invert_transients & (table["reason"] != "silent"))
+        write_atomic(folder / "plan.csv", lambda t: table.to_csv(t, index=False))
+        summary = {
+            "windows": len(table),
+            "steady": int(table["steady"].sum()),
+            "to_invert": int(table["invert"].sum()),
+            "zero_mean_flow": bool(detect_zero_mean(mp["u"], inv.signal)),
+            "f0_hz_median": float(np.nanmedian(table["f0_hz"])) if len(table) else float("nan"),
+        }
+        return {"plan": "plan.csv"}, summary
+
+    return work
+
+
+def _kernel(cal: Calibration, temperature_c: float, fs: float):
+    from mpipe.model import prepare_bore
+    from mpipe.reflection import reflection_function
+
+    air = cal.air_properties(temperature_c)
+    return prepare_bore(reflection_function(cal.bore, air, fs=fs), air), air
+
+
+def _stage_inversion(
+    mouthpiece: Path, plan: Path, t_eff: float, cal: Calibration, cfg: PipelineConfig,
+    force: bool, client, progress: Callable[[int], object] | None,
+):  # fmt: skip
+    from mpipe import resynthesis as rs
+    from mpipe.inversion.step1 import step1
+    from mpipe.inversion.tracking import ProgressBar, track, write_table
+
+    inv = cfg.inversion
+
+    def work(folder: Path):
+        checkpoint = folder / "windows.d"
+        if force and checkpoint.exists():
+            shutil.rmtree(checkpoint)
+        mp = _load_npz(mouthpiece)
+        fs = float(mp["fs"])
+        p, u = mp["p"], mp["u"]
+        table_plan = pd.read_csv(plan)
+        starts = table_plan.loc[table_plan["invert"], "start"].astype(int).tolist()
+        if not starts:
+            raise ValueError("no steady window to invert (see conditioning/plan.csv)")
+        kernel, air = _kernel(cal, t_eff, fs)
+        bar = ProgressBar(len(starts))
+        try:
+            result = track(
+                p, u, fs, kernel, air.rho, replace(inv, sample_rate=fs), cfg.executor,
+                progress=bar, client=client, starts=starts, checkpoint=checkpoint,
+            )  # fmt: skip
+        finally:
+            bar.close()
+        table = result.table
+        written = write_table(table, folder)
+        rs.plot_tracks(table, folder / "tracks.png")
+        outputs = {"windows": "windows.csv", "tracks": "tracks.png"}
+        if any(w.suffix == ".parquet" for w in written):
+            outputs["windows_parquet"] = "windows.parquet"
+        ok = table[table["error"] == ""]
+        if len(ok):
+            first = ok.iloc[0]
+            w = int(first["window"])
+            if w in result.histories:
+                rs.plot_history(result.histories[w], folder / "history.png")
+                outputs["history"] = "history.png"
+            i0, i1 = int(round(first["t_start_s"] * fs)), int(round(first["t_end_s"] * fs))
+            s1 = step1(p[i0:i1], u[i0:i1], fs, rho=air.rho, lam=inv.lam,
+                       solver=inv.step1_solver, zero_mean=result.zero_mean)  # fmt: skip
+            rs.plot_flow_pressure(p[i0:i1], u[i0:i1], fs, s1, folder / "flow_pressure.png",
+                                  zero_mean=result.zero_mean)  # fmt: skip
+            outputs["flow_pressure"] = "flow_pressure.png"
+        params = ["k", "S", "y_m", "p_m", "m", "g", "lam", "k_c"]
+        summary = {
+            "windows": len(table),
+            "failed": int((table["error"] != "").sum()),
+            "zero_mean_flow": bool(result.zero_mean),
+            "median": {k: float(ok[k].median()) for k in params} if len(ok) else {},
+            "relative_residual_median": float(ok["relative_residual"].median())
+            if len(ok)
+            else None,
+            "evaluations_median": float(ok["n_evaluations"].median()) if len(ok) else None,
+            "wall_per_window_s_median": float(ok["wall_time_s"].median()) if len(ok) else None,
+            "temperature_c": t_eff,
+        }
+        return outputs, summary
+
+    return work
+
+
+def _stage_resynthesis(mouthpiece: Path, windows: Path, t_eff: float, cal, cfg, zero_mean):
+    from mpipe import resynthesis as rs
+
+    def work(folder: Path):
+        mp = _load_npz(mouthpiece)
+        fs = float(mp["fs"])
+        p, u = mp["p"], mp["u"]
+        table = pd.read_csv(windows, keep_default_na=False, na_values=[""])
+        table["error"] = table["error"].fillna("").astype(str)
+        kernel, _ = _kernel(cal, t_eff, fs)
+        res = rs.resynthesise(table, p, u, fs, kernel, cfg.inversion, zero_mean)
+        write_atomic(folder / "resynthesis.npz",
+                     lambda t: _save_npz(t, fs=np.float64(fs), p=res.p, u=res.u))  # fmt: skip
+        filled = np.nan_to_num(res.p)
+        rs.write_wav(folder / "resynthesis.wav", filled, fs, cfg.resynthesis.wav_full_scale_pa)
+        outputs = {"signals": "resynthesis.npz", "wav": "resynthesis.wav"}
+        ok = table[table["error"] == ""]
+        t = np.arange(p.size) / fs
+        picks = np.unique(np.linspace(0, len(ok) - 1, cfg.resynthesis.overlay_windows).round())
+        for j, idx in enumerate(picks.astype(int) if len(ok) else []):
+            row = ok.iloc[idx]
+            i0, i1 = int(round(row["t_start_s"] * fs)), int(round(row["t_end_s"] * fs))
+            name = f"overlay_{j + 1}.png"
+            rs.plot_signals(t[i0:i1], p[i0:i1], u[i0:i1], res.p[i0:i1], res.u[i0:i1],
+                            folder / name, title=f"window at {row['t_start_s']:.3f} s")  # fmt: skip
+            outputs[f"overlay_{j + 1}"] = name
+        mask = np.isfinite(res.p)
+        rel = (
+            float(np.linalg.norm(p[mask] - res.p[mask]) / np.linalg.norm(p[mask]))
+            if mask.any()
+            else None
+        )
+        summary = {"relative_residual_p": rel, "samples_resynthesised": int(mask.sum())}
+        return outputs, summary
+
+    return work
+
+
+def run_take(
+    cfg: PipelineConfig,
+    cal_path: Path,
+    take_paths: Sequence[str | Path],
+    out: str | Path,
+    force: bool = False,
+    client=None,
+    say: Callable[[str], None] = print,
+) -> TakeRun:
+    """Run every stage on one take.
+
+    Parameters
+    ----------
+    cfg : PipelineConfig
+        The pipeline.
+    cal_path : Path
+        Calibration file (the pipeline's, or an override).
+    take_paths : sequence of path
+        One multichannel file or three mono files.
+    out : path
+        Output directory; the take's results go to ``out/<take>/``.
+    force : bool
+        Redo finished stages and replace results of other inputs.
+    client : distributed.Client, optional
+        Shared Dask client for the inversion.
+    say : callable
+        Where the one-line-per-stage progress goes.
+
+    Returns
+    -------
+    TakeRun
+    """
+    take_paths = [Path(p) for p in take_paths]
+    cal = load_calibration(cal_path)
+    name = take_name(take_paths)
+    root = Path(out) / name
+    d = {s: root / s for s in STAGES}
+    records: dict[str, StageRecord] = {}
+    cal_inputs = {"calibration": cal_path}
+    for mic in cal.microphones:
+        path = cal.calibration_path(mic)
+        if path is not None:
+            cal_inputs[f"mic_calibration_{mic.name}"] = path
+
+    def stage(i: int, key: str, inputs: dict, config, work) -> StageRecord:
+        t0 = time.perf_counter()
+        rec = run_stage(d[key], key, inputs, config, work, force)
+        records[key] = rec
+        what = "done" if rec.status == "done" else "already done, skipped"
+        say(f"[{name}] {i}/{len(STAGES)} {key}: {what} ({time.perf_counter() - t0:.1f} s)")
+        return rec
+
+    takes = {f"take_{i}": p for i, p in enumerate(take_paths)}
+    stage(1, "separation", {**takes, **cal_inputs}, cfg.separation,
+          _stage_separation(take_paths, cal, cfg))  # fmt: skip
+    reference = d["separation"] / "reference.npz"
+    blocks = d["separation"] / "blocks.csv"
+    stage(2, "translation", {"reference": reference, **cal_inputs}, cfg.translation,
+          _stage_translation(d["separation"], cal, cfg))  # fmt: skip
+    mouthpiece = d["translation"] / "mouthpiece.npz"
+    val = stage(3, "validation", {"mouthpiece": mouthpiece, "blocks": blocks, **cal_inputs},
+                cfg.validation, _stage_validation(mouthpiece, blocks, cal, cfg))  # fmt: skip
+    say(f"[{name}]     impedance validation: {val.summary['verdict']}")
+    cond_config = {"conditioning": cfg.conditioning, "window_s": cfg.inversion.window_s,
+                   "hop_s": cfg.inversion.hop_s, "signal": cfg.inversion.signal}  # fmt: skip
+    cond = stage(4, "conditioning", {"mouthpiece": mouthpiece}, cond_config,
+                 _stage_conditioning(mouthpiece, cfg))  # fmt: skip
+    say(f"[{name}]     {cond.summary['to_invert']} of {cond.summary['windows']} windows to invert")
+    plan = d["conditioning"] / "plan.csv"
+    t_eff = float(val.summary["temperature_c"])
+    inv_inputs = {"mouthpiece": mouthpiece, "plan": plan, "blocks": blocks, **cal_inputs}
+    stage(5, "inversion", inv_inputs, cfg.inversion,
+          _stage_inversion(mouthpiece, plan, t_eff, cal, cfg, force, client, None))  # fmt: skip
+    windows = d["inversion"] / "windows.csv"
+    zero_mean = bool(records["inversion"].summary["zero_mean_flow"])
+    stage(6, "resynthesis", {"mouthpiece": mouthpiece, "windows": windows, **cal_inputs},
+          {"resynthesis": cfg.resynthesis, "inversion": cfg.inversion},
+          _stage_resynthesis(mouthpiece, windows, t_eff, cal, cfg, zero_mean))  # fmt: skip
+    report = write_take_report(root, name, take_paths, cal_path, records)
+    say(f"[{name}]     report: {report}")
+    return TakeRun(name, root, records, report)
+
+
+def write_take_report(root: Path, name: str, take_paths, cal_path, records: dict) -> Path:
+    """Write ``root/report.html`` from the stage folders and their manifests."""
+    val = records["validation"].summary
+    inv = records["inversion"].summary
+    res = records["resynthesis"].summary
+    sep = records["separation"].summary
+    windows = pd.read_csv(root / "inversion" / "windows.csv", keep_default_na=False)
+    cols = [c for c in ("t_start_s", "k", "S", "y_m", "p_m", "m", "g", "lam", "k_c", "f2",
+                        "relative_residual", "n_evaluations", "converged", "error")
+            if c in windows.columns]  # fmt: skip
+    timings = pd.DataFrame(
+        [{"stage": k, "status": r.status, "wall_s": r.wall_s} for k, r in records.items()]
+    )
+    plan = pd.read_csv(root / "conditioning" / "plan.csv", keep_default_na=False)
+    inv_root = root / "inversion"
+    sections = [
+        Section(
+            "Measurement: impedance validation",
+            f"{val['text']}\n\nEffective temperature from the wave separation: "
+            f"{val['temperature_c']:.2f} °C (blocks span {sep['temperature_c_range'][0]:.2f}"
+            f"–{sep['temperature_c_range'][1]:.2f} °C), loss scale {sep['loss_scale_median']:.3f}, "
+            f"Mach {sep['mach_median']:.4f}.",
+            ("PASS" if val["passed"] else "FAIL", "pass" if val["passed"] else "fail"),
+            (root / "validation" / "impedance.png", root / "separation" / "blocks.png"),
+        ),
+        Section(
+            "Reed parameters over time",
+            f"{inv['windows']} windows inverted, {inv['failed']} failed; median relative "
+            f"residual {inv['relative_residual_median']}; flow treated as "
+            f"{'zero-mean (measured)' if inv['zero_mean_flow'] else 'carrying its mean (model)'}.",
+            None,
+            tuple(
+                p
+                for p in (
+                    inv_root / "tracks.png",
+                    inv_root / "flow_pressure.png",
+                    inv_root / "history.png",
+                )
+                if p.exists()
+            ),  # fmt: skip
+            (("Per-window results", windows[cols]),),
+        ),
+        Section(
+            "Resynthesis",
+            f"Relative residual of the resynthesised pressure over the inverted windows: "
+            f"{res['relative_residual_p']}. The resynthesised pressure is in "
+            "resynthesis/resynthesis.wav.",
+            None,
+            tuple(sorted((root / "resynthesis").glob("overlay_*.png"))),
+        ),
+        Section(
+            "Run",
+            f"Take: {', '.join(str(p) for p in take_paths)}. Calibration: {cal_path}.",
+            ("mpipe " + __version__, "info"),
+            (),
+            (("Stage timings", timings), ("Window plan (conditioning)", plan)),
+        ),
+    ]
+    return write_report(root / "report.html", f"mpipe report: {name}",
+                        time.strftime("%Y-%m-%d %H:%M"), sections)  # fmt: skip
