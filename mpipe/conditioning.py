@@ -301,9 +301,11 @@ def steady_windows(
                 "rms_pa": rms,
             }
         )
-    table = pd.DataFrame(rows)
-    f0 = table["f0_hz"].to_numpy() if rows else np.array([])
-    rms = table["rms_pa"].to_numpy() if rows else np.array([])
+    table = pd.DataFrame(
+        rows, columns=["window", "start", "t_start_s", "t_end_s", "f0_hz", "rms_pa"]
+    )
+    f0 = table["f0_hz"].to_numpy()
+    rms = table["rms_pa"].to_numpy()
     steady, reason = [], []
     for i in range(len(rows)):
         if rms[i] < min_rms:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import shutil
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -22,6 +23,9 @@ from mpipe.errors import OutputExistsError
 from mpipe.io import write_text_atomic
 
 MANIFEST = "manifest.json"
+#: Sub-folder where a stage keeps state that lets an interrupted run resume.
+PARTIAL = "partial"
+IDENTITY = "identity.json"
 
 
 def file_hash(path: str | Path, chunk: int = 1 << 20) -> str:
@@ -97,6 +101,8 @@ def run_stage(
     work : callable
         ``work(folder) -> (outputs, summary)``: does the stage, writes its files into
         ``folder`` (atomically) and returns output names to relative paths and a summary.
+        State that lets an interrupted run resume goes in ``folder / PARTIAL``; it is
+        discarded when the inputs or configuration differ, or with ``force``.
     force : bool
         Redo a finished stage, and replace one made from other inputs or configuration.
 
@@ -131,6 +137,15 @@ def run_stage(
     # An interrupted run leaves no manifest; remove a stale one before redoing the work so
     # a crash midway cannot leave a manifest describing half-replaced outputs.
     manifest_path.unlink(missing_ok=True)
+    # Resumable state of an interrupted run is kept only for the very same inputs and
+    # configuration.
+    partial = folder / PARTIAL
+    identity_path = folder / IDENTITY
+    identity_text = json.dumps(identity, sort_keys=True)
+    stale = not identity_path.exists() or identity_path.read_text() != identity_text
+    if (force or stale) and partial.exists():
+        shutil.rmtree(partial)
+    write_text_atomic(identity_path, identity_text)
     t0 = time.perf_counter()
     started = time.strftime("%Y-%m-%dT%H:%M:%S%z")
     outputs, summary = work(folder)

@@ -10,7 +10,6 @@ stages together: the physics lives in the stage modules.
 from __future__ import annotations
 
 import logging
-import shutil
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
@@ -22,7 +21,7 @@ import pandas as pd
 from mpipe import __version__
 from mpipe.calibration import Calibration, load_calibration
 from mpipe.io import write_atomic
-from mpipe.manifest import StageRecord, run_stage
+from mpipe.manifest import PARTIAL, StageRecord, run_stage
 from mpipe.pipeline import PipelineConfig
 from mpipe.report import Section, write_report
 
@@ -218,8 +217,7 @@ def _kernel(cal: Calibration, temperature_c: float, fs: float):
 
 
 def _stage_inversion(
-    mouthpiece: Path, plan: Path, t_eff: float, cal: Calibration, cfg: PipelineConfig,
-    force: bool, client, progress: Callable[[int], object] | None,
+    mouthpiece: Path, plan: Path, t_eff: float, cal: Calibration, cfg: PipelineConfig, client,
 ):  # fmt: skip
     from mpipe import resynthesis as rs
     from mpipe.inversion.step1 import step1
@@ -228,9 +226,7 @@ def _stage_inversion(
     inv = cfg.inversion
 
     def work(folder: Path):
-        checkpoint = folder / "windows.d"
-        if force and checkpoint.exists():
-            shutil.rmtree(checkpoint)
+        checkpoint = folder / PARTIAL / "windows"
         mp = _load_npz(mouthpiece)
         fs = float(mp["fs"])
         p, u = mp["p"], mp["u"]
@@ -262,7 +258,8 @@ def _stage_inversion(
                 outputs["history"] = "history.png"
             i0, i1 = int(round(first["t_start_s"] * fs)), int(round(first["t_end_s"] * fs))
             s1 = step1(p[i0:i1], u[i0:i1], fs, rho=air.rho, lam=inv.lam,
-                       solver=inv.step1_solver, zero_mean=result.zero_mean)  # fmt: skip
+                       solver=inv.step1_solver, zero_mean=result.zero_mean,
+                       p_m=inv.step1_p_m, y_c=inv.y_c)  # fmt: skip
             rs.plot_flow_pressure(p[i0:i1], u[i0:i1], fs, s1, folder / "flow_pressure.png",
                                   zero_mean=result.zero_mean)  # fmt: skip
             outputs["flow_pressure"] = "flow_pressure.png"
@@ -291,8 +288,8 @@ def _stage_resynthesis(mouthpiece: Path, windows: Path, t_eff: float, cal, cfg, 
         mp = _load_npz(mouthpiece)
         fs = float(mp["fs"])
         p, u = mp["p"], mp["u"]
-        table = pd.read_csv(windows, keep_default_na=False, na_values=[""])
-        table["error"] = table["error"].fillna("").astype(str)
+        table = pd.read_csv(windows, keep_default_na=False, na_values=[""], dtype={"error": str})
+        table["error"] = table["error"].fillna("")
         kernel, _ = _kernel(cal, t_eff, fs)
         res = rs.resynthesise(table, p, u, fs, kernel, cfg.inversion, zero_mean)
         write_atomic(folder / "resynthesis.npz",
@@ -366,9 +363,15 @@ def run_take(
         if path is not None:
             cal_inputs[f"mic_calibration_{mic.name}"] = path
 
+    redone = False
+
     def stage(i: int, key: str, inputs: dict, config, work) -> StageRecord:
+        nonlocal redone
         t0 = time.perf_counter()
-        rec = run_stage(d[key], key, inputs, config, work, force)
+        # Once a stage is redone, the stages after it are derived from new data: they are
+        # this run's own results, replaced without --force.
+        rec = run_stage(d[key], key, inputs, config, work, force or redone)
+        redone = redone or rec.status == "done"
         records[key] = rec
         what = "done" if rec.status == "done" else "already done, skipped"
         say(f"[{name}] {i}/{len(STAGES)} {key}: {what} ({time.perf_counter() - t0:.1f} s)")
@@ -394,7 +397,7 @@ def run_take(
     t_eff = float(val.summary["temperature_c"])
     inv_inputs = {"mouthpiece": mouthpiece, "plan": plan, "blocks": blocks, **cal_inputs}
     stage(5, "inversion", inv_inputs, cfg.inversion,
-          _stage_inversion(mouthpiece, plan, t_eff, cal, cfg, force, client, None))  # fmt: skip
+          _stage_inversion(mouthpiece, plan, t_eff, cal, cfg, client))  # fmt: skip
     windows = d["inversion"] / "windows.csv"
     zero_mean = bool(records["inversion"].summary["zero_mean_flow"])
     stage(6, "resynthesis", {"mouthpiece": mouthpiece, "windows": windows, **cal_inputs},

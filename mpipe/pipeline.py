@@ -124,7 +124,7 @@ class InversionConfig:
         default=0.05,
     )
     step_tolerance: float = spec(
-        "", "stop when every step is below this (log units)", between(1e-9, 0.1), default=1e-4
+        "", "stop when every step is below this (log units)", between(1e-9, 0.1), default=1e-5
     )
     f_tolerance: float = spec(
         "",

@@ -42,6 +42,7 @@ physics.md sections E.1-E.5.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass, replace
 
@@ -103,6 +104,24 @@ class SeparationConfig:
         lambda v: None if v in ("coherence", "snr") else "expected 'coherence' or 'snr'",
         default="coherence",
     )
+    noise_model: str = spec(
+        "",
+        "sensor noise in the cost: 'white' (estimate one white noise level per channel "
+        "over the whole take and divide each bin's residual by the noise power it carries, "
+        "a generalised least squares that makes the noise part of J independent of theta) "
+        "or 'none' (plain least squares, physics.md E.3)",
+        lambda v: None if v in ("white", "none") else "expected 'white' or 'none'",
+        default="white",
+    )
+    noise_fmin_hz: float | None = spec(
+        "Hz",
+        "lower edge of the band above the separation band where the noise level of each "
+        "channel is measured (null: 1.1 (band_edge_hz + band_taper_hz)); the band ends at "
+        "0.95 of the Nyquist frequency. When it is narrower than 1 kHz the noise level is "
+        "the low quantile of the spectrum in the estimation band (between the harmonics)",
+        positive,
+        default=None,
+    )
     adaptive: bool = spec(
         "", "estimate theta per block (false: hold it at the start values)", default=True
     )
@@ -145,6 +164,23 @@ class SeparationConfig:
         "their neighbours' estimates",
         between(1.0, 1e6),
         default=4.0,
+    )
+    pool_s: float = spec(
+        "s",
+        "with noise_model 'white': blocks whose fitted residual is within "
+        "pool_residual_ratio of the residual that sensor noise alone leaves are fitted "
+        "together, over consecutive stretches of this length (the cost is summed over the "
+        "blocks, weighted by the signal-to-noise ratio of each bin rather than whitened); "
+        "one 80 ms block at 40 dB SNR holds too little information to fix theta",
+        between(0.01, 1e4),
+        default=4.0,
+    )
+    pool_residual_ratio: float = spec(
+        "",
+        "a block counts as noise-dominated when its residual J is below this multiple of "
+        "the residual expected from the sensor noise levels",
+        between(1.0, 1e6),
+        default=3.0,
     )
     smooth_blocks: int = spec(
         "",
@@ -469,6 +505,11 @@ class BlockSpectra:
     segments : ndarray
         Scaled segment spectra ``X[s, f, m]`` with ``S = sum_s X X^H``, Pa/Hz^0.5,
         shape ``(n_segments, n, 3)``.
+    noise : ndarray
+        Relative noise power spectral density of the three channels, shape ``(3,)``,
+        mean 1 (dimensionless). The residual of a bin is divided by the noise power it
+        carries, ``n^T diag(noise) conj(n)`` (generalised least squares); equal values
+        give the plain least-squares residual of physics.md E.3.
     """
 
     freqs: np.ndarray
@@ -476,6 +517,7 @@ class BlockSpectra:
     weights: np.ndarray
     coherence: np.ndarray
     segments: np.ndarray
+    noise: np.ndarray = dataclasses.field(default_factory=lambda: np.ones(3))
 
     @property
     def norm(self) -> float:
@@ -491,6 +533,7 @@ def cross_spectra(
     fmax_hz: float,
     envelope_hz: float,
     weighting: str = "coherence",
+    noise: np.ndarray | None = None,
 ) -> BlockSpectra:
     """Welch estimate of the 3 x 3 cross-spectral matrix of a block (Hann, 50 % overlap).
 
@@ -509,6 +552,10 @@ def cross_spectra(
     weighting : {"coherence", "snr"}
         Numerator of the weights: the mean pairwise squared coherence, or the coherent-to-
         incoherent power ratio (which drops noise-dominated bins).
+    noise : ndarray, optional
+        Noise power spectral density of the three channels, Pa^2/Hz, shape ``(3,)``
+        (:func:`noise_levels`); only the ratios matter. None: equal noise (plain least
+        squares).
 
     Returns
     -------
@@ -549,7 +596,133 @@ def cross_spectra(
         weights = np.maximum(snr, _MIN_COHERENCE_WEIGHT) / np.maximum(envelope, tiny)
     else:
         weights = np.maximum(coherence, _MIN_COHERENCE_WEIGHT) / np.maximum(envelope, tiny)
-    return BlockSpectra(freqs[keep], s_pp, weights, coherence, x)
+    rel = np.ones(3) if noise is None else _relative_noise(noise)
+    return BlockSpectra(freqs[keep], s_pp, weights, coherence, x, rel)
+
+
+# Quantile of the per-bin power spectrum taken as the noise floor when there is no band
+# above the separation band (bins between the harmonics of a note).
+_NOISE_QUANTILE = 0.2
+# Relative noise levels are clipped to this range around their mean: they only reweight
+# the channels, and a channel without noise (or a wrong estimate) must not take over.
+_NOISE_RATIO_LIMIT = 4.0
+# With weighting "noise", a bin counts when its power exceeds this multiple of the noise
+# power (trace of S over the summed noise levels); noise alone gives 1 +- about 0.3.
+_NOISE_RATIO_THRESHOLD = 2.0
+
+
+def noise_levels(x: np.ndarray, fs: float, config: SeparationConfig) -> np.ndarray:
+    """White noise power spectral density of each channel over the whole take.
+
+    Parameters
+    ----------
+    x : ndarray
+        Calibrated microphone pressures in Pa, shape ``(n, 3)``.
+    fs : float
+        Sample rate in Hz.
+    config : SeparationConfig
+        ``noise_fmin_hz``, the separation and estimation bands, ``welch_segment_s``.
+
+    Returns
+    -------
+    ndarray
+        Shape ``(3,)``, Pa^2/Hz in the scaling of the diagonal of
+        :attr:`BlockSpectra.s_pp`: the median Welch power spectral density between
+        ``noise_fmin_hz`` and 0.95 of the Nyquist frequency, where a played note has
+        little energy left; without such a band, the ``_NOISE_QUANTILE`` quantile of the
+        spectrum in the estimation band, i.e. the floor between the harmonics.
+
+    Notes
+    -----
+    Sensor noise is stationary, so one level per channel for the whole take is far more
+    precise than a per-block estimate (a block of 80 ms has three Welch segments). The
+    levels differ between channels by the sensitivity of each microphone and by its
+    relative calibration, typically by several per cent; in plain least squares that
+    difference makes the noise floor of J depend on theta (see :func:`residual_cost`).
+    """
+    segment = min(max(int(round(config.welch_segment_s * fs)), 16), x.shape[0])
+    hop = max(segment // 2, 1)
+    win = np.hanning(segment + 1)[:-1]
+    freqs = np.fft.rfftfreq(segment, 1 / fs)
+    cross = np.zeros((freqs.size, 3, 3), dtype=complex)
+    n_seg = 0
+    # Running sum rather than one stacked array: a long take at 100 kHz stays small.
+    for s0 in range(0, x.shape[0] - segment + 1, hop):
+        spec_ = np.fft.rfft(x[s0 : s0 + segment] * win[:, None], axis=0)
+        cross += spec_[:, :, None] * np.conj(spec_[:, None, :])
+        n_seg += 1
+    # The scaling of :func:`cross_spectra` (no factor 2 of a one-sided spectrum), so that
+    # these levels compare directly with the diagonal of its ``s_pp``.
+    cross *= 1.0 / (fs * np.sum(win**2) * max(n_seg, 1))
+    # Incoherent part of each channel (three-channel method): the coherent power of
+    # channel i is |S_ij| |S_ik| / |S_jk|, so harmonics of the note in the band (a clean
+    # take) do not count as noise.
+    diag = np.real(np.einsum("fii->fi", cross))
+    psd = np.empty_like(diag)
+    for i, j, k in ((0, 1, 2), (1, 0, 2), (2, 0, 1)):
+        coh = np.abs(cross[:, i, j]) * np.abs(cross[:, i, k])
+        coh = coh / np.maximum(np.abs(cross[:, j, k]), 1e-300)
+        psd[:, i] = np.maximum(diag[:, i] - coh, 0.0)
+    lo = config.noise_fmin_hz
+    if lo is None:
+        lo = 1.1 * (config.band_edge_hz + config.band_taper_hz)
+    high = (freqs >= lo) & (freqs <= 0.95 * fs / 2)
+    if np.any(high) and np.ptp(freqs[high]) >= 1000.0:
+        return np.median(psd[high], axis=0)
+    band = (freqs >= config.fmin_hz) & (freqs <= config.fmax_hz)
+    if not np.any(band):
+        return np.ones(3)
+    return np.quantile(psd[band], _NOISE_QUANTILE, axis=0)
+
+
+def noise_weighted(spectra: list[BlockSpectra], noise: np.ndarray) -> BlockSpectra:
+    """Pool blocks into one cost weighted for sensor noise (maximum likelihood).
+
+    Parameters
+    ----------
+    spectra : list of BlockSpectra
+        Blocks on the same frequency grid.
+    noise : ndarray
+        Noise levels of :func:`noise_levels`, shape ``(3,)``.
+
+    Returns
+    -------
+    BlockSpectra
+        Summed cross-spectra and all segments. The weights are not whitened by the
+        spectral envelope: with the generalised residual every bin carries noise of the
+        same variance, so uniform weights are the maximum-likelihood choice and the
+        strong harmonics, where theta is best resolved, dominate. Bins whose power does
+        not exceed ``_NOISE_RATIO_THRESHOLD`` times the noise are dropped, because they
+        only add the random, theta-dependent part of the noise floor.
+    """
+    s_pp = np.sum([sp.s_pp for sp in spectra], axis=0)
+    segments = np.concatenate([sp.segments for sp in spectra], axis=0)
+    trace = np.real(np.einsum("fii->f", s_pp)) / len(spectra)
+    total = max(float(np.sum(noise)), 1e-300)
+    ratio = trace / total
+    signal = np.clip((ratio - _NOISE_RATIO_THRESHOLD) / np.maximum(ratio, 1e-300), 0.0, 1.0)
+    weights = np.maximum(signal, _MIN_COHERENCE_WEIGHT) / total
+    coherence = np.mean([sp.coherence for sp in spectra], axis=0)
+    return BlockSpectra(spectra[0].freqs, s_pp, weights, coherence, segments, spectra[0].noise)
+
+
+def noise_residual(spectra: BlockSpectra, noise: np.ndarray) -> float:
+    """Residual J that the sensor noise alone leaves (expectation, any theta).
+
+    With the generalised residual the noise of every bin contributes
+    ``n^T N conj(n) / n^T D conj(n) = mean(noise)``, so the expected noise part of
+    :func:`residual_cost` is ``mean(noise) sum w / sum w tr S``.
+    """
+    return float(np.mean(noise) * np.sum(spectra.weights) / max(spectra.norm, 1e-300))
+
+
+def _relative_noise(noise: np.ndarray) -> np.ndarray:
+    """Noise levels scaled to mean 1 and clipped to ``_NOISE_RATIO_LIMIT`` around it."""
+    d = np.asarray(noise, dtype=float)
+    mean = float(np.mean(d))
+    if not np.all(np.isfinite(d)) or mean <= 0:
+        return np.ones(3)
+    return np.clip(d / mean, 1 / _NOISE_RATIO_LIMIT, _NOISE_RATIO_LIMIT)
 
 
 def _null_components(
@@ -575,11 +748,13 @@ def residual_vector(
 ) -> np.ndarray:
     """Weighted per-segment, per-bin residuals whose squared norm is :func:`residual_cost`.
 
-    ``r[s, f] = sqrt(w_f / sum w tr S) n(f)^T X_s(f) / ||n(f)||`` (complex, dimensionless).
+    ``r[s, f] = sqrt(w_f / sum w tr S) n(f)^T X_s(f) / sqrt(n(f)^T D conj(n(f)))`` with
+    ``D = diag(spectra.noise)`` (complex, dimensionless).
     The least-squares form lets a Gauss-Newton method minimise J in a few iterations.
     """
     n0, n1, n2 = _null_components(theta, spectra.freqs, geometry, excess)
-    norm = np.sqrt(np.abs(n0) ** 2 + np.abs(n1) ** 2 + np.abs(n2) ** 2)
+    d = spectra.noise
+    norm = np.sqrt(d[0] * np.abs(n0) ** 2 + d[1] * np.abs(n1) ** 2 + d[2] * np.abs(n2) ** 2)
     scale = np.sqrt(spectra.weights / max(spectra.norm, 1e-300)) / np.maximum(norm, 1e-300)
     x = spectra.segments
     return (n0 * x[..., 0] + n1 * x[..., 1] + n2 * x[..., 2]) * scale
@@ -604,8 +779,9 @@ def residual_cost(
     Returns
     -------
     float
-        ``sum w n^T S conj(n) / ||n||^2`` divided by ``sum w tr S``: the fraction of the
-        weighted microphone energy not explained by two waves (dimensionless, 0..1).
+        ``sum w n^T S conj(n) / n^T D conj(n)`` divided by ``sum w tr S``, with
+        ``D = diag(spectra.noise)`` of mean 1: about the fraction of the weighted
+        microphone energy not explained by two waves (dimensionless).
 
     References
     ----------
@@ -624,7 +800,7 @@ def residual_cost(
             + n0 * np.conj(n2) * s[:, 0, 2]
             + n1 * np.conj(n2) * s[:, 1, 2]
         )
-    ) / np.maximum(a0 + a1 + a2, 1e-300)
+    ) / np.maximum(spectra.noise @ np.array([a0, a1, a2]), 1e-300)
     return float(np.dot(spectra.weights, quad) / max(spectra.norm, 1e-300))
 
 
@@ -872,6 +1048,9 @@ def separate(
     )
 
     # 1. Estimate theta per block, warm-started from the previous block.
+    noise = noise_levels(x, fs, config) if config.noise_model == "white" else None
+    if noise is not None:
+        log.info("separation: noise PSD per channel %s Pa^2/Hz", np.array2string(noise))
     spectra_list = [
         cross_spectra(
             _block(x, s, length),
@@ -881,6 +1060,7 @@ def separate(
             config.fmax_hz,
             config.envelope_hz,
             config.weighting,
+            noise,
         )
         for s in starts
     ]
@@ -917,6 +1097,10 @@ def separate(
             residual[b] = residual_cost(theta, spectra, geometry)
             raw[b] = (theta.c, theta.eta, theta.mach)
         log.debug("block %d: c %.3f m/s, eta %.3f, M %.5f, J %.2e", b, *raw[b], residual[b])
+    if config.adaptive and noise is not None:
+        _pool_noisy_blocks(
+            spectra_list, fitted, raw, residual, evals, noise, geometry, config, theta
+        )
     if not np.any(fitted):
         raise ValueError(
             "no block has enough signal in the estimation band "
@@ -990,6 +1174,44 @@ def separate(
         float(np.nanmedian(residual)),
     )
     return SeparationResult(fs=float(fs), p0=p0, u0=u0, blocks=table, config=config)
+
+
+def _pool_noisy_blocks(
+    spectra_list: list[BlockSpectra],
+    fitted: np.ndarray,
+    raw: np.ndarray,
+    residual: np.ndarray,
+    evals: np.ndarray,
+    noise: np.ndarray,
+    geometry: Geometry,
+    config: SeparationConfig,
+    start: Theta,
+) -> None:
+    """Refit the noise-dominated blocks together, over stretches of ``pool_s`` (in place).
+
+    The fit starts from ``start`` (the configured values), not from the blocks' own
+    estimates, which noise has scattered up to the bounds.
+    """
+    expected = np.array([noise_residual(sp, noise) for sp in spectra_list])
+    noisy = fitted & (residual <= config.pool_residual_ratio * expected)
+    idx = np.flatnonzero(noisy)
+    if idx.size == 0:
+        return
+    hop_s = config.block_s / 2
+    per_pool = max(int(round(config.pool_s / hop_s)), 1)
+    n_pools = max(int(round(idx.size / per_pool)), 1)
+    for group in np.array_split(idx, n_pools):
+        pooled = noise_weighted([spectra_list[b] for b in group], noise)
+        est, _, n_eval = estimate_theta(pooled, geometry, start, config)
+        raw[group] = (est.c, est.eta, est.mach)
+        evals[group[0]] += n_eval
+        log.info(
+            "separation: %d noise-dominated blocks fitted together: T %.2f degC, eta %.3f, M %.4f",
+            group.size,
+            est.temperature_c,
+            est.eta,
+            est.mach,
+        )
 
 
 def fixed_config(config: SeparationConfig, mach: float = 0.0) -> SeparationConfig:

@@ -136,6 +136,8 @@ def run(args: argparse.Namespace) -> int:
             lam=inv.lam,
             solver=inv.step1_solver,
             zero_mean=result.zero_mean,
+            p_m=inv.step1_p_m,
+            y_c=inv.y_c,
         )
         rs.plot_flow_pressure(
             p[i0:i1], u[i0:i1], fs, s1, out / "flow_pressure.png", zero_mean=result.zero_mean

@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
         for t in takes:
             try:
                 run_take(cfg, cal_path, t, args.output, args.force, client)
-            except (ValueError, OSError) as exc:
+            except (ValueError, OSError, UserError) as exc:
                 if isinstance(exc, ConfigError | UserError) and len(takes) == 1:
                     raise
                 failed.append(t[0])

@@ -1,0 +1,130 @@
+"""``mpipe run`` end to end on a short virtual take: accuracy, resuming, errors."""
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from mpipe.cli import main
+from mpipe.commands.synth_take import SynthOptions, make_take
+from mpipe.errors import OutputExistsError
+from mpipe.orchestration import STAGES, run_take
+from mpipe.pipeline import load_pipeline
+
+ROOT = Path(__file__).resolve().parents[1]
+# true value and tolerance of the median over the windows: the front end's errors (the
+# flow within a few per cent, the DC of u lost) reach the parameters; the contact stiffness
+# is the least sensitive of them (F2 changes little with it), so its bound is wider
+TRUTH = {
+    "k": (8.66e6, 0.05),
+    "S": (7.62e-5, 0.05),
+    "y_m": (4e-4, 0.05),
+    "p_m": (1800.0, 0.05),
+    "lam": (0.013, 0.05),
+    "k_c": (8.23e10, 0.2),
+}
+
+
+@pytest.fixture(scope="module")
+def take(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("take")
+    options = SynthOptions(duration_s=0.62, snr_db=70.0, seed=7)
+    return make_take(
+        ROOT / "calibration" / "simplified_clarinet.yaml",
+        ROOT / "calibration" / "reed_table1.yaml",
+        folder / "short.flac",
+        options,
+    )
+
+
+@pytest.fixture(scope="module")
+def pipeline(tmp_path_factory, take):
+    data = yaml.safe_load((ROOT / "pipelines" / "simplified_clarinet.yaml").read_text())
+    data["calibration"] = str(take.calibration)
+    data["executor"] = {"kind": "local", "workers": 1}
+    data["inversion"]["hop_s"] = 0.04  # three windows between 0.25 s and 0.37 s
+    data["conditioning"] = {"edge_s": 0.25}
+    path = tmp_path_factory.mktemp("pipe") / "pipeline.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return load_pipeline(path)
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory, take, pipeline):
+    out = tmp_path_factory.mktemp("run")
+    lines = []
+    run = run_take(pipeline, take.calibration, [take.audio], out, say=lines.append)
+    return out, run, lines
+
+
+def test_full_pipeline_recovers_the_truth(finished):
+    out, run, lines = finished
+    assert [r.status for r in run.records.values()] == ["done"] * len(STAGES)
+    assert len(lines) > len(STAGES)  # a line per stage, plus verdicts
+    assert run.records["validation"].summary["passed"]
+    windows = pd.read_csv(run.folder / "inversion" / "windows.csv", keep_default_na=False)
+    assert len(windows) >= 2 and (windows["error"] == "").all()
+    # measured (zero-mean) path through the front end: within a few per cent
+    for name, (true, tolerance) in TRUTH.items():
+        got = windows[name].median()
+        assert abs(got / true - 1) < tolerance, (name, got, true)
+    assert windows["relative_residual"].max() < 0.02
+    report = (run.folder / "report.html").read_text()
+    assert "PASS" in report and "tracks.png" in report and "overlay_1.png" in report
+    for stage in STAGES:
+        assert (run.folder / stage / "manifest.json").exists()
+
+
+def test_interrupted_run_resumes_and_redoes_nothing_done(finished, take, pipeline, monkeypatch):
+    import mpipe.inversion.tracking as tracking
+
+    out, run, _ = finished
+    before = pd.read_csv(run.folder / "inversion" / "windows.csv", keep_default_na=False)
+    # interrupt the inversion after its first window: no manifest, one checkpoint left
+    (run.folder / "inversion" / "manifest.json").unlink()
+    checkpoints = sorted((run.folder / "inversion" / "partial" / "windows").glob("w*.json"))
+    for c in checkpoints[1:]:
+        c.unlink()
+    calls = []
+    real = tracking.invert_window
+    monkeypatch.setattr(
+        tracking, "invert_window", lambda *a, **k: calls.append(a[3]) or real(*a, **k)
+    )
+    again = run_take(pipeline, take.calibration, [take.audio], out, say=lambda s: None)
+    status = {k: r.status for k, r in again.records.items()}
+    assert status["separation"] == status["translation"] == status["validation"] == "skipped"
+    assert status["inversion"] == "done"
+    assert len(calls) == len(checkpoints) - 1  # only the lost windows were redone
+    after = pd.read_csv(run.folder / "inversion" / "windows.csv", keep_default_na=False)
+    np.testing.assert_allclose(after["k"], before["k"], rtol=1e-9)
+    # a finished run is skipped whole, and other settings never overwrite it silently
+    third = run_take(pipeline, take.calibration, [take.audio], out, say=lambda s: None)
+    assert {r.status for r in third.records.values()} == {"skipped"}
+    from dataclasses import replace
+
+    changed = replace(pipeline, inversion=replace(pipeline.inversion, warm_max_evaluations=99))
+    with pytest.raises(OutputExistsError, match="--force"):
+        run_take(changed, take.calibration, [take.audio], out, say=lambda s: None)
+
+
+def test_malformed_pipeline_and_take_give_clear_errors(tmp_path, take, capsys):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("calibration: nowhere.yaml\ninversion:\n  window: 0.02\n")
+    assert main(["run", str(bad), str(take.audio), "-o", str(tmp_path / "o")]) == 2
+    assert "inversion.window: unknown key" in capsys.readouterr().err
+    good = tmp_path / "good.yaml"
+    good.write_text(f"calibration: {take.calibration}\n")
+    stereo = tmp_path / "stereo.wav"
+    import soundfile as sf
+
+    sf.write(stereo, np.zeros((20000, 2)), 100000)
+    assert main(["run", str(good), str(stereo), "-o", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "stereo.wav: has 2 channels" in err
+    # with several takes, a bad one is reported and the others go on
+    assert main(["run", str(good), str(stereo), str(stereo), "-o", str(tmp_path / "o")]) == 1
+    assert "2 of 2 takes failed" in capsys.readouterr().out
+    assert main(["run", str(good), str(tmp_path / "missing.flac"), "-o", str(tmp_path)]) == 2
+    assert "no such take file" in capsys.readouterr().err
