@@ -34,3 +34,12 @@ def test_impedance_command_reports_bad_input(tmp_path, capsys):
     assert "bad.yaml" in err and "missing required key" in err
     with pytest.raises(SystemExit):
         main(["impedance"])
+
+
+def test_python_api_names_resolve():
+    import mpipe
+
+    for name in mpipe.__all__:
+        assert getattr(mpipe, name) is not None
+    with pytest.raises(AttributeError):
+        mpipe.nonexistent  # noqa: B018
