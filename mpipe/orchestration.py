@@ -220,7 +220,6 @@ def _stage_inversion(
     mouthpiece: Path, plan: Path, t_eff: float, cal: Calibration, cfg: PipelineConfig, client,
 ):  # fmt: skip
     from mpipe import resynthesis as rs
-    from mpipe.inversion.step1 import step1
     from mpipe.inversion.tracking import ProgressBar, track, write_table
 
     inv = cfg.inversion
@@ -249,20 +248,12 @@ def _stage_inversion(
         outputs = {"windows": "windows.csv", "tracks": "tracks.png"}
         if any(w.suffix == ".parquet" for w in written):
             outputs["windows_parquet"] = "windows.parquet"
+        outputs.update(
+            rs.plot_first_window(
+                table, result.histories, p, u, fs, air.rho, inv, result.zero_mean, folder
+            )
+        )
         ok = table[table["error"] == ""]
-        if len(ok):
-            first = ok.iloc[0]
-            w = int(first["window"])
-            if w in result.histories:
-                rs.plot_history(result.histories[w], folder / "history.png")
-                outputs["history"] = "history.png"
-            i0, i1 = int(round(first["t_start_s"] * fs)), int(round(first["t_end_s"] * fs))
-            s1 = step1(p[i0:i1], u[i0:i1], fs, rho=air.rho, lam=inv.lam,
-                       solver=inv.step1_solver, zero_mean=result.zero_mean,
-                       p_m=inv.step1_p_m, y_c=inv.y_c)  # fmt: skip
-            rs.plot_flow_pressure(p[i0:i1], u[i0:i1], fs, s1, folder / "flow_pressure.png",
-                                  zero_mean=result.zero_mean)  # fmt: skip
-            outputs["flow_pressure"] = "flow_pressure.png"
         params = ["k", "S", "y_m", "p_m", "m", "g", "lam", "k_c"]
         summary = {
             "windows": len(table),

@@ -313,3 +313,66 @@ def _save(fig, path: str | Path) -> Path:
         return write_atomic(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
     finally:
         plt.close(fig)
+
+
+def plot_first_window(
+    table: pd.DataFrame,
+    histories: dict,
+    p: np.ndarray,
+    u: np.ndarray,
+    fs: float,
+    rho: float,
+    config: InversionConfig,
+    zero_mean: bool,
+    folder: str | Path,
+) -> dict[str, str]:
+    """Figures 7 and 8 of the paper for the first inverted window of a take.
+
+    Writes ``flow_pressure.png`` (flow against pressure difference with both step-1 fits)
+    and, when the window's search history is known, ``history.png``.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        Per-window results.
+    histories : dict
+        Window index -> step-2 objective history (Pa).
+    p, u : ndarray
+        Mouthpiece pressure (Pa) and flow (m^3/s) of the take.
+    fs : float
+        Sample rate, Hz.
+    rho : float
+        Air density, kg/m^3.
+    config : InversionConfig
+        Step-1 settings.
+    zero_mean : bool
+        Whether the flow is zero-mean (measured).
+    folder : str or Path
+        Output folder.
+
+    Returns
+    -------
+    dict
+        Output name -> file name of the figures written.
+    """
+    from mpipe.inversion.step1 import step1
+
+    folder = Path(folder)
+    ok = table[table["error"] == ""]
+    if not len(ok):
+        return {}
+    first = ok.iloc[0]
+    i0, i1 = int(round(first["t_start_s"] * fs)), int(round(first["t_end_s"] * fs))
+    s1 = step1(
+        p[i0:i1], u[i0:i1], fs, rho=rho, lam=config.lam, solver=config.step1_solver,
+        zero_mean=zero_mean, p_m=config.step1_p_m, y_c=config.y_c,
+    )  # fmt: skip
+    plot_flow_pressure(
+        p[i0:i1], u[i0:i1], fs, s1, folder / "flow_pressure.png", zero_mean=zero_mean
+    )
+    outputs = {"flow_pressure": "flow_pressure.png"}
+    w = int(first["window"])
+    if w in histories:
+        plot_history(histories[w], folder / "history.png")
+        outputs["history"] = "history.png"
+    return outputs

@@ -126,25 +126,7 @@ def run(args: argparse.Namespace) -> int:
             out / "signals.png",
             title=f"window at {first['t_start_s']:.3f} s",
         )
-        from mpipe.inversion.step1 import step1
-
-        s1 = step1(
-            p[i0:i1],
-            u[i0:i1],
-            fs,
-            rho=air.rho,
-            lam=inv.lam,
-            solver=inv.step1_solver,
-            zero_mean=result.zero_mean,
-            p_m=inv.step1_p_m,
-            y_c=inv.y_c,
-        )
-        rs.plot_flow_pressure(
-            p[i0:i1], u[i0:i1], fs, s1, out / "flow_pressure.png", zero_mean=result.zero_mean
-        )
-        w = int(first["window"])
-        if w in result.histories:
-            rs.plot_history(result.histories[w], out / "history.png")
+    rs.plot_first_window(table, result.histories, p, u, fs, air.rho, inv, result.zero_mean, out)
     rs.plot_tracks(table, out / "tracks.png")
     rs.write_wav(out / "resynthesis.wav", res.p, fs)
     run_info = {
