@@ -62,3 +62,26 @@ def write_atomic(path: str | Path, writer: Callable[[Path], None]) -> Path:
 def write_text_atomic(path: str | Path, text: str) -> Path:
     """Write text to ``path`` atomically."""
     return write_atomic(path, lambda tmp: tmp.write_text(text))
+
+
+def write_npz_atomic(path: str | Path, compressed: bool = False, **arrays) -> Path:
+    """Write arrays to an ``.npz`` file atomically (never a half-written file).
+
+    Parameters
+    ----------
+    path : str or Path
+        Output file.
+    compressed : bool
+        Use ``numpy.savez_compressed``.
+    **arrays
+        Name to array (any units; the caller's docstring names them).
+    """
+    import numpy as np
+
+    save = np.savez_compressed if compressed else np.savez
+
+    def writer(tmp: Path) -> None:
+        with open(tmp, "wb") as fh:
+            save(fh, **{k: np.asarray(v) for k, v in arrays.items()})
+
+    return write_atomic(path, writer)

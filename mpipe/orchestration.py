@@ -20,7 +20,7 @@ import pandas as pd
 
 from mpipe import __version__
 from mpipe.calibration import Calibration, load_calibration
-from mpipe.io import write_atomic
+from mpipe.io import write_atomic, write_npz_atomic
 from mpipe.manifest import PARTIAL, StageRecord, run_stage
 from mpipe.pipeline import PipelineConfig
 from mpipe.report import Section, write_report
@@ -64,11 +64,6 @@ def take_name(paths: Sequence[str | Path]) -> str:
     return Path(paths[0]).stem
 
 
-def _save_npz(path: Path, **arrays) -> None:
-    with open(path, "wb") as fh:
-        np.savez(fh, **arrays)
-
-
 def _load_npz(path: Path) -> dict:
     with np.load(path) as data:
         return {k: data[k] for k in data.files}
@@ -105,12 +100,10 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
         take = read_take(take_paths if len(take_paths) == 3 else take_paths[0], cal)
         sep = separate(take.pressures, take.fs, cal, cfg.separation)
         temps = sep.temperature_track()
-        write_atomic(
-            folder / "reference.npz",
-            lambda t: _save_npz(
-                t, fs=np.float64(take.fs), p0=sep.p0, u0=sep.u0, temperature_c=temps
-            ),
-        )
+        write_npz_atomic(
+            folder / "reference.npz", fs=np.float64(take.fs), p0=sep.p0, u0=sep.u0,
+            temperature_c=temps,
+        )  # fmt: skip
         write_atomic(folder / "blocks.csv", lambda t: sep.blocks.to_csv(t, index=False))
         write_atomic(folder / "blocks.png", lambda t: _plot_blocks(sep.blocks, t))
         b = sep.blocks
@@ -138,12 +131,9 @@ def _stage_translation(folder_sep: Path, cal: Calibration, cfg: PipelineConfig):
         ref = _load_npz(folder_sep / "reference.npz")
         fs = float(ref["fs"])
         tr = translate(ref["p0"], ref["u0"], fs, cal, cfg.translation, ref["temperature_c"])
-        write_atomic(
-            folder / "mouthpiece.npz",
-            lambda t: _save_npz(
-                t, fs=np.float64(fs), p=tr.p, u=tr.u, p0=tr.p0, u0=tr.u0,
-                temperature_c=tr.temperature_c,
-            ),
+        write_npz_atomic(
+            folder / "mouthpiece.npz", fs=np.float64(fs), p=tr.p, u=tr.u, p0=tr.p0, u0=tr.u0,
+            temperature_c=tr.temperature_c,
         )  # fmt: skip
         write_atomic(folder / "mouthpiece.wav", lambda t: _write_wav(t, tr.p, tr.u, fs))
         summary = {"p_rms_pa": float(np.std(tr.p)), "u_rms_m3_s": float(np.std(tr.u))}
@@ -283,8 +273,7 @@ def _stage_resynthesis(mouthpiece: Path, windows: Path, t_eff: float, cal, cfg, 
         table["error"] = table["error"].fillna("")
         kernel, _ = _kernel(cal, t_eff, fs)
         res = rs.resynthesise(table, p, u, fs, kernel, cfg.inversion, zero_mean)
-        write_atomic(folder / "resynthesis.npz",
-                     lambda t: _save_npz(t, fs=np.float64(fs), p=res.p, u=res.u))  # fmt: skip
+        write_npz_atomic(folder / "resynthesis.npz", fs=np.float64(fs), p=res.p, u=res.u)
         filled = np.nan_to_num(res.p)
         rs.write_wav(folder / "resynthesis.wav", filled, fs, cfg.resynthesis.wav_full_scale_pa)
         outputs = {"signals": "resynthesis.npz", "wav": "resynthesis.wav"}

@@ -167,7 +167,8 @@ class InversionConfig:
     hop_s: float = spec("s", "hop between window starts", between(1e-3, 10.0), default=0.02)
     signal: Literal["measured", "model", "auto"] = spec(
         "",
-        "measured: zero-mean flow, model output is high- and low-passed before comparison; "
+        "measured: zero-mean flow, model output is low-passed like the measurement before "
+        "comparison; "
         "model: flow with its mean, compared raw; auto: decide from mean(u)/rms(u)",
         default="auto",
     )

@@ -70,7 +70,7 @@ from mpipe.air import Air
 from mpipe.bore import transfer_matrix
 from mpipe.calibration import Calibration
 from mpipe.ducts import invert, propagation
-from mpipe.io import check_writable, write_atomic, write_text_atomic
+from mpipe.io import check_writable, write_atomic, write_npz_atomic, write_text_atomic
 
 log = logging.getLogger(__name__)
 
@@ -710,7 +710,7 @@ def write_virtual_take(
         "mic_positions": np.asarray([m.position for m in calibration.microphones]),
     }
     truth.update(truth_extra or {})
-    write_atomic(files.truth, lambda tmp: _save_npz(tmp, truth))
+    write_npz_atomic(files.truth, compressed=True, **truth)
 
     sidecar = {
         "mpipe_version": __version__,
@@ -767,11 +767,6 @@ def calibration_mapping(calibration: Calibration) -> dict[str, Any]:
         return obj
 
     return convert(calibration)
-
-
-def _save_npz(path: Path, arrays: Mapping[str, Any]) -> None:
-    with open(path, "wb") as fh:
-        np.savez_compressed(fh, **{k: np.asarray(v) for k, v in arrays.items()})
 
 
 def _plain(obj):

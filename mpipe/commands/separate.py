@@ -28,7 +28,7 @@ import numpy as np
 
 from mpipe.calibration import load_calibration
 from mpipe.errors import UserError
-from mpipe.io import check_writable, write_atomic
+from mpipe.io import check_writable, write_atomic, write_npz_atomic
 from mpipe.separation import SeparationConfig, separate
 from mpipe.translation import TranslationConfig, translate
 from mpipe.validation import ValidationConfig, plot_impedance, validate
@@ -123,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
         "u0": tr.u0,
         "temperature_c": tr.temperature_c,
     }
-    write_atomic(out / "mouthpiece.npz", lambda tmp: _save_npz(tmp, arrays))
+    write_npz_atomic(out / "mouthpiece.npz", **arrays)
     write_atomic(out / "mouthpiece.wav", lambda tmp: _write_wav(tmp, tr.p, tr.u, take.fs))
     write_atomic(out / "blocks.csv", lambda tmp: sep.blocks.to_csv(tmp, index=False))
     write_atomic(out / "impedance.csv", lambda tmp: val.table().to_csv(tmp, index=False))
@@ -139,11 +139,6 @@ def run(args: argparse.Namespace) -> int:
     print(val.summary())
     print(f"wrote {', '.join(str(p) for p in paths)}")
     return 0
-
-
-def _save_npz(path: Path, arrays: dict) -> None:
-    with open(path, "wb") as fh:
-        np.savez(fh, **arrays)
 
 
 def _write_wav(path: Path, p: np.ndarray, u: np.ndarray, fs: float) -> None:

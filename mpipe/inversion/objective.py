@@ -19,10 +19,11 @@ exact parameters its F2 vanishes to the lead-in transient (~e^{-g t/2}). ``bench
 bench_inversion.py`` measures both. ``"rest"`` stays useful far from the optimum, where a
 candidate's limit cycle differs from the target's and the history start drifts.
 
-For a zero-mean (measured) target the model output passes through the same high-pass and
-low-pass as the measurement (:func:`mpipe.conditioning.match_measurement`) before the
-comparison; with a history start the mean flow missing from the measured history is
-estimated from the candidate's flow over the lead-in.
+For a zero-mean (measured) target the model output passes through the measurement's
+7.25 kHz FIR before the comparison. The pressure gets no high-pass: the separation keeps
+its DC, and a zero-phase high-pass on a short model record distorts the window's ends.
+With a history start the mean flow missing from the measured history is estimated from
+the candidate's flow over the lead-in.
 
 References
 ----------
