@@ -332,3 +332,51 @@ def steady_windows(
     table["steady"] = steady
     table["reason"] = reason
     return table
+
+
+def plan_inversion(
+    p: np.ndarray,
+    fs: float,
+    conditioning,
+    window_s: float,
+    hop_s: float,
+    start_s: float | None = None,
+    end_s: float | None = None,
+) -> pd.DataFrame:
+    """The windows of a take and which of them are inverted: one rule for every command.
+
+    Windows of ``window_s`` every ``hop_s`` span ``[start_s, end_s]``, which default to the
+    take less ``conditioning.edge_s`` at both ends (the filters' edges); each is classified
+    by :func:`steady_windows`, and the steady ones (all but the silent ones when
+    ``conditioning.invert_transients``) are marked ``invert``.
+
+    Parameters
+    ----------
+    p : ndarray
+        Mouthpiece pressure, Pa.
+    fs : float
+        Sample rate, Hz.
+    conditioning : mpipe.pipeline.ConditioningConfig
+        Steadiness tolerance, playing-frequency range, silence level, edges.
+    window_s, hop_s : float
+        Window length and hop, s.
+    start_s, end_s : float, optional
+        Span analysed, s.
+
+    Returns
+    -------
+    pandas.DataFrame
+        The columns of :func:`steady_windows` and ``invert``.
+    """
+    c = conditioning
+    n = int(np.size(p))
+    first = c.edge_s if start_s is None else max(start_s, 0.0)
+    last = n / fs - c.edge_s if end_s is None else min(end_s, n / fs)
+    window_n = int(round(window_s * fs))
+    hop = max(int(round(hop_s * fs)), 1)
+    starts = list(range(int(round(first * fs)), int(round(last * fs)) - window_n + 1, hop))
+    table = steady_windows(
+        p, fs, starts, window_n, c.steady_tolerance, c.f0_min_hz, c.f0_max_hz, c.min_rms_pa
+    )
+    table["invert"] = table["steady"] | (c.invert_transients & (table["reason"] != "silent"))
+    return table

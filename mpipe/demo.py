@@ -37,12 +37,12 @@ PARAMETERS = (
 
 
 def truth_table(windows: pd.DataFrame, truth: dict, fs: float) -> pd.DataFrame:
-    """Median recovered parameters beside the true ones of a virtual take.
+    """Median recovered parameters (windows with status ok) beside the true ones.
 
     The true mouth pressure rises during the example (a swell); it is compared with its
     mean over the inverted windows.
     """
-    ok = windows[windows["error"].astype(str) == ""]
+    ok = windows[windows["status"].astype(str) == "ok"]
     rows = []
     for col, key, unit in PARAMETERS:
         true = float(truth[f"reed_{key}"])
@@ -89,7 +89,7 @@ def main(out_dir: Path = ROOT / "demo_output") -> int:
     with np.load(files.truth) as data:
         truth = {k: data[k] for k in data.files}
     table = truth_table(windows, truth, float(truth["fs_model"]))
-    print("\nRecovered reed parameters (median over the windows) beside the truth:")
+    print("\nRecovered reed parameters (median over the ok windows) beside the truth:")
     print(table.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
     print(f"\nreport: {out_dir / 'run' / name / 'report.html'}")
     return 0

@@ -20,9 +20,10 @@ import pandas as pd
 
 from mpipe import __version__
 from mpipe.calibration import Calibration, load_calibration
+from mpipe.inversion.kernel import bore_kernel, take_temperature
 from mpipe.io import write_atomic, write_npz_atomic
 from mpipe.manifest import PARTIAL, StageRecord, run_stage
-from mpipe.pipeline import PipelineConfig
+from mpipe.pipeline import PARAMETER_NAMES, PipelineConfig
 from mpipe.report import Section, write_report
 
 log = logging.getLogger(__name__)
@@ -147,7 +148,7 @@ def _stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg: Pip
 
     def work(folder: Path):
         mp = _load_npz(mouthpiece)
-        t_eff = float(np.median(pd.read_csv(blocks)["temperature_c"]))
+        t_eff = take_temperature(mp.get("temperature_c"), cal)
         val = validate(mp["p"], mp["u"], float(mp["fs"]), cal, cfg.validation, t_eff)
         write_atomic(folder / "impedance.csv", lambda t: val.table().to_csv(t, index=False))
         write_atomic(folder / "validation.csv", lambda t: val.resonances.to_csv(t, index=False))
@@ -168,23 +169,15 @@ def _stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg: Pip
 
 
 def _stage_conditioning(mouthpiece: Path, cfg: PipelineConfig):
-    from mpipe.conditioning import steady_windows
-    from mpipe.inversion.tracking import detect_zero_mean, plan_windows
+    from mpipe.conditioning import plan_inversion
+    from mpipe.inversion.tracking import detect_zero_mean
 
-    c, inv = cfg.conditioning, cfg.inversion
+    inv = cfg.inversion
 
     def work(folder: Path):
         mp = _load_npz(mouthpiece)
         fs = float(mp["fs"])
-        n = mp["p"].size
-        end = n / fs - c.edge_s
-        starts = plan_windows(n, fs, inv.window_s, inv.hop_s, c.edge_s, end)
-        window_n = int(round(inv.window_s * fs))
-        table = steady_windows(
-            mp["p"], fs, starts, window_n, c.steady_tolerance, c.f0_min_hz, c.f0_max_hz,
-            c.min_rms_pa,
-        )  # fmt: skip
-        table["invert"] = table["steady"] | (c.invert_transients & (table["reason"] != "silent"))
+        table = plan_inversion(mp["p"], fs, cfg.conditioning, inv.window_s, inv.hop_s)
         write_atomic(folder / "plan.csv", lambda t: table.to_csv(t, index=False))
         summary = {
             "windows": len(table),
@@ -198,18 +191,10 @@ def _stage_conditioning(mouthpiece: Path, cfg: PipelineConfig):
     return work
 
 
-def _kernel(cal: Calibration, temperature_c: float, fs: float):
-    from mpipe.model import prepare_bore
-    from mpipe.reflection import reflection_function
-
-    air = cal.air_properties(temperature_c)
-    return prepare_bore(reflection_function(cal.bore, air, fs=fs), air), air
-
-
-def _stage_inversion(
-    mouthpiece: Path, plan: Path, t_eff: float, cal: Calibration, cfg: PipelineConfig, client,
-):  # fmt: skip
+def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: PipelineConfig, client):
     from mpipe import resynthesis as rs
+    from mpipe.inversion.status import count as count_status
+    from mpipe.inversion.status import summary_line
     from mpipe.inversion.tracking import ProgressBar, track, write_table
 
     inv = cfg.inversion
@@ -223,7 +208,8 @@ def _stage_inversion(
         starts = table_plan.loc[table_plan["invert"], "start"].astype(int).tolist()
         if not starts:
             raise ValueError("no steady window to invert (see conditioning/plan.csv)")
-        kernel, air = _kernel(cal, t_eff, fs)
+        t_eff = take_temperature(mp.get("temperature_c"), cal)
+        kernel, air = bore_kernel(cal, fs, t_eff)
         bar = ProgressBar(len(starts))
         try:
             result = track(
@@ -243,18 +229,22 @@ def _stage_inversion(
                 table, result.histories, p, u, fs, air.rho, inv, result.zero_mean, folder
             )
         )
-        ok = table[table["error"] == ""]
-        params = ["k", "S", "y_m", "p_m", "m", "g", "lam", "k_c"]
+        ok = table[table["status"] == "ok"]
         summary = {
             "windows": len(table),
             "failed": int((table["error"] != "").sum()),
+            "status_counts": count_status(table),
+            "status_line": summary_line(table),
             "zero_mean_flow": bool(result.zero_mean),
-            "median": {k: float(ok[k].median()) for k in params} if len(ok) else {},
+            "median_over": "windows with status ok",
+            "median": {k: float(ok[k].median()) for k in PARAMETER_NAMES} if len(ok) else {},
             "relative_residual_median": float(ok["relative_residual"].median())
             if len(ok)
             else None,
-            "evaluations_median": float(ok["n_evaluations"].median()) if len(ok) else None,
-            "wall_per_window_s_median": float(ok["wall_time_s"].median()) if len(ok) else None,
+            "evaluations_median": float(table["n_evaluations"].median()) if len(table) else None,
+            "wall_per_window_s_median": float(table["wall_time_s"].median())
+            if len(table)
+            else None,
             "temperature_c": t_eff,
         }
         return outputs, summary
@@ -262,7 +252,7 @@ def _stage_inversion(
     return work
 
 
-def _stage_resynthesis(mouthpiece: Path, windows: Path, t_eff: float, cal, cfg, zero_mean):
+def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
     from mpipe import resynthesis as rs
 
     def work(folder: Path):
@@ -271,7 +261,7 @@ def _stage_resynthesis(mouthpiece: Path, windows: Path, t_eff: float, cal, cfg, 
         p, u = mp["p"], mp["u"]
         table = pd.read_csv(windows, keep_default_na=False, na_values=[""], dtype={"error": str})
         table["error"] = table["error"].fillna("")
-        kernel, _ = _kernel(cal, t_eff, fs)
+        kernel, _ = bore_kernel(cal, fs, take_temperature(mp.get("temperature_c"), cal))
         res = rs.resynthesise(table, p, u, fs, kernel, cfg.inversion, zero_mean)
         write_npz_atomic(folder / "resynthesis.npz", fs=np.float64(fs), p=res.p, u=res.u)
         filled = np.nan_to_num(res.p)
@@ -374,18 +364,25 @@ def run_take(
                  _stage_conditioning(mouthpiece, cfg))  # fmt: skip
     say(f"[{name}]     {cond.summary['to_invert']} of {cond.summary['windows']} windows to invert")
     plan = d["conditioning"] / "plan.csv"
-    t_eff = float(val.summary["temperature_c"])
     inv_inputs = {"mouthpiece": mouthpiece, "plan": plan, "blocks": blocks, **cal_inputs}
-    stage(5, "inversion", inv_inputs, cfg.inversion,
-          _stage_inversion(mouthpiece, plan, t_eff, cal, cfg, client))  # fmt: skip
+    inv = stage(5, "inversion", inv_inputs, cfg.inversion,
+                _stage_inversion(mouthpiece, plan, cal, cfg, client))  # fmt: skip
+    say(f"[{name}]     {inv.summary['status_line']}")
+    if not inv.summary["status_counts"]["ok"]:
+        say(f"[{name}]     no window has status ok: see inversion/windows.csv, status_reason")
     windows = d["inversion"] / "windows.csv"
     zero_mean = bool(records["inversion"].summary["zero_mean_flow"])
     stage(6, "resynthesis", {"mouthpiece": mouthpiece, "windows": windows, **cal_inputs},
           {"resynthesis": cfg.resynthesis, "inversion": cfg.inversion},
-          _stage_resynthesis(mouthpiece, windows, t_eff, cal, cfg, zero_mean))  # fmt: skip
+          _stage_resynthesis(mouthpiece, windows, cal, cfg, zero_mean))  # fmt: skip
     report = write_take_report(root, name, take_paths, cal_path, records)
     say(f"[{name}]     report: {report}")
     return TakeRun(name, root, records, report)
+
+
+def usable(run: TakeRun) -> bool:
+    """Whether a take's run has at least one window with status ok."""
+    return bool(run.records["inversion"].summary.get("status_counts", {}).get("ok", 0))
 
 
 def write_take_report(root: Path, name: str, take_paths, cal_path, records: dict) -> Path:
@@ -395,8 +392,8 @@ def write_take_report(root: Path, name: str, take_paths, cal_path, records: dict
     res = records["resynthesis"].summary
     sep = records["separation"].summary
     windows = pd.read_csv(root / "inversion" / "windows.csv", keep_default_na=False)
-    cols = [c for c in ("t_start_s", "k", "S", "y_m", "p_m", "m", "g", "lam", "k_c", "f2",
-                        "relative_residual", "n_evaluations", "converged", "error")
+    cols = [c for c in ("t_start_s", "status", "k", "S", "y_m", "p_m", "m", "g", "lam", "k_c",
+                        "f2", "relative_residual", "n_evaluations", "status_reason")
             if c in windows.columns]  # fmt: skip
     timings = pd.DataFrame(
         [{"stage": k, "status": r.status, "wall_s": r.wall_s} for k, r in records.items()]
@@ -415,10 +412,15 @@ def write_take_report(root: Path, name: str, take_paths, cal_path, records: dict
         ),
         Section(
             "Reed parameters over time",
-            f"{inv['windows']} windows inverted, {inv['failed']} failed; median relative "
-            f"residual {inv['relative_residual_median']}; flow treated as "
+            f"{inv['status_line']} (ok: the search met its tolerance, no parameter on a "
+            "bound, residual within a few times the take's best; see status_reason). "
+            f"Medians over the ok windows; median relative residual "
+            f"{inv['relative_residual_median']}; flow treated as "
             f"{'zero-mean (measured)' if inv['zero_mean_flow'] else 'carrying its mean (model)'}.",
-            None,
+            (
+                "OK" if inv["status_counts"]["ok"] else "NO USABLE WINDOW",
+                "pass" if inv["status_counts"]["ok"] else "fail",
+            ),
             tuple(
                 p
                 for p in (

@@ -114,8 +114,61 @@ class InversionConfig:
     seed_branch: Literal["closing", "opening"] = spec(
         "", "step-1 branch whose k, S, y_m start step 2 (the paper: closing)", default="closing"
     )
-    optimiser: Literal["rosenbrock", "powell", "nelder-mead"] = spec(
-        "", "step-2 search method", default="rosenbrock"
+    optimiser: Literal["trust-region", "rosenbrock", "powell", "nelder-mead"] = spec(
+        "",
+        "step-2 local search: trust-region (least squares on the residual vector, log "
+        "parameters; the default, 10-20x fewer model runs) or rosenbrock (the paper's "
+        "rotating-coordinate search), powell, nelder-mead",
+        default="trust-region",
+    )
+    cold_start: Literal["global", "step1"] = spec(
+        "",
+        "how the first window of a take is started. global: a Sobol design over the whole "
+        "bounded box, short local searches from step 1's estimate and the best design points, "
+        "a full search from the best; step1: the paper's single start from step 1",
+        default="global",
+    )
+    design_points: int = spec(
+        "", "points of the cold start's Sobol design (rounded up to a power of two)",
+        between(1, 65536), default=256,
+    )  # fmt: skip
+    local_starts: int = spec(
+        "", "short local searches of the cold start, step 1's estimate included",
+        between(1, 256), default=8,
+    )  # fmt: skip
+    local_evaluations: int = spec(
+        "", "model runs per short local search of the cold start", between(10, 100000),
+        default=300,
+    )  # fmt: skip
+    design_seed: int = spec(
+        "", "scrambling seed of the Sobol design (fixed: the same take gives the same answer)",
+        between(0, 2**31 - 1), default=0,
+    )  # fmt: skip
+    step1_every_window: bool = spec(
+        "",
+        "run step 1 on every window; by default only the cold-started window runs it (warm "
+        "windows start from the take's cold-start result and do not use it)",
+        default=False,
+    )
+    bound_tolerance: float = spec(
+        "",
+        "a parameter within this log distance of a search bound is on the bound "
+        "(0.001 = 0.1 %); such a window's status is at-bound",
+        between(1e-9, 0.1),
+        default=1e-3,
+    )
+    residual_factor: float = spec(
+        "",
+        "a window whose relative residual exceeds this multiple of the take's best is "
+        "high-residual",
+        between(1.0, 1e6),
+        default=3.0,
+    )
+    retry_cold: bool = spec(
+        "",
+        "give a window that is not ok after its warm start a cold start of its own (kept "
+        "when its F2 is lower)",
+        default=True,
     )
     initial_step: float = spec(
         "",
@@ -138,12 +191,15 @@ class InversionConfig:
     )
     warm_max_evaluations: int = spec(
         "",
-        "evaluation budget of a window warm-started from its predecessor",
+        "evaluation budget of a window warm-started from the take's cold-start result",
         between(1, 1_000_000),
-        default=150,
+        default=400,
     )
     warm_initial_step: float = spec(
-        "", "initial log step of a warm-started window", between(1e-5, 1.0), default=0.01
+        "",
+        "initial log step of a warm-started window (rosenbrock, powell, nelder-mead)",
+        between(1e-5, 1.0),
+        default=0.01,
     )
     start: Literal["history", "rest"] = spec(
         "",

@@ -107,7 +107,7 @@ def test_invert_command(setup, tmp_path, capsys):
         "0.34",
     ]
     assert main(args) == 0
-    assert "2 windows, 0 failed" in capsys.readouterr().out
+    assert "2 windows: 2 ok" in capsys.readouterr().out
     for name in (
         "windows.csv",
         "signals.png",

@@ -13,7 +13,7 @@ import numpy as np
 from mpipe import __version__
 from mpipe.calibration import load_calibration
 from mpipe.errors import UserError
-from mpipe.io import check_writable, write_text_atomic
+from mpipe.io import check_writable, write_atomic, write_text_atomic
 from mpipe.pipeline import load_pipeline
 
 log = logging.getLogger(__name__)
@@ -21,6 +21,7 @@ log = logging.getLogger(__name__)
 #: Files written into the output directory.
 OUTPUTS = (
     "windows.csv",
+    "plan.csv",
     "signals.png",
     "flow_pressure.png",
     "history.png",
@@ -42,14 +43,30 @@ def add_parser(sub) -> None:
     p.add_argument("mouthpiece", help="npz with keys fs, p, u (Pa, m^3/s)")
     p.add_argument("--pipeline", required=True, help="pipeline YAML")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory")
-    p.add_argument("--start", type=float, default=0.0, metavar="S", help="first time in s")
-    p.add_argument("--end", type=float, default=None, metavar="S", help="last time in s")
+    p.add_argument(
+        "--start",
+        type=float,
+        default=None,
+        metavar="S",
+        help="first time in s (default: conditioning.edge_s after the start)",
+    )
+    p.add_argument(
+        "--end",
+        type=float,
+        default=None,
+        metavar="S",
+        help="last time in s (default: conditioning.edge_s before the end)",
+    )
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
     p.set_defaults(func=run)
 
 
-def load_mouthpiece(path: str | Path) -> tuple[float, np.ndarray, np.ndarray]:
-    """Read ``fs`` (Hz), ``p`` (Pa) and ``u`` (m^3/s) from an npz, naming what is wrong."""
+def load_mouthpiece(path: str | Path) -> tuple[float, np.ndarray, np.ndarray, np.ndarray | None]:
+    """Read ``fs`` (Hz), ``p`` (Pa), ``u`` (m^3/s) and ``temperature_c`` from an npz.
+
+    ``temperature_c`` (degC per sample, written by the wave separation) is None when the
+    file has none (model output). Errors name the file and what is wrong.
+    """
     try:
         data = np.load(path)
     except (OSError, ValueError) as exc:
@@ -61,55 +78,53 @@ def load_mouthpiece(path: str | Path) -> tuple[float, np.ndarray, np.ndarray]:
         fs = float(np.asarray(data["fs"]).ravel()[0])
         p = np.asarray(data["p"], dtype=float).ravel()
         u = np.asarray(data["u"], dtype=float).ravel()
+        temperature = data["temperature_c"] if "temperature_c" in data.files else None
     if p.shape != u.shape:
         raise UserError(f"{path}: p and u differ in length ({p.size} and {u.size})")
     if not (np.all(np.isfinite(p)) and np.all(np.isfinite(u))):
         raise UserError(f"{path}: p or u contains non-finite samples")
-    return fs, p, u
+    return fs, p, u, temperature
 
 
 def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe invert``."""
     from mpipe import resynthesis as rs
+    from mpipe.conditioning import plan_inversion
+    from mpipe.inversion.kernel import bore_kernel, take_temperature
+    from mpipe.inversion.status import summary_line
     from mpipe.inversion.tracking import ProgressBar, track, write_table
-    from mpipe.model import prepare_bore
-    from mpipe.reflection import reflection_function
 
     out = Path(args.output)
     check_writable([out / name for name in (*OUTPUTS, "windows.parquet")], args.force)
     cfg = load_pipeline(args.pipeline)
     inv = cfg.inversion
-    fs, p, u = load_mouthpiece(args.mouthpiece)
+    fs, p, u, temperature = load_mouthpiece(args.mouthpiece)
     if abs(fs - inv.sample_rate) > 1e-6 * fs:
         raise UserError(
             f"{args.mouthpiece}: fs = {fs:g} Hz but {args.pipeline}: inversion.sample_rate = "
             f"{inv.sample_rate:g} Hz"
         )
     cal = load_calibration(cfg.calibration_path)
-    air = cal.air_properties()
-    kernel = prepare_bore(reflection_function(cal.bore, air, fs=fs), air)
-    from mpipe.inversion.tracking import plan_windows
-
-    n_windows = len(plan_windows(p.size, fs, inv.window_s, inv.hop_s, args.start, args.end))
-    bar = ProgressBar(n_windows)
-    try:
-        result = track(
-            p,
-            u,
-            fs,
-            kernel,
-            air.rho,
-            inv,
-            cfg.executor,
-            start_s=args.start,
-            end_s=args.end,
-            progress=bar,
+    # The same windows and the same bore kernel as `mpipe run` (one answer per take).
+    plan = plan_inversion(p, fs, cfg.conditioning, inv.window_s, inv.hop_s, args.start, args.end)
+    starts = plan.loc[plan["invert"], "start"].astype(int).tolist()
+    if not starts:
+        raise UserError(
+            f"{args.mouthpiece}: no steady window to invert ({len(plan)} windows in the span, "
+            f"none steady; see conditioning in {args.pipeline})"
         )
+    t_eff = take_temperature(temperature, cal)
+    kernel, air = bore_kernel(cal, fs, t_eff)
+    bar = ProgressBar(len(starts))
+    try:
+        result = track(p, u, fs, kernel, air.rho, inv, cfg.executor, progress=bar, starts=starts)
     except ValueError as exc:
         raise UserError(f"{args.mouthpiece}: {exc}") from None
     finally:
         bar.close()
     table = result.table
+    out.mkdir(parents=True, exist_ok=True)
+    write_atomic(out / "plan.csv", lambda tmp: plan.to_csv(tmp, index=False))
     write_table(table, out)
     res = rs.resynthesise(table, p, u, fs, kernel, inv, result.zero_mean)
     ok = table[table["error"] == ""]
@@ -134,27 +149,22 @@ def run(args: argparse.Namespace) -> int:
         "mouthpiece": str(Path(args.mouthpiece).resolve()),
         "pipeline": cfg.source,
         "calibration": str(cfg.calibration_path),
+        "temperature_c": t_eff,
         "zero_mean_flow": result.zero_mean,
         "start_s": args.start,
         "end_s": args.end,
     }
     write_text_atomic(out / "run.json", json.dumps(run_info, indent=2) + "\n")
-    cols = [
-        "t_start_s",
-        "k",
-        "S",
-        "y_m",
-        "p_m",
-        "m",
-        "g",
-        "lam",
-        "k_c",
-        "relative_residual",
-        "n_evaluations",
-    ]
-    with np.printoptions(precision=4):
-        sys.stdout.write(table[cols].to_string(index=False, float_format=lambda v: f"{v:.4g}"))
-        sys.stdout.write("\n")
-    failed = int((table["error"] != "").sum())
-    sys.stdout.write(f"{len(table)} windows, {failed} failed; results in {out}\n")
-    return 1 if failed == len(table) else 0
+    cols = ["t_start_s", "status", "k", "S", "y_m", "p_m", "m", "g", "lam", "k_c",
+            "relative_residual", "n_evaluations"]  # fmt: skip
+    sys.stdout.write(table[cols].to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+    sys.stdout.write("\n")
+    for _, row in table[table["status"] != "ok"].iterrows():
+        sys.stdout.write(f"window at {row['t_start_s']:.3f} s: {row['status']}: "
+                         f"{row['status_reason']}\n")  # fmt: skip
+    n_ok = int((table["status"] == "ok").sum())
+    sys.stdout.write(f"{summary_line(table)}; results in {out}\n")
+    if n_ok == 0:
+        sys.stderr.write("mpipe invert: no window has status ok: no usable result\n")
+        return 1
+    return 0

@@ -39,7 +39,7 @@ def add_parser(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe run``."""
-    from mpipe.orchestration import run_take
+    from mpipe.orchestration import run_take, usable
 
     cfg = load_pipeline(args.pipeline)
     cal_path = Path(args.calibration) if args.calibration else cfg.calibration_path
@@ -62,7 +62,10 @@ def run(args: argparse.Namespace) -> int:
     try:
         for t in takes:
             try:
-                run_take(cfg, cal_path, t, args.output, args.force, client)
+                result = run_take(cfg, cal_path, t, args.output, args.force, client)
+                if not usable(result):
+                    failed.append(t[0])
+                    print(f"[{t[0].stem}] failed: no window has status ok (no usable result)")
             except (ValueError, OSError, UserError) as exc:
                 if isinstance(exc, ConfigError | UserError) and len(takes) == 1:
                     raise

@@ -28,7 +28,9 @@ import numpy as np
 
 from mpipe.calibration import load_calibration
 from mpipe.errors import UserError
+from mpipe.inversion.kernel import take_temperature
 from mpipe.io import check_writable, write_atomic, write_npz_atomic
+from mpipe.pipeline import load_pipeline
 from mpipe.separation import SeparationConfig, separate
 from mpipe.translation import TranslationConfig, translate
 from mpipe.validation import ValidationConfig, plot_impedance, validate
@@ -68,6 +70,12 @@ def add_parser(sub) -> None:
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
     p.add_argument(
+        "--pipeline",
+        metavar="PIPE.yaml",
+        help="take the separation, translation and validation settings from this pipeline "
+        "file, as `mpipe run` does (default: the settings' defaults)",
+    )
+    p.add_argument(
         "--fixed-mach",
         type=float,
         metavar="M",
@@ -96,7 +104,11 @@ def run(args: argparse.Namespace) -> int:
     cal = load_calibration(cal_path)
     log.info("reading take %s", ", ".join(takes))
     take = read_take(takes if len(takes) == 3 else takes[0], cal)
-    sep_cfg = SeparationConfig()
+    if args.pipeline:
+        pipe = load_pipeline(args.pipeline)
+        sep_cfg, tr_cfg, val_cfg = pipe.separation, pipe.translation, pipe.validation
+    else:
+        sep_cfg, tr_cfg, val_cfg = SeparationConfig(), TranslationConfig(), ValidationConfig()
     if args.fixed_mach is not None:
         if not -0.05 <= args.fixed_mach <= 0.1:
             raise UserError(
@@ -107,10 +119,10 @@ def run(args: argparse.Namespace) -> int:
         log.info("stage 1/3: wave separation")
         sep = separate(take.pressures, take.fs, cal, sep_cfg)
         log.info("stage 2/3: translation to the mouthpiece entry")
-        tr = translate(sep.p0, sep.u0, take.fs, cal, TranslationConfig(), sep.temperature_track())
+        tr = translate(sep.p0, sep.u0, take.fs, cal, tr_cfg, sep.temperature_track())
         log.info("stage 3/3: impedance validation")
-        t_eff = float(np.median(sep.blocks["temperature_c"]))
-        val = validate(tr.p, tr.u, take.fs, cal, ValidationConfig(), t_eff)
+        t_eff = take_temperature(tr.temperature_c, cal)
+        val = validate(tr.p, tr.u, take.fs, cal, val_cfg, t_eff)
     except ValueError as exc:
         raise UserError(f"{takes[0]}: {exc}") from None
 

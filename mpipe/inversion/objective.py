@@ -434,3 +434,15 @@ class F2Objective:
     def __call__(self, x: np.ndarray) -> float:
         """F2 in Pa for free-parameter values ``x``."""
         return self.evaluate(x).f2
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        """Target minus model pressure over the window, Pa (F2 is its norm).
+
+        An infeasible candidate gives a constant vector whose norm is ``penalty``, so the
+        residual vector always has the window's length.
+        """
+        w = self.evaluate(x)
+        n = self.target.p.size
+        if not w.feasible:
+            return np.full(n, self.penalty / math.sqrt(n))
+        return self.target.p - w.p

@@ -57,7 +57,12 @@ class SearchResult:
     history : ndarray
         Best objective value after each evaluation (paper Fig. 7).
     method : str
-        ``"rosenbrock"``, ``"powell"`` or ``"nelder-mead"``.
+        ``"rosenbrock"``, ``"powell"``, ``"nelder-mead"`` or ``"trust-region"``.
+    jacobian : ndarray or None
+        d residual / d ln x at ``x``, shape ``(n_residuals, n_parameters)``, where the
+        method computes it (``"trust-region"``); None otherwise.
+    residuals : ndarray or None
+        Residual vector at ``x`` where the method works on one; None otherwise.
     """
 
     x: np.ndarray
@@ -69,6 +74,8 @@ class SearchResult:
     message: str
     history: np.ndarray
     method: str
+    jacobian: np.ndarray | None = None
+    residuals: np.ndarray | None = None
 
 
 def palmer_directions(directions: np.ndarray, advances: np.ndarray) -> np.ndarray:

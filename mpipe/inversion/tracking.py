@@ -1,11 +1,14 @@
-"""Per-window inversion over a take: step 1, step 2, warm starts, parallel execution.
+"""Per-window inversion over a take: one shared cold start, warm windows, parallel execution.
 
 A take's mouthpiece signals are cut into windows (20 ms by default, hop configurable).
-Each window runs step 1 (both branches) and step 2; a window is warm-started from its
-predecessor's step-2 result (smaller initial steps, smaller budget). Windows are grouped
-into contiguous chains, one warm-start chain per task, and the chains run in parallel on
-local processes or on a Dask distributed cluster. A window that fails is recorded with its
-error and the run goes on; the next window then starts cold.
+The first window is cold-started: step 1 on both branches, then the global search of
+:mod:`mpipe.inversion.coldstart` (or the paper's single start from step 1). Every other
+window starts from that one result and runs the local search to its tolerance, so a
+window's answer depends only on its own data and on the take's cold start, whatever the
+number of workers or the executor (local processes or a Dask cluster). A window that is not
+``ok`` after its warm start gets a cold start of its own. Each window then gets a status
+(:mod:`mpipe.inversion.status`); a failed window is recorded with its error and the run
+goes on.
 
 References
 ----------
@@ -30,8 +33,11 @@ import pandas as pd
 
 from mpipe.conditioning import is_zero_mean
 from mpipe.filters import design_lowpass
+from mpipe.inversion.coldstart import global_search
+from mpipe.inversion.least_squares import trust_region
 from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWindow
 from mpipe.inversion.rosenbrock import SearchResult, minimise
+from mpipe.inversion.status import classify, on_bounds, search_bounds, window_status
 from mpipe.inversion.step1 import Step1Result, step1
 from mpipe.io import write_atomic, write_text_atomic
 from mpipe.model import BoreKernel
@@ -43,10 +49,12 @@ log = logging.getLogger(__name__)
 #: Columns of the per-window table, in order.
 COLUMNS = (
     "window", "t_start_s", "t_end_s", *PARAMETER_NAMES, "y_c", "alpha",
+    "status", "status_reason", "converged",
     "step1_p_m", "k_closing", "S_closing", "y_m_closing", "f1_closing",
     "k_opening", "S_opening", "y_m_opening", "f1_opening",
-    "f2", "relative_residual", "n_iterations", "n_evaluations", "converged", "warm",
-    "wall_time_s", "error",
+    "f2", "relative_residual", "n_iterations", "n_evaluations", "optimiser",
+    "optimiser_converged", "optimiser_message", "at_bound", "warm", "cold_starts_agreeing",
+    "retried_cold", "wall_time_s", "error",
 )  # fmt: skip
 
 
@@ -59,7 +67,7 @@ class WindowOutcome:
     row : dict
         One row of the table (keys of :data:`COLUMNS`).
     step1 : Step1Result or None
-        Step-1 fits (None when step 1 failed).
+        Step-1 fits (None when step 1 was not run or failed).
     search : SearchResult or None
         Step-2 search (None when it failed).
     reed : ReedParameters or None
@@ -167,6 +175,44 @@ def start_point(
     return ReedParameters(**values, y_c=config.y_c, alpha=config.alpha)
 
 
+def local_search(
+    objective: F2Objective,
+    x0: np.ndarray,
+    bounds: np.ndarray,
+    config: InversionConfig,
+    *,
+    cold: bool,
+) -> SearchResult:
+    """The configured step-2 local search from ``x0`` inside ``bounds`` (shape (n, 2)).
+
+    A cold search gets ``max_evaluations`` model runs, a warm one ``warm_max_evaluations``.
+    """
+    budget = config.max_evaluations if cold else config.warm_max_evaluations
+    if config.optimiser == "trust-region":
+        return trust_region(
+            objective.residuals,
+            x0,
+            lower=bounds[:, 0],
+            upper=bounds[:, 1],
+            x_tolerance=config.step_tolerance,
+            f_tolerance=config.f_tolerance or None,
+            max_evaluations=budget,
+            infeasible_norm=objective.penalty,
+        )
+    return minimise(
+        objective,
+        x0,
+        method=config.optimiser,
+        lower=bounds[:, 0],
+        upper=bounds[:, 1],
+        initial_step=config.initial_step if cold else config.warm_initial_step,
+        step_tolerance=config.step_tolerance,
+        f_tolerance=config.f_tolerance,
+        max_evaluations=budget,
+        infeasible_at=objective.penalty,
+    )
+
+
 def invert_window(
     p: np.ndarray,
     u: np.ndarray,
@@ -179,7 +225,12 @@ def invert_window(
     zero_mean: bool,
     warm: ReedParameters | None = None,
 ) -> WindowOutcome:
-    """Invert one window of a take: step 1 on both branches, then step 2.
+    """Invert one window of a take.
+
+    A cold window (no ``warm`` start) runs step 1 on both branches and then the cold start
+    of ``config.cold_start``: the global search of :mod:`mpipe.inversion.coldstart` (step 1's
+    estimate among its starts) or the paper's single start from step 1. A warm window runs
+    the local search from ``warm`` only (step 1 too when ``config.step1_every_window``).
 
     Parameters
     ----------
@@ -200,45 +251,58 @@ def invert_window(
     zero_mean : bool
         The flow is zero-mean (measured).
     warm : ReedParameters, optional
-        Start step 2 here (the previous window's estimate) instead of from step 1.
+        Start step 2 here (the take's cold-start result) instead of cold.
 
     Returns
     -------
     WindowOutcome
-        Never raises for a failing window: the error is recorded in ``row["error"]``.
+        Never raises for a failing window: the error is recorded in ``row["error"]``. The
+        row's status is provisional (see :func:`mpipe.inversion.status.classify`, which
+        compares windows across the take).
     """
     t0 = time.perf_counter()
     n = int(round(config.window_s * fs))
+    cold = warm is None
     row = {c: np.nan for c in COLUMNS}
     row.update(
         window=-1,
         t_start_s=start / fs,
         t_end_s=(start + n) / fs,
         error="",
+        status="failed",
+        status_reason="",
         converged=False,
-        warm=warm is not None,
+        optimiser=config.optimiser,
+        optimiser_converged=False,
+        optimiser_message="",
+        at_bound="",
+        warm=not cold,
+        retried_cold=False,
     )
     s1 = search = reed = None
     try:
         pw, uw = p[start : start + n], u[start : start + n]
         if pw.size < n:
             raise ValueError(f"window at {start / fs:.4f} s runs past the end of the take")
-        estimate = config.step1_p_m == "estimate"
-        s1 = step1(
-            pw,
-            uw,
-            fs,
-            rho=rho,
-            lam=config.lam,
-            p_m=config.step1_p_m,
-            solver=config.step1_solver,
-            zero_mean=zero_mean,
-            y_c=config.y_c if estimate else None,
-        )
-        row.update(step1_p_m=s1.p_m)
-        for b in ("closing", "opening"):
-            fit = s1.branch(b)
-            row.update({f"k_{b}": fit.k, f"S_{b}": fit.S, f"y_m_{b}": fit.y_m, f"f1_{b}": fit.f1})
+        if cold or config.step1_every_window:
+            estimate = config.step1_p_m == "estimate"
+            s1 = step1(
+                pw,
+                uw,
+                fs,
+                rho=rho,
+                lam=config.lam,
+                p_m=config.step1_p_m,
+                solver=config.step1_solver,
+                zero_mean=zero_mean,
+                y_c=config.y_c if estimate else None,
+            )
+            row.update(step1_p_m=s1.p_m)
+            for b in ("closing", "opening"):
+                fit = s1.branch(b)
+                row.update(
+                    {f"k_{b}": fit.k, f"S_{b}": fit.S, f"y_m_{b}": fit.y_m, f"f1_{b}": fit.f1}
+                )
         base = warm if warm is not None else start_point(s1, config)
         target = TargetWindow(pw, uw, p[:start], u[:start], fs, zero_mean)
         settings = ObjectiveSettings(
@@ -248,24 +312,26 @@ def invert_window(
             lowpass=design_lowpass(fs, config.lowpass_hz) if zero_mean else None,
         )
         objective = F2Objective(kernel, target, settings, base, config.free)
-        x0 = np.array([getattr(base, name) for name in config.free])
-        max_p = float(np.max(pw))
-        bounds = np.array([config.bounds.absolute(name, max_p) for name in config.free])
-        x0 = np.clip(x0, bounds[:, 0], bounds[:, 1])
-        search = minimise(
-            objective,
-            x0,
-            method=config.optimiser,
-            lower=bounds[:, 0],
-            upper=bounds[:, 1],
-            initial_step=config.warm_initial_step if warm is not None else config.initial_step,
-            step_tolerance=config.step_tolerance,
-            f_tolerance=config.f_tolerance,
-            max_evaluations=(
-                config.warm_max_evaluations if warm is not None else config.max_evaluations
-            ),
-            infeasible_at=objective.penalty,
-        )
+        bounds = search_bounds(config, float(np.max(pw)))
+        x0 = np.clip([getattr(base, name) for name in config.free], bounds[:, 0], bounds[:, 1])
+        if cold and config.cold_start == "global":
+            found = global_search(
+                objective,
+                objective.residuals,
+                bounds[:, 0],
+                bounds[:, 1],
+                [x0],
+                lambda x: local_search(objective, x, bounds, config, cold=True),
+                design_points=config.design_points,
+                local_starts=config.local_starts,
+                local_evaluations=config.local_evaluations,
+                infeasible_at=objective.penalty,
+                seed=config.design_seed,
+            )
+            search = found.search
+            row["cold_starts_agreeing"] = found.agreeing
+        else:
+            search = local_search(objective, x0, bounds, config, cold=cold)
         if not search.f < objective.penalty:
             raise RuntimeError("no feasible parameter set found (model silent or unstable)")
         reed = objective.reed(search.x)
@@ -275,12 +341,18 @@ def invert_window(
             relative_residual=search.f / (float(np.linalg.norm(pw)) + 1e-300),
             n_iterations=search.n_iterations,
             n_evaluations=search.n_evaluations,
-            converged=search.converged,
+            optimiser_converged=search.converged,
+            optimiser_message=search.message,
+            at_bound=";".join(
+                on_bounds(dict(zip(config.free, search.x, strict=True)), bounds, config)
+            ),
         )
     except Exception as exc:  # noqa: BLE001 - a failed window is recorded, the take goes on
         log.warning("window at %.4f s failed: %s", start / fs, exc)
         row["error"] = f"{type(exc).__name__}: {exc}"
     row["wall_time_s"] = time.perf_counter() - t0
+    row.update(zip(("status", "status_reason"), window_status(row), strict=True))
+    row["converged"] = row["status"] == "ok"
     return WindowOutcome(row=row, step1=s1, search=search, reed=reed)
 
 
@@ -306,54 +378,75 @@ def load_checkpoint(checkpoint: str | Path, start: int) -> tuple[dict, np.ndarra
     return record["row"], None if hist is None else np.asarray(hist)
 
 
-def _run_chain(
-    p: np.ndarray,
-    u: np.ndarray,
-    fs: float,
-    starts: Sequence[int],
-    kernel: BoreKernel,
-    rho: float,
-    config: InversionConfig,
-    zero_mean: bool,
+@dataclass(frozen=True)
+class _Job:
+    """What every window of a take shares (shipped once per task to the workers)."""
+
+    p: np.ndarray
+    u: np.ndarray
+    fs: float
+    kernel: BoreKernel
+    rho: float
+    config: InversionConfig
+    zero_mean: bool
+    checkpoint: Path | None
+
+
+def _run_windows(
+    job: _Job,
+    items: Sequence[tuple[int, dict | None]],
+    warm: ReedParameters | None,
     report: Callable[[int], None] | None = None,
-    checkpoint: Path | None = None,
-    warm: ReedParameters | None = None,
 ) -> list[tuple[dict, np.ndarray | None]]:
-    """Invert a contiguous chain of windows, each warm-started from its predecessor.
+    """Invert windows, each from the same start ``warm`` (cold when None).
 
-    With ``checkpoint`` (a folder), each finished window is saved there as it completes and
-    windows already saved are read back instead of recomputed, so an interrupted run
-    resumes where it stopped, with the same warm starts.
+    ``items`` are ``(start sample, previous row)`` pairs. Every window depends only on its
+    own data and on ``warm``, never on which windows ran before it in the same task, so the
+    table does not depend on how windows are spread over workers. With a checkpoint folder
+    each finished window is saved as it completes, and windows already saved are read back
+    instead of recomputed.
+
+    A window given with a previous row is a retry: it gets a cold start of its own, and its
+    row is replaced when the cold start reaches a lower F2 (``retried_cold`` either way).
     """
-    from mpipe.resynthesis import reed_from_row
-
     out = []
-    for s in starts:
-        saved = None if checkpoint is None else load_checkpoint(checkpoint, s)
-        if saved is not None:
+    for s, previous in items:
+        saved = None if job.checkpoint is None else load_checkpoint(job.checkpoint, s)
+        if previous is not None and saved is not None and saved[0].get("retried_cold"):
             row, hist = saved
-            warm = reed_from_row(row) if not row.get("error") else None
+        elif previous is not None:
+            o = invert_window(
+                job.p, job.u, job.fs, s, job.kernel, job.rho, job.config,
+                zero_mean=job.zero_mean, warm=None,
+            )  # fmt: skip
+            row, hist = previous, None
+            if not o.row["error"] and o.row["f2"] < previous["f2"]:
+                row, hist = o.row, None if o.search is None else o.search.history
+            row = {**row, "retried_cold": True}
+        elif saved is not None:
+            row, hist = saved
         else:
-            o = invert_window(p, u, fs, s, kernel, rho, config, zero_mean=zero_mean, warm=warm)
-            warm = o.reed
+            o = invert_window(
+                job.p, job.u, job.fs, s, job.kernel, job.rho, job.config,
+                zero_mean=job.zero_mean, warm=warm,
+            )  # fmt: skip
             row, hist = o.row, None if o.search is None else o.search.history
-            if checkpoint is not None:
-                _save_window(checkpoint, s, row, hist)
+        if job.checkpoint is not None and (saved is None or previous is not None):
+            _save_window(job.checkpoint, s, row, hist)
         out.append((row, hist))
         if report is not None:
             report(1)
     return out
 
 
-def _chain_task(args) -> list[tuple[dict, np.ndarray | None]]:
+def _windows_task(args) -> list[tuple[dict, np.ndarray | None]]:
     # Top-level function: picklable for process pools and Dask.
-    p, u, fs, starts, kernel, rho, config, zero_mean, queue, checkpoint, warm = args
-    report = None if queue is None else queue.put
-    return _run_chain(p, u, fs, starts, kernel, rho, config, zero_mean, report, checkpoint, warm)
+    job, items, warm, queue = args
+    return _run_windows(job, items, warm, None if queue is None else queue.put)
 
 
 def split_chains(starts: Sequence[int], n_chains: int) -> list[list[int]]:
-    """Split window starts into at most ``n_chains`` contiguous chains of similar length."""
+    """Split window starts into at most ``n_chains`` contiguous groups of similar length."""
     n_chains = max(1, min(n_chains, len(starts)))
     return [list(c) for c in np.array_split(np.asarray(starts, dtype=int), n_chains) if c.size]
 
@@ -446,6 +539,13 @@ def track(
 ) -> Tracking:
     """Invert every window of a take.
 
+    The first window is cold-started (see :func:`invert_window`); every other window is
+    started from its result, so each window's answer depends only on its own data and on
+    that one shared start: 1 or N workers, local processes or Dask give the same table.
+    Windows whose status is not ``ok`` after their warm start are then given a cold start
+    of their own (``config.retry_cold``), and every window gets its final status from
+    :func:`mpipe.inversion.status.classify`.
+
     Parameters
     ----------
     p : ndarray
@@ -483,6 +583,8 @@ def track(
     ValueError
         When the sample rates differ or no window fits in the span.
     """
+    from mpipe.resynthesis import reed_from_row
+
     executor = executor or ExecutorConfig()
     p = np.asarray(p, dtype=float)
     u = np.asarray(u, dtype=float)
@@ -500,74 +602,68 @@ def track(
             f"no {config.window_s:g} s window fits between {start_s:g} s and "
             f"{end_s if end_s is not None else p.size / fs:g} s"
         )
+    job = _Job(p, u, fs, kernel, rho, config, zero_mean, checkpoint)
     workers = executor.workers or os.cpu_count() or 1
-    n_chains = executor.chunks or (1 if executor.kind == "local" and workers == 1 else workers)
-    # One cold start, shared: the first window is inverted from step 1 and every chain
-    # is warm-started from its result. Independent cold starts per chain can settle in
-    # different local minima, and each costs tens of warm windows.
-    results: list[tuple[dict, np.ndarray | None]] = []
     update = progress.update if progress is not None else None
-    warm0 = None
-    if n_chains > 1 and len(starts) > 1:
-        from mpipe.resynthesis import reed_from_row
-
-        results = _run_chain(
-            p, u, fs, starts[:1], kernel, rho, config, zero_mean, update, checkpoint
-        )
-        if not results[0][0].get("error"):
-            warm0 = reed_from_row(results[0][0])
-        starts = starts[1:]
-    chains = split_chains(starts, n_chains)
     log.info(
-        "%d windows in %d chains (%s executor), %s flow",
+        "%d windows (%s executor, %d workers), %s flow",
         len(starts),
-        len(chains),
         executor.kind,
+        workers,
         "zero-mean" if zero_mean else "full",
     )
-    if executor.kind == "dask" or client is not None:
-        results += _track_dask(
-            p, u, fs, chains, kernel, rho, config, zero_mean, executor, client, update,
-            checkpoint, warm0,
-        )  # fmt: skip
-    elif workers == 1:
-        for chain in chains:
-            results.extend(
-                _run_chain(
-                    p, u, fs, chain, kernel, rho, config, zero_mean, update, checkpoint, warm0
-                )
-            )
-    else:
-        results += _track_processes(
-            p, u, fs, chains, kernel, rho, config, zero_mean, workers, update, checkpoint,
-            warm0,
-        )  # fmt: skip
+    # One cold start per take, shared by every other window.
+    results = _run_windows(job, [(starts[0], None)], None, update)
+    anchor = None if results[0][0].get("error") else reed_from_row(results[0][0])
+    items = [(s, None) for s in starts[1:]]
+    results += _dispatch(job, items, anchor, executor, workers, client, update)
     results.sort(key=lambda r: r[0]["t_start_s"])
+    table = classify(pd.DataFrame([r for r, _ in results], columns=list(COLUMNS)), config)
+    if config.retry_cold:
+        redo = [
+            i
+            for i, (row, _) in enumerate(results)
+            if table.loc[i, "status"] not in ("ok", "failed") and row["warm"]
+            and not row["retried_cold"]
+        ]  # fmt: skip
+        if redo:
+            log.info("%d windows not ok after their warm start: cold-starting them", len(redo))
+            items = [(int(round(results[i][0]["t_start_s"] * fs)), results[i][0]) for i in redo]
+            again = _dispatch(job, items, None, executor, workers, client, None)
+            for i, new in zip(redo, sorted(again, key=lambda r: r[0]["t_start_s"]), strict=True):
+                results[i] = new
+            table = classify(pd.DataFrame([r for r, _ in results], columns=list(COLUMNS)), config)
     histories = {}
-    for i, (row, hist) in enumerate(results):
-        row["window"] = i
+    for i, (_, hist) in enumerate(results):
         if hist is not None:
             histories[i] = hist
-    table = pd.DataFrame([r for r, _ in results], columns=list(COLUMNS))
+    table["window"] = np.arange(len(table))
     return Tracking(table=table, histories=histories, zero_mean=zero_mean)
 
 
-def _track_processes(
-    p, u, fs, chains, kernel, rho, config, zero_mean, workers, update, checkpoint, warm0=None
-):
+def _dispatch(job, items, warm, executor, workers, client, update):
+    """Run windows on the configured executor; the grouping does not change any result."""
+    if not items:
+        return []
+    if executor.kind == "local" and workers == 1 and client is None:
+        return _run_windows(job, items, warm, update)
+    groups = [
+        [items[i] for i in g]
+        for g in split_chains(list(range(len(items))), executor.chunks or workers)
+    ]
+    if executor.kind == "dask" or client is not None:
+        return _track_dask(job, groups, warm, executor, client, update)
+    return _track_processes(job, groups, warm, workers, update)
+
+
+def _track_processes(job, groups, warm, workers, update):
     import multiprocessing
 
     results = []
     with multiprocessing.Manager() as manager:
         queue = manager.Queue() if update is not None else None
-        with ProcessPoolExecutor(max_workers=min(workers, len(chains))) as pool:
-            futures = [
-                pool.submit(
-                    _chain_task,
-                    (p, u, fs, c, kernel, rho, config, zero_mean, queue, checkpoint, warm0),
-                )
-                for c in chains
-            ]
+        with ProcessPoolExecutor(max_workers=min(workers, len(groups))) as pool:
+            futures = [pool.submit(_windows_task, (job, g, warm, queue)) for g in groups]
             pending = set(futures)
             while pending:
                 finished = {f for f in pending if f.done()}
@@ -585,10 +681,7 @@ def _track_processes(
     return results
 
 
-def _track_dask(
-    p, u, fs, chains, kernel, rho, config, zero_mean, executor, client, update, checkpoint,
-    warm0=None,
-):  # fmt: skip
+def _track_dask(job, groups, warm, executor, client, update):
     from distributed import Client
     from distributed import as_completed as dask_completed
 
@@ -596,25 +689,10 @@ def _track_dask(
     if own:
         client = Client(executor.scheduler)
     try:
-        # Scatter the large arrays once instead of shipping them with every task.
-        p_f, u_f, k_f = client.scatter([p, u, kernel], broadcast=True)
-        futures = [
-            client.submit(
-                _dask_chain,
-                p_f,
-                u_f,
-                fs,
-                c,
-                k_f,
-                rho,
-                config,
-                zero_mean,
-                checkpoint,
-                warm0,
-                pure=False,
-            )
-            for c in chains
-        ]
+        # Scatter the shared data once instead of shipping it with every task. The
+        # checkpoint folder must be reachable from the workers (a shared file system).
+        job_f = client.scatter(job, broadcast=True)
+        futures = [client.submit(_dask_windows, job_f, g, warm, pure=False) for g in groups]
         results = []
         for f in dask_completed(futures):
             part = f.result()
@@ -627,9 +705,8 @@ def _track_dask(
             client.close()
 
 
-def _dask_chain(p, u, fs, starts, kernel, rho, config, zero_mean, checkpoint=None, warm=None):
-    # The checkpoint folder must be reachable from the workers (a shared file system).
-    return _run_chain(p, u, fs, starts, kernel, rho, config, zero_mean, None, checkpoint, warm)
+def _dask_windows(job, items, warm):
+    return _run_windows(job, items, warm)
 
 
 def write_table(table: pd.DataFrame, directory: str | Path, stem: str = "windows") -> list[Path]:
@@ -676,6 +753,7 @@ __all__ = [
     "WindowOutcome",
     "detect_zero_mean",
     "invert_window",
+    "local_search",
     "plan_windows",
     "split_chains",
     "start_point",

@@ -1,0 +1,72 @@
+"""The bore kernel of a take's inversion, built at one documented temperature.
+
+Every door into the inversion (``mpipe run``, ``mpipe invert`` on the output of
+``mpipe separate``, and the Python API) builds the model's reflection function the same
+way, so the same take gives the same numbers whichever is used:
+
+* the air temperature is the median, over the take, of the effective temperature that the
+  wave separation estimated (carried with the mouthpiece signals as ``temperature_c``, one
+  value per sample);
+* signals that carry no such track (model output of ``mpipe simulate``) use the
+  calibration's ``air.temperature_c``.
+
+The air model (``keefe`` or ``ernoult``) is the calibration's.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mpipe.air import Air
+from mpipe.calibration import Calibration
+from mpipe.model import BoreKernel, prepare_bore
+from mpipe.reflection import reflection_function
+
+
+def take_temperature(temperature_c: np.ndarray | float | None, calibration: Calibration) -> float:
+    """The one air temperature of a take's inversion, degC.
+
+    Parameters
+    ----------
+    temperature_c : ndarray, float or None
+        The separation's effective temperature per sample (or one value), degC; None when
+        the signals carry none.
+    calibration : Calibration
+        Supplies the temperature when ``temperature_c`` is None or empty.
+
+    Returns
+    -------
+    float
+        Median of the finite values of ``temperature_c``, else the calibration's.
+    """
+    if temperature_c is not None:
+        values = np.asarray(temperature_c, dtype=float).ravel()
+        values = values[np.isfinite(values)]
+        if values.size:
+            return float(np.median(values))
+    return float(calibration.air.temperature_c)
+
+
+def bore_kernel(
+    calibration: Calibration, fs: float, temperature_c: float
+) -> tuple[BoreKernel, Air]:
+    """Prepared bore (reflection function and Z0) for the inversion and the resynthesis.
+
+    Parameters
+    ----------
+    calibration : Calibration
+        Bore geometry and air model.
+    fs : float
+        Sample rate of the signals, Hz.
+    temperature_c : float
+        Air temperature, degC (see :func:`take_temperature`).
+
+    Returns
+    -------
+    (BoreKernel, Air)
+    """
+    air = calibration.air_properties(temperature_c)
+    return prepare_bore(reflection_function(calibration.bore, air, fs=fs), air), air
+
+
+__all__ = ["bore_kernel", "take_temperature"]

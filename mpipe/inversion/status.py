@@ -1,0 +1,189 @@
+"""The status of each inverted window: ok, or why its numbers should not be trusted.
+
+A window is ``ok`` only when the search met its tolerance and the solution passes the
+sanity checks. Otherwise, in order of precedence:
+
+``failed``
+    No estimate (the window could not be inverted; ``error`` says why).
+``not-converged``
+    The search stopped on its evaluation budget, not on its tolerance.
+``at-bound``
+    A free parameter sits on a search bound, or the rest opening y_m on the contact point
+    y_c (the reed model needs y_m > y_c): the estimate is set by the bound, not the data.
+``high-residual``
+    The relative residual ||p - p_model|| / ||p|| exceeds ``residual_factor`` times the
+    take's best: the model fits this window far worse than others of the same take, so it
+    probably sits in another local minimum or the window is not steady.
+
+``status_reason`` lists every check that failed, so a window can be both not converged and
+at a bound.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+
+from mpipe.pipeline import InversionConfig
+
+#: The statuses, best first.
+STATUSES = ("ok", "high-residual", "at-bound", "not-converged", "failed")
+
+
+def search_bounds(config: InversionConfig, max_p: float) -> np.ndarray:
+    """Search bounds of the free parameters in SI units, shape ``(n_free, 2)``.
+
+    The lower bound of y_m is raised to just above y_c: the reed model requires the rest
+    opening to exceed the contact displacement.
+
+    Parameters
+    ----------
+    config : InversionConfig
+        Free parameters and their configured bounds.
+    max_p : float
+        Largest pressure over the window, Pa (scales the p_m bounds).
+
+    Returns
+    -------
+    ndarray
+
+    Raises
+    ------
+    ValueError
+        When ``max_p`` is not positive (the p_m bounds scale with it).
+    """
+    if not max_p > 0:
+        raise ValueError(
+            f"max p over the window is {max_p:g} Pa; expected > 0 (a silent or unplayed window)"
+        )
+    rows = []
+    for name in config.free:
+        lo, hi = config.bounds.absolute(name, max_p)
+        if name == "y_m":
+            lo = max(lo, config.y_c * (1 + 1e-6))
+        rows.append((lo, hi))
+    return np.array(rows, dtype=float)
+
+
+def on_bounds(values: dict, bounds: np.ndarray, config: InversionConfig) -> list[str]:
+    """Free parameters within ``config.bound_tolerance`` (log distance) of a bound.
+
+    Parameters
+    ----------
+    values : dict
+        Free parameter name to value (SI units), in the order of ``config.free``.
+    bounds : ndarray
+        Bounds from :func:`search_bounds`.
+    config : InversionConfig
+        Tolerance and y_c.
+
+    Returns
+    -------
+    list of str
+        Entries such as ``"m=lower"``, ``"p_m=upper"`` or ``"y_m=y_c"``.
+    """
+    tol = config.bound_tolerance
+    hits = []
+    for (name, value), (lo, hi) in zip(values.items(), bounds, strict=True):
+        if math.log(value / lo) < tol:
+            at_yc = name == "y_m" and lo <= config.y_c * (1 + 2e-6)
+            hits.append(f"{name}={'y_c' if at_yc else 'lower'}")
+        elif math.log(hi / value) < tol:
+            hits.append(f"{name}=upper")
+    return hits
+
+
+def window_status(row: dict) -> tuple[str, str]:
+    """Provisional status of one window from its own row (no comparison with the take).
+
+    Parameters
+    ----------
+    row : dict
+        A row with ``error``, ``optimiser_converged``, ``optimiser_message`` and
+        ``at_bound``.
+
+    Returns
+    -------
+    (status, reason)
+    """
+    if row.get("error"):
+        return "failed", str(row["error"])
+    reasons = []
+    status = "ok"
+    if not row.get("optimiser_converged"):
+        status = "not-converged"
+        reasons.append(f"search stopped: {row.get('optimiser_message') or 'budget spent'}")
+    if row.get("at_bound"):
+        status = "at-bound" if status == "ok" else status
+        reasons.append(f"on a bound: {row['at_bound'].replace(';', ', ')}")
+    return status, "; ".join(reasons)
+
+
+def classify(table: pd.DataFrame, config: InversionConfig) -> pd.DataFrame:
+    """Final status of every window of a take, comparing its residual with the take's best.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        Per-window rows (``error``, ``optimiser_converged``, ``optimiser_message``,
+        ``at_bound``, ``relative_residual``).
+    config : InversionConfig
+        ``residual_factor``.
+
+    Returns
+    -------
+    pandas.DataFrame
+        A copy with ``status``, ``status_reason`` and ``converged`` (status is ok) set.
+    """
+    out = table.copy()
+    provisional = [window_status(r) for r in out.to_dict("records")]
+    status = [s for s, _ in provisional]
+    reasons = [r for _, r in provisional]
+    rr = pd.to_numeric(out["relative_residual"], errors="coerce").to_numpy(dtype=float)
+    clean = np.array([s == "ok" for s in status])
+    pool = rr[clean] if clean.any() else rr[np.array([s != "failed" for s in status])]
+    pool = pool[np.isfinite(pool)]
+    if pool.size:
+        limit = config.residual_factor * float(pool.min())
+        for i, value in enumerate(rr):
+            if status[i] != "failed" and value > limit:
+                reasons[i] = "; ".join(
+                    r
+                    for r in (
+                        reasons[i],
+                        f"relative residual {value:.3g} > {config.residual_factor:g} x the "
+                        f"take's best {pool.min():.3g}",
+                    )
+                    if r
+                )
+                status[i] = "high-residual" if status[i] == "ok" else status[i]
+    out["status"] = status
+    out["status_reason"] = reasons
+    out["converged"] = out["status"] == "ok"
+    return out
+
+
+def count(table: pd.DataFrame) -> dict[str, int]:
+    """Windows per status, every status listed (zero included), best first."""
+    values = table["status"].value_counts() if "status" in table else pd.Series(dtype=int)
+    return {s: int(values.get(s, 0)) for s in STATUSES}
+
+
+def summary_line(table: pd.DataFrame) -> str:
+    """One line such as ``"12 windows: 10 ok, 1 at-bound, 1 high-residual"``."""
+    counts = count(table)
+    parts = [f"{n} {s}" for s, n in counts.items() if n]
+    return f"{len(table)} windows: " + ", ".join(parts) if parts else "0 windows"
+
+
+__all__ = [
+    "STATUSES",
+    "classify",
+    "count",
+    "on_bounds",
+    "search_bounds",
+    "summary_line",
+    "window_status",
+]

@@ -1,0 +1,73 @@
+"""Window status: ok only when converged, off the bounds and with a residual like the take's."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from mpipe.inversion.status import classify, count, on_bounds, search_bounds, summary_line
+from mpipe.pipeline import InversionConfig
+
+CFG = InversionConfig()
+
+
+def test_search_bounds_keep_y_m_above_y_c_and_scale_p_m():
+    b = search_bounds(CFG, 1500.0)
+    i = CFG.free.index("y_m")
+    assert b[i, 0] > CFG.y_c
+    j = CFG.free.index("p_m")
+    np.testing.assert_allclose(b[j], [0.5 * 1500.0, 2.0 * 1500.0])
+    with pytest.raises(ValueError, match="expected > 0"):
+        search_bounds(CFG, 0.0)
+
+
+def test_on_bounds_names_each_parameter_and_side():
+    b = search_bounds(CFG, 1500.0)
+    values = dict(zip(CFG.free, np.sqrt(b[:, 0] * b[:, 1]), strict=True))
+    assert on_bounds(values, b, CFG) == []
+    values["m"] = b[CFG.free.index("m"), 0] * (1 + 1e-5)
+    values["p_m"] = b[CFG.free.index("p_m"), 1]
+    values["y_m"] = b[CFG.free.index("y_m"), 0]
+    assert on_bounds(values, b, CFG) == ["y_m=y_c", "p_m=upper", "m=lower"]
+
+
+def _row(**kw):
+    row = dict(error="", optimiser_converged=True, optimiser_message="step below tolerance",
+               at_bound="", relative_residual=0.01)  # fmt: skip
+    row.update(kw)
+    return row
+
+
+def test_classify_precedence_and_take_relative_residual():
+    table = pd.DataFrame(
+        [
+            _row(),
+            _row(relative_residual=0.012),
+            _row(relative_residual=0.05),  # 5x the best: high-residual
+            _row(at_bound="m=lower;g=lower"),
+            _row(
+                optimiser_converged=False,
+                optimiser_message="evaluation budget spent",
+                at_bound="k=upper",
+                relative_residual=0.2,
+            ),  # fmt: skip
+            _row(error="RuntimeError: silent", relative_residual=np.nan),
+        ]
+    )
+    out = classify(table, CFG)
+    assert list(out["status"]) == [
+        "ok", "ok", "high-residual", "at-bound", "not-converged", "failed",
+    ]  # fmt: skip
+    assert list(out["converged"]) == [True, True, False, False, False, False]
+    reason = out["status_reason"].iloc[4]
+    assert "budget" in reason and "k=upper" in reason and "relative residual" in reason
+    assert count(out) == {"ok": 2, "high-residual": 1, "at-bound": 1, "not-converged": 1,
+                          "failed": 1}  # fmt: skip
+    assert summary_line(out).startswith("6 windows: 2 ok")
+
+
+def test_no_clean_window_compares_with_the_best_unclean_one():
+    table = pd.DataFrame([_row(at_bound="m=lower", relative_residual=0.1),
+                          _row(at_bound="m=lower", relative_residual=0.5)])  # fmt: skip
+    out = classify(table, CFG)
+    assert list(out["status"]) == ["at-bound", "at-bound"]
+    assert "relative residual" in out["status_reason"].iloc[1]
