@@ -128,3 +128,41 @@ def test_malformed_pipeline_and_take_give_clear_errors(tmp_path, take, capsys):
     assert "2 of 2 takes failed" in capsys.readouterr().out
     assert main(["run", str(good), str(tmp_path / "missing.flac"), "-o", str(tmp_path)]) == 2
     assert "no such take file" in capsys.readouterr().err
+
+
+def test_every_door_gives_the_same_table(finished, take, pipeline, tmp_path):
+    # `mpipe run`, `mpipe separate` + `mpipe invert` and the Python API build the same bore
+    # kernel (one temperature) and invert the same windows: the same numbers to 0.1 %.
+    from mpipe.calibration import load_calibration
+    from mpipe.conditioning import plan_inversion
+    from mpipe.inversion.kernel import bore_kernel, take_temperature
+    from mpipe.inversion.tracking import track
+    from mpipe.pipeline import PARAMETER_NAMES
+    from mpipe.separation import separate
+    from mpipe.takes import read_take
+    from mpipe.translation import translate
+
+    _, run, _ = finished
+    via_run = pd.read_csv(run.folder / "inversion" / "windows.csv", keep_default_na=False)
+    sep_dir, inv_dir = tmp_path / "sep", tmp_path / "inv"
+    argv = ["separate", str(take.audio), str(take.calibration), "--pipeline", pipeline.source]
+    assert main([*argv, "-o", str(sep_dir)]) == 0
+    argv = ["invert", str(sep_dir / "mouthpiece.npz"), "--pipeline", pipeline.source]
+    assert main([*argv, "-o", str(inv_dir)]) == 0
+    via_cli = pd.read_csv(inv_dir / "windows.csv", keep_default_na=False)
+
+    cal = load_calibration(take.calibration)
+    t = read_take(take.audio, cal)
+    sep = separate(t.pressures, t.fs, cal, pipeline.separation)
+    tr = translate(sep.p0, sep.u0, t.fs, cal, pipeline.translation, sep.temperature_track())
+    inv = pipeline.inversion
+    plan = plan_inversion(tr.p, t.fs, pipeline.conditioning, inv.window_s, inv.hop_s)
+    kernel, air = bore_kernel(cal, t.fs, take_temperature(tr.temperature_c, cal))
+    starts = plan.loc[plan["invert"], "start"].tolist()
+    via_api = track(tr.p, tr.u, t.fs, kernel, air.rho, inv, pipeline.executor, starts=starts).table
+
+    for other in (via_cli, via_api):
+        np.testing.assert_array_equal(other["t_start_s"], via_run["t_start_s"])
+        assert list(other["status"]) == list(via_run["status"])
+        for name in PARAMETER_NAMES:
+            np.testing.assert_allclose(other[name], via_run[name], rtol=1e-3, err_msg=name)

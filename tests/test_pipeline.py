@@ -31,7 +31,12 @@ def write(tmp_path, text, calibration=True):
 def test_minimal_file_takes_defaults(tmp_path):
     cfg = load_pipeline(write(tmp_path, "calibration: cal.yaml\n"))
     assert cfg.inversion.start == "history"
-    assert cfg.inversion.optimiser == "rosenbrock"
+    assert cfg.inversion.optimiser == "trust-region" and cfg.inversion.cold_start == "global"
+    # the shipped pipeline writes out the same inversion defaults as the code holds
+    shipped = load_pipeline(
+        Path(__file__).resolve().parents[1] / "pipelines" / "simplified_clarinet.yaml"
+    )
+    assert shipped.inversion == cfg.inversion
 
 
 @pytest.mark.parametrize(
