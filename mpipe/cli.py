@@ -17,6 +17,7 @@ import sys
 from mpipe import __version__
 from mpipe.config import ConfigError
 from mpipe.errors import UserError
+from mpipe.workers import exit_on_sigterm
 
 # Command modules under mpipe/commands, in the order `mpipe --help` lists them.
 COMMANDS = ("impedance", "simulate", "synth_take", "separate", "invert", "run")
@@ -43,6 +44,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     level = logging.WARNING if args.quiet else (logging.DEBUG if args.verbose else logging.INFO)
     logging.basicConfig(level=level, format="%(message)s")
+    # SIGTERM ends the command through SystemExit, so that worker pools are terminated,
+    # partial files removed and output-folder locks released
+    exit_on_sigterm()
     try:
         return int(args.func(args) or 0)
     except (ConfigError, UserError) as exc:

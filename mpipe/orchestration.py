@@ -308,6 +308,27 @@ def run_take(
     client=None,
     say: Callable[[str], None] = print,
 ) -> TakeRun:
+    """Run every stage on one take, holding the lock of its output folder ``out/<take>``.
+
+    The arguments and result are those of :func:`_run_take`. Raises
+    :class:`mpipe.errors.UserError` at once when the folder is not writable or another run
+    holds it: two runs on one folder would mix their results.
+    """
+    from mpipe.io import folder_lock
+
+    with folder_lock(Path(out) / take_name([Path(p) for p in take_paths])):
+        return _run_take(cfg, cal_path, take_paths, out, force, client, say)
+
+
+def _run_take(
+    cfg: PipelineConfig,
+    cal_path: Path,
+    take_paths: Sequence[str | Path],
+    out: str | Path,
+    force: bool = False,
+    client=None,
+    say: Callable[[str], None] = print,
+) -> TakeRun:
     """Run every stage on one take.
 
     Parameters

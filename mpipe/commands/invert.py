@@ -69,7 +69,14 @@ def load_mouthpiece(path: str | Path) -> tuple[float, np.ndarray, np.ndarray]:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Execute ``mpipe invert``."""
+    """Execute ``mpipe invert``, holding the lock of the output folder."""
+    from mpipe.io import folder_lock
+
+    with folder_lock(args.output):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     from mpipe import resynthesis as rs
     from mpipe.inversion.tracking import ProgressBar, track, write_table
     from mpipe.model import prepare_bore

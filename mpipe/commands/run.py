@@ -39,7 +39,8 @@ def add_parser(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe run``."""
-    from mpipe.orchestration import run_take
+    from mpipe.io import check_output_folder
+    from mpipe.orchestration import run_take, take_name
 
     cfg = load_pipeline(args.pipeline)
     cal_path = Path(args.calibration) if args.calibration else cfg.calibration_path
@@ -52,6 +53,10 @@ def run(args: argparse.Namespace) -> int:
         for p in t:
             if not p.is_file():
                 raise UserError(f"{p}: no such take file")
+    # a bad output path fails now, not after the computation
+    check_output_folder(args.output)
+    for t in takes:
+        check_output_folder(Path(args.output) / take_name(t))
     client = None
     if cfg.executor.kind == "dask":
         from distributed import Client

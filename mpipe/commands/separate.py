@@ -77,7 +77,14 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Execute ``mpipe separate``."""
+    """Execute ``mpipe separate``, holding the lock of the output folder."""
+    from mpipe.io import folder_lock
+
+    with folder_lock(args.output):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     from mpipe.takes import read_take
 
     if len(args.inputs) not in (2, 4):

@@ -21,7 +21,6 @@ import os
 import sys
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -555,12 +554,14 @@ def track(
 def _track_processes(
     p, u, fs, chains, kernel, rho, config, zero_mean, workers, update, checkpoint, warm0=None
 ):
-    import multiprocessing
+    from mpipe.workers import manager as worker_manager
+    from mpipe.workers import process_pool
 
     results = []
-    with multiprocessing.Manager() as manager:
+    # workers (and the queue's server) end with this process, whatever ends it
+    with worker_manager() as manager:
         queue = manager.Queue() if update is not None else None
-        with ProcessPoolExecutor(max_workers=min(workers, len(chains))) as pool:
+        with process_pool(min(workers, len(chains))) as pool:
             futures = [
                 pool.submit(
                     _chain_task,
