@@ -20,7 +20,7 @@ from mpipe.errors import UserError
 from mpipe.workers import exit_on_sigterm
 
 # Command modules under mpipe/commands, in the order `mpipe --help` lists them.
-COMMANDS = ("impedance", "simulate", "synth_take", "separate", "invert", "run")
+COMMANDS = ("config", "impedance", "simulate", "synth_take", "separate", "invert", "run")
 
 
 def build_parser() -> argparse.ArgumentParser:

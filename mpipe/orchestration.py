@@ -190,7 +190,7 @@ def _stage_conditioning(mouthpiece: Path, cfg: PipelineConfig):
             "windows": len(table),
             "steady": int(table["steady"].sum()),
             "to_invert": int(table["invert"].sum()),
-            "zero_mean_flow": bool(detect_zero_mean(mp["u"], inv.signal)),
+            "zero_mean_flow": bool(detect_zero_mean(mp["u"], inv.signal, inv.zero_mean_ratio)),
             "f0_hz_median": float(np.nanmedian(table["f0_hz"])) if len(table) else float("nan"),
         }
         return {"plan": "plan.csv"}, summary

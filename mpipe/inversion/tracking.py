@@ -71,7 +71,7 @@ class WindowOutcome:
     reed: ReedParameters | None
 
 
-def detect_zero_mean(u: np.ndarray, kind: str) -> bool:
+def detect_zero_mean(u: np.ndarray, kind: str, ratio: float = 0.2) -> bool:
     """Whether a take's flow is zero-mean (measured) from the configured ``signal`` kind.
 
     Parameters
@@ -80,6 +80,8 @@ def detect_zero_mean(u: np.ndarray, kind: str) -> bool:
         Flow, m^3/s.
     kind : {"measured", "model", "auto"}
         Configured signal kind; "auto" decides from mean(u)/rms(u).
+    ratio : float
+        "auto": zero-mean when |mean(u)| / rms(u) is below this (``zero_mean_ratio``).
 
     Returns
     -------
@@ -89,7 +91,7 @@ def detect_zero_mean(u: np.ndarray, kind: str) -> bool:
         return True
     if kind == "model":
         return False
-    return is_zero_mean(u)
+    return is_zero_mean(u, ratio)
 
 
 def plan_windows(
@@ -487,7 +489,7 @@ def track(
     u = np.asarray(u, dtype=float)
     if abs(kernel.fs - fs) > 1e-6 * fs:
         raise ValueError(f"signals at {fs:g} Hz but the bore kernel is at {kernel.fs:g} Hz")
-    zero_mean = detect_zero_mean(u, config.signal)
+    zero_mean = detect_zero_mean(u, config.signal, config.zero_mean_ratio)
     if starts is None:
         starts = plan_windows(p.size, fs, config.window_s, config.hop_s, start_s, end_s)
     starts = [int(s) for s in starts]
