@@ -195,3 +195,15 @@ def _unlock_fd(fd: int) -> None:
             msvcrt.locking(fd, msvcrt.LK_UNLCK, 1)
         return
     fcntl.flock(fd, fcntl.LOCK_UN)
+
+
+#: Number format of CSV output: 10 significant digits, far beyond any measured quantity,
+#: without the binary noise of 17 digits (0.29999999999999999).
+CSV_FLOAT_FORMAT = "%.10g"
+
+
+def write_csv(path: str | Path, table) -> Path:
+    """Write a DataFrame as CSV atomically, numbers to 10 significant digits."""
+    return write_atomic(
+        path, lambda tmp: table.to_csv(tmp, index=False, float_format=CSV_FLOAT_FORMAT)
+    )

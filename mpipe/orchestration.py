@@ -20,10 +20,9 @@ import pandas as pd
 
 from mpipe import __version__
 from mpipe.calibration import Calibration, load_calibration
-from mpipe.io import write_atomic, write_npz_atomic
+from mpipe.io import write_atomic, write_csv, write_npz_atomic
 from mpipe.manifest import PARTIAL, StageRecord, run_stage
 from mpipe.pipeline import PipelineConfig
-from mpipe.report import Section, write_report
 
 log = logging.getLogger(__name__)
 
@@ -104,7 +103,7 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
             folder / "reference.npz", fs=np.float64(take.fs), p0=sep.p0, u0=sep.u0,
             temperature_c=temps,
         )  # fmt: skip
-        write_atomic(folder / "blocks.csv", lambda t: sep.blocks.to_csv(t, index=False))
+        write_csv(folder / "blocks.csv", sep.blocks)
         write_atomic(folder / "blocks.png", lambda t: _plot_blocks(sep.blocks, t))
         b = sep.blocks
         summary = {
@@ -149,8 +148,8 @@ def _stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg: Pip
         mp = _load_npz(mouthpiece)
         t_eff = float(np.median(pd.read_csv(blocks)["temperature_c"]))
         val = validate(mp["p"], mp["u"], float(mp["fs"]), cal, cfg.validation, t_eff)
-        write_atomic(folder / "impedance.csv", lambda t: val.table().to_csv(t, index=False))
-        write_atomic(folder / "validation.csv", lambda t: val.resonances.to_csv(t, index=False))
+        write_csv(folder / "impedance.csv", val.table())
+        write_csv(folder / "validation.csv", val.resonances)
         write_atomic(folder / "impedance.png", lambda t: plot_impedance(val, t, 2000.0))
         summary = {
             "verdict": val.verdict,
@@ -185,7 +184,7 @@ def _stage_conditioning(mouthpiece: Path, cfg: PipelineConfig):
             c.min_rms_pa,
         )  # fmt: skip
         table["invert"] = table["steady"] | (c.invert_transients & (table["reason"] != "silent"))
-        write_atomic(folder / "plan.csv", lambda t: table.to_csv(t, index=False))
+        write_csv(folder / "plan.csv", table)
         summary = {
             "windows": len(table),
             "steady": int(table["steady"].sum()),
@@ -411,61 +410,7 @@ def _run_take(
 
 def write_take_report(root: Path, name: str, take_paths, cal_path, records: dict) -> Path:
     """Write ``root/report.html`` from the stage folders and their manifests."""
-    val = records["validation"].summary
-    inv = records["inversion"].summary
-    res = records["resynthesis"].summary
-    sep = records["separation"].summary
-    windows = pd.read_csv(root / "inversion" / "windows.csv", keep_default_na=False)
-    cols = [c for c in ("t_start_s", "k", "S", "y_m", "p_m", "m", "g", "lam", "k_c", "f2",
-                        "relative_residual", "n_evaluations", "converged", "error")
-            if c in windows.columns]  # fmt: skip
-    timings = pd.DataFrame(
-        [{"stage": k, "status": r.status, "wall_s": r.wall_s} for k, r in records.items()]
-    )
-    plan = pd.read_csv(root / "conditioning" / "plan.csv", keep_default_na=False)
-    inv_root = root / "inversion"
-    sections = [
-        Section(
-            "Measurement: impedance validation",
-            f"{val['text']}\n\nEffective temperature from the wave separation: "
-            f"{val['temperature_c']:.2f} °C (blocks span {sep['temperature_c_range'][0]:.2f}"
-            f"–{sep['temperature_c_range'][1]:.2f} °C), loss scale {sep['loss_scale_median']:.3f}, "
-            f"Mach {sep['mach_median']:.4f}.",
-            ("PASS" if val["passed"] else "FAIL", "pass" if val["passed"] else "fail"),
-            (root / "validation" / "impedance.png", root / "separation" / "blocks.png"),
-        ),
-        Section(
-            "Reed parameters over time",
-            f"{inv['windows']} windows inverted, {inv['failed']} failed; median relative "
-            f"residual {inv['relative_residual_median']}; flow treated as "
-            f"{'zero-mean (measured)' if inv['zero_mean_flow'] else 'carrying its mean (model)'}.",
-            None,
-            tuple(
-                p
-                for p in (
-                    inv_root / "tracks.png",
-                    inv_root / "flow_pressure.png",
-                    inv_root / "history.png",
-                )
-                if p.exists()
-            ),  # fmt: skip
-            (("Per-window results", windows[cols]),),
-        ),
-        Section(
-            "Resynthesis",
-            f"Relative residual of the resynthesised pressure over the inverted windows: "
-            f"{res['relative_residual_p']}. The resynthesised pressure is in "
-            "resynthesis/resynthesis.wav.",
-            None,
-            tuple(sorted((root / "resynthesis").glob("overlay_*.png"))),
-        ),
-        Section(
-            "Run",
-            f"Take: {', '.join(str(p) for p in take_paths)}. Calibration: {cal_path}.",
-            ("mpipe " + __version__, "info"),
-            (),
-            (("Stage timings", timings), ("Window plan (conditioning)", plan)),
-        ),
-    ]
-    return write_report(root / "report.html", f"mpipe report: {name}",
-                        time.strftime("%Y-%m-%d %H:%M"), sections)  # fmt: skip
+    from mpipe import report
+
+    when = time.strftime("%Y-%m-%d %H:%M")
+    return report.write_take_report(root, name, take_paths, cal_path, records, __version__, when)

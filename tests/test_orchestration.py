@@ -72,7 +72,11 @@ def test_full_pipeline_recovers_the_truth(finished):
         assert abs(got / true - 1) < tolerance, (name, got, true)
     assert windows["relative_residual"].max() < 0.02
     report = (run.folder / "report.html").read_text()
-    assert "PASS" in report and "tracks.png" in report and "overlay_1.png" in report
+    assert "PASS" in report and "Reed parameters per window" in report and "overlay 1" in report
+    # self-contained: every figure embedded, none linked
+    assert report.count('src="data:image/png;base64,') >= 6 and 'src="' not in report.replace(
+        'src="data:', ""
+    )
     for stage in STAGES:
         assert (run.folder / stage / "manifest.json").exists()
 
@@ -128,3 +132,25 @@ def test_malformed_pipeline_and_take_give_clear_errors(tmp_path, take, capsys):
     assert "2 of 2 takes failed" in capsys.readouterr().out
     assert main(["run", str(good), str(tmp_path / "missing.flac"), "-o", str(tmp_path)]) == 2
     assert "no such take file" in capsys.readouterr().err
+
+
+def test_load_run_gives_tables_and_signals_with_units(finished):
+    import mpipe
+
+    out, run, _ = finished
+    data = mpipe.load_run(out)
+    assert data.folder == run.folder and data.fs == 100_000.0
+    assert data.verdict == "pass"
+    assert set(data.tables) == {"blocks", "impedance", "resonances", "plan", "windows"}
+    assert data.unit("windows.k") == "Pa/m" and data.unit("windows.t_start_s") == "s"
+    assert data.unit("mouthpiece.p") == "Pa" and data.unit("mouthpiece.u") == "m³/s"
+    assert data.unit("blocks.temperature_c") == "°C" and data.unit("plan.f0_hz") == "Hz"
+    p = data.signals["mouthpiece.p"]
+    assert p.ndim == 1 and p.size == data.signals["mouthpiece.u"].size
+    # the table is read from Parquet at full precision; the CSV carries 10 digits
+    csv = pd.read_csv(run.folder / "inversion" / "windows.csv", keep_default_na=False)
+    np.testing.assert_allclose(csv["k"], data.tables["windows"]["k"], rtol=1e-9)
+    text = (run.folder / "inversion" / "windows.csv").read_text()
+    assert not any(len(tok) > 17 for line in text.splitlines()[1:] for tok in line.split(","))
+    with pytest.raises(TypeError):
+        data.tables["windows"] = None

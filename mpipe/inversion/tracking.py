@@ -32,7 +32,7 @@ from mpipe.filters import design_lowpass
 from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWindow
 from mpipe.inversion.rosenbrock import SearchResult, minimise
 from mpipe.inversion.step1 import Step1Result, step1
-from mpipe.io import write_atomic, write_text_atomic
+from mpipe.io import write_atomic, write_csv, write_text_atomic
 from mpipe.model import BoreKernel
 from mpipe.pipeline import PARAMETER_NAMES, ExecutorConfig, InversionConfig
 from mpipe.reed import ReedParameters
@@ -636,7 +636,7 @@ def _dask_chain(p, u, fs, starts, kernel, rho, config, zero_mean, checkpoint=Non
 
 
 def write_table(table: pd.DataFrame, directory: str | Path, stem: str = "windows") -> list[Path]:
-    """Write the per-window table as CSV, and as Parquet when pyarrow is importable.
+    """Write the per-window table as CSV (10 significant digits) and as Parquet (full precision).
 
     Parameters
     ----------
@@ -653,16 +653,11 @@ def write_table(table: pd.DataFrame, directory: str | Path, stem: str = "windows
         Files written (atomically).
     """
     directory = Path(directory)
-    written = [
-        write_atomic(
-            directory / f"{stem}.csv",
-            lambda tmp: table.to_csv(tmp, index=False, float_format="%.17g"),
-        )
-    ]
+    written = [write_csv(directory / f"{stem}.csv", table)]
     try:
         import pyarrow  # noqa: F401
-    except ImportError:
-        log.info("pyarrow not installed: no Parquet output")
+    except ImportError:  # a dependency; only a broken installation lacks it
+        log.warning("pyarrow cannot be imported: no Parquet output")
     else:
         written.append(
             write_atomic(
