@@ -17,6 +17,7 @@ import sys
 from mpipe import __version__
 from mpipe.config import ConfigError
 from mpipe.errors import UserError
+from mpipe.progress import logging_redirect
 from mpipe.workers import exit_on_sigterm
 
 # Command modules under mpipe/commands, in the order `mpipe --help` lists them.
@@ -48,7 +49,9 @@ def main(argv: list[str] | None = None) -> int:
     # partial files removed and output-folder locks released
     exit_on_sigterm()
     try:
-        return int(args.func(args) or 0)
+        # log records are printed above progress bars, never inside them
+        with logging_redirect():
+            return int(args.func(args) or 0)
     except (ConfigError, UserError) as exc:
         print(f"mpipe {args.command}: error: {exc}", file=sys.stderr)
         return 2

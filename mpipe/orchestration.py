@@ -23,6 +23,7 @@ from mpipe.calibration import Calibration, load_calibration
 from mpipe.io import write_atomic, write_csv, write_npz_atomic
 from mpipe.manifest import PARTIAL, StageRecord, run_stage
 from mpipe.pipeline import PipelineConfig
+from mpipe.progress import stage_timer
 
 log = logging.getLogger(__name__)
 
@@ -263,6 +264,7 @@ def _stage_inversion(
 
 def _stage_resynthesis(mouthpiece: Path, windows: Path, t_eff: float, cal, cfg, zero_mean):
     from mpipe import resynthesis as rs
+    from mpipe.progress import ProgressBar
 
     def work(folder: Path):
         mp = _load_npz(mouthpiece)
@@ -271,7 +273,11 @@ def _stage_resynthesis(mouthpiece: Path, windows: Path, t_eff: float, cal, cfg, 
         table = pd.read_csv(windows, keep_default_na=False, na_values=[""], dtype={"error": str})
         table["error"] = table["error"].fillna("")
         kernel, _ = _kernel(cal, t_eff, fs)
-        res = rs.resynthesise(table, p, u, fs, kernel, cfg.inversion, zero_mean)
+        bar = ProgressBar(len(table), desc="resynthesis")
+        try:
+            res = rs.resynthesise(table, p, u, fs, kernel, cfg.inversion, zero_mean, bar)
+        finally:
+            bar.close()
         write_npz_atomic(folder / "resynthesis.npz", fs=np.float64(fs), p=res.p, u=res.u)
         filled = np.nan_to_num(res.p)
         rs.write_wav(folder / "resynthesis.wav", filled, fs, cfg.resynthesis.wav_full_scale_pa)
@@ -370,7 +376,8 @@ def _run_take(
         t0 = time.perf_counter()
         # Once a stage is redone, the stages after it are derived from new data: they are
         # this run's own results, replaced without --force.
-        rec = run_stage(d[key], key, inputs, config, work, force or redone)
+        with stage_timer(f"[{name}] {i}/{len(STAGES)} {key}"):
+            rec = run_stage(d[key], key, inputs, config, work, force or redone)
         redone = redone or rec.status == "done"
         records[key] = rec
         what = "done" if rec.status == "done" else "already done, skipped"

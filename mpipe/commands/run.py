@@ -41,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe run``."""
     from mpipe.io import check_output_folder
     from mpipe.orchestration import run_take, take_name
+    from mpipe.progress import write
 
     cfg = load_pipeline(args.pipeline)
     cal_path = Path(args.calibration) if args.calibration else cfg.calibration_path
@@ -67,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         for t in takes:
             try:
-                run_take(cfg, cal_path, t, args.output, args.force, client)
+                run_take(cfg, cal_path, t, args.output, args.force, client, say=write)
             except (ValueError, OSError, UserError) as exc:
                 if isinstance(exc, ConfigError | UserError) and len(takes) == 1:
                     raise

@@ -18,7 +18,6 @@ import json
 import logging
 import math
 import os
-import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -35,6 +34,7 @@ from mpipe.inversion.step1 import Step1Result, step1
 from mpipe.io import write_atomic, write_csv, write_text_atomic
 from mpipe.model import BoreKernel
 from mpipe.pipeline import PARAMETER_NAMES, ExecutorConfig, InversionConfig
+from mpipe.progress import ProgressBar  # the bar drawn by the commands (tqdm)
 from mpipe.reed import ReedParameters
 
 log = logging.getLogger(__name__)
@@ -357,57 +357,6 @@ def split_chains(starts: Sequence[int], n_chains: int) -> list[list[int]]:
     """Split window starts into at most ``n_chains`` contiguous chains of similar length."""
     n_chains = max(1, min(n_chains, len(starts)))
     return [list(c) for c in np.array_split(np.asarray(starts, dtype=int), n_chains) if c.size]
-
-
-class ProgressBar:
-    """A minimal text progress bar: windows done and estimated time left.
-
-    Parameters
-    ----------
-    total : int
-        Number of windows.
-    stream : file-like, optional
-        Where to draw (default ``sys.stderr``); nothing is drawn when it is not a terminal
-        unless ``force`` is set.
-    force : bool
-        Draw even when the stream is not a terminal.
-    clock : callable
-        Returns the time in s (injected for tests).
-    """
-
-    def __init__(self, total: int, stream=None, force: bool = False, clock=time.monotonic):
-        self.total = max(int(total), 0)
-        self.done = 0
-        self.stream = sys.stderr if stream is None else stream
-        self.enabled = force or bool(getattr(self.stream, "isatty", lambda: False)())
-        self.clock = clock
-        self.t0 = clock()
-
-    def text(self) -> str:
-        """The bar as a line of text."""
-        frac = self.done / self.total if self.total else 1.0
-        width = 30
-        filled = int(round(width * frac))
-        elapsed = self.clock() - self.t0
-        if self.done:
-            left = elapsed / self.done * (self.total - self.done)
-            eta = f"{int(left // 60):d}:{int(left % 60):02d} left"
-        else:
-            eta = "--:-- left"
-        return f"[{'#' * filled}{'.' * (width - filled)}] {self.done}/{self.total} windows, {eta}"
-
-    def update(self, n: int = 1) -> None:
-        """Count ``n`` more windows done and redraw."""
-        self.done += n
-        if self.enabled:
-            self.stream.write("\r" + self.text())
-            self.stream.flush()
-
-    def close(self) -> None:
-        """End the bar's line."""
-        if self.enabled:
-            self.stream.write("\n")
-            self.stream.flush()
 
 
 @dataclass(frozen=True)
