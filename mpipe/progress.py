@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import sys
 import threading
 from collections.abc import Iterator
@@ -22,6 +23,18 @@ TICK_S = 0.5
 
 def _is_terminal(stream) -> bool:
     return bool(getattr(stream, "isatty", lambda: False)())
+
+
+def _width(stream) -> dict:
+    # Some terminals (pseudo-terminals of `script`, editors' shells) report a size of 0 x 0,
+    # and tqdm then hides every bar: fall back to 80 x 24 there.
+    try:
+        size = os.get_terminal_size(stream.fileno())
+    except (AttributeError, OSError, ValueError):
+        size = os.terminal_size((0, 0))
+    if size.columns > 0 and size.lines > 0:
+        return {"dynamic_ncols": True}
+    return {"ncols": size.columns or 80, "nrows": size.lines or 24}
 
 
 class ProgressBar:
@@ -56,7 +69,7 @@ class ProgressBar:
         # items take 0.1-10 s each: every update is drawn
         self._bar = tqdm(
             total=self.total, desc=desc, unit=unit, file=self.stream, disable=not self.enabled,
-            dynamic_ncols=True, leave=True, mininterval=0.0, miniters=1,
+            leave=True, mininterval=0.0, miniters=1, **_width(self.stream),
         )  # fmt: skip
 
     @property
@@ -88,7 +101,7 @@ def stage_timer(desc: str, stream=None, force: bool = False) -> Iterator[None]:
     enabled = force or _is_terminal(stream)
     bar = tqdm(
         total=None, desc=desc, file=stream, disable=not enabled, leave=False,
-        bar_format="{desc}: {elapsed}", dynamic_ncols=True,
+        bar_format="{desc}: {elapsed}", **_width(stream),
     )  # fmt: skip
     stop = threading.Event()
 
