@@ -40,6 +40,8 @@ _API = {
     "track": "mpipe.inversion.tracking",
     "resynthesise": "mpipe.resynthesis",
     "run_take": "mpipe.orchestration",
+    "load_run": "mpipe.results",
+    "RunData": "mpipe.results",
 }
 
 __all__ = ["__version__", *_API]

@@ -21,10 +21,10 @@ import pandas as pd
 from mpipe import __version__
 from mpipe.calibration import Calibration, load_calibration
 from mpipe.inversion.kernel import bore_kernel, take_temperature
-from mpipe.io import write_atomic, write_npz_atomic
+from mpipe.io import write_atomic, write_csv, write_npz_atomic
 from mpipe.manifest import PARTIAL, StageRecord, run_stage
 from mpipe.pipeline import PARAMETER_NAMES, PipelineConfig
-from mpipe.report import Section, write_report
+from mpipe.progress import stage_timer
 
 log = logging.getLogger(__name__)
 
@@ -105,7 +105,7 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
             folder / "reference.npz", fs=np.float64(take.fs), p0=sep.p0, u0=sep.u0,
             temperature_c=temps,
         )  # fmt: skip
-        write_atomic(folder / "blocks.csv", lambda t: sep.blocks.to_csv(t, index=False))
+        write_csv(folder / "blocks.csv", sep.blocks)
         write_atomic(folder / "blocks.png", lambda t: _plot_blocks(sep.blocks, t))
         b = sep.blocks
         summary = {
@@ -150,8 +150,8 @@ def _stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg: Pip
         mp = _load_npz(mouthpiece)
         t_eff = take_temperature(mp.get("temperature_c"), cal)
         val = validate(mp["p"], mp["u"], float(mp["fs"]), cal, cfg.validation, t_eff)
-        write_atomic(folder / "impedance.csv", lambda t: val.table().to_csv(t, index=False))
-        write_atomic(folder / "validation.csv", lambda t: val.resonances.to_csv(t, index=False))
+        write_csv(folder / "impedance.csv", val.table())
+        write_csv(folder / "validation.csv", val.resonances)
         write_atomic(folder / "impedance.png", lambda t: plot_impedance(val, t, 2000.0))
         summary = {
             "verdict": val.verdict,
@@ -178,12 +178,12 @@ def _stage_conditioning(mouthpiece: Path, cfg: PipelineConfig):
         mp = _load_npz(mouthpiece)
         fs = float(mp["fs"])
         table = plan_inversion(mp["p"], fs, cfg.conditioning, inv.window_s, inv.hop_s)
-        write_atomic(folder / "plan.csv", lambda t: table.to_csv(t, index=False))
+        write_csv(folder / "plan.csv", table)
         summary = {
             "windows": len(table),
             "steady": int(table["steady"].sum()),
             "to_invert": int(table["invert"].sum()),
-            "zero_mean_flow": bool(detect_zero_mean(mp["u"], inv.signal)),
+            "zero_mean_flow": bool(detect_zero_mean(mp["u"], inv.signal, inv.zero_mean_ratio)),
             "f0_hz_median": float(np.nanmedian(table["f0_hz"])) if len(table) else float("nan"),
         }
         return {"plan": "plan.csv"}, summary
@@ -254,6 +254,7 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
 
 def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
     from mpipe import resynthesis as rs
+    from mpipe.progress import ProgressBar
 
     def work(folder: Path):
         mp = _load_npz(mouthpiece)
@@ -262,7 +263,11 @@ def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
         table = pd.read_csv(windows, keep_default_na=False, na_values=[""], dtype={"error": str})
         table["error"] = table["error"].fillna("")
         kernel, _ = bore_kernel(cal, fs, take_temperature(mp.get("temperature_c"), cal))
-        res = rs.resynthesise(table, p, u, fs, kernel, cfg.inversion, zero_mean)
+        bar = ProgressBar(len(table), desc="resynthesis")
+        try:
+            res = rs.resynthesise(table, p, u, fs, kernel, cfg.inversion, zero_mean, bar)
+        finally:
+            bar.close()
         write_npz_atomic(folder / "resynthesis.npz", fs=np.float64(fs), p=res.p, u=res.u)
         filled = np.nan_to_num(res.p)
         rs.write_wav(folder / "resynthesis.wav", filled, fs, cfg.resynthesis.wav_full_scale_pa)
@@ -290,6 +295,27 @@ def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
 
 
 def run_take(
+    cfg: PipelineConfig,
+    cal_path: Path,
+    take_paths: Sequence[str | Path],
+    out: str | Path,
+    force: bool = False,
+    client=None,
+    say: Callable[[str], None] = print,
+) -> TakeRun:
+    """Run every stage on one take, holding the lock of its output folder ``out/<take>``.
+
+    The arguments and result are those of :func:`_run_take`. Raises
+    :class:`mpipe.errors.UserError` at once when the folder is not writable or another run
+    holds it: two runs on one folder would mix their results.
+    """
+    from mpipe.io import folder_lock
+
+    with folder_lock(Path(out) / take_name([Path(p) for p in take_paths])):
+        return _run_take(cfg, cal_path, take_paths, out, force, client, say)
+
+
+def _run_take(
     cfg: PipelineConfig,
     cal_path: Path,
     take_paths: Sequence[str | Path],
@@ -340,7 +366,8 @@ def run_take(
         t0 = time.perf_counter()
         # Once a stage is redone, the stages after it are derived from new data: they are
         # this run's own results, replaced without --force.
-        rec = run_stage(d[key], key, inputs, config, work, force or redone)
+        with stage_timer(f"[{name}] {i}/{len(STAGES)} {key}"):
+            rec = run_stage(d[key], key, inputs, config, work, force or redone)
         redone = redone or rec.status == "done"
         records[key] = rec
         what = "done" if rec.status == "done" else "already done, skipped"
@@ -387,66 +414,7 @@ def usable(run: TakeRun) -> bool:
 
 def write_take_report(root: Path, name: str, take_paths, cal_path, records: dict) -> Path:
     """Write ``root/report.html`` from the stage folders and their manifests."""
-    val = records["validation"].summary
-    inv = records["inversion"].summary
-    res = records["resynthesis"].summary
-    sep = records["separation"].summary
-    windows = pd.read_csv(root / "inversion" / "windows.csv", keep_default_na=False)
-    cols = [c for c in ("t_start_s", "status", "k", "S", "y_m", "p_m", "m", "g", "lam", "k_c",
-                        "f2", "relative_residual", "n_evaluations", "status_reason")
-            if c in windows.columns]  # fmt: skip
-    timings = pd.DataFrame(
-        [{"stage": k, "status": r.status, "wall_s": r.wall_s} for k, r in records.items()]
-    )
-    plan = pd.read_csv(root / "conditioning" / "plan.csv", keep_default_na=False)
-    inv_root = root / "inversion"
-    sections = [
-        Section(
-            "Measurement: impedance validation",
-            f"{val['text']}\n\nEffective temperature from the wave separation: "
-            f"{val['temperature_c']:.2f} °C (blocks span {sep['temperature_c_range'][0]:.2f}"
-            f"–{sep['temperature_c_range'][1]:.2f} °C), loss scale {sep['loss_scale_median']:.3f}, "
-            f"Mach {sep['mach_median']:.4f}.",
-            ("PASS" if val["passed"] else "FAIL", "pass" if val["passed"] else "fail"),
-            (root / "validation" / "impedance.png", root / "separation" / "blocks.png"),
-        ),
-        Section(
-            "Reed parameters over time",
-            f"{inv['status_line']} (ok: the search met its tolerance, no parameter on a "
-            "bound, residual within a few times the take's best; see status_reason). "
-            f"Medians over the ok windows; median relative residual "
-            f"{inv['relative_residual_median']}; flow treated as "
-            f"{'zero-mean (measured)' if inv['zero_mean_flow'] else 'carrying its mean (model)'}.",
-            (
-                "OK" if inv["status_counts"]["ok"] else "NO USABLE WINDOW",
-                "pass" if inv["status_counts"]["ok"] else "fail",
-            ),
-            tuple(
-                p
-                for p in (
-                    inv_root / "tracks.png",
-                    inv_root / "flow_pressure.png",
-                    inv_root / "history.png",
-                )
-                if p.exists()
-            ),  # fmt: skip
-            (("Per-window results", windows[cols]),),
-        ),
-        Section(
-            "Resynthesis",
-            f"Relative residual of the resynthesised pressure over the inverted windows: "
-            f"{res['relative_residual_p']}. The resynthesised pressure is in "
-            "resynthesis/resynthesis.wav.",
-            None,
-            tuple(sorted((root / "resynthesis").glob("overlay_*.png"))),
-        ),
-        Section(
-            "Run",
-            f"Take: {', '.join(str(p) for p in take_paths)}. Calibration: {cal_path}.",
-            ("mpipe " + __version__, "info"),
-            (),
-            (("Stage timings", timings), ("Window plan (conditioning)", plan)),
-        ),
-    ]
-    return write_report(root / "report.html", f"mpipe report: {name}",
-                        time.strftime("%Y-%m-%d %H:%M"), sections)  # fmt: skip
+    from mpipe import report
+
+    when = time.strftime("%Y-%m-%d %H:%M")
+    return report.write_take_report(root, name, take_paths, cal_path, records, __version__, when)

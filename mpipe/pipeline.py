@@ -12,11 +12,20 @@ valid. The loader needs no change: :func:`mpipe.config.build` walks the type hin
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
 
-from mpipe.config import ConfigError, Where, between, build, load_yaml, positive, spec
+from mpipe.config import (
+    ConfigError,
+    Where,
+    between,
+    build,
+    load_yaml,
+    positive,
+    spec,
+    to_commented_yaml,
+)
 from mpipe.separation import SeparationConfig
 from mpipe.translation import TranslationConfig
 from mpipe.validation import ValidationConfig
@@ -221,6 +230,14 @@ class InversionConfig:
     )
     window_s: float = spec("s", "analysis window length", between(1e-3, 1.0), default=0.02)
     hop_s: float = spec("s", "hop between window starts", between(1e-3, 10.0), default=0.02)
+    zero_mean_ratio: float = spec(
+        "",
+        "signal auto: the flow counts as measured (zero-mean) when |mean(u)| / std(u) is "
+        "below this; model flow carries a mean of 1-3 times its AC amplitude, a high-passed "
+        "measurement about 0",
+        between(0.0, 1.0),
+        default=0.2,
+    )
     signal: Literal["measured", "model", "auto"] = spec(
         "",
         "measured: zero-mean flow, model output is low-passed like the measurement before "
@@ -357,6 +374,36 @@ class PipelineConfig:
         return (Path(self.source).parent / self.calibration).resolve()
 
 
+PIPELINE_HEADER = """\
+# mpipe pipeline: how to run every stage (Chatziioannou & van Walstijn 2012, sections 3-4).
+# SI units throughout (temperatures in degC); each key's unit is in [brackets] before it.
+# Every key is optional except `calibration`; a missing key takes the value shown by
+# `mpipe config` (which printed this file).
+"""
+
+
+def pipeline_yaml(cfg: PipelineConfig | None = None, calibration: str | None = None) -> str:
+    """The pipeline as commented YAML: every key of every stage, with unit and meaning.
+
+    Parameters
+    ----------
+    cfg : PipelineConfig, optional
+        The pipeline to write (default: every default, and ``calibration`` as given).
+    calibration : str, optional
+        Calibration path to write (default: the one of ``cfg``, or a placeholder).
+
+    Returns
+    -------
+    str
+        YAML that :func:`load_pipeline` reads back into an equal configuration.
+    """
+    if cfg is None:
+        cfg = PipelineConfig(calibration=calibration or "CALIBRATION.yaml")
+    elif calibration is not None:
+        cfg = replace(cfg, calibration=calibration)
+    return PIPELINE_HEADER + to_commented_yaml(cfg, skip=("source",))
+
+
 def load_pipeline(path: str | Path) -> PipelineConfig:
     """Read and validate a pipeline file.
 
@@ -392,4 +439,5 @@ __all__ = [
     "ParameterBounds",
     "PipelineConfig",
     "load_pipeline",
+    "pipeline_yaml",
 ]

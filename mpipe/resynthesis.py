@@ -84,6 +84,7 @@ def resynthesise(
     kernel: BoreKernel,
     config: InversionConfig,
     zero_mean: bool,
+    progress=None,
 ) -> Resynthesis:
     """Run the model with each window's parameters and stitch the windows together.
 
@@ -104,6 +105,8 @@ def resynthesise(
         Start method and filters.
     zero_mean : bool
         Whether the target flow is zero-mean.
+    progress : mpipe.progress.ProgressBar, optional
+        Counted once per window.
 
     Returns
     -------
@@ -118,6 +121,8 @@ def resynthesise(
         lowpass=design_lowpass(fs, config.lowpass_hz) if zero_mean else None,
     )
     for _, row in table.iterrows():
+        if progress is not None:
+            progress.update(1)
         err = row["error"]
         # a table read back from CSV may hold NaN for "no error"
         if (isinstance(err, str) and err) or not np.isfinite(row["k"]):

@@ -72,7 +72,11 @@ def test_full_pipeline_recovers_the_truth(finished):
         assert abs(got / true - 1) < tolerance, (name, got, true)
     assert windows["relative_residual"].max() < 0.02
     report = (run.folder / "report.html").read_text()
-    assert "PASS" in report and "tracks.png" in report and "overlay_1.png" in report
+    assert "PASS" in report and "Reed parameters per window" in report and "overlay 1" in report
+    # self-contained: every figure embedded, none linked
+    assert report.count('src="data:image/png;base64,') >= 6 and 'src="' not in report.replace(
+        'src="data:', ""
+    )
     for stage in STAGES:
         assert (run.folder / stage / "manifest.json").exists()
 
@@ -166,3 +170,37 @@ def test_every_door_gives_the_same_table(finished, take, pipeline, tmp_path):
         assert list(other["status"]) == list(via_run["status"])
         for name in PARAMETER_NAMES:
             np.testing.assert_allclose(other[name], via_run[name], rtol=1e-3, err_msg=name)
+
+
+def _is_number(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def test_load_run_gives_tables_and_signals_with_units(finished):
+    import mpipe
+
+    out, run, _ = finished
+    data = mpipe.load_run(out)
+    assert data.folder == run.folder and data.fs == 100_000.0
+    assert data.verdict == "pass"
+    assert set(data.tables) == {"blocks", "impedance", "resonances", "plan", "windows"}
+    assert data.unit("windows.k") == "Pa/m" and data.unit("windows.t_start_s") == "s"
+    assert data.unit("mouthpiece.p") == "Pa" and data.unit("mouthpiece.u") == "m³/s"
+    assert data.unit("blocks.temperature_c") == "°C" and data.unit("plan.f0_hz") == "Hz"
+    p = data.signals["mouthpiece.p"]
+    assert p.ndim == 1 and p.size == data.signals["mouthpiece.u"].size
+    # the table is read from Parquet at full precision; the CSV carries 10 digits
+    csv = pd.read_csv(run.folder / "inversion" / "windows.csv", keep_default_na=False)
+    np.testing.assert_allclose(csv["k"], data.tables["windows"]["k"], rtol=1e-9)
+    import csv as csv_module
+
+    with open(run.folder / "inversion" / "windows.csv", newline="") as f:
+        rows = list(csv_module.reader(f))[1:]
+    numeric = [tok for row in rows for tok in row if _is_number(tok)]
+    assert numeric and not any(len(tok) > 17 for tok in numeric)
+    with pytest.raises(TypeError):
+        data.tables["windows"] = None

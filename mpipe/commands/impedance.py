@@ -7,7 +7,7 @@ import argparse
 from mpipe.calibration import load_calibration
 from mpipe.errors import UserError
 from mpipe.impedance import format_resonances, impedance_curve, plot_impedance
-from mpipe.io import check_writable, write_atomic
+from mpipe.io import check_writable, write_csv
 from mpipe.radiation import RADIATION_MODELS
 
 
@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     )
     print(format_resonances(curve.resonances(args.count)))
     if args.csv:
-        write_atomic(args.csv, lambda tmp: curve.table().to_csv(tmp, index=False))
+        write_csv(args.csv, curve.table())
         print(f"wrote {args.csv}")
     if args.plot:
         plot_impedance(curve, args.plot)

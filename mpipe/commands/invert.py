@@ -87,7 +87,14 @@ def load_mouthpiece(path: str | Path) -> tuple[float, np.ndarray, np.ndarray, np
 
 
 def run(args: argparse.Namespace) -> int:
-    """Execute ``mpipe invert``."""
+    """Execute ``mpipe invert``, holding the lock of the output folder."""
+    from mpipe.io import folder_lock
+
+    with folder_lock(args.output):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     from mpipe import resynthesis as rs
     from mpipe.conditioning import plan_inversion
     from mpipe.inversion.kernel import bore_kernel, take_temperature

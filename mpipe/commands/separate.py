@@ -29,7 +29,7 @@ import numpy as np
 from mpipe.calibration import load_calibration
 from mpipe.errors import UserError
 from mpipe.inversion.kernel import take_temperature
-from mpipe.io import check_writable, write_atomic, write_npz_atomic
+from mpipe.io import check_writable, write_atomic, write_csv, write_npz_atomic
 from mpipe.pipeline import load_pipeline
 from mpipe.separation import SeparationConfig, separate
 from mpipe.translation import TranslationConfig, translate
@@ -85,7 +85,14 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Execute ``mpipe separate``."""
+    """Execute ``mpipe separate``, holding the lock of the output folder."""
+    from mpipe.io import folder_lock
+
+    with folder_lock(args.output):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     from mpipe.takes import read_take
 
     if len(args.inputs) not in (2, 4):
@@ -137,9 +144,9 @@ def run(args: argparse.Namespace) -> int:
     }
     write_npz_atomic(out / "mouthpiece.npz", **arrays)
     write_atomic(out / "mouthpiece.wav", lambda tmp: _write_wav(tmp, tr.p, tr.u, take.fs))
-    write_atomic(out / "blocks.csv", lambda tmp: sep.blocks.to_csv(tmp, index=False))
-    write_atomic(out / "impedance.csv", lambda tmp: val.table().to_csv(tmp, index=False))
-    write_atomic(out / "validation.csv", lambda tmp: val.resonances.to_csv(tmp, index=False))
+    write_csv(out / "blocks.csv", sep.blocks)
+    write_csv(out / "impedance.csv", val.table())
+    write_csv(out / "validation.csv", val.resonances)
     write_atomic(out / "impedance.png", lambda tmp: plot_impedance(val, tmp, 2000.0))
 
     b = sep.blocks

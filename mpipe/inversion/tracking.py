@@ -21,10 +21,8 @@ import json
 import logging
 import math
 import os
-import sys
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,9 +37,10 @@ from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWind
 from mpipe.inversion.rosenbrock import SearchResult, minimise
 from mpipe.inversion.status import classify, on_bounds, search_bounds, window_status
 from mpipe.inversion.step1 import Step1Result, step1
-from mpipe.io import write_atomic, write_text_atomic
+from mpipe.io import write_atomic, write_csv, write_text_atomic
 from mpipe.model import BoreKernel
 from mpipe.pipeline import PARAMETER_NAMES, ExecutorConfig, InversionConfig
+from mpipe.progress import ProgressBar  # the bar drawn by the commands (tqdm)
 from mpipe.reed import ReedParameters
 
 log = logging.getLogger(__name__)
@@ -80,7 +79,7 @@ class WindowOutcome:
     reed: ReedParameters | None
 
 
-def detect_zero_mean(u: np.ndarray, kind: str) -> bool:
+def detect_zero_mean(u: np.ndarray, kind: str, ratio: float = 0.2) -> bool:
     """Whether a take's flow is zero-mean (measured) from the configured ``signal`` kind.
 
     Parameters
@@ -89,6 +88,8 @@ def detect_zero_mean(u: np.ndarray, kind: str) -> bool:
         Flow, m^3/s.
     kind : {"measured", "model", "auto"}
         Configured signal kind; "auto" decides from mean(u)/rms(u).
+    ratio : float
+        "auto": zero-mean when |mean(u)| / rms(u) is below this (``zero_mean_ratio``).
 
     Returns
     -------
@@ -98,7 +99,7 @@ def detect_zero_mean(u: np.ndarray, kind: str) -> bool:
         return True
     if kind == "model":
         return False
-    return is_zero_mean(u)
+    return is_zero_mean(u, ratio)
 
 
 def plan_windows(
@@ -451,57 +452,6 @@ def split_chains(starts: Sequence[int], n_chains: int) -> list[list[int]]:
     return [list(c) for c in np.array_split(np.asarray(starts, dtype=int), n_chains) if c.size]
 
 
-class ProgressBar:
-    """A minimal text progress bar: windows done and estimated time left.
-
-    Parameters
-    ----------
-    total : int
-        Number of windows.
-    stream : file-like, optional
-        Where to draw (default ``sys.stderr``); nothing is drawn when it is not a terminal
-        unless ``force`` is set.
-    force : bool
-        Draw even when the stream is not a terminal.
-    clock : callable
-        Returns the time in s (injected for tests).
-    """
-
-    def __init__(self, total: int, stream=None, force: bool = False, clock=time.monotonic):
-        self.total = max(int(total), 0)
-        self.done = 0
-        self.stream = sys.stderr if stream is None else stream
-        self.enabled = force or bool(getattr(self.stream, "isatty", lambda: False)())
-        self.clock = clock
-        self.t0 = clock()
-
-    def text(self) -> str:
-        """The bar as a line of text."""
-        frac = self.done / self.total if self.total else 1.0
-        width = 30
-        filled = int(round(width * frac))
-        elapsed = self.clock() - self.t0
-        if self.done:
-            left = elapsed / self.done * (self.total - self.done)
-            eta = f"{int(left // 60):d}:{int(left % 60):02d} left"
-        else:
-            eta = "--:-- left"
-        return f"[{'#' * filled}{'.' * (width - filled)}] {self.done}/{self.total} windows, {eta}"
-
-    def update(self, n: int = 1) -> None:
-        """Count ``n`` more windows done and redraw."""
-        self.done += n
-        if self.enabled:
-            self.stream.write("\r" + self.text())
-            self.stream.flush()
-
-    def close(self) -> None:
-        """End the bar's line."""
-        if self.enabled:
-            self.stream.write("\n")
-            self.stream.flush()
-
-
 @dataclass(frozen=True)
 class Tracking:
     """Result of :func:`track`.
@@ -590,7 +540,7 @@ def track(
     u = np.asarray(u, dtype=float)
     if abs(kernel.fs - fs) > 1e-6 * fs:
         raise ValueError(f"signals at {fs:g} Hz but the bore kernel is at {kernel.fs:g} Hz")
-    zero_mean = detect_zero_mean(u, config.signal)
+    zero_mean = detect_zero_mean(u, config.signal, config.zero_mean_ratio)
     if starts is None:
         starts = plan_windows(p.size, fs, config.window_s, config.hop_s, start_s, end_s)
     starts = [int(s) for s in starts]
@@ -657,12 +607,14 @@ def _dispatch(job, items, warm, executor, workers, client, update):
 
 
 def _track_processes(job, groups, warm, workers, update):
-    import multiprocessing
+    from mpipe.workers import manager as worker_manager
+    from mpipe.workers import process_pool
 
     results = []
-    with multiprocessing.Manager() as manager:
+    # workers (and the queue's server) end with this process, whatever ends it
+    with worker_manager() as manager:
         queue = manager.Queue() if update is not None else None
-        with ProcessPoolExecutor(max_workers=min(workers, len(groups))) as pool:
+        with process_pool(min(workers, len(groups))) as pool:
             futures = [pool.submit(_windows_task, (job, g, warm, queue)) for g in groups]
             pending = set(futures)
             while pending:
@@ -710,7 +662,7 @@ def _dask_windows(job, items, warm):
 
 
 def write_table(table: pd.DataFrame, directory: str | Path, stem: str = "windows") -> list[Path]:
-    """Write the per-window table as CSV, and as Parquet when pyarrow is importable.
+    """Write the per-window table as CSV (10 significant digits) and as Parquet (full precision).
 
     Parameters
     ----------
@@ -727,16 +679,11 @@ def write_table(table: pd.DataFrame, directory: str | Path, stem: str = "windows
         Files written (atomically).
     """
     directory = Path(directory)
-    written = [
-        write_atomic(
-            directory / f"{stem}.csv",
-            lambda tmp: table.to_csv(tmp, index=False, float_format="%.17g"),
-        )
-    ]
+    written = [write_csv(directory / f"{stem}.csv", table)]
     try:
         import pyarrow  # noqa: F401
-    except ImportError:
-        log.info("pyarrow not installed: no Parquet output")
+    except ImportError:  # a dependency; only a broken installation lacks it
+        log.warning("pyarrow cannot be imported: no Parquet output")
     else:
         written.append(
             write_atomic(
