@@ -118,28 +118,28 @@ def test_numbers_are_rounded_to_significant_digits():
     assert fmt(np.int64(3)) == "3" and fmt(True) == "yes"
 
 
-def test_summary_flags_failed_and_suspect_windows():
+def test_summary_lists_windows_that_are_not_ok():
     windows = pd.DataFrame(
         {
             "window": [0, 1, 2, 3],
             "t_start_s": [0.0, 0.02, 0.04, 0.06],
             "k": [8.6e6, 8.7e6, 1e8, np.nan],
-            "relative_residual": [0.01, 0.012, 0.011, np.nan],
-            "converged": [True, True, True, False],
-            "warm": [False, True, True, True],
-            "error": ["", "", "", "step 1 failed"],
+            "status": ["ok", "ok", "at-bound", "failed"],
+            "status_reason": ["", "", "on a bound: k=upper", "step 1 failed"],
         }
     )
-    flags = flag_windows(windows, {"k": [1e6, 1e8]})
+    flags = flag_windows(windows)
     assert flags["window"].tolist() == [2, 3]
-    assert flags["status"].tolist() == ["flagged", "failed"]
-    assert "on its search bound" in flags["reason"][0]
-    assert overall_verdict(True, 4, flags)[1] == "check"
-    assert overall_verdict(False, 4, flags)[1] == "fail"
+    assert flags["status"].tolist() == ["at-bound", "failed"]
+    assert "k=upper" in flags["reason"][0]
+    assert overall_verdict(True, windows)[1] == "check"
+    assert overall_verdict(False, windows)[1] == "fail"
+    assert overall_verdict(True, windows.iloc[2:])[1] == "fail"  # no window ok
+    assert overall_verdict(True, windows.iloc[:2])[1] == "pass"
     params = parameter_summary(windows).set_index("parameter")
-    # the failed window is left out of the spread
-    assert params.loc["k", "n_windows"] == 3
-    assert params.loc["k", "median"] == pytest.approx(8.7e6)
+    # only the ok windows make the median and the spread
+    assert params.loc["k", "n_windows"] == 2
+    assert params.loc["k", "median"] == pytest.approx(8.65e6)
     assert params.loc["k", "unit"] == "Pa/m"
 
 
