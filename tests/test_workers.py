@@ -165,3 +165,16 @@ def test_output_files_under_a_file_are_refused_before_any_work(tmp_path, capsys)
         "another output path"  # fmt: skip
     assert main(["config", "-o", str(tmp_path)]) == 2
     assert "is a folder; expected an output file name" in capsys.readouterr().err
+
+
+def test_workers_log_plainly_not_through_the_parents_progress_bars():
+    import logging
+
+    from mpipe.progress import logging_redirect
+    from mpipe.workers import _plain_log_handlers
+
+    root = logging.getLogger()
+    with logging_redirect():
+        assert any("tqdm" in type(h).__name__.lower() for h in root.handlers)
+        _plain_log_handlers()  # what a forked worker does first
+        assert not any("tqdm" in type(h).__name__.lower() for h in root.handlers)
