@@ -21,7 +21,16 @@ from mpipe.progress import logging_redirect
 from mpipe.workers import exit_on_sigterm
 
 # Command modules under mpipe/commands, in the order `mpipe --help` lists them.
-COMMANDS = ("config", "impedance", "simulate", "synth_take", "separate", "invert", "run")
+COMMANDS = (
+    "config",
+    "calibrate",
+    "impedance",
+    "simulate",
+    "synth_take",
+    "separate",
+    "invert",
+    "run",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

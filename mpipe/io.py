@@ -19,18 +19,28 @@ def _umask() -> int:
 
 
 def check_writable(paths: Iterable[str | Path], force: bool) -> None:
-    """Refuse to overwrite existing outputs unless ``force`` is set.
+    """Check output files before any work: their folders writable, none overwritten.
+
+    Existing files are refused unless ``force`` is set; the folders are created when
+    missing, and must be writable (:func:`check_output_folder`).
 
     Raises
     ------
     OutputExistsError
         Naming the first existing file.
+    UserError
+        Naming an output that is a folder, or a folder that cannot be written.
     """
-    if force:
-        return
+    from mpipe.errors import UserError
+
+    paths = [Path(p) for p in paths]
     for p in paths:
-        if Path(p).exists():
+        if p.is_dir():
+            raise UserError(f"{p}: is a folder; expected an output file name")
+        if not force and p.exists():
             raise OutputExistsError(f"{p} exists; use --force to overwrite it")
+    for parent in dict.fromkeys(p.parent for p in paths):
+        check_output_folder(parent)
 
 
 @contextmanager

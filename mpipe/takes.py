@@ -239,6 +239,11 @@ def read_take(
         raw[:, i] = _divide_response(raw[:, i], fs, freqs, h)
         log.debug("%s: applied relative calibration %s", mic.name, table)
 
+    from mpipe.mic_calibration import level_warning  # a level no clarinet plays at
+
+    if (warning := level_warning(raw, str(files[0]))) is not None:
+        log.warning("%s", warning)
+
     return Take(
         pressures=raw,
         fs=float(fs),

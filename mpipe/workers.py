@@ -73,12 +73,27 @@ def worker_init(parent_pid: int, interval_s: float = PARENT_POLL_S) -> None:
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     set_parent_death_signal(signal.SIGKILL)
+    _plain_log_handlers()
     # The parent may have died before prctl took effect: the watchdog's first check
     # runs immediately and catches that case.
     threading.Thread(
         target=_watch_parent, args=(parent_pid, interval_s), name="mpipe-parent-watchdog",
         daemon=True,
     ).start()  # fmt: skip
+
+
+def _plain_log_handlers() -> None:
+    # A forked worker inherits the parent's progress-bar-aware log handler, and with it the
+    # bar's lock as it was at the fork (possibly held by the parent's timer thread) and
+    # copies of the parent's bars: log plainly to stderr instead.
+    root = logging.getLogger()
+    for handler in list(root.handlers):
+        if "tqdm" in type(handler).__name__.lower():
+            plain = logging.StreamHandler(sys.stderr)
+            plain.setFormatter(handler.formatter)
+            plain.setLevel(handler.level)
+            root.removeHandler(handler)
+            root.addHandler(plain)
 
 
 @contextlib.contextmanager

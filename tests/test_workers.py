@@ -151,3 +151,30 @@ def test_run_refuses_a_folder_another_run_holds(tmp_path, capsys):
         assert main(["run", str(PIPELINE), str(take), "-o", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "in use by another mpipe run" in err[0]
+
+
+def test_output_files_under_a_file_are_refused_before_any_work(tmp_path, capsys):
+    from mpipe.cli import main
+
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    cal = Path(__file__).resolve().parents[1] / "calibration" / "simplified_clarinet.yaml"
+    assert main(["impedance", str(cal), "--csv", str(blocker / "z.csv")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"mpipe impedance: error: {blocker}: exists and is not a folder; choose " \
+        "another output path"  # fmt: skip
+    assert main(["config", "-o", str(tmp_path)]) == 2
+    assert "is a folder; expected an output file name" in capsys.readouterr().err
+
+
+def test_workers_log_plainly_not_through_the_parents_progress_bars():
+    import logging
+
+    from mpipe.progress import logging_redirect
+    from mpipe.workers import _plain_log_handlers
+
+    root = logging.getLogger()
+    with logging_redirect():
+        assert any("tqdm" in type(h).__name__.lower() for h in root.handlers)
+        _plain_log_handlers()  # what a forked worker does first
+        assert not any("tqdm" in type(h).__name__.lower() for h in root.handlers)
