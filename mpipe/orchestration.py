@@ -195,7 +195,7 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
     from mpipe import resynthesis as rs
     from mpipe.inversion.status import count as count_status
     from mpipe.inversion.status import summary_line
-    from mpipe.inversion.tracking import ProgressBar, track, write_table
+    from mpipe.inversion.tracking import ProgressBar, track, write_correlations, write_table
 
     inv = cfg.inversion
 
@@ -220,8 +220,10 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
             bar.close()
         table = result.table
         written = write_table(table, folder)
+        write_correlations(result.correlations, folder)
         rs.plot_tracks(table, folder / "tracks.png")
         outputs = {"windows": "windows.csv", "tracks": "tracks.png"}
+        outputs["correlations"] = "correlations.csv"
         if any(w.suffix == ".parquet" for w in written):
             outputs["windows_parquet"] = "windows.parquet"
         outputs.update(
@@ -400,7 +402,19 @@ def write_take_report(root: Path, name: str, take_paths, cal_path, records: dict
     )
     plan = pd.read_csv(root / "conditioning" / "plan.csv", keep_default_na=False)
     inv_root = root / "inversion"
+    from mpipe.inversion.uncertainty import summary as uncertainty_summary
+
     sections = [
+        Section(
+            "Summary: reed parameters and their uncertainty",
+            "Over the ok windows: median, spread (1.4826 x median absolute deviation over the "
+            "windows), median standard error and the fraction of windows where the quantity is "
+            "determined (relative SE below inversion.determined_limit). An undetermined "
+            "parameter is not measured by this take; see uncertainty_note in windows.csv.",
+            None,
+            (),
+            (("Summary", uncertainty_summary(windows)),),
+        ),
         Section(
             "Measurement: impedance validation",
             f"{val['text']}\n\nEffective temperature from the wave separation: "

@@ -71,8 +71,15 @@ def test_full_pipeline_recovers_the_truth(finished):
         got = windows[name].median()
         assert abs(got / true - 1) < tolerance, (name, got, true)
     assert windows["relative_residual"].max() < 0.02
+    # every searched parameter carries a standard error, the correlations a side file
+    ok = windows[windows["status"] == "ok"]
+    for name in ("k", "y_m", "p_m", "p_M", "gamma", "zeta"):
+        assert (pd.to_numeric(ok[f"{name}_se"]) > 0).all(), name
+    corr = pd.read_csv(run.folder / "inversion" / "correlations.csv")
+    assert corr["correlation"].abs().max() <= 1 + 1e-9 and len(corr) >= len(windows)
     report = (run.folder / "report.html").read_text()
     assert "PASS" in report and "tracks.png" in report and "overlay_1.png" in report
+    assert "Summary: reed parameters and their uncertainty" in report
     for stage in STAGES:
         assert (run.folder / stage / "manifest.json").exists()
 
