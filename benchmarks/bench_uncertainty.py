@@ -113,13 +113,14 @@ def report(label: str, windows: pd.DataFrame, truth: dict, z_c: float, rho: floa
           f"residual sigma {pd.to_numeric(ok['residual_sigma']).median():.3g} Pa")  # fmt: skip
     print(table[cols].to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     need = ("k", "y_m", "p_m", "lam", "p_M", "gamma", "zeta")
-    bad = [
-        n for n in need
-        if n in set(table["name"])
-        and not table.loc[table["name"] == n, "coverage_2se"].iloc[0] >= 0.8
-    ]  # fmt: skip
-    print(f"[{label}] coverage >= 0.80 for {', '.join(need)}: "
-          f"{'yes' if not bad else 'NO (' + ', '.join(bad) + ')'}")  # fmt: skip
+    cov = dict(zip(table["name"], table["coverage_2se"], strict=True))
+    bad = [n for n in need if n in cov and cov[n] < 0.8]
+    undetermined = [n for n in need if n in cov and not np.isfinite(cov[n])]
+    print(
+        f"[{label}] coverage >= 0.80 for {', '.join(need)}: "
+        f"{'yes' if not bad else 'NO (' + ', '.join(bad) + ')'}"
+        + (f"; not determined (SE inf): {', '.join(undetermined)}" if undetermined else "")
+    )
 
 
 def main(argv=None) -> int:

@@ -302,6 +302,7 @@ def plot_tracks(table: pd.DataFrame, path: str | Path) -> Path:
             det = table[det_col].astype(str).str.lower().isin(("true", "1")).to_numpy()
             if np.isnan(se[ok]).all():
                 title += " fixed"
+                det = np.ones(len(t), bool)
             elif not ok.any() or det[ok].mean() < 0.5:
                 title += " UNDETERMINED"
         else:

@@ -536,7 +536,9 @@ def summary(
     truth : mapping, optional
         Name -> true value (scalar) or per-window array (same length as ``table``); adds
         the coverage: the fraction of windows whose truth lies within 2 SE of the
-        estimate (an undetermined or SE-less window counts as not covering).
+        estimate. A window without a valid SE (NaN) counts as not covering; windows with
+        an infinite SE (not determined at all) are left out, and a quantity with no
+        finite SE has coverage NaN.
     status : str
         Windows of this status are summarised ("ok").
 
@@ -571,10 +573,13 @@ def summary(
         if truth is not None and name in truth:
             t = np.broadcast_to(np.asarray(truth[name], dtype=float), np.shape(table[name]))
             t = np.asarray(t)[np.asarray(mask)] if not isinstance(mask, slice) else t
+            # An infinite SE (a null direction) covers trivially: such windows are left
+            # out. A NaN SE (no valid SE) counts as not covering.
+            finite = ~np.isinf(se)
             with np.errstate(invalid="ignore"):
-                covered = np.abs(x - t) <= 2.0 * se
+                covered = np.abs(x - t)[finite] <= 2.0 * se[finite]
             row["truth_median"] = float(np.median(t)) if t.size else math.nan
-            row["coverage_2se"] = float(np.mean(covered)) if t.size else math.nan
+            row["coverage_2se"] = float(np.mean(covered)) if covered.size else math.nan
         rows.append(row)
     return pd.DataFrame(rows)
 

@@ -166,6 +166,10 @@ def test_summary_coverage():
     )
     s = summary(table, {"k": 1.0}).set_index("name")
     assert s.loc["k", "coverage_2se"] == pytest.approx(2 / 3)
+    table.loc[2, "k_se"] = np.inf  # a null direction: left out, not counted as covering
+    table.loc[1, "k_se"] = np.nan  # no valid SE: not covering
+    s = summary(table, {"k": 1.0}).set_index("name")
+    assert s.loc["k", "coverage_2se"] == pytest.approx(1 / 2)
     assert s.loc["k", "median"] == pytest.approx(1.0)
 
 
@@ -259,3 +263,27 @@ def test_closure_inversion_flags_the_scale_and_recovers_the_combinations(kernel)
     # the fit took the scaled reed: k is off by the factor lam is
     assert row["k"] / CLOSURE.k == pytest.approx(0.85, rel=0.03)
     assert "scale invariance" in row["uncertainty_note"]
+
+
+def test_free_contact_point_is_searched_and_recovered(kernel):
+    """contact: free searches y_c, lam holds the scale.
+
+    From a start 10 % off, a warm window recovers y_c of the Table 1 reed within 2 %.
+    """
+    from mpipe.inversion.status import search_bounds
+    from mpipe.inversion.tracking import invert_window
+    from mpipe.pipeline import InversionConfig
+
+    config = InversionConfig(contact="free")
+    assert config.search_parameters == ("k", "S", "y_m", "p_m", "m", "g", "k_c", "y_c")
+    assert search_bounds(config, 1000.0)[-1].tolist() == [2e-5, 1e-3]
+    sim = simulate(TABLE1, kernel, 32000)
+    start = dataclasses.replace(TABLE1, y_c=1.1 * TABLE1.y_c, k=0.95 * TABLE1.k)
+    out = invert_window(
+        sim.p, sim.u, FS, 30000, kernel, kernel.rho, config, zero_mean=False, warm=start
+    )
+    row = out.row
+    assert row["status"] == "ok", row["status_reason"]
+    assert row["y_c"] == pytest.approx(TABLE1.y_c, rel=0.02)
+    assert math.isinf(row["y_c_se"]) and not row["determined_y_c"]  # scale-dependent
+    assert row["p_M"] == pytest.approx(TABLE1.k * TABLE1.y_m, rel=0.02)
