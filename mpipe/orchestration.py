@@ -195,7 +195,7 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
     from mpipe import resynthesis as rs
     from mpipe.inversion.status import count as count_status
     from mpipe.inversion.status import summary_line
-    from mpipe.inversion.tracking import ProgressBar, track, write_table
+    from mpipe.inversion.tracking import ProgressBar, track, write_correlations, write_table
 
     inv = cfg.inversion
 
@@ -220,8 +220,10 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
             bar.close()
         table = result.table
         written = write_table(table, folder)
+        write_correlations(result.correlations, folder)
         rs.plot_tracks(table, folder / "tracks.png")
         outputs = {"windows": "windows.csv", "tracks": "tracks.png"}
+        outputs["correlations"] = "correlations.csv"
         if any(w.suffix == ".parquet" for w in written):
             outputs["windows_parquet"] = "windows.parquet"
         outputs.update(

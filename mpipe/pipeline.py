@@ -61,6 +61,9 @@ class ParameterBounds:
     g: tuple[float, ...] = _bound("1/s", "reed damping coefficient", 1e2, 2e4)
     lam: tuple[float, ...] = _bound("m", "effective reed width lambda", 5e-3, 20e-3)
     k_c: tuple[float, ...] = _bound("Pa/m^alpha", "reed-lay contact stiffness", 1e9, 1e13)
+    y_c: tuple[float, ...] = _bound(
+        "m", "displacement where contact begins (searched with contact: free only)", 2e-5, 1e-3
+    )
 
     def absolute(self, name: str, max_p: float) -> tuple[float, float]:
         """Bounds of parameter ``name`` in SI units; ``max_p`` (Pa) scales the p_m factors."""
@@ -98,6 +101,22 @@ class InversionConfig:
         default=2.4e-4,
     )
     alpha: float = spec("", "exponent of the contact force (fixed)", between(1.0, 4.0), default=2.0)
+    contact: Literal["fixed", "closure", "free"] = spec(
+        "",
+        "where reed-lay contact begins. fixed: at the configured y_c (the paper); closure: "
+        "at y_m (y_c = y_m, the convention of several time-domain simulators); free: y_c is "
+        "searched (within bounds.y_c, at most y_m). With closure or free the model is scale "
+        "invariant (k, S, lam, m / a, y_m, y_c * a, k_c / a^2 give the same p and u), so lam "
+        "is held at its configured value to fix the scale and only the combinations p_M, "
+        "gamma, zeta, f_r, Q_r are determined",
+        default="fixed",
+    )
+    determined_limit: float = spec(
+        "",
+        "a parameter is determined when its relative standard error is below this (0.10 = 10 %)",
+        between(1e-6, 10.0),
+        default=0.10,
+    )
     m: float = spec(
         "kg/m^2", "start value of the reed mass per unit area", between(1e-4, 10.0), default=0.05
     )
@@ -257,6 +276,16 @@ class InversionConfig:
         between(1e3, 1e6),
         default=100_000.0,
     )
+
+    @property
+    def search_parameters(self) -> tuple[str, ...]:
+        """The parameters step 2 searches, in order.
+
+        ``free`` without lam when the contact point moves with y_m (lam then fixes the
+        scale), and y_c last when ``contact`` is free.
+        """
+        names = tuple(n for n in self.free if not (self.contact != "fixed" and n == "lam"))
+        return (*names, "y_c") if self.contact == "free" else names
 
     def _check(self, where: Where) -> None:
         for name in PARAMETER_NAMES:

@@ -334,7 +334,23 @@ def write_take_report(
     )
     if val.get("failures"):
         summary_text += "\n\nValidation failures: " + "; ".join(val["failures"]) + "."
-    summary_tables = [("Reed parameters over the take: median and spread.", params)]
+    from mpipe.inversion.uncertainty import summary as uncertainty_summary
+
+    uncertainty = uncertainty_summary(windows)
+    if len(uncertainty):
+        uncertainty.insert(1, "unit", [unit_of(n) for n in uncertainty["name"]])
+    summary_tables = [
+        ("Reed parameters over the take (ok windows): median, interquartile spread.", params),
+        (
+            "Uncertainty (ok windows): median, spread over windows (1.4826 × median absolute "
+            "deviation), median standard error of one window, and the fraction of windows "
+            "where the quantity is determined (relative standard error below "
+            "inversion.determined_limit). An undetermined quantity is not measured by this "
+            "take; see uncertainty_note in windows.csv. p_M = k y_m, γ = p_m / p_M, "
+            "ζ = Z_c λ y_m √(2 / (ρ p_M)), f_r = √(k/m) / 2π, Q_r = 2π f_r / g.",
+            uncertainty,
+        ),
+    ]
     if len(flags):
         summary_tables.append(("Windows that are not ok, with the reason.", flags))
     summary = Section("Summary", summary_text, verdict, (), tuple(summary_tables))

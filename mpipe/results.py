@@ -38,6 +38,13 @@ UNITS = {
     "y_m_opening": "m",
     "f1_opening": "(m³/s)²",
     "f2": "Pa",
+    "p_M": "Pa",
+    "gamma": "–",
+    "zeta": "–",
+    "f_r": "Hz",
+    "Q_r": "–",
+    "residual_sigma": "Pa",
+    "n_eff": "–",
     "relative_residual": "–",
     "relative_residual_p": "–",
     "loss_scale": "–",
@@ -88,6 +95,8 @@ def unit_of(name: str) -> str:
     """
     if name in UNITS:
         return UNITS[name]
+    if name.endswith("_se") and name[: -len("_se")] in UNITS:
+        return UNITS[name[: -len("_se")]]  # a standard error has its quantity's unit
     for suffix, unit in SUFFIX_UNITS:
         if name.endswith(suffix) and len(name) > len(suffix):
             return unit

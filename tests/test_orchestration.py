@@ -71,12 +71,19 @@ def test_full_pipeline_recovers_the_truth(finished):
         got = windows[name].median()
         assert abs(got / true - 1) < tolerance, (name, got, true)
     assert windows["relative_residual"].max() < 0.02
+    # every searched parameter carries a standard error, the correlations a side file
+    ok = windows[windows["status"] == "ok"]
+    for name in ("k", "y_m", "p_m", "p_M", "gamma", "zeta"):
+        assert (pd.to_numeric(ok[f"{name}_se"]) > 0).all(), name
+    corr = pd.read_csv(run.folder / "inversion" / "correlations.csv")
+    assert corr["correlation"].abs().max() <= 1 + 1e-9 and len(corr) >= len(windows)
     report = (run.folder / "report.html").read_text()
     assert "PASS" in report and "Reed parameters per window" in report and "overlay 1" in report
     # self-contained: every figure embedded, none linked
     assert report.count('src="data:image/png;base64,') >= 6 and 'src="' not in report.replace(
         'src="data:', ""
     )
+    assert "uncertainty" in report.lower()
     for stage in STAGES:
         assert (run.folder / stage / "manifest.json").exists()
 

@@ -21,6 +21,7 @@ log = logging.getLogger(__name__)
 #: Files written into the output directory.
 OUTPUTS = (
     "windows.csv",
+    "correlations.csv",
     "plan.csv",
     "signals.png",
     "flow_pressure.png",
@@ -99,7 +100,7 @@ def _run(args: argparse.Namespace) -> int:
     from mpipe.conditioning import plan_inversion
     from mpipe.inversion.kernel import bore_kernel, take_temperature
     from mpipe.inversion.status import summary_line
-    from mpipe.inversion.tracking import ProgressBar, track, write_table
+    from mpipe.inversion.tracking import ProgressBar, track, write_correlations, write_table
 
     out = Path(args.output)
     check_writable([out / name for name in (*OUTPUTS, "windows.parquet")], args.force)
@@ -133,6 +134,7 @@ def _run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     write_atomic(out / "plan.csv", lambda tmp: plan.to_csv(tmp, index=False))
     write_table(table, out)
+    write_correlations(result.correlations, out)
     res = rs.resynthesise(table, p, u, fs, kernel, inv, result.zero_mean)
     ok = table[table["error"] == ""]
     t = np.arange(p.size) / fs

@@ -17,6 +17,7 @@ Chatziioannou & van Walstijn 2012, sections 3 and 4.2; physics.md H, I, J.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -37,6 +38,15 @@ from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWind
 from mpipe.inversion.rosenbrock import SearchResult, minimise
 from mpipe.inversion.status import classify, on_bounds, search_bounds, window_status
 from mpipe.inversion.step1 import Step1Result, step1
+from mpipe.inversion.uncertainty import (
+    CORRELATION_COLUMNS,
+    SE_PARAMETERS,
+    correlation_records,
+    covariance,
+    log_jacobian,
+    uncertainty_columns,
+    window_uncertainty,
+)
 from mpipe.io import write_atomic, write_csv, write_text_atomic
 from mpipe.model import BoreKernel
 from mpipe.pipeline import PARAMETER_NAMES, ExecutorConfig, InversionConfig
@@ -48,7 +58,7 @@ log = logging.getLogger(__name__)
 #: Columns of the per-window table, in order.
 COLUMNS = (
     "window", "t_start_s", "t_end_s", *PARAMETER_NAMES, "y_c", "alpha",
-    "status", "status_reason", "converged",
+    "status", "status_reason", "converged", *uncertainty_columns(),
     "step1_p_m", "k_closing", "S_closing", "y_m_closing", "f1_closing",
     "k_opening", "S_opening", "y_m_opening", "f1_opening",
     "f2", "relative_residual", "n_iterations", "n_evaluations", "optimiser",
@@ -141,7 +151,8 @@ def start_point(
 ) -> ReedParameters:
     """Step-2 start from step 1 (k, S, y_m of the seed branch, p_m) and the configuration.
 
-    Values are clipped into the search bounds, and y_m is kept above y_c.
+    Values are clipped into the search bounds, and y_m is kept above y_c (with
+    ``contact: closure`` y_c is y_m).
 
     Parameters
     ----------
@@ -172,6 +183,8 @@ def start_point(
         if not math.isfinite(v):
             v = math.sqrt(lo * hi)
         values[name] = float(np.clip(v, lo, hi))
+    if config.contact == "closure":
+        return ReedParameters(**values, y_c=values["y_m"], alpha=config.alpha)
     values["y_m"] = max(values["y_m"], 1.1 * config.y_c)
     return ReedParameters(**values, y_c=config.y_c, alpha=config.alpha)
 
@@ -279,7 +292,9 @@ def invert_window(
         at_bound="",
         warm=not cold,
         retried_cold=False,
+        uncertainty_note="no estimate",
     )
+    row.update({c: False for c in COLUMNS if c.startswith("determined_")})
     s1 = search = reed = None
     try:
         pw, uw = p[start : start + n], u[start : start + n]
@@ -296,7 +311,8 @@ def invert_window(
                 p_m=config.step1_p_m,
                 solver=config.step1_solver,
                 zero_mean=zero_mean,
-                y_c=config.y_c if estimate else None,
+                # with contact from closure, step 1's shut-reed test already covers it
+                y_c=config.y_c if estimate and config.contact != "closure" else None,
             )
             row.update(step1_p_m=s1.p_m)
             for b in ("closing", "opening"):
@@ -312,9 +328,12 @@ def invert_window(
             settle_s=config.settle_s,
             lowpass=design_lowpass(fs, config.lowpass_hz) if zero_mean else None,
         )
-        objective = F2Objective(kernel, target, settings, base, config.free)
+        names = config.search_parameters
+        objective = F2Objective(
+            kernel, target, settings, base, names, contact_at_closure=config.contact == "closure"
+        )
         bounds = search_bounds(config, float(np.max(pw)))
-        x0 = np.clip([getattr(base, name) for name in config.free], bounds[:, 0], bounds[:, 1])
+        x0 = np.clip([getattr(base, name) for name in names], bounds[:, 0], bounds[:, 1])
         if cold and config.cold_start == "global":
             found = global_search(
                 objective,
@@ -344,10 +363,16 @@ def invert_window(
             n_evaluations=search.n_evaluations,
             optimiser_converged=search.converged,
             optimiser_message=search.message,
-            at_bound=";".join(
-                on_bounds(dict(zip(config.free, search.x, strict=True)), bounds, config)
-            ),
+            at_bound=";".join(on_bounds(dict(zip(names, search.x, strict=True)), bounds, config)),
         )
+        try:
+            row.update(
+                _uncertainty(objective, search, bounds, reed, kernel, config, row["at_bound"])
+            )
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            # the estimate stands; only its error bars are missing
+            log.warning("window at %.4f s: no standard errors: %s", start / fs, exc)
+            row["uncertainty_note"] = f"no standard errors: {exc}"
     except Exception as exc:  # noqa: BLE001 - a failed window is recorded, the take goes on
         log.warning("window at %.4f s failed: %s", start / fs, exc)
         row["error"] = f"{type(exc).__name__}: {exc}"
@@ -355,6 +380,44 @@ def invert_window(
     row.update(zip(("status", "status_reason"), window_status(row), strict=True))
     row["converged"] = row["status"] == "ok"
     return WindowOutcome(row=row, step1=s1, search=search, reed=reed)
+
+
+def _uncertainty(objective, search, bounds, reed, kernel, config, at_bound: str) -> dict:
+    """Standard errors, combinations and correlations of one window.
+
+    See :mod:`mpipe.inversion.uncertainty`.
+    The trust-region search's own Jacobian at the solution is used; other searches (and
+    the rare trust-region end that is not scipy's point) get a forward-difference one.
+    The correlation matrix rides in the row under ``_correlation`` (not a table column).
+    """
+    names = objective.free
+    if search.jacobian is not None and search.residuals is not None:
+        jac, res = search.jacobian, search.residuals
+    else:
+        res = objective.residuals(search.x)
+        jac = log_jacobian(objective.residuals, search.x, r0=res, upper=bounds[:, 1])
+    cov = covariance(jac, res, names)
+    invalid = {
+        hit.split("=")[0]: f"estimate on its {hit.split('=')[1]} bound: the Gauss-Newton "
+        "covariance assumes an interior minimum"
+        for hit in at_bound.split(";")
+        if hit
+    }
+    out = window_uncertainty(
+        cov,
+        {n: getattr(reed, n) for n in SE_PARAMETERS},
+        z_c=kernel.z0,
+        rho=kernel.rho,
+        limit=config.determined_limit,
+        scale_gauge=None if config.contact == "fixed" else "lam",
+        invalid=invalid,
+    )
+    if not search.converged:
+        out["uncertainty_note"] = "; ".join(
+            x for x in ("search not converged: SEs at its last point", out["uncertainty_note"]) if x
+        )
+    out["_correlation"] = {"names": list(names), "matrix": cov.correlation().tolist()}
+    return out
 
 
 def _checkpoint_path(checkpoint: Path, start: int) -> Path:
@@ -464,11 +527,17 @@ class Tracking:
         Window index -> step-2 objective history (best F2 after each evaluation, Pa).
     zero_mean : bool
         Whether the flow was treated as zero-mean (measured).
+    correlations : pandas.DataFrame
+        Correlation of the log parameters per window, long format: ``window,
+        t_start_s, parameter_a, parameter_b, correlation`` (one row per pair a < b).
     """
 
     table: pd.DataFrame
     histories: dict
     zero_mean: bool
+    correlations: pd.DataFrame = dataclasses.field(
+        default_factory=lambda: pd.DataFrame(columns=list(CORRELATION_COLUMNS))
+    )
 
 
 def track(
@@ -584,11 +653,18 @@ def track(
                 results[i] = new
             table = classify(pd.DataFrame([r for r, _ in results], columns=list(COLUMNS)), config)
     histories = {}
-    for i, (_, hist) in enumerate(results):
+    records = []
+    for i, (row, hist) in enumerate(results):
         if hist is not None:
             histories[i] = hist
+        corr = row.get("_correlation")
+        if corr:
+            records += correlation_records(i, row["t_start_s"], corr["names"], corr["matrix"])
     table["window"] = np.arange(len(table))
-    return Tracking(table=table, histories=histories, zero_mean=zero_mean)
+    correlations = pd.DataFrame(records, columns=list(CORRELATION_COLUMNS))
+    return Tracking(
+        table=table, histories=histories, zero_mean=zero_mean, correlations=correlations
+    )
 
 
 def _dispatch(job, items, warm, executor, workers, client, update):
@@ -693,6 +769,30 @@ def write_table(table: pd.DataFrame, directory: str | Path, stem: str = "windows
     return written
 
 
+def write_correlations(
+    correlations: pd.DataFrame, directory: str | Path, stem: str = "correlations"
+) -> Path:
+    """Write the per-window correlation matrices (long format CSV, atomically).
+
+    Parameters
+    ----------
+    correlations : pandas.DataFrame
+        :attr:`Tracking.correlations`.
+    directory : str or Path
+        Output directory.
+    stem : str
+        File name without suffix.
+
+    Returns
+    -------
+    Path
+    """
+    return write_atomic(
+        Path(directory) / f"{stem}.csv",
+        lambda tmp: correlations.to_csv(tmp, index=False, float_format="%.6g"),
+    )
+
+
 __all__ = [
     "COLUMNS",
     "ProgressBar",
@@ -705,5 +805,6 @@ __all__ = [
     "split_chains",
     "start_point",
     "track",
+    "write_correlations",
     "write_table",
 ]
