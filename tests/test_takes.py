@@ -28,7 +28,7 @@ def signals(n=40_000, fs=FS):
     t = np.arange(n) / fs
     env = np.minimum(t / 0.01, 1) * np.minimum((t[-1] - t) / 0.01, 1)
     p = (900 * np.sin(2 * np.pi * 150 * t) + 250 * np.sin(2 * np.pi * 450 * t + 1)) * env
-    u = (1e-4 + 8e-5 * np.cos(2 * np.pi * 150 * t + 0.2)) * env
+    u = (1e-4 + 8e-5 * np.cos(2 * np.pi * 150 * t - 0.2)) * env
     return p, u
 
 
@@ -209,7 +209,7 @@ def test_too_short(tmp_path, shipped_calibration):
         UserError, match=r"take.flac: take is 0.1 s long, shorter than one analysis"
     ):
         read_take(tmp_path / "take.flac", shipped_calibration)
-    take = read_take(tmp_path / "take.flac", shipped_calibration, min_duration_s=0.05)
+    take = read_take(tmp_path / "take.flac", shipped_calibration, min_duration_s=0.05, check=False)
     assert take.duration == pytest.approx(0.1)
 
 

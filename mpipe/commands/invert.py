@@ -81,10 +81,21 @@ def run(args: argparse.Namespace) -> int:
     inv = cfg.inversion
     fs, p, u = load_mouthpiece(args.mouthpiece)
     if abs(fs - inv.sample_rate) > 1e-6 * fs:
-        raise UserError(
-            f"{args.mouthpiece}: fs = {fs:g} Hz but {args.pipeline}: inversion.sample_rate = "
-            f"{inv.sample_rate:g} Hz"
+        # One rate for the pipeline, as in `mpipe run` (which resamples the take when read).
+        from mpipe.takes import resample
+
+        log.info(
+            "%s: resampling %g Hz -> %g Hz (inversion.sample_rate)",
+            args.mouthpiece,
+            fs,
+            inv.sample_rate,
         )
+        try:
+            pu = resample(np.column_stack([p, u]), fs, inv.sample_rate)
+        except ValueError as exc:
+            raise UserError(f"{args.mouthpiece}: {exc}") from None
+        p, u = np.ascontiguousarray(pu[:, 0]), np.ascontiguousarray(pu[:, 1])
+        fs = inv.sample_rate
     cal = load_calibration(cfg.calibration_path)
     air = cal.air_properties()
     kernel = prepare_bore(reflection_function(cal.bore, air, fs=fs), air)
