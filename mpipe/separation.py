@@ -183,6 +183,20 @@ class SeparationConfig:
         _width("width"),
         default=0.01,
     )
+    mic_position_prior_m: float | None = spec(
+        "m",
+        "standard deviation of the Gaussian prior on the correction to the position of the "
+        "middle microphone relative to the outer two (null: hold it at the calibrated "
+        "position). A position error, or a delay between channels, is frequency-linear "
+        "in phase and otherwise biases the temperature; it is identifiable from the data "
+        "because the temperature scales both spacings alike and this correction moves them "
+        "oppositely",
+        _width("width"),
+        default=5e-4,
+    )
+    mic_position_bounds_m: tuple[float, ...] = spec(
+        "m", "bounds of the position correction of the middle microphone", default=(-2e-3, 2e-3)
+    )
     temperature_bounds_c: tuple[float, ...] = spec(
         "degC", "lower and upper bound of the effective temperature", default=(-10.0, 50.0)
     )
@@ -253,6 +267,7 @@ class SeparationConfig:
             ("temperature_bounds_c", self.temperature_bounds_c),
             ("loss_bounds", self.loss_bounds),
             ("mach_bounds", self.mach_bounds),
+            ("mic_position_bounds_m", self.mic_position_bounds_m),
         ):
             if len(b) != 2 or not b[0] < b[1]:
                 raise where.error(key, f"expected [lower, upper] with lower < upper, got {b}")
@@ -335,6 +350,14 @@ class Geometry:
         t = float(np.clip(self.temperature(c), -19.9, 59.9))
         return self.calibration.air_properties(t)
 
+    def corrected(self, dx: float) -> Geometry:
+        """The geometry with the middle microphone moved by ``dx`` metres (+x: downstream)."""
+        if dx == 0.0:
+            return self
+        offsets = self.offsets.copy()
+        offsets[int(np.argsort(self.offsets)[1])] += dx
+        return replace(self, offsets=offsets)
+
     @property
     def spacing(self) -> float:
         """Smallest distance between two microphones, m."""
@@ -362,7 +385,8 @@ class SeparationResult:
         One-sided power spectral density of the white sensor noise of each microphone,
         Pa^2/Hz, shape ``(3,)`` (as measured, before the numerical floor).
     geometry : Geometry
-        Microphones and bore used.
+        Microphones and bore used, with the median position correction of the middle
+        microphone.
     """
 
     fs: float
@@ -392,7 +416,7 @@ class SeparationResult:
         """One line per parameter whose per-block estimate sat on a bound."""
         out = []
         hits = self.blocks["at_bound"].fillna("").astype(str)
-        for name in ("temperature", "eta", "mach"):
+        for name in _NAMES:
             count = int(hits.str.contains(name).sum())
             if count:
                 out.append(
@@ -418,6 +442,9 @@ BLOCK_COLUMNS = {
     "loss_scale_raw_se": "its standard error",
     "mach_raw": "this block's Mach number",
     "mach_raw_se": "its standard error",
+    "mic_position_m": "smoothed correction to the middle microphone's position, m",
+    "mic_position_se_m": "its standard error, m",
+    "mic_position_raw_m": "this block's own correction, m",
     "at_bound": "parameters whose estimate sits on a bound (a warning), ';'-separated",
     "band_lo_hz": "lowest frequency of the bins used, Hz",
     "band_hi_hz": "highest frequency of the bins used, Hz",
@@ -914,7 +941,8 @@ class Prior:
     Attributes
     ----------
     mean : ndarray
-        Prior means: temperature (degC), eta, Mach number.
+        Prior means: temperature (degC), eta, Mach number, position correction of the
+        middle microphone (m).
     width : ndarray
         Standard deviations (inf: no prior).
     lower, upper : ndarray
@@ -942,18 +970,27 @@ class Prior:
         def wid(v: float | None) -> float:
             return np.inf if v is None else float(v)
 
+        bounds = (
+            config.temperature_bounds_c,
+            config.loss_bounds,
+            config.mach_bounds,
+            config.mic_position_bounds_m,
+        )
         return cls(
-            mean=np.array([t0, config.loss_scale, 0.0]),
+            mean=np.array([t0, config.loss_scale, 0.0, 0.0]),
             width=np.array(
-                [wid(config.temperature_prior_c), wid(config.loss_prior), wid(config.mach_prior)]
+                [
+                    wid(config.temperature_prior_c),
+                    wid(config.loss_prior),
+                    wid(config.mach_prior),
+                    wid(config.mic_position_prior_m),
+                ]
             ),
-            lower=np.array(
-                [config.temperature_bounds_c[0], config.loss_bounds[0], config.mach_bounds[0]]
+            lower=np.array([b[0] for b in bounds]),
+            upper=np.array([b[1] for b in bounds]),
+            free=np.array(
+                [True, config.estimate_loss, free_mach, config.mic_position_prior_m is not None]
             ),
-            upper=np.array(
-                [config.temperature_bounds_c[1], config.loss_bounds[1], config.mach_bounds[1]]
-            ),
-            free=np.array([True, config.estimate_loss, free_mach]),
         )
 
 
@@ -964,7 +1001,8 @@ class BlockEstimate:
     Attributes
     ----------
     values : ndarray
-        Temperature (degC), eta, Mach number (fixed ones at their held values).
+        Temperature (degC), eta, Mach number, position correction of the middle microphone
+        (m); fixed ones at their held values.
     cov : ndarray
         Posterior covariance of the free parameters (data and prior).
     data_information : ndarray
@@ -988,9 +1026,9 @@ class BlockEstimate:
     evaluations: int
 
 
-_NAMES = ("temperature", "eta", "mach")
-# Solver scales: 1 degC, 0.1 of eta, 1e-3 of Mach.
-_SCALES = np.array([1.0, 0.1, 1e-3])
+_NAMES = ("temperature", "eta", "mach", "position")
+# Solver scales: 1 degC, 0.1 of eta, 1e-3 of Mach, 0.1 mm.
+_SCALES = np.array([1.0, 0.1, 1e-3, 1e-4])
 
 
 def _fixed_mach_t(config: SeparationConfig, geometry: Geometry, t: float) -> float | None:
@@ -1065,6 +1103,9 @@ def estimate_block(
     def theta_of(v: np.ndarray) -> Theta:
         return Theta(geometry.sound_speed(float(v[0])), float(v[1]), float(v[2]))
 
+    def geometry_of(v: np.ndarray) -> Geometry:
+        return geometry.corrected(float(v[3]))
+
     current = values(np.clip(np.asarray(start)[idx] / scales, lo, hi))
     kappa = 1.0
     evals = 0
@@ -1077,7 +1118,8 @@ def estimate_block(
 
         def fun(z, excess=excess, kappa=kappa_fit):
             v = values(z)
-            n0, n1, n2 = _null_weights(theta_of(v), spectra.model_freqs, geometry, excess, noise)
+            g = geometry_of(v)
+            n0, n1, n2 = _null_weights(theta_of(v), spectra.model_freqs, g, excess, noise)
             r = np.sqrt(2.0 / kappa) * spectra.residual(n0, n1, n2, use)
             pr = ((v[idx] - prior.mean[idx]) / prior.width[idx])[has_prior]
             return np.concatenate([r.real, r.imag, pr])
@@ -1165,16 +1207,17 @@ def smooth_blocks(
     estimates : list
         Per block its :class:`BlockEstimate`, or None (not fitted or not trusted).
     prior : Prior
-        Prior on (T, eta, M); counted once in every local fit.
+        Prior on (T, eta, M, dx); counted once in every local fit.
     half_width_s : float
         Half-width of the tricube kernel, s (0: each block alone with the prior).
 
     Returns
     -------
     values : ndarray
-        Shape ``(n_blocks, 3)``: temperature (degC), eta, Mach number.
+        Shape ``(n_blocks, 4)``: temperature (degC), eta, Mach number, position correction
+        of the middle microphone (m).
     se : ndarray
-        Shape ``(n_blocks, 3)``: their standard errors (0 for held parameters).
+        Shape ``(n_blocks, 4)``: their standard errors (0 for held parameters).
 
     Notes
     -----
@@ -1188,7 +1231,7 @@ def smooth_blocks(
     p = idx.size
     n = times.size
     out = np.tile(prior.mean, (n, 1))
-    se = np.zeros((n, 3))
+    se = np.zeros((n, prior.mean.size))
     for j, e in enumerate(estimates):
         if e is not None:
             out[j, ~prior.free] = e.values[~prior.free]
@@ -1401,8 +1444,9 @@ def separate(
     # Blocks hanging over either end hold half silence and an abrupt edge: not fitted.
     fitted = inside & (level > max(floor, 0.0)) & np.array([np.sum(u) >= 3 for u in uses])
     nb = starts.size
-    raw = np.full((nb, 3), np.nan)
-    raw_se = np.full((nb, 3), np.nan)
+    n_par = prior.mean.size
+    raw = np.full((nb, n_par), np.nan)
+    raw_se = np.full((nb, n_par), np.nan)
     residual = np.full(nb, np.nan)
     kappa = np.full(nb, np.nan)
     evals = np.zeros(nb, dtype=int)
@@ -1430,7 +1474,7 @@ def separate(
             est = estimate_block(spectra, use, noise, geometry, current, prior, config, corr)
             estimates[b] = est
             raw[b] = est.values
-            cov_full = np.zeros(3)
+            cov_full = np.zeros(n_par)
             cov_full[prior.free] = np.diag(est.cov)
             raw_se[b] = np.sqrt(np.maximum(cov_full, 0.0))
             residual[b] = est.residual
@@ -1460,7 +1504,7 @@ def separate(
         smooth, smooth_se = smooth_blocks(centres, kept, prior, config.smooth_s)
     else:
         smooth = np.tile(start, (nb, 1))
-        smooth_se = np.zeros((nb, 3))
+        smooth_se = np.zeros((nb, n_par))
     if held_mach is not None:
         smooth[:, 2] = [_fixed_mach_t(config, geometry, t) for t in smooth[:, 0]]
     c_track = np.array([geometry.sound_speed(float(t)) for t in smooth[:, 0]])
@@ -1477,8 +1521,9 @@ def separate(
     origin = pad + length  # index in ``out`` of sample 0
     for b, s in enumerate(starts):
         th = Theta(c_track[b], smooth[b, 1], smooth[b, 2])
-        g_p, g_u = separation_filters(fb, th, geometry)
-        taper = _band_taper(fb, config, geometry, th)
+        geo_b = geometry.corrected(float(smooth[b, 3]))
+        g_p, g_u = separation_filters(fb, th, geo_b)
+        taper = _band_taper(fb, config, geo_b, th)
         g_p *= taper[:, None]
         g_u *= (taper * ramp)[:, None]
         seg = np.zeros((nfft, 3))
@@ -1508,6 +1553,9 @@ def separate(
             "loss_scale_raw_se": raw_se[:, 1],
             "mach_raw": raw[:, 2],
             "mach_raw_se": raw_se[:, 2],
+            "mic_position_m": smooth[:, 3],
+            "mic_position_se_m": smooth_se[:, 3],
+            "mic_position_raw_m": raw[:, 3],
             "at_bound": at_bound,
             "band_lo_hz": band_lo,
             "band_hi_hz": band_hi,
@@ -1527,7 +1575,7 @@ def separate(
         blocks=table,
         config=config,
         noise_psd=2 * noise_raw,
-        geometry=geometry,
+        geometry=geometry.corrected(float(np.median(smooth[:, 3]))),
     )
     for line in result.bound_warnings():
         log.warning("separation: %s", line)

@@ -238,6 +238,7 @@ def mouthpiece_noise(
     separation_config=None,
     config: TranslationConfig | None = None,
     df_hz: float = 5.0,
+    geometry=None,
 ) -> dict[str, np.ndarray]:
     """Noise of the mouthpiece pressure and flow, propagated from the microphone noise.
 
@@ -270,6 +271,9 @@ def mouthpiece_noise(
         Low-pass (default settings when omitted).
     df_hz : float
         Frequency step of the grid, Hz.
+    geometry : mpipe.separation.Geometry, optional
+        Microphone geometry of the separation (default: the calibration's; pass
+        ``SeparationResult.geometry`` to include its position correction).
 
     Returns
     -------
@@ -283,9 +287,8 @@ def mouthpiece_noise(
     cfg = TranslationConfig() if config is None else config
     freqs = np.arange(0.0, fs / 2 + 0.5 * df_hz, df_hz)
     freqs = freqs[freqs <= fs / 2]
-    s_pp0, s_uu0, s_pu0 = reference_noise(
-        freqs, theta, Geometry.from_calibration(calibration), mic_noise_psd, sep_cfg
-    )
+    geo = Geometry.from_calibration(calibration) if geometry is None else geometry
+    s_pp0, s_uu0, s_pu0 = reference_noise(freqs, theta, geo, mic_noise_psd, sep_cfg)
     t = reference_to_mouthpiece(np.maximum(freqs, 1e-3), calibration, temperature_c)
 
     def out(a, b):
