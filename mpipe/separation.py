@@ -220,10 +220,11 @@ class SeparationConfig:
     smooth_s: float = spec(
         "s",
         "half-width of the tricube kernel of the local linear regression that combines the "
-        "blocks' estimates (weighted by their information); a linear drift is followed "
-        "without bias, changes faster than about this time are smoothed",
+        "blocks' estimates (weighted by their information; twice as wide at the ends of the "
+        "take); a linear drift is followed without bias, changes faster than about this "
+        "time are smoothed (air temperature and mean flow change over seconds)",
         between(0.0, 1e4),
-        default=0.5,
+        default=1.0,
     )
     max_evaluations: int = spec(
         "",
@@ -619,16 +620,19 @@ class BlockSpectra:
     model_taper : ndarray
         Raised-cosine taper of the null filter over ``model_freqs`` (1 inside the band).
     spectra : ndarray
-        Spectra of the unwindowed block with ``margin`` samples of context on each side,
-        zero-padded to ``nfft_in``, at ``model_freqs``, Pa s, shape ``(n_model, 3)``.
+        Spectra of the unwindowed block with its context on each side, zero-padded, at
+        ``model_freqs`` (unnormalised FFT, Pa), shape ``(n_model, 3)``.
     window : ndarray
-        Periodic Hann window of the block.
+        Periodic Hann window of the block at the reduced rate ``fs / dec``.
     margin : int
-        Samples of context on each side.
+        Samples of context on each side at the reduced rate.
     nfft_in, nfft_out : int
-        FFT lengths.
+        Lengths of the inverse FFT of the residual and of the windowed FFT, at the
+        reduced rate.
     fs : float
         Sample rate, Hz.
+    scale : float
+        Normalisation of the windowed residual to unit noise variance.
     """
 
     freqs: np.ndarray
@@ -643,6 +647,7 @@ class BlockSpectra:
     nfft_in: int
     nfft_out: int
     fs: float
+    scale: float = 1.0
 
     @property
     def hop(self) -> int:
@@ -670,16 +675,18 @@ class BlockSpectra:
         afterwards, so that a harmonic between two bins is cancelled exactly at the true
         parameters (filtering the windowed segments instead evaluates the model at the
         bin frequency, not at the harmonic's, a bias of the order of the bin width over
-        the harmonic's frequency). Scaled to unit variance for white noise.
+        the harmonic's frequency). The residual signal is band-limited by the filter's
+        taper, so it is formed at ``fs / decimation`` (exactly, not an approximation).
+        Scaled to unit variance for white noise.
         """
         e = (n0 * self.spectra[:, 0] + n1 * self.spectra[:, 1] + n2 * self.spectra[:, 2]) * (
             self.model_taper
         )
         full = np.zeros(self.nfft_in // 2 + 1, dtype=complex)
         full[self.model_index] = e
-        sig = np.fft.irfft(full, self.nfft_in)[self.margin : self.margin + self.window.size]
-        out = np.fft.rfft(sig * self.window, self.nfft_out)[self.bins[use]]
-        return out / np.sqrt(self.fs * np.sum(self.window**2))
+        sig = sfft.irfft(full, self.nfft_in)[self.margin : self.margin + self.window.size]
+        out = sfft.rfft(sig * self.window, self.nfft_out)[self.bins[use]]
+        return out * self.scale
 
 
 def _taper(f: np.ndarray, lo0: float, lo1: float, hi0: float, hi1: float) -> np.ndarray:
@@ -717,24 +724,31 @@ def cross_spectra(
     -------
     BlockSpectra
     """
-    total = block.shape[0]
-    length = total - 2 * margin
-    win = np.hanning(length + 1)[:-1]
-    nfft_out = 2 * length
-    nfft_in = sfft.next_fast_len(2 * total, real=True)
-    f_out = np.fft.rfftfreq(nfft_out, 1 / fs)
-    keep = (f_out >= fmin_hz) & (f_out <= fmax_hz)
-    xw = np.fft.rfft(block[margin : margin + length] * win[:, None], nfft_out, axis=0)[keep]
-    power = np.abs(xw) ** 2 / (fs * np.sum(win**2))
-    f_in = np.fft.rfftfreq(nfft_in, 1 / fs)
     lo0, lo1 = 0.5 * fmin_hz, 0.8 * fmin_hz
-    hi0 = fmax_hz + 100.0
     hi1 = 1.2 * fmax_hz + 200.0
     cap = 0.45 * fs if f_singular_hz is None else min(0.9 * f_singular_hz, 0.45 * fs)
     hi1 = min(hi1, cap)
-    hi0 = min(hi0, 0.5 * (fmax_hz + hi1))
+    hi0 = min(fmax_hz + 100.0, 0.5 * (fmax_hz + hi1))
+    # The residual signal holds nothing above hi1: it is formed at fs / dec, with a
+    # Nyquist frequency at least 1.25 hi1 (the window widens its spectrum a little).
+    dec = max(int(fs // (2.5 * hi1)), 1)
+    skip = margin % dec
+    block = block[skip:]
+    margin -= skip
+    total = block.shape[0]
+    length = (total - 2 * margin) // dec * dec
+    win_full = np.hanning(length + 1)[:-1]
+    nfft_out = 2 * length
+    f_out = np.fft.rfftfreq(nfft_out, 1 / fs)
+    keep = (f_out >= fmin_hz) & (f_out <= fmax_hz)
+    xw = sfft.rfft(block[margin : margin + length] * win_full[:, None], nfft_out, axis=0)[keep]
+    power = np.abs(xw) ** 2 / (fs * np.sum(win_full**2))
+    n_small = sfft.next_fast_len(-(-2 * total // dec), real=True)
+    nfft_in = n_small * dec
+    f_in = np.fft.rfftfreq(nfft_in, 1 / fs)
     model = (f_in > lo0) & (f_in < hi1)
-    spec_ = np.fft.rfft(block, nfft_in, axis=0)[model] / fs
+    spec_ = sfft.rfft(block, nfft_in, axis=0)[model]
+    win = np.hanning(length // dec + 1)[:-1]
     return BlockSpectra(
         freqs=f_out[keep],
         bins=np.flatnonzero(keep),
@@ -742,12 +756,13 @@ def cross_spectra(
         model_freqs=f_in[model],
         model_taper=_taper(f_in[model], lo0, lo1, hi0, hi1),
         model_index=np.flatnonzero(model),
-        spectra=spec_ * fs,
+        spectra=spec_,
         window=win,
-        margin=margin,
-        nfft_in=nfft_in,
-        nfft_out=nfft_out,
+        margin=margin // dec,
+        nfft_in=n_small,
+        nfft_out=nfft_out // dec,
         fs=float(fs),
+        scale=float(1.0 / np.sqrt(fs * dec * np.sum(win**2))),
     )
 
 
@@ -1044,6 +1059,7 @@ def estimate_block(
     prior: Prior,
     config: SeparationConfig,
     corr: dict | None = None,
+    kappa_start: float = 1.0,
 ) -> BlockEstimate:
     """Maximum a posteriori (T, eta, M) of one block (bounded Gauss-Newton, trust region).
 
@@ -1065,6 +1081,9 @@ def estimate_block(
         ``max_evaluations``, the held Mach number.
     corr : dict, optional
         :func:`window_correlation` of the block (computed when omitted).
+    kappa_start : float
+        First guess of ``kappa`` (the previous block's: it depends mostly on the window,
+        so the fit is rarely repeated).
 
     Returns
     -------
@@ -1107,7 +1126,7 @@ def estimate_block(
         return geometry.corrected(float(v[3]))
 
     current = values(np.clip(np.asarray(start)[idx] / scales, lo, hi))
-    kappa = 1.0
+    kappa = float(kappa_start)
     evals = 0
     res = None
     m = int(np.sum(use))
@@ -1131,9 +1150,11 @@ def estimate_block(
             method="trf",
             x_scale=1.0,
             diff_step=1e-7,
-            xtol=1e-10,
-            ftol=1e-12,
-            gtol=1e-12,
+            # half the cost is the negative log-likelihood: a change of 1e-8 of it, or a
+            # step of 1e-6 of a scale unit, is far below one standard error
+            xtol=1e-6,
+            ftol=1e-8,
+            gtol=1e-8,
             max_nfev=config.max_evaluations,
         )
         evals += int(res.nfev) * (1 + z0.size)
@@ -1209,7 +1230,8 @@ def smooth_blocks(
     prior : Prior
         Prior on (T, eta, M, dx); counted once in every local fit.
     half_width_s : float
-        Half-width of the tricube kernel, s (0: each block alone with the prior).
+        Half-width of the tricube kernel, s (0: each block alone with the prior); it grows
+        to twice that at the first and last estimated block.
 
     Returns
     -------
@@ -1254,10 +1276,15 @@ def smooth_blocks(
     ts_a = np.array(ts)
     # a weak prior on the slope keeps the local fit regular with one block in reach
     slope_info = np.eye(p) * 1e-12
+    t_first, t_last = float(ts_a.min()), float(ts_a.max())
     for b in range(n):
         tau = ts_a - times[b]
         if half_width_s > 0:
-            u = np.abs(tau) / half_width_s
+            # Near an end the kernel is one-sided; widening it there (up to twice at the
+            # end) keeps the number of blocks, so the extrapolated intercept stays precise.
+            edge = min(times[b] - t_first, t_last - times[b])
+            h = max(half_width_s, 2 * half_width_s - max(edge, 0.0))
+            u = np.abs(tau) / h
             k = np.where(u < 1, (1 - u**3) ** 3, 0.0)
         else:
             k = (np.abs(tau) < 1e-12).astype(float)
@@ -1457,6 +1484,7 @@ def separate(
     snr_db = np.full(nb, np.nan)
     estimates: list[BlockEstimate | None] = [None] * nb
     corr = None
+    kappa_start = 1.0
     current = start.copy()
     for b, spectra in enumerate(spectra_list):
         use = uses[b]
@@ -1471,7 +1499,10 @@ def separate(
         if config.adaptive and n_free:
             if corr is None:
                 corr = window_correlation(spectra)
-            est = estimate_block(spectra, use, noise, geometry, current, prior, config, corr)
+            est = estimate_block(
+                spectra, use, noise, geometry, current, prior, config, corr, kappa_start
+            )
+            kappa_start = est.kappa
             estimates[b] = est
             raw[b] = est.values
             cov_full = np.zeros(n_par)
