@@ -591,6 +591,56 @@ def separation_filters(
     return g_p, g_u
 
 
+def projection_residual(pressures: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Part of the microphone spectra that two plane waves cannot explain, any number >= 2.
+
+    Parameters
+    ----------
+    pressures : ndarray
+        Microphone spectra ``P`` (Pa), shape ``(n, n_mics)``.
+    h : ndarray
+        Model matrices of :func:`model_matrix`, shape ``(n, n_mics, 2)``.
+
+    Returns
+    -------
+    ndarray
+        ``P - H H^+ P``, shape ``(n, n_mics)``: zero for two microphones (the exact
+        solution, wherever H is regular) and for a field of two plane waves; for three
+        microphones its squared norm is ``|n^T P|^2 / ||n||^2`` with the null vector
+        ``n = h+ x h-`` (physics.md E.3), which generalises to more microphones.
+    """
+    hh = np.conj(np.swapaxes(h, -1, -2))
+    ab = np.linalg.solve(hh @ h, hh @ pressures[..., None])
+    return pressures - (h @ ab)[..., 0]
+
+
+def singular_frequencies(geometry: Geometry, theta: Theta, fmax_hz: float) -> np.ndarray:
+    """Frequencies (Hz, up to ``fmax_hz``) where the microphones cannot tell the waves apart.
+
+    ``H`` loses rank where ``exp(j (k+ + k-) (d_i - d_j)) = 1`` for every pair of
+    microphones, i.e. (lossless) at ``f = n c (1 - M^2) / (2 s_ij)`` for all spacings
+    ``s_ij`` at once. Two microphones ``s`` apart are singular at every multiple of
+    ``c (1 - M^2) / (2 s)``; with three or more, only where the spacings are commensurate
+    (equal spacings ``s``: at multiples of ``c (1 - M^2) / (2 s)`` still).
+
+    Returns
+    -------
+    ndarray
+        The singular frequencies in Hz, increasing (possibly empty).
+    """
+    d = np.sort(geometry.offsets)
+    spacings = np.abs(d[:, None] - d[None, :])[np.triu_indices(d.size, 1)]
+    base = theta.c * (1 - theta.mach**2) / 2.0
+    first = base / spacings[0]
+    out = []
+    for n in range(1, int(fmax_hz / first) + 1):
+        f = n * first
+        m = f * spacings / base
+        if np.all(np.abs(m - np.round(m)) < 1e-6 * np.maximum(m, 1.0)):
+            out.append(f)
+    return np.array(out)
+
+
 # ---------------------------------------------------------------------------------------
 # Spectra and noise
 

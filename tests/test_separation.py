@@ -23,9 +23,12 @@ from mpipe.separation import (
     Theta,
     cross_spectra,
     fixed_config,
+    null_vector,
     residual_cost,
     separate,
     separation_filters,
+    wavenumbers,
+    zk_excess,
 )
 
 CAL = load_calibration(Path(__file__).parents[1] / "calibration" / "simplified_clarinet.yaml")
@@ -260,3 +263,55 @@ def test_flow_noise_psd_matches_the_noise_through_the_chain(seed):
     low = np.interp(100.0, noise["u_noise_freq_hz"], noise["u_noise_psd"])
     mid = np.interp(1000.0, noise["u_noise_freq_hz"], noise["u_noise_psd"])
     assert low > 10 * mid
+
+
+def _field(offsets, P0, U0, freqs, temperature_c=20.0):
+    """Analytic two-wave field at any positions (cylinder transfer matrices, no flow)."""
+    air = CAL.air_properties(temperature_c)
+    omega = 2 * np.pi * np.asarray(freqs, dtype=float)
+    out = []
+    for x in offsets:
+        t_inv = ducts.invert(ducts.cylinder_matrix(omega, CAL.main_radius, x, air))
+        out.append(t_inv[:, 0, 0] * P0 + t_inv[:, 0, 1] * U0)
+    return np.stack(out, axis=-1)
+
+
+@pytest.mark.parametrize("offsets", [(0.0, 0.02), (0.0, 0.02, 0.04), (0.0, 0.013, 0.031, 0.05)])
+def test_any_number_of_microphones_separates_the_analytic_field(offsets):
+    # Held propagation parameters (the configured ones): 2 microphones give the exact
+    # solution, 3 and 4 the least-squares one; all reproduce P0 and U0 of the analytic field
+    # away from the singular frequencies, and leave no projection residual.
+    from mpipe.separation import model_matrix, projection_residual, singular_frequencies
+
+    geo = dataclasses.replace(Geometry.from_calibration(CAL), offsets=np.array(offsets))
+    th = Theta(CAL.air_properties(20.0).c, 1.0, 0.0)
+    rng = np.random.default_rng(len(offsets))
+    freqs = np.sort(rng.uniform(30.0, 7000.0, 40))
+    sing = singular_frequencies(geo, th, 20_000.0)
+    freqs = freqs[np.all(np.abs(freqs[:, None] - sing[None, :]) > 200.0, axis=1)]
+    P0 = rng.normal(size=freqs.size) + 1j * rng.normal(size=freqs.size)
+    U0 = (rng.normal(size=freqs.size) + 1j * rng.normal(size=freqs.size)) * 1e-5
+    mics = _field(offsets, P0, U0, freqs)
+    g_p, g_u = separation_filters(freqs, th, geo)
+    np.testing.assert_allclose(np.sum(g_p * mics, axis=1), P0, rtol=1e-7, atol=1e-10)
+    np.testing.assert_allclose(np.sum(g_u * mics, axis=1), U0, rtol=1e-7, atol=1e-15)
+    omega = 2 * np.pi * freqs
+    ex = zk_excess(omega, geo, th.c)[0]
+    h = model_matrix(*wavenumbers(omega, th, ex), geo.offsets)
+    res = projection_residual(mics, h)
+    assert np.max(np.abs(res)) < 1e-9 * np.max(np.abs(mics))
+    # random data: zero residual for 2 microphones (exact), the null-vector form for 3
+    noise = rng.normal(size=mics.shape) + 1j * rng.normal(size=mics.shape)
+    r = projection_residual(noise, h)
+    if len(offsets) == 2:
+        assert np.max(np.abs(r)) < 1e-9
+        # singular every c / (2 s): 8.6, 17.2 kHz for 2 cm at 20 degC
+        np.testing.assert_allclose(sing, [th.c / 0.04, th.c / 0.02], rtol=1e-12)
+    elif len(offsets) == 3:
+        n = null_vector(h)
+        want = np.abs(np.sum(n * noise, axis=1)) ** 2
+        np.testing.assert_allclose(np.sum(np.abs(r) ** 2, axis=1), want, rtol=1e-9)
+        np.testing.assert_allclose(sing, [th.c / 0.04, th.c / 0.02], rtol=1e-12)  # equal
+    else:
+        assert sing.size == 0  # incommensurate spacings: never singular below 20 kHz
+        assert np.all(np.sum(np.abs(r) ** 2, axis=1) > 0)
