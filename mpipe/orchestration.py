@@ -20,6 +20,7 @@ import pandas as pd
 
 from mpipe import __version__
 from mpipe.calibration import Calibration, load_calibration
+from mpipe.errors import UserError
 from mpipe.inversion.kernel import bore_kernel, take_temperature
 from mpipe.io import write_atomic, write_csv, write_npz_atomic
 from mpipe.manifest import PARTIAL, StageRecord, run_stage
@@ -27,6 +28,11 @@ from mpipe.pipeline import PARAMETER_NAMES, PipelineConfig
 from mpipe.progress import stage_timer
 
 log = logging.getLogger(__name__)
+
+
+class ValidationFailed(UserError):
+    """The impedance validation failed and the run stops before the inversion."""
+
 
 STAGES = (
     "separation",
@@ -98,12 +104,16 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
     from mpipe.takes import read_take
 
     def work(folder: Path):
-        take = read_take(take_paths if len(take_paths) == 3 else take_paths[0], cal)
-        sep = separate(take.pressures, take.fs, cal, cfg.separation)
+        # one rate for the whole pipeline: takes at other rates are resampled when read
+        fs = cfg.inversion.sample_rate
+        take = read_take(take_paths if len(take_paths) == 3 else take_paths[0], cal, fs=fs)
+        sep = separate(take.pressures, take.fs, cal, cfg.separation, take.band_limit_hz)
         temps = sep.temperature_track()
+        th = sep.median_theta()
         write_npz_atomic(
             folder / "reference.npz", fs=np.float64(take.fs), p0=sep.p0, u0=sep.u0,
-            temperature_c=temps,
+            temperature_c=temps, mic_noise_psd=sep.noise_psd,
+            theta_median=np.array([th.c, th.eta, th.mach]),
         )  # fmt: skip
         write_csv(folder / "blocks.csv", sep.blocks)
         write_atomic(folder / "blocks.png", lambda t: _plot_blocks(sep.blocks, t))
@@ -117,6 +127,10 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
             "loss_scale_median": float(np.median(b.loss_scale)),
             "mach_median": float(np.median(b.mach)),
             "residual_median": float(np.nanmedian(b.residual)),
+            "fs_file_hz": take.fs_file,
+            "temperature_se_c_median": float(np.median(b.temperature_se_c)),
+            "loss_scale_se_median": float(np.median(b.loss_scale_se)),
+            "warnings": sep.bound_warnings(),
         }
         outputs = {"reference": "reference.npz", "blocks": "blocks.csv", "plot": "blocks.png"}
         return outputs, summary
@@ -126,15 +140,20 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
 
 def _stage_translation(folder_sep: Path, cal: Calibration, cfg: PipelineConfig):
     from mpipe.commands.separate import _write_wav
-    from mpipe.translation import translate
+    from mpipe.separation import Theta
+    from mpipe.translation import mouthpiece_noise, translate
 
     def work(folder: Path):
         ref = _load_npz(folder_sep / "reference.npz")
         fs = float(ref["fs"])
         tr = translate(ref["p0"], ref["u0"], fs, cal, cfg.translation, ref["temperature_c"])
+        noise = mouthpiece_noise(
+            fs, cal, ref["mic_noise_psd"], Theta(*ref["theta_median"]),
+            float(np.median(ref["temperature_c"])), cfg.separation, cfg.translation,
+        )  # fmt: skip
         write_npz_atomic(
             folder / "mouthpiece.npz", fs=np.float64(fs), p=tr.p, u=tr.u, p0=tr.p0, u0=tr.u0,
-            temperature_c=tr.temperature_c,
+            temperature_c=tr.temperature_c, **noise,
         )  # fmt: skip
         write_atomic(folder / "mouthpiece.wav", lambda t: _write_wav(t, tr.p, tr.u, fs))
         summary = {"p_rms_pa": float(np.std(tr.p)), "u_rms_m3_s": float(np.std(tr.u))}
@@ -155,6 +174,7 @@ def _stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg: Pip
         write_atomic(folder / "impedance.png", lambda t: plot_impedance(val, t, 2000.0))
         summary = {
             "verdict": val.verdict,
+            "reason": val.reason,
             "passed": bool(val.passed),
             "failures": list(val.failures),
             "band_error_db": float(val.band_error_db),
@@ -304,6 +324,7 @@ def run_take(
     force: bool = False,
     client=None,
     say: Callable[[str], None] = print,
+    accept_failed_validation: bool = False,
 ) -> TakeRun:
     """Run every stage on one take, holding the lock of its output folder ``out/<take>``.
 
@@ -314,7 +335,9 @@ def run_take(
     from mpipe.io import folder_lock
 
     with folder_lock(Path(out) / take_name([Path(p) for p in take_paths])):
-        return _run_take(cfg, cal_path, take_paths, out, force, client, say)
+        return _run_take(
+            cfg, cal_path, take_paths, out, force, client, say, accept_failed_validation
+        )
 
 
 def _run_take(
@@ -325,6 +348,7 @@ def _run_take(
     force: bool = False,
     client=None,
     say: Callable[[str], None] = print,
+    accept_failed_validation: bool = False,
 ) -> TakeRun:
     """Run every stage on one take.
 
@@ -344,10 +368,18 @@ def _run_take(
         Shared Dask client for the inversion.
     say : callable
         Where the one-line-per-stage progress goes.
+    accept_failed_validation : bool
+        Invert even when the impedance validation FAILs (the report says so).
 
     Returns
     -------
     TakeRun
+
+    Raises
+    ------
+    ValidationFailed
+        When the validation FAILs and ``accept_failed_validation`` is not set: the run
+        stops before the inversion.
     """
     take_paths = [Path(p) for p in take_paths]
     cal = load_calibration(cal_path)
@@ -386,7 +418,16 @@ def _run_take(
     mouthpiece = d["translation"] / "mouthpiece.npz"
     val = stage(3, "validation", {"mouthpiece": mouthpiece, "blocks": blocks, **cal_inputs},
                 cfg.validation, _stage_validation(mouthpiece, blocks, cal, cfg))  # fmt: skip
-    say(f"[{name}]     impedance validation: {val.summary['verdict']}")
+    verdict = val.summary["verdict"]
+    say(f"[{name}]     impedance validation: {verdict.upper()} ({val.summary.get('reason', '')})")
+    if verdict == "fail":
+        if not accept_failed_validation:
+            raise ValidationFailed(
+                f"{name}: stopped before the inversion: the impedance validation FAILED "
+                f"({val.summary.get('reason', '')}); see {d['validation']}; pass "
+                "--accept-failed-validation to invert anyway"
+            )
+        say(f"[{name}]     inverting despite the FAILED validation (--accept-failed-validation)")
     cond_config = {"conditioning": cfg.conditioning, "window_s": cfg.inversion.window_s,
                    "hop_s": cfg.inversion.hop_s, "signal": cfg.inversion.signal}  # fmt: skip
     cond = stage(4, "conditioning", {"mouthpiece": mouthpiece}, cond_config,

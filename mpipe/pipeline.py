@@ -272,7 +272,9 @@ class InversionConfig:
     )
     sample_rate: float = spec(
         "Hz",
-        "model sample rate; must equal the signals' rate",
+        "sample rate of the whole pipeline: takes recorded at other rates are resampled "
+        "to it when read (mpipe run), mouthpiece signals at other rates when inverted "
+        "(mpipe invert)",
         between(1e3, 1e6),
         default=100_000.0,
     )

@@ -259,14 +259,22 @@ def flag_windows(windows: pd.DataFrame) -> pd.DataFrame:
     )
 
 
-def overall_verdict(validation_passed: bool, windows: pd.DataFrame) -> tuple:
-    """``(label, kind)`` of the take: FAIL, CHECK or PASS, with the reason in the label."""
+def overall_verdict(validation: str | bool, windows: pd.DataFrame) -> tuple:
+    """``(label, kind)`` of the take: FAIL, CHECK or PASS, with the reason in the label.
+
+    ``validation`` is the validation's verdict (``"pass"``, ``"fail"``, ``"cannot-verify"``)
+    or a bool (passed).
+    """
+    if isinstance(validation, bool):
+        validation = "pass" if validation else "fail"
     n = len(windows)
     n_ok = int((windows["status"] == "ok").sum()) if n else 0
-    if not validation_passed:
+    if validation == "fail":
         return "FAIL: the impedance validation failed", "fail"
     if n_ok == 0:
         return "FAIL: no window has status ok (no usable result)", "fail"
+    if validation != "pass":
+        return "CHECK: the impedance validation could not verify the measurement", "check"
     if n_ok < n:
         return f"CHECK: {n_ok} of {n} windows ok, {n - n_ok} not ok (see their reasons)", "check"
     return f"PASS: validation passed, all {n} windows ok", "pass"
@@ -320,7 +328,7 @@ def write_take_report(
     resonances = _read_csv(root / "validation" / "validation.csv")
     plan = _read_csv(root / "conditioning" / "plan.csv")
     flags = flag_windows(windows)
-    verdict = overall_verdict(bool(val["passed"]), windows)
+    verdict = overall_verdict(str(val["verdict"]), windows)
     params = parameter_summary(windows)
     med_res = inv.get("relative_residual_median")
     summary_text = (
@@ -384,8 +392,18 @@ def write_take_report(
             f"The measured input impedance P/(Z0 U) at the mouthpiece is compared with the "
             f"theory of the calibration's bore. Effective temperature from the wave separation "
             f"{fmt(val['temperature_c'])} °C (blocks span {fmt(t_lo)}–{fmt(t_hi)} °C), loss "
-            f"scale {fmt(sep['loss_scale_median'], 3)}, Mach number {fmt(sep['mach_median'], 2)}.",
-            ("PASS" if val["passed"] else "FAIL", "pass" if val["passed"] else "fail"),
+            f"scale {fmt(sep['loss_scale_median'], 3)}, Mach number {fmt(sep['mach_median'], 2)}. "
+            f"Verdict: {val['verdict'].upper()}"
+            + (f" ({val['reason']})" if val.get("reason") else "")
+            + "."
+            + "".join(f"\nWarning: {w}." for w in sep.get("warnings", []))
+            + (
+                "\nThe validation FAILED; the inversion was run anyway "
+                "(--accept-failed-validation)."
+                if val["verdict"] == "fail"
+                else ""
+            ),
+            (val["verdict"].upper(), "pass" if val["passed"] else "fail"),
             (
                 Figure(
                     root / "validation" / "impedance.png",

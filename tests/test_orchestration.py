@@ -211,3 +211,49 @@ def test_load_run_gives_tables_and_signals_with_units(finished):
     assert numeric and not any(len(tok) > 17 for tok in numeric)
     with pytest.raises(TypeError):
         data.tables["windows"] = None
+
+
+@pytest.fixture(scope="module")
+def wrong_bore(tmp_path_factory, take):
+    """The take's calibration with a main bore 3 % longer: the validation must FAIL."""
+    data = yaml.safe_load(Path(take.calibration).read_text())
+    data["bore"]["segments"][-1]["x_end"] *= 1.03
+    for mic in data["microphones"]:
+        if mic.get("calibration"):
+            mic["calibration"] = str(Path(take.calibration).parent / mic["calibration"])
+    path = tmp_path_factory.mktemp("wrong") / "long.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_failed_validation_stops_the_run_and_separate_exits_non_zero(
+    tmp_path, take, pipeline, wrong_bore, capsys, monkeypatch
+):
+    import mpipe.orchestration as orch
+
+    assert main(["separate", str(take.audio), str(wrong_bore), "-o", str(tmp_path / "s")]) == 1
+    out = capsys.readouterr().out
+    assert "impedance validation: FAIL" in out and "validation FAILED" in out
+    assert (tmp_path / "s" / "mouthpiece.npz").exists()
+    with np.load(tmp_path / "s" / "mouthpiece.npz") as mp:
+        assert {"u_noise_freq_hz", "u_noise_psd", "p_noise_psd"} <= set(mp.files)
+        assert mp["u_noise_psd"].shape == mp["u_noise_freq_hz"].shape
+    # mpipe run stops before the inversion, and says how to go on
+    pipe = tmp_path / "pipe.yaml"
+    pipe.write_text(f"calibration: {wrong_bore}\nexecutor: {{kind: local, workers: 1}}\n")
+    code = main(["run", str(pipe), str(take.audio), "-o", str(tmp_path / "r")])
+    err = capsys.readouterr().err
+    assert code == 2 and "stopped before the inversion" in err
+    assert "--accept-failed-validation" in err
+    assert not (tmp_path / "r" / take.audio.stem / "inversion").exists()
+    # with --accept-failed-validation it goes on to the inversion (stopped here by a probe)
+    reached = []
+
+    def probe(*args, **kwargs):
+        reached.append(True)
+        raise ValueError("probe: inversion reached")
+
+    monkeypatch.setattr(orch, "_stage_inversion", probe)
+    code = main(["run", str(pipe), str(take.audio), "-o", str(tmp_path / "r"),
+                 "--accept-failed-validation"])  # fmt: skip
+    assert reached and "inverting despite the FAILED validation" in capsys.readouterr().out

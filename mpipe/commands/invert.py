@@ -108,10 +108,21 @@ def _run(args: argparse.Namespace) -> int:
     inv = cfg.inversion
     fs, p, u, temperature = load_mouthpiece(args.mouthpiece)
     if abs(fs - inv.sample_rate) > 1e-6 * fs:
-        raise UserError(
-            f"{args.mouthpiece}: fs = {fs:g} Hz but {args.pipeline}: inversion.sample_rate = "
-            f"{inv.sample_rate:g} Hz"
+        # One rate for the pipeline, as in `mpipe run` (which resamples the take when read).
+        from mpipe.takes import resample
+
+        log.info(
+            "%s: resampling %g Hz -> %g Hz (inversion.sample_rate)",
+            args.mouthpiece,
+            fs,
+            inv.sample_rate,
         )
+        try:
+            pu = resample(np.column_stack([p, u]), fs, inv.sample_rate)
+        except ValueError as exc:
+            raise UserError(f"{args.mouthpiece}: {exc}") from None
+        p, u = np.ascontiguousarray(pu[:, 0]), np.ascontiguousarray(pu[:, 1])
+        fs = inv.sample_rate
     cal = load_calibration(cfg.calibration_path)
     # The same windows and the same bore kernel as `mpipe run` (one answer per take).
     plan = plan_inversion(p, fs, cfg.conditioning, inv.window_s, inv.hop_s, args.start, args.end)

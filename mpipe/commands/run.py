@@ -34,6 +34,12 @@ def add_parser(sub) -> None:
         help="calibration file to use instead of the pipeline's (e.g. a virtual take's copy)",
     )
     p.add_argument("--force", action="store_true", help="redo finished stages and windows")
+    p.add_argument(
+        "--accept-failed-validation",
+        action="store_true",
+        help="invert a take whose impedance validation FAILs (by default the run stops "
+        "before the inversion; the report records that it went on)",
+    )
     p.set_defaults(func=run)
 
 
@@ -68,7 +74,16 @@ def run(args: argparse.Namespace) -> int:
     try:
         for t in takes:
             try:
-                result = run_take(cfg, cal_path, t, args.output, args.force, client, say=write)
+                result = run_take(
+                    cfg,
+                    cal_path,
+                    t,
+                    args.output,
+                    args.force,
+                    client,
+                    say=write,
+                    accept_failed_validation=args.accept_failed_validation,
+                )
                 if not usable(result):
                     failed.append(t[0])
                     write(f"[{t[0].stem}] failed: no window has status ok (no usable result)")
