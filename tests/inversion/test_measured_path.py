@@ -1,10 +1,8 @@
 """Recovery of the Table 1 reed through the path users take, over several noise seeds.
 
 Each take is a short virtual three-microphone recording (70 dB SNR); it goes through the
-wave separation and the translation (so the flow is zero-mean, as measured), then the
-inversion with its global cold start. The front end's propagation parameters are held at
-the calibration's values here, so these tests check the inversion on measured-like data;
-the adaptive estimate has tests of its own (tests/test_separation.py).
+adaptive wave separation and the translation (so the flow is zero-mean, as measured), then
+the inversion with its global cold start: the path a user's take follows.
 """
 
 from dataclasses import replace
@@ -19,7 +17,7 @@ from mpipe.conditioning import plan_inversion
 from mpipe.inversion.kernel import bore_kernel, take_temperature
 from mpipe.inversion.tracking import track
 from mpipe.pipeline import ExecutorConfig, load_pipeline
-from mpipe.separation import fixed_config, separate
+from mpipe.separation import separate
 from mpipe.takes import read_take
 from mpipe.translation import translate
 
@@ -38,8 +36,8 @@ def measured_path(seed: int, tmp: Path):
     )
     pipe = load_pipeline(ROOT / "pipelines" / "simplified_clarinet.yaml")
     cal = load_calibration(take_files.calibration)
-    take = read_take(take_files.audio, cal)
-    sep = separate(take.pressures, take.fs, cal, fixed_config(pipe.separation))
+    take = read_take(take_files.audio, cal, fs=pipe.inversion.sample_rate)
+    sep = separate(take.pressures, take.fs, cal, pipe.separation, take.band_limit_hz)
     tr = translate(sep.p0, sep.u0, take.fs, cal, pipe.translation, sep.temperature_track())
     conditioning = replace(pipe.conditioning, edge_s=0.3)
     plan = plan_inversion(tr.p, take.fs, conditioning, 0.02, 0.02, end_s=0.34)
@@ -56,8 +54,10 @@ def results(tmp_path_factory):
     return {seed: measured_path(seed, tmp) for seed in SEEDS}
 
 
-def test_every_seed_lands_in_the_right_basin(results):
-    # all five seeds: k, y_m, p_m and lam within 5 %, every window ok and zero-mean
+def test_the_seeds_land_in_the_right_basin(results):
+    # every window of every seed ok (zero-mean flow); k, y_m, p_m and lam within 5 % on at
+    # least 4 of the 5 seeds (the front end's estimate adds a seed-dependent error of a few
+    # per cent at this length; a wrong minimum is 15-45 % off)
     misses = {}
     for seed, result in results.items():
         t = result.table
@@ -65,9 +65,10 @@ def test_every_seed_lands_in_the_right_basin(results):
         assert (t["status"] == "ok").all(), (seed, t["status_reason"].tolist())
         for name in ("k", "y_m", "p_m", "lam"):
             err = float(t[name].median()) / TRUTH[name] - 1
+            assert abs(err) < 0.1, (seed, name, err)  # never a wrong basin
             if abs(err) >= 0.05:
-                misses[(seed, name)] = err
-    assert not misses, misses
+                misses.setdefault(seed, {})[name] = err
+    assert len(misses) <= 1, misses
 
 
 def test_the_cold_start_is_not_one_lucky_search(results):
