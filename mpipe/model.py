@@ -597,6 +597,123 @@ def _run(
     return y, y_prev, dp
 
 
+@njit(cache=True)
+def history_spectra(x, n0, block, n_part, bitrev, tw_re, tw_im, w_re, w_im):
+    """Spectra of the P history blocks -1..-P of ``x`` for the frequency-domain delay line.
+
+    Returns ``(f_re, f_im)`` of shape ``(max(P, 1), B + 1)``, slot ``c mod P`` holding the
+    ``rfft`` of ``x[n0 + (c - 1) B : n0 + (c + 1) B]``: what :func:`_run` computes before
+    its first sample. Built once per window (the history does not depend on the candidate)
+    and handed to :func:`_run_pressure`.
+    """
+    nb = block + 1
+    f_re = np.zeros((max(n_part, 1), nb))
+    f_im = np.zeros((max(n_part, 1), nb))
+    zr = np.zeros(block)
+    zi = np.zeros(block)
+    for c in range(-n_part, 0):
+        slot = c % n_part
+        _rfft(
+            x, n0 + (c - 1) * block, f_re[slot], f_im[slot], zr, zi, bitrev, tw_re, tw_im,
+            w_re, w_im,
+        )  # fmt: skip
+    return f_re, f_im
+
+
+@njit(cache=True, fastmath={"reassoc", "contract"})
+def _accumulate(acc_re, acc_im, g_re, g_im, f_re, f_im, newest):
+    """Acc = sum_k G_k F_{newest - k}: the spectral products of the delay line.
+
+    Reassociation lets the inner loop over bins run on SIMD lanes; the sum over partitions
+    keeps its order, so the result differs from :func:`_run`'s only by contraction (fma).
+    """
+    n_part = g_re.shape[0]
+    nb = acc_re.size
+    for j in range(nb):
+        acc_re[j] = 0.0
+        acc_im[j] = 0.0
+    for k in range(n_part):
+        slot = newest - k
+        if slot < 0:
+            slot += n_part
+        gr = g_re[k]
+        gi = g_im[k]
+        fr = f_re[slot]
+        fi = f_im[slot]
+        for j in range(nb):
+            acc_re[j] += gr[j] * fr[j] - gi[j] * fi[j]
+            acc_im[j] += gr[j] * fi[j] + gi[j] * fr[j]
+
+
+@njit(cache=True)
+def _run_pressure(
+    x, n0, n, head_rev, h0, z0, rho, a1, a2, a3, b1, y_m, y_c, alpha, lam, s_fs, p_m, y,
+    y_prev, dp, block, g_re, g_im, f_re, f_im, bitrev, tw_re, tw_im, w_re, w_im, out_p, work,
+):  # fmt: skip
+    """The scheme of :func:`_run` for a constant mouth pressure, pressure output only.
+
+    The lean kernel of the inversion: no other output is stored, the delay line's history
+    spectra ``f_re, f_im`` come precomputed (:func:`history_spectra`; overwritten here) and
+    the FFT scratch ``work`` (shape ``(>= 5, >= B + 1)``) is the caller's, so a run allocates
+    nothing. The arithmetic per sample is :func:`_run`'s, so the two agree to rounding.
+    Returns the final (y, y_prev, dp).
+    """
+    n_head = head_rev.size
+    n_part = g_re.shape[0]
+    inv = 1.0 / (1.0 - h0)
+    z0p = z0 * (1.0 + h0) * inv
+    two_over_rho = 2.0 / rho
+    square = alpha == 2.0
+    acc_re = work[0, : block + 1]
+    acc_im = work[1, : block + 1]
+    zr = work[2, :block]
+    zi = work[3, :block]
+    tail = work[4, :block]
+    r = 0
+    b = 0
+    for i in range(n):
+        m = n0 + i
+        if n_part > 0 and r == 0:
+            if b > 0:
+                c = b - 1
+                _rfft(
+                    x, n0 + (c - 1) * block, f_re[c % n_part], f_im[c % n_part], zr, zi,
+                    bitrev, tw_re, tw_im, w_re, w_im,
+                )  # fmt: skip
+            _accumulate(acc_re, acc_im, g_re, g_im, f_re, f_im, (b - 1) % n_part)
+            _irfft_last_half(acc_re, acc_im, tail, zr, zi, bitrev, tw_re, tw_im, w_re, w_im)
+        y_new = a1 * y + a2 * y_prev + b1 * dp
+        e = y - y_c
+        if e > 0.0:
+            y_new += a3 * (e * e if square else e**alpha)
+        hh = y_m - y_new
+        if hh < 0.0:
+            hh = 0.0
+        ur = s_fs * (y_new - y)
+        q = _dot(head_rev, x[m - n_head : m])
+        if n_part > 0:
+            q += tail[r]
+        uf = 0.0
+        if hh > 0.0:
+            lh2 = (lam * hh) ** 2
+            big_l = lh2 * z0p / rho
+            big_g = lh2 * two_over_rho * (2.0 * q * inv + z0p * ur - p_m)
+            uf = -big_g / (big_l + math.sqrt(big_l * big_l + abs(big_g)))
+        u = uf + ur
+        pp = (q + z0 * u) * inv
+        x[m] = pp
+        p = 2.0 * pp - z0 * u
+        out_p[i] = p
+        y_prev = y
+        y = y_new
+        dp = p_m - p
+        r += 1
+        if r == block:
+            r = 0
+            b += 1
+    return y, y_prev, dp
+
+
 # ---------------------------------------------------------------------------------------
 # Plain reference
 
@@ -923,3 +1040,120 @@ def playing_frequency(x: np.ndarray, fs: float, fmin: float = 50.0, fmax: float 
             d = lo + ratio * (hi - lo)
             fd = magnitude(d)
     return float(0.5 * (lo + hi))
+
+
+def simulate_pressure(
+    reed: ReedParameters,
+    kernel: BoreKernel,
+    n_samples: int,
+    *,
+    state: ModelState | None = None,
+) -> np.ndarray:
+    """Mouthpiece pressure of :func:`simulate` at constant mouth pressure, by the lean kernel.
+
+    The same scheme and partitioned convolution as ``simulate(..., method="fast")`` with
+    ``mouth_pressure = reed.p_m`` and no onset, but only the pressure is computed and kept;
+    this is the kernel the inversion runs (:mod:`mpipe.inversion.fastpath`).
+
+    Parameters
+    ----------
+    reed : ReedParameters
+        Reed parameters (SI units).
+    kernel : BoreKernel
+        Prepared bore.
+    n_samples : int
+        Number of samples.
+    state : ModelState, optional
+        Start from this history instead of from rest.
+
+    Returns
+    -------
+    ndarray
+        Pressure, Pa; sample i at t = (i + 1) / fs, as :attr:`Simulation.p`.
+
+    Raises
+    ------
+    ValueError
+        As :func:`simulate`.
+    """
+    n_samples = int(n_samples)
+    if n_samples < 1:
+        raise ValueError(f"n_samples: expected at least 1, got {n_samples}")
+    fs = kernel.fs
+    check_stability(reed, fs)
+    n_taps = kernel.n_taps
+    b = kernel.head_taps
+    n_part = kernel.n_partitions
+    n0 = max(n_taps - 1, (n_part + 1) * b if n_part else 0)
+    x = np.zeros(n0 + n_samples)
+    if state is None:
+        y, y_prev, dp = 0.0, 0.0, float(reed.p_m)
+    else:
+        hist = np.asarray(state.p_plus, dtype=float)
+        if hist.ndim != 1 or hist.size < n_taps:
+            raise ValueError(
+                f"state.p_plus: expected at least len(h) = {n_taps} past samples, got {hist.size}"
+            )
+        x[n0 - (n_taps - 1) : n0] = hist[-(n_taps - 1) :]
+        y, y_prev, dp = float(state.y), float(state.y_prev), float(state.dp)
+    out = np.empty(n_samples)
+    run_pressure_into(out, x, n0, reed, kernel, y, y_prev, dp, np.zeros((5, b + 1)))
+    return out
+
+
+def lean_layout(kernel: BoreKernel) -> tuple[int, int, np.ndarray]:
+    """History length n0, direct taps and their reversed coefficients of the lean kernel.
+
+    Returns
+    -------
+    n0 : int
+        Samples of p+ history the run buffer holds before its first output sample.
+    n_part : int
+        FFT partitions (0 when the whole response runs direct).
+    head_rev : ndarray
+        h[H - 1], ..., h[1] for the direct part.
+    """
+    n_taps = kernel.n_taps
+    b = kernel.head_taps
+    n_part = kernel.n_partitions
+    n_head = b - 1 if n_part else n_taps - 1
+    n0 = max(n_taps - 1, (n_part + 1) * b if n_part else 0)
+    head_rev = np.ascontiguousarray(kernel.h[1 : n_head + 1][::-1])
+    return n0, n_part, head_rev
+
+
+def run_pressure_into(
+    out: np.ndarray,
+    x: np.ndarray,
+    n0: int,
+    reed: ReedParameters,
+    kernel: BoreKernel,
+    y: float,
+    y_prev: float,
+    dp: float,
+    work: np.ndarray,
+    spectra: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[float, float, float]:
+    """Run the lean kernel into ``out``; ``x`` holds p+ with n0 samples of history (Pa).
+
+    ``spectra`` are the history spectra of the delay line (:func:`history_spectra`; copied,
+    not modified); computed here when None. Returns the final (y, y_prev, dp).
+    """
+    _, n_part, head_rev = lean_layout(kernel)
+    b = kernel.head_taps
+    if spectra is None:
+        f_re, f_im = history_spectra(
+            x, n0, b, n_part, kernel.fft_bitrev, kernel.fft_tw_re, kernel.fft_tw_im,
+            kernel.rfft_w_re, kernel.rfft_w_im,
+        )  # fmt: skip
+    else:
+        f_re, f_im = spectra[0].copy(), spectra[1].copy()
+    a1, a2, a3, b1 = reed_coefficients(reed, kernel.fs)
+    g_re = kernel.tail_re if n_part else np.zeros((0, b + 1))
+    g_im = kernel.tail_im if n_part else np.zeros((0, b + 1))
+    return _run_pressure(
+        x, n0, out.size, head_rev, float(kernel.h[0]), kernel.z0, kernel.rho, a1, a2, a3, b1,
+        reed.y_m, reed.y_c, reed.alpha, reed.lam, reed.S * kernel.fs, reed.p_m, y, y_prev, dp,
+        b, g_re, g_im, f_re, f_im, kernel.fft_bitrev, kernel.fft_tw_re, kernel.fft_tw_im,
+        kernel.rfft_w_re, kernel.rfft_w_im, out, work,
+    )  # fmt: skip

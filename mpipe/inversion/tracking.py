@@ -195,9 +195,13 @@ def local_search(
             lower=bounds[:, 0],
             upper=bounds[:, 1],
             x_tolerance=config.step_tolerance,
-            f_tolerance=config.f_tolerance or None,
+            f_tolerance=(
+                config.warm_f_tolerance if not cold and config.warm_secant else config.f_tolerance
+            )
+            or None,
             max_evaluations=budget,
             infeasible_norm=objective.penalty,
+            secant=not cold and config.warm_secant,
         )
     return minimise(
         objective,
@@ -311,7 +315,9 @@ def invert_window(
             settle_s=config.settle_s,
             lowpass=design_lowpass(fs, config.lowpass_hz) if zero_mean else None,
         )
-        objective = F2Objective(kernel, target, settings, base, config.free)
+        objective = F2Objective(
+            kernel, target, settings, base, config.free, fast=config.fast_objective
+        )
         bounds = search_bounds(config, float(np.max(pw)))
         x0 = np.clip([getattr(base, name) for name in config.free], bounds[:, 0], bounds[:, 1])
         if cold and config.cold_start == "global":
