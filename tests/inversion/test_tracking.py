@@ -107,6 +107,11 @@ def test_track_processes_match_in_process(take):
         end_s=0.34,
     )
     np.testing.assert_allclose(one.table["p_m"], two.table["p_m"], rtol=1e-12)
+    # the default chunking (several chunks per worker, handed out dynamically) changes nothing
+    many = track(
+        sim.p, sim.u, FS, kernel, rho, LIGHT, ExecutorConfig(workers=2), start_s=0.30, end_s=0.36
+    )
+    np.testing.assert_allclose(one.table["p_m"], many.table["p_m"].iloc[:2], rtol=1e-12)
 
 
 def test_track_dask_local_cluster(take):
@@ -121,6 +126,25 @@ def test_track_dask_local_cluster(take):
                 sim.p, sim.u, FS, kernel, rho, LIGHT, cfg, start_s=0.30, end_s=0.34, client=client
             )
     assert len(result.table) == 2 and (result.table["error"] == "").all()
+
+
+def test_track_dask_local_cluster_of_processes_matches_in_process(take):
+    # two worker processes on loopback: the job is scattered once, the table is the same
+    distributed = pytest.importorskip("distributed")
+    kernel, rho, sim = take
+    one = track(
+        sim.p, sim.u, FS, kernel, rho, LIGHT, ExecutorConfig(workers=1), start_s=0.30, end_s=0.36
+    )
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+        host="127.0.0.1",
+    ) as cluster:  # fmt: skip
+        with distributed.Client(cluster) as client:
+            cfg = ExecutorConfig(kind="dask", scheduler=cluster.scheduler_address)
+            result = track(
+                sim.p, sim.u, FS, kernel, rho, LIGHT, cfg, start_s=0.30, end_s=0.36, client=client
+            )
+    np.testing.assert_allclose(one.table["p_m"], result.table["p_m"], rtol=1e-12)
 
 
 def test_sample_rate_mismatch(take):
