@@ -30,14 +30,7 @@ import numpy as np
 from numba import njit
 
 from mpipe.inversion.objective import ObjectiveSettings, TargetWindow, _pad_history
-from mpipe.model import (
-    BoreKernel,
-    _dot,
-    _run_pressure,
-    history_spectra,
-    lean_layout,
-    reed_coefficients,
-)
+from mpipe.model import BoreKernel, _dot, _run_pressure, reed_coefficients
 from mpipe.reed import ReedParameters, check_stability
 
 #: Status codes of :func:`_evaluate`.
@@ -45,20 +38,24 @@ OK, DIVERGED, SILENT = 0, 1, 2
 REASONS = {DIVERGED: "diverged", SILENT: "silent"}
 
 
+# numba's on-disk cache of this function is keyed on this file only: after editing the
+# kernels it calls in mpipe/model.py, delete mpipe/inversion/__pycache__/fastpath*.nb* (a
+# stale cache keeps the old kernel compiled in).
 @njit(cache=True)
 def _evaluate(
     out_r, target_p, target_std, p_lead, u_lead, filt, rho, fs, ph, uh, x, n0, z0,
-    f0_re, f0_im, f1_re, f1_im, f_re, f_im, head_rev, h0, g_re, g_im, block, bitrev,
-    tw_re, tw_im, w_re, w_im, work, p_mod, p_ctx, taps,
+    base, ones, f, head_rev, h0, level1, level2, work1, work2, work, p_mod, p_ctx, taps,
     k, s_area, y_m, p_m, lam, y_c, alpha, a1, a2, a3, b1,
 ):  # fmt: skip
     """Residual of one candidate into ``out_r``; returns a status code (OK, DIVERGED, SILENT).
 
-    Mirrors :func:`mpipe.inversion.objective.run_model` with the history start.
+    Mirrors :func:`mpipe.inversion.objective.run_model` with the history start. ``base``,
+    ``ones`` and ``f`` are 4-tuples (level-1 re, im, level-2 re, im) of the history
+    spectra with no mean-flow shift, of the shift's indicator, and the ones to fill.
     """
     n_lead = p_lead.size
     # reed lead-in driven by the measured pressure (objective.reed_trajectory)
-    ylead = work[5, :n_lead]
+    ylead = work[0, :n_lead]
     y0 = (p_m - p_lead[0]) / k
     ylead[0] = y0
     ylead[1] = y0
@@ -91,18 +88,21 @@ def _evaluate(
     for j in range(n_hist):
         x[start + j] = 0.5 * (ph[j] + z0 * (uh[j] + missing))
     cshift = 0.5 * z0 * missing
-    for s in range(f_re.shape[0]):
-        for j in range(f_re.shape[1]):
-            f_re[s, j] = f0_re[s, j] + cshift * f1_re[s, j]
-            f_im[s, j] = f0_im[s, j] + cshift * f1_im[s, j]
+    for lvl in range(4):
+        fl = f[lvl]
+        bl = base[lvl]
+        ol = ones[lvl]
+        for s in range(fl.shape[0]):
+            for j in range(fl.shape[1]):
+                fl[s, j] = bl[s, j] + cshift * ol[s, j]
     y = ylead[n_lead - 1]
     y_prev = ylead[n_lead - 2]
     dp0 = p_m - p_lead[n_lead - 1]
     n_run = p_mod.size
     _run_pressure(
         x, n0, n_run, head_rev, h0, z0, rho, a1, a2, a3, b1, y_m, y_c, alpha, lam,
-        s_area * fs, p_m, y, y_prev, dp0, block, g_re, g_im, f_re, f_im, bitrev, tw_re,
-        tw_im, w_re, w_im, p_mod, work,
+        s_area * fs, p_m, y, y_prev, dp0, level1, f[0], f[1], work1, level2, f[2], f[3],
+        work2, p_mod,
     )  # fmt: skip
     for i in range(n_run):
         if not math.isfinite(p_mod[i]):
@@ -113,7 +113,7 @@ def _evaluate(
         # input is [last ctx samples of the measured history, model run]
         n_ctx = p_ctx.size
         nt = taps.size
-        seq = work[6, : n_ctx + n_run]
+        seq = work[1, : n_ctx + n_run]
         for j in range(n_ctx):
             seq[j] = p_ctx[j]
         for j in range(n_run):
@@ -182,30 +182,25 @@ class WindowEvaluator:
         self.target_std = float(np.std(self.target_p))
         self.p_lead = np.ascontiguousarray(p_hist[-n_lead:])
         self.u_lead = np.ascontiguousarray(u_hist[-n_lead:])
-        self.n0, n_part, self.head_rev = lean_layout(kernel)
+        lean = kernel.lean
+        self.lean = lean
+        self.n0 = lean.n0
         self.ph = np.ascontiguousarray(p_hist[-(n_taps - 1) :])
         self.uh = np.ascontiguousarray(u_hist[-(n_taps - 1) :])
         n_pad = lp.delay + 1 if self.filt else 0
         self.x = np.zeros(self.n0 + n + n_pad)
-        b = kernel.head_taps
-        tables = (kernel.fft_bitrev, kernel.fft_tw_re, kernel.fft_tw_im)
-        tables += (kernel.rfft_w_re, kernel.rfft_w_im)
         # spectra of the history with c = 0 and of its indicator (the part c multiplies)
         base = np.zeros(self.n0)
         base[self.n0 - self.ph.size :] = 0.5 * (self.ph + kernel.z0 * self.uh)
         ones = np.zeros(self.n0)
         ones[self.n0 - self.ph.size :] = 1.0
-        self.f0 = history_spectra(base, self.n0, b, n_part, *tables)
-        self.f1 = history_spectra(ones, self.n0, b, n_part, *tables)
-        self.f = (np.empty_like(self.f0[0]), np.empty_like(self.f0[1]))
-        self.g = (
-            (kernel.tail_re, kernel.tail_im)
-            if n_part
-            else (np.zeros((0, b + 1)), np.zeros((0, b + 1)))
-        )
-        self.tables = tables
-        width = max(b + 1, n_lead, n + 2 * n_pad + 2)
-        self.work = np.zeros((7, width))
+        self.base = lean.history_spectra(base)
+        self.ones = lean.history_spectra(ones)
+        self.f = tuple(np.empty_like(a) for a in self.base)
+        self.work1 = np.zeros((5, lean.block1 + 1))
+        self.work2 = np.zeros((5, lean.block2 + 1))
+        width = max(n_lead, n + 2 * n_pad + 2)
+        self.work = np.zeros((2, width))
         self.p_mod = np.empty(n + n_pad)
         if self.filt:
             self.taps = np.ascontiguousarray(lp.taps, dtype=float)
@@ -240,11 +235,11 @@ class WindowEvaluator:
         with np.errstate(all="ignore"):
             code = _evaluate(
                 out, self.target_p, self.target_std, self.p_lead, self.u_lead, self.filt,
-                self.rho, self.fs, self.ph, self.uh, self.x, self.n0, k.z0, self.f0[0],
-                self.f0[1], self.f1[0], self.f1[1], self.f[0], self.f[1], self.head_rev,
-                float(k.h[0]), self.g[0], self.g[1], k.head_taps, *self.tables, self.work,
-                self.p_mod, self.p_ctx, self.taps, reed.k, reed.S, reed.y_m, reed.p_m,
-                reed.lam, reed.y_c, reed.alpha, a1, a2, a3, b1,
+                self.rho, self.fs, self.ph, self.uh, self.x, self.n0, k.z0, self.base,
+                self.ones, self.f, self.lean.head_rev, self.lean.h0, self.lean.level1,
+                self.lean.level2, self.work1, self.work2, self.work, self.p_mod, self.p_ctx,
+                self.taps, reed.k, reed.S, reed.y_m, reed.p_m, reed.lam, reed.y_c,
+                reed.alpha, a1, a2, a3, b1,
             )  # fmt: skip
         return REASONS.get(int(code), "")
 
