@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import resource
 import statistics
 import tempfile
 import time
@@ -84,29 +85,39 @@ def mouthpiece_signals(duration: float, snr: float, cache: Path | None) -> dict:
     return data
 
 
+def cpu_seconds() -> float:
+    """CPU time of this process and of its finished child processes, s."""
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
 def invert_take(data, kernel, rho, config, workers):
-    """Wall time of the inversion stage and its table."""
-    t0 = time.perf_counter()
+    """Wall time and CPU time (all processes) of the inversion stage, and its table."""
+    t0, c0 = time.perf_counter(), cpu_seconds()
     result = track(
         data["p"], data["u"], float(data["fs"]), kernel, rho, config,
         ExecutorConfig(workers=workers), starts=[int(s) for s in data["starts"]],
     )  # fmt: skip
-    return time.perf_counter() - t0, result.table
+    return time.perf_counter() - t0, cpu_seconds() - c0, result.table
 
 
 def stage_figures(label, runs, duration):
     """Print the medians of repeated runs; return the median wall time and one table."""
-    walls = [w for w, _ in runs]
-    table = runs[-1][1]
+    walls = [w for w, _, _ in runs]
+    cpus = [c for _, c, _ in runs]
+    table = runs[-1][2]
     wall = statistics.median(walls)
+    cpu = statistics.median(cpus)
     cold = float(table["wall_time_s"].iloc[0])
     warm = table[table["warm"].astype(bool)]
     per_eval = warm["wall_time_s"] / warm["n_evaluations"]
     print(
-        f"  {label:22s} wall {wall:6.2f} s (runs: {', '.join(f'{w:.2f}' for w in walls)}), "
-        f"real-time factor {duration / wall:5.2f}; cold start {cold:5.2f} s, "
-        f"warm windows: {np.median(warm['n_evaluations']):.0f} evaluations, "
-        f"{1e3 * np.median(warm['wall_time_s']):.1f} ms each (median), "
+        f"  {label:20s} wall {wall:6.2f} s (runs: {', '.join(f'{w:.2f}' for w in walls)}), "
+        f"real-time factor {duration / wall:5.2f}; CPU {cpu:6.2f} s (all processes; "
+        f"take / CPU {duration / cpu:5.2f}); cold start {cold:5.2f} s wall; warm windows: "
+        f"{np.median(warm['n_evaluations']):.0f} evaluations, "
+        f"{1e3 * np.median(warm['wall_time_s']):.1f} ms wall each (median), "
         f"{1e3 * np.median(per_eval):.2f} ms per evaluation; status ok "
         f"{int((table['status'] == 'ok').sum())}/{len(table)}"
     )

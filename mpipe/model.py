@@ -652,6 +652,43 @@ def _accumulate(acc_re, acc_im, g_re, g_im, f_re, f_im, newest):
 
 
 @njit(cache=True)
+def _rfft_lean(x, start, out_re, out_im, zr, zi, bitrev, tw_re, tw_im, w_re, w_im):
+    """:func:`_rfft` with the split loop free of modulo indexing (the lean kernel's).
+
+    Bins 0 and M are set apart; bins 1..M-1 pair z[k] with z[M - k] through slices, which
+    spares two integer divisions per bin (this loop cost as much as the FFT itself).
+    """
+    m = zr.size
+    xs = x[start : start + 2 * m]
+    for n in range(m):
+        zr[n] = xs[2 * n]
+        zi[n] = xs[2 * n + 1]
+    _fft(zr, zi, bitrev, tw_re, tw_im)
+    out_re[0] = zr[0] + zi[0]
+    out_im[0] = 0.0
+    out_re[m] = zr[0] - zi[0]
+    out_im[m] = 0.0
+    za_r = zr[1:m]
+    za_i = zi[1:m]
+    wr = w_re[1:m]
+    wi = w_im[1:m]
+    ore = out_re[1:m]
+    oim = out_im[1:m]
+    for k in range(m - 1):
+        kb = m - 2 - k
+        ar = za_r[k]
+        ai = za_i[k]
+        br = za_r[kb]
+        bi = za_i[kb]
+        er = 0.5 * (ar + br)
+        ei = 0.5 * (ai - bi)
+        orr = 0.5 * (ai + bi)
+        oi = -0.5 * (ar - br)
+        ore[k] = er + wr[k] * orr - wi[k] * oi
+        oim[k] = ei + wr[k] * oi + wi[k] * orr
+
+
+@njit(cache=True)
 def _fdl_tail(x, n0, blk, level, f_re, f_im, work):
     """Tail of one delay-line level for output block ``blk`` into ``work[4, :B]``.
 
@@ -668,7 +705,7 @@ def _fdl_tail(x, n0, blk, level, f_re, f_im, work):
     tail = work[4, :b]
     if blk > 0:
         c = blk - 1
-        _rfft(
+        _rfft_lean(
             x, n0 + (c - 1) * b, f_re[c % n_part], f_im[c % n_part], zr, zi, bitrev, tw_re,
             tw_im, w_re, w_im,
         )  # fmt: skip
@@ -1149,8 +1186,8 @@ class LeanKernel:
 
 #: Block sizes of the lean kernel's two levels, chosen by measurement on the shipped
 #: instrument (7200 taps at 100 kHz), interleaved runs against today's kernel, thread CPU
-#: time: (16, 256) 1.10x, (32, 256) 1.27x, (32, 512) 1.31x, (64, 256) 1.37x, (64, 512) 1.43x
-#: (benchmarks/bench_realtime.py prints the rate beside today's kernel).
+#: time (medians of 7): (16, 256) 1.25x, (32, 256) 1.39x, (32, 512) 1.49x, (64, 256) 1.52x,
+#: (64, 512) 1.60x (benchmarks/bench_realtime.py prints the rate beside today's kernel).
 LEAN_BLOCKS = (64, 512)
 
 

@@ -14,8 +14,8 @@ recomputes for every candidate is the same for every candidate of a window. A
   run (FFT linearity);
 * runs the lean kernel :func:`mpipe.model._run_pressure` (pressure only, no allocation);
 * low-passes the pressure only (the flow does not enter F2) with the measurement's
-  linear-phase FIR, as a direct convolution over exactly the samples the reference's
-  edge-padded filter reads for the window (the padding never reaches them);
+  linear-phase FIR, by overlap-save FFT convolution over exactly the samples the
+  reference's edge-padded filter reads for the window (the padding never reaches them);
 * forms the residual ``p_target - p_model`` in place.
 
 It agrees with the reference to rounding (tests/inversion/test_fastpath.py: ~1e-12
@@ -30,7 +30,14 @@ import numpy as np
 from numba import njit
 
 from mpipe.inversion.objective import ObjectiveSettings, TargetWindow, _pad_history
-from mpipe.model import BoreKernel, _dot, _run_pressure, reed_coefficients
+from mpipe.model import (
+    BoreKernel,
+    _fft_tables,
+    _irfft_last_half,
+    _rfft_lean,
+    _run_pressure,
+    reed_coefficients,
+)
 from mpipe.reed import ReedParameters, check_stability
 
 #: Status codes of :func:`_evaluate`.
@@ -44,8 +51,8 @@ REASONS = {DIVERGED: "diverged", SILENT: "silent"}
 @njit(cache=True)
 def _evaluate(
     out_r, target_p, target_std, p_lead, u_lead, filt, rho, fs, ph, uh, x, n0, z0,
-    base, ones, f, head_rev, h0, level1, level2, work1, work2, work, p_mod, p_ctx, taps,
-    k, s_area, y_m, p_m, lam, y_c, alpha, a1, a2, a3, b1,
+    base, ones, f, head_rev, h0, level1, level2, work1, work2, work, p_mod, p_ctx, fir,
+    fir_work, buf, n_taps_fir, k, s_area, y_m, p_m, lam, y_c, alpha, a1, a2, a3, b1,
 ):  # fmt: skip
     """Residual of one candidate into ``out_r``; returns a status code (OK, DIVERGED, SILENT).
 
@@ -109,17 +116,39 @@ def _evaluate(
             return DIVERGED
     n = target_p.size
     if filt:
-        # low-pass the window: taps are symmetric, so convolution = correlation; the
-        # input is [last ctx samples of the measured history, model run]
+        # low-pass the window by overlap-save FFT convolution: the filter's spectrum
+        # ``fir`` = (H_re, H_im, bitrev, tw_re, tw_im, w_re, w_im) for segments of 2M.
+        # The input is [last ctx samples of the measured history, model run], stored at
+        # offset M in ``buf`` (whose other samples stay zero); output i is
+        # sum_j taps[j] seq[i + 1 + j] (symmetric taps), the linear convolution at
+        # i + 1 + 2d, which a segment starting at buf[i0 + 1 + 2d] (i0 = first output of
+        # the block) gives as the second half of its circular convolution.
+        h_re, h_im, bitrev, tw_re, tw_im, w_re, w_im = fir
+        m = bitrev.size
         n_ctx = p_ctx.size
-        nt = taps.size
-        seq = work[1, : n_ctx + n_run]
         for j in range(n_ctx):
-            seq[j] = p_ctx[j]
+            buf[m + j] = p_ctx[j]
         for j in range(n_run):
-            seq[n_ctx + j] = p_mod[j]
-        for i in range(n):
-            out_r[i] = _dot(taps, seq[i + 1 : i + 1 + nt])
+            buf[m + n_ctx + j] = p_mod[j]
+        acc_re = fir_work[0, : m + 1]
+        acc_im = fir_work[1, : m + 1]
+        zr = fir_work[2, :m]
+        zi = fir_work[3, :m]
+        half = fir_work[4, :m]
+        i0 = 0
+        while i0 < n:
+            _rfft_lean(
+                buf, i0 + n_taps_fir, acc_re, acc_im, zr, zi, bitrev, tw_re, tw_im, w_re, w_im
+            )
+            for j in range(m + 1):
+                ar = acc_re[j]
+                ai = acc_im[j]
+                acc_re[j] = ar * h_re[j] - ai * h_im[j]
+                acc_im[j] = ar * h_im[j] + ai * h_re[j]
+            _irfft_last_half(acc_re, acc_im, half, zr, zi, bitrev, tw_re, tw_im, w_re, w_im)
+            for j in range(min(m, n - i0)):
+                out_r[i0 + j] = half[j]
+            i0 += m
     else:
         for i in range(n):
             out_r[i] = p_mod[i]
@@ -203,11 +232,23 @@ class WindowEvaluator:
         self.work = np.zeros((2, width))
         self.p_mod = np.empty(n + n_pad)
         if self.filt:
-            self.taps = np.ascontiguousarray(lp.taps, dtype=float)
+            taps = np.asarray(lp.taps, dtype=float)
+            # segments of 2M samples give M outputs each once the L taps fit: L - 1 <= M
+            m = max(256, 1 << int(math.ceil(math.log2(max(taps.size - 1, 1)))))
+            spec = np.fft.rfft(taps, 2 * m)
+            self.fir = (spec.real.copy(), spec.imag.copy(), *_fft_tables(m))
+            self.fir_work = np.zeros((5, m + 1))
             self.p_ctx = np.ascontiguousarray(p_hist[-(lp.delay + 1) :])
+            # zero prefix of M, the input, and enough zeros for the last segment
+            n_blocks = -(-n // m)
+            self.buf = np.zeros(max((n_blocks - 1) * m + taps.size + 2 * m, m + n + 2 * n_pad))
+            self.n_taps_fir = taps.size
         else:
-            self.taps = np.zeros(1)
+            self.fir = (np.zeros(1), np.zeros(1), *_fft_tables(4))
+            self.fir_work = np.zeros((5, 5))
             self.p_ctx = np.zeros(0)
+            self.buf = np.zeros(1)
+            self.n_taps_fir = 0
         self.rho = float(kernel.rho)
 
     def residuals_into(self, reed: ReedParameters, out: np.ndarray) -> str:
@@ -238,8 +279,8 @@ class WindowEvaluator:
                 self.rho, self.fs, self.ph, self.uh, self.x, self.n0, k.z0, self.base,
                 self.ones, self.f, self.lean.head_rev, self.lean.h0, self.lean.level1,
                 self.lean.level2, self.work1, self.work2, self.work, self.p_mod, self.p_ctx,
-                self.taps, reed.k, reed.S, reed.y_m, reed.p_m, reed.lam, reed.y_c,
-                reed.alpha, a1, a2, a3, b1,
+                self.fir, self.fir_work, self.buf, self.n_taps_fir, reed.k, reed.S,
+                reed.y_m, reed.p_m, reed.lam, reed.y_c, reed.alpha, a1, a2, a3, b1,
             )  # fmt: skip
         return REASONS.get(int(code), "")
 
