@@ -1,7 +1,8 @@
 """Real-time factor of the inversion stage (issue 14), before and after, in one run.
 
 Usage: ``.venv/bin/python benchmarks/bench_realtime.py [--duration S] [--snr DB]
-[--repeats N] [--cache DIR] [--compare-every K] [--skip-before]``
+[--repeats N] [--cache DIR] [--compare-every K] [--rosenbrock-budget N] [--skip-before]
+[--skip-stage]``
 
 1. Makes a virtual take (Table 1 reed, 4 s, 45 dB SNR), separates and translates it with
    the shipped pipeline (zero-mean flow, as measured) and plans its steady windows, as
@@ -13,7 +14,8 @@ Usage: ``.venv/bin/python benchmarks/bench_realtime.py [--duration S] [--snr DB]
    duration / wall time), the cold start's share, evaluations per warm window, time per
    evaluation, and the ratios after/before and 2 workers/1 worker. Repeats give medians.
 3. Agreement with the paper's method: every K-th warm window is also inverted by
-   Rosenbrock's search (``optimiser: rosenbrock``) from the same start; the share of
+   Rosenbrock's search (``optimiser: rosenbrock``, a budget it does not exhaust) from the
+   same start; the share of
    windows whose F2 is within 1 % and whose parameters are within one standard error
    (from the trust-region Jacobian, s^2 (J^T J)^-1 in log parameters) is printed.
 4. Forward-model samples/s: today's kernel (``simulate``, every output) beside the lean
@@ -35,6 +37,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from mpipe.calibration import load_calibration
 from mpipe.commands.synth_take import SynthOptions, make_take
@@ -124,16 +127,51 @@ def stage_figures(label, runs, duration):
     return wall, cold, table
 
 
-def agreement(data, kernel, rho, config, every):
+def _burn(n: int) -> int:
+    s = 0
+    for i in range(n):
+        s += i * i
+    return s
+
+
+def machine_parallelism(repeats: int) -> float:
+    """2-process speed-up of a pure-Python CPU burner: what the machine offers right now.
+
+    On a machine whose cores are shared with other jobs, 2 processes of anything get less
+    than 2 cores; the inversion's scaling is read against this figure, measured in the same
+    run.
+    """
+    from concurrent.futures import ProcessPoolExecutor
+
+    n = 2_000_000
+    ratios = []
+    with ProcessPoolExecutor(2) as pool:
+        list(pool.map(_burn, [1000, 1000]))
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            _burn(n)
+            _burn(n)
+            serial = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            list(pool.map(_burn, [n, n]))
+            ratios.append(serial / (time.perf_counter() - t0))
+    return statistics.median(ratios)
+
+
+def agreement(data, kernel, rho, config, every, budget):
     """Trust region (shipped) against Rosenbrock on every ``every``-th warm window."""
     p, u, fs = data["p"], data["u"], float(data["fs"])
     starts = [int(s) for s in data["starts"]]
     first = invert_window(p, u, fs, starts[0], kernel, rho, config, zero_mean=True)
     warm = reed_from_row(first.row)
-    rosen = dataclasses.replace(config, optimiser="rosenbrock")
+    # Rosenbrock's search gets a budget it does not exhaust on these windows (the paper
+    # reports 538 iterations), so that both searches are compared at their minima
+    rosen = dataclasses.replace(config, optimiser="rosenbrock", warm_max_evaluations=budget)
     f_ok, x_ok, n = 0, 0, 0
     worst_f = 0.0
     worst_se = 0.0
+    evals = []
+    converged = 0
     for s in starts[1::every]:
         a = invert_window(p, u, fs, s, kernel, rho, config, zero_mean=True, warm=warm)
         b = invert_window(p, u, fs, s, kernel, rho, rosen, zero_mean=True, warm=warm)
@@ -149,10 +187,15 @@ def agreement(data, kernel, rho, config, every):
         x_ok += bool(np.all(dx <= se))
         worst_f = max(worst_f, ratio)
         worst_se = max(worst_se, float(np.max(dx / se)))
+        evals.append((a.row["n_evaluations"], b.row["n_evaluations"]))
+        converged += bool(b.row["optimiser_converged"])
+    ev = np.array(evals)
     print(
         f"  {n} windows: F2 within 1 % of Rosenbrock's (or below) on {f_ok}/{n}; every "
         f"parameter within one standard error on {x_ok}/{n}; worst F2 ratio {worst_f:.4f}, "
-        f"worst |difference|/SE {worst_se:.2f}"
+        f"worst |difference|/SE {worst_se:.2f}; evaluations (median) trust region "
+        f"{np.median(ev[:, 0]):.0f}, Rosenbrock {np.median(ev[:, 1]):.0f} (converged on "
+        f"{converged}/{n}, budget {budget})"
     )
 
 
@@ -191,8 +234,10 @@ def main() -> None:
     parser.add_argument("--snr", type=float, default=45.0, help="microphone SNR, dB")
     parser.add_argument("--repeats", type=int, default=3, help="runs of each configuration")
     parser.add_argument("--cache", type=Path, default=None, help="keep the signals here")
-    parser.add_argument("--compare-every", type=int, default=5, help="Rosenbrock comparison")
+    parser.add_argument("--compare-every", type=int, default=10, help="Rosenbrock comparison")
+    parser.add_argument("--rosenbrock-budget", type=int, default=4000, help="its model runs")
     parser.add_argument("--skip-before", action="store_true", help="only the shipped path")
+    parser.add_argument("--skip-stage", action="store_true", help="skip part 1")
     args = parser.parse_args()
 
     data = mouthpiece_signals(args.duration, args.snr, args.cache)
@@ -215,6 +260,8 @@ def main() -> None:
     print("1. Inversion stage (track) on the whole take")
     walls = {}
     configs = [("after", after)] + ([] if args.skip_before else [("before", before)])
+    if args.skip_stage:
+        configs = []
     for label, config in configs:
         for workers in (1, 2):
             runs = [
@@ -222,13 +269,27 @@ def main() -> None:
                 for _ in range(args.repeats if label == "after" else 1)
             ]
             walls[label, workers] = stage_figures(f"{label}, {workers} worker(s)", runs, duration)
+    if configs:
+        offered = machine_parallelism(args.repeats)
+        print(
+            f"  the machine right now: 2 processes of a CPU burner run x{offered:.2f} faster "
+            "than 1 (2.00 on two free cores)"
+        )
     for label, _ in configs:
         (w1, c1, _), (w2, c2, _) = walls[label, 1], walls[label, 2]
+        warm_ratio = (w1 - c1) / max(w2 - c2, 1e-9)
         print(
             f"  {label}: 2 workers / 1 worker: x{w1 / w2:.2f} (whole stage), "
-            f"x{(w1 - c1) / max(w2 - c2, 1e-9):.2f} (warm windows, cold start excluded)"
+            f"x{warm_ratio:.2f} (warm windows, cold start excluded); against what the "
+            f"machine offered: {warm_ratio / offered:.0%} of it on the warm windows"
         )
-    if not args.skip_before:
+        ideal = c1 + (w1 - c1) / 2
+        print(
+            f"  {label}: on two free cores the stage would take about {ideal:.2f} s "
+            f"(cold start {c1:.2f} s + half the warm windows' {w1 - c1:.2f} s): "
+            f"x{w1 / ideal:.2f} over 1 worker, real-time factor {duration / ideal:.2f}"
+        )
+    if configs and not args.skip_before:
         for workers in (1, 2):
             print(
                 f"  after/before speed-up on {workers} worker(s): "
@@ -243,7 +304,8 @@ def main() -> None:
         )
 
     print(f"2. Agreement with Rosenbrock's search (every {args.compare_every}th warm window)")
-    agreement(data, kernel, air.rho, after, args.compare_every)
+    with threadpool_limits(limits=1, user_api="blas"):  # as track() does
+        agreement(data, kernel, air.rho, after, args.compare_every, args.rosenbrock_budget)
 
     print("3. Forward model, Table 1 reed from rest, 1 s runs")
     kernel_rates(1.0, args.repeats)

@@ -31,7 +31,7 @@ def write(tmp_path, text, calibration=True):
 def test_minimal_file_takes_defaults(tmp_path):
     cfg = load_pipeline(write(tmp_path, "calibration: cal.yaml\n"))
     assert cfg.inversion.start == "history"
-    assert cfg.inversion.optimiser == "rosenbrock"
+    assert cfg.inversion.optimiser == "trust-region"
 
 
 @pytest.mark.parametrize(
