@@ -33,10 +33,15 @@ _API = {
     "validate": "mpipe.validation",
     "ValidationConfig": "mpipe.validation",
     "steady_windows": "mpipe.conditioning",
+    "plan_inversion": "mpipe.conditioning",
+    "bore_kernel": "mpipe.inversion.kernel",
+    "take_temperature": "mpipe.inversion.kernel",
     "step1": "mpipe.inversion.step1",
     "track": "mpipe.inversion.tracking",
     "resynthesise": "mpipe.resynthesis",
     "run_take": "mpipe.orchestration",
+    "load_run": "mpipe.results",
+    "RunData": "mpipe.results",
 }
 
 __all__ = ["__version__", *_API]

@@ -168,10 +168,54 @@ def _ernoult(temperature_c: float, humidity: float, co2_fraction: float) -> Air:
     )
 
 
-def temperature_from_sound_speed(c: float) -> float:
-    """Invert the Keefe fit: the temperature (degC) at which dry air has sound speed ``c`` (m/s).
+def temperature_from_sound_speed(
+    c: float,
+    model: str = "keefe",
+    humidity: float = 0.0,
+    co2_fraction: float = 4.2e-4,
+) -> float:
+    """The temperature (degC) at which air of the given model has sound speed ``c`` (m/s).
 
     Used to turn the effective sound speed estimated by the wave separation into an
-    effective temperature for all other air properties (physics.md A.2).
+    effective temperature for all other air properties (physics.md A.2). The inverse must
+    be that of the model the calibration uses: the Keefe and Ernoult fits differ by about
+    0.35 m/s at 20 degC, i.e. 0.6 degC.
+
+    Parameters
+    ----------
+    c : float
+        Sound speed in m/s.
+    model : {"keefe", "ernoult"}
+        Air model of :func:`air_properties`.
+    humidity, co2_fraction : float
+        Relative humidity in [0, 1] and CO2 molar fraction (``"ernoult"`` only).
+
+    Returns
+    -------
+    float
+        Temperature in degC. For ``"keefe"`` the linear fit is inverted exactly (also
+        outside -20..60 degC); for ``"ernoult"`` the monotonic c(T) is inverted by bracketing
+        in -20..60 degC, and values outside that range are clipped to its ends.
     """
-    return _KEEFE_REFERENCE_C + (c / _KEEFE_C0 - 1.0) / _KEEFE_C_SLOPE
+    if model == "keefe":
+        return _KEEFE_REFERENCE_C + (c / _KEEFE_C0 - 1.0) / _KEEFE_C_SLOPE
+    if model != "ernoult":
+        raise ValueError(f"unknown air model {model!r}; expected one of {AIR_MODELS}")
+    lo, hi = -20.0, 60.0
+
+    def f(t: float) -> float:
+        return _ernoult(t, humidity, co2_fraction).c - c
+
+    f_lo, f_hi = f(lo), f(hi)
+    if f_lo >= 0:
+        return lo
+    if f_hi <= 0:
+        return hi
+    # Bisection on a smooth monotonic function: 60 halvings reach 1e-16 degC.
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if f(mid) < 0:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)

@@ -17,9 +17,20 @@ import sys
 from mpipe import __version__
 from mpipe.config import ConfigError
 from mpipe.errors import UserError
+from mpipe.progress import logging_redirect
+from mpipe.workers import exit_on_sigterm
 
 # Command modules under mpipe/commands, in the order `mpipe --help` lists them.
-COMMANDS = ("impedance", "simulate", "synth_take", "separate", "invert", "run")
+COMMANDS = (
+    "config",
+    "calibrate",
+    "impedance",
+    "simulate",
+    "synth_take",
+    "separate",
+    "invert",
+    "run",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -43,8 +54,13 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     level = logging.WARNING if args.quiet else (logging.DEBUG if args.verbose else logging.INFO)
     logging.basicConfig(level=level, format="%(message)s")
+    # SIGTERM ends the command through SystemExit, so that worker pools are terminated,
+    # partial files removed and output-folder locks released
+    exit_on_sigterm()
     try:
-        return int(args.func(args) or 0)
+        # log records are printed above progress bars, never inside them
+        with logging_redirect():
+            return int(args.func(args) or 0)
     except (ConfigError, UserError) as exc:
         print(f"mpipe {args.command}: error: {exc}", file=sys.stderr)
         return 2

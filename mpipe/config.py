@@ -240,3 +240,86 @@ def describe_keys(cls: type, prefix: str = "") -> list[tuple[str, str, str]]:
             sub = "[]." if typing.get_origin(tp) is tuple else "."
             rows.extend(describe_keys(inner[0], key + sub))
     return rows
+
+
+def _yaml_scalar(value: Any) -> str:
+    """One scalar or flat list in YAML that PyYAML (YAML 1.1) reads back unchanged."""
+    if isinstance(value, tuple | list):
+        return "[" + ", ".join(_yaml_scalar(v) for v in value) + "]"
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        text = repr(value)
+        if value != 0 and not 1e-3 <= abs(value) < 1e5:
+            # scientific notation for very large and small values, if it reads back exactly
+            mantissa, exponent = f"{value:.14e}".split("e")
+            mantissa = mantissa.rstrip("0")
+            short = (
+                f"{mantissa}0e{int(exponent):+03d}"
+                if mantissa.endswith(".")
+                else (f"{mantissa}e{int(exponent):+03d}")
+            )
+            text = short if float(short) == value else text
+        # YAML 1.1 reads 1e-05 as a string: it needs a dot in the mantissa
+        if "e" in text and "." not in text.split("e")[0]:
+            mantissa, exponent = text.split("e")
+            text = f"{mantissa}.0e{exponent}"
+        return text
+    if isinstance(value, int):
+        return str(value)
+    return yaml.safe_dump(value, default_flow_style=True).strip().removesuffix("\n...").strip()
+
+
+def to_commented_yaml(
+    obj: Any, indent: int = 0, skip: tuple[str, ...] = (), width: int = 96
+) -> str:
+    """Write a configuration dataclass as YAML, each key commented with unit and meaning.
+
+    Every field is written, defaults included, so the text shows every setting; a value
+    that differs from the default says so in its comment. :func:`build` reads the text
+    back into an equal object.
+
+    Parameters
+    ----------
+    obj : dataclass instance
+        A configuration object declared with :func:`spec` fields.
+    indent : int
+        Indentation of the top-level keys, in spaces.
+    skip : tuple of str
+        Top-level field names to leave out (e.g. fields set by a loader).
+    width : int
+        Comment lines are wrapped to this many characters.
+
+    Returns
+    -------
+    str
+    """
+    import textwrap
+
+    pad = " " * indent
+    lines: list[str] = []
+    hints = typing.get_type_hints(type(obj))
+    for f in dataclasses.fields(obj):
+        if f.name in skip or not f.init:
+            continue
+        value = getattr(obj, f.name)
+        unit, doc = f.metadata.get("unit", ""), f.metadata.get("doc", "")
+        if dataclasses.is_dataclass(hints[f.name]) and dataclasses.is_dataclass(value):
+            if indent == 0:
+                lines.append("")
+            lines.append(f"{pad}{f.name}:" + (f"  # {doc}" if doc else ""))
+            lines.append(to_commented_yaml(value, indent + 2, (), width).rstrip("\n"))
+            continue
+        note = f"[{unit}] {doc}" if unit else doc
+        if f.default is not dataclasses.MISSING and value != f.default:
+            note += f" (default {_yaml_scalar(f.default)})"
+        if note:
+            lines.extend(
+                textwrap.wrap(
+                    note, width - indent, initial_indent=f"{pad}# ", subsequent_indent=f"{pad}#   "
+                )  # fmt: skip
+            )
+        lines.append(f"{pad}{f.name}: {_yaml_scalar(value)}")
+    return "\n".join(lines) + "\n"

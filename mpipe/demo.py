@@ -13,6 +13,7 @@ finished stages, so it returns at once; delete ``demo_output/`` to start afresh.
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
@@ -39,6 +40,9 @@ PARAMETERS = (
 def truth_table(windows: pd.DataFrame, truth: dict, fs: float) -> pd.DataFrame:
     """Median recovered parameters (windows with status ok) beside the true ones.
 
+    With the uncertainty columns, also the median relative standard error (%) and the
+    fraction of windows where the parameter is determined.
+
     The true mouth pressure rises during the example (a swell); it is compared with its
     mean over the inverted windows.
     """
@@ -54,10 +58,15 @@ def truth_table(windows: pd.DataFrame, truth: dict, fs: float) -> pd.DataFrame:
             ]
             true = float(np.mean([pm[i].mean() for i in idx])) if idx else true
         got = float(ok[col].median()) if len(ok) else float("nan")
-        rows.append(
-            {"parameter": col, "unit": unit, "true": true, "recovered": got,
-             "error_%": 100 * (got / true - 1)}
-        )  # fmt: skip
+        row = {"parameter": col, "unit": unit, "true": true, "recovered": got,
+               "error_%": 100 * (got / true - 1)}  # fmt: skip
+        if f"{col}_se" in ok:
+            # the median standard error over the windows, and how often the data determine it
+            se = pd.to_numeric(ok[f"{col}_se"], errors="coerce")
+            det = ok[f"determined_{col}"].astype(str).str.lower().eq("true")
+            row["median_se_%"] = 100 * float((se / ok[col]).median()) if len(ok) else math.nan
+            row["determined"] = f"{det.mean():.0%}" if len(ok) else ""
+        rows.append(row)
     return pd.DataFrame(rows)
 
 

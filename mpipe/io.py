@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
 from collections.abc import Callable, Iterable
@@ -18,18 +19,28 @@ def _umask() -> int:
 
 
 def check_writable(paths: Iterable[str | Path], force: bool) -> None:
-    """Refuse to overwrite existing outputs unless ``force`` is set.
+    """Check output files before any work: their folders writable, none overwritten.
+
+    Existing files are refused unless ``force`` is set; the folders are created when
+    missing, and must be writable (:func:`check_output_folder`).
 
     Raises
     ------
     OutputExistsError
         Naming the first existing file.
+    UserError
+        Naming an output that is a folder, or a folder that cannot be written.
     """
-    if force:
-        return
+    from mpipe.errors import UserError
+
+    paths = [Path(p) for p in paths]
     for p in paths:
-        if Path(p).exists():
+        if p.is_dir():
+            raise UserError(f"{p}: is a folder; expected an output file name")
+        if not force and p.exists():
             raise OutputExistsError(f"{p} exists; use --force to overwrite it")
+    for parent in dict.fromkeys(p.parent for p in paths):
+        check_output_folder(parent)
 
 
 @contextmanager
@@ -85,3 +96,124 @@ def write_npz_atomic(path: str | Path, compressed: bool = False, **arrays) -> Pa
             save(fh, **{k: np.asarray(v) for k, v in arrays.items()})
 
     return write_atomic(path, writer)
+
+
+#: Lock file kept in an output folder while a run writes into it.
+LOCK_NAME = ".mpipe.lock"
+
+
+def check_output_folder(path: str | Path) -> Path:
+    """Make sure ``path`` is, or can become, a folder this process can write into.
+
+    Called before any computation, so that a bad output path fails at once instead of
+    after the work. The folder is created when missing (with its parents).
+
+    Parameters
+    ----------
+    path : str or Path
+        Output folder.
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    UserError
+        One line naming the path: it is a file, it cannot be created, or it is not
+        writable.
+    """
+    from mpipe.errors import UserError
+
+    path = Path(path)
+    for parent in (path, *path.parents):
+        if parent.exists() and not parent.is_dir():
+            raise UserError(f"{parent}: exists and is not a folder; choose another output path")
+        if parent.exists():
+            break
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"{path}: cannot create the output folder ({exc.strerror})") from None
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".mpipe-probe.", dir=path)
+    except OSError as exc:
+        raise UserError(f"{path}: output folder is not writable ({exc.strerror})") from None
+    os.close(fd)
+    os.unlink(probe)
+    return path
+
+
+@contextmanager
+def folder_lock(folder: str | Path):
+    """Hold an exclusive lock on an output folder while a run writes into it.
+
+    A second run on the same folder (from this or another process on this machine) fails
+    at once instead of mixing its results with the first's. The lock is an advisory
+    ``flock`` on ``folder/.mpipe.lock``; the kernel releases it when the holding process
+    ends for any reason, so a killed run never leaves a stale lock. (Network file systems
+    may not honour ``flock`` across machines.)
+
+    Raises
+    ------
+    UserError
+        When another run holds the folder, naming it and that run's process id.
+    """
+    from mpipe.errors import UserError
+
+    folder = check_output_folder(folder)
+    lock_path = folder / LOCK_NAME
+    fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666 & ~_umask())
+    try:
+        try:
+            _lock_fd(fd)
+        except BlockingIOError:
+            holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "unknown"
+            raise UserError(
+                f"{folder}: in use by another mpipe run (process {holder}); wait for it to "
+                "finish or choose another output folder"
+            ) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield folder
+    finally:
+        _unlock_fd(fd)
+        os.close(fd)
+
+
+def _lock_fd(fd: int) -> None:
+    try:
+        import fcntl
+    except ImportError:  # Windows
+        import msvcrt
+
+        try:
+            msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
+        except OSError:
+            raise BlockingIOError from None
+        return
+    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
+def _unlock_fd(fd: int) -> None:
+    try:
+        import fcntl
+    except ImportError:  # Windows
+        import msvcrt
+
+        with contextlib.suppress(OSError):
+            msvcrt.locking(fd, msvcrt.LK_UNLCK, 1)
+        return
+    fcntl.flock(fd, fcntl.LOCK_UN)
+
+
+#: Number format of CSV output: 10 significant digits, far beyond any measured quantity,
+#: without the binary noise of 17 digits (0.29999999999999999).
+CSV_FLOAT_FORMAT = "%.10g"
+
+
+def write_csv(path: str | Path, table) -> Path:
+    """Write a DataFrame as CSV atomically, numbers to 10 significant digits."""
+    return write_atomic(
+        path, lambda tmp: table.to_csv(tmp, index=False, float_format=CSV_FLOAT_FORMAT)
+    )

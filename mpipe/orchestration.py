@@ -20,13 +20,19 @@ import pandas as pd
 
 from mpipe import __version__
 from mpipe.calibration import Calibration, load_calibration
+from mpipe.errors import UserError
 from mpipe.inversion.kernel import bore_kernel, take_temperature
-from mpipe.io import write_atomic, write_npz_atomic
+from mpipe.io import write_atomic, write_csv, write_npz_atomic
 from mpipe.manifest import PARTIAL, StageRecord, run_stage
 from mpipe.pipeline import PARAMETER_NAMES, PipelineConfig
-from mpipe.report import Section, write_report
+from mpipe.progress import stage_timer
 
 log = logging.getLogger(__name__)
+
+
+class ValidationFailed(UserError):
+    """The impedance validation failed and the run stops before the inversion."""
+
 
 STAGES = (
     "separation",
@@ -98,14 +104,18 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
     from mpipe.takes import read_take
 
     def work(folder: Path):
-        take = read_take(take_paths if len(take_paths) == 3 else take_paths[0], cal)
-        sep = separate(take.pressures, take.fs, cal, cfg.separation)
+        # one rate for the whole pipeline: takes at other rates are resampled when read
+        fs = cfg.inversion.sample_rate
+        take = read_take(take_paths if len(take_paths) == 3 else take_paths[0], cal, fs=fs)
+        sep = separate(take.pressures, take.fs, cal, cfg.separation, take.band_limit_hz)
         temps = sep.temperature_track()
+        th = sep.median_theta()
         write_npz_atomic(
             folder / "reference.npz", fs=np.float64(take.fs), p0=sep.p0, u0=sep.u0,
-            temperature_c=temps,
+            temperature_c=temps, mic_noise_psd=sep.noise_psd,
+            theta_median=np.array([th.c, th.eta, th.mach]),
         )  # fmt: skip
-        write_atomic(folder / "blocks.csv", lambda t: sep.blocks.to_csv(t, index=False))
+        write_csv(folder / "blocks.csv", sep.blocks)
         write_atomic(folder / "blocks.png", lambda t: _plot_blocks(sep.blocks, t))
         b = sep.blocks
         summary = {
@@ -117,6 +127,10 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
             "loss_scale_median": float(np.median(b.loss_scale)),
             "mach_median": float(np.median(b.mach)),
             "residual_median": float(np.nanmedian(b.residual)),
+            "fs_file_hz": take.fs_file,
+            "temperature_se_c_median": float(np.median(b.temperature_se_c)),
+            "loss_scale_se_median": float(np.median(b.loss_scale_se)),
+            "warnings": sep.bound_warnings(),
         }
         outputs = {"reference": "reference.npz", "blocks": "blocks.csv", "plot": "blocks.png"}
         return outputs, summary
@@ -126,15 +140,20 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
 
 def _stage_translation(folder_sep: Path, cal: Calibration, cfg: PipelineConfig):
     from mpipe.commands.separate import _write_wav
-    from mpipe.translation import translate
+    from mpipe.separation import Theta
+    from mpipe.translation import mouthpiece_noise, translate
 
     def work(folder: Path):
         ref = _load_npz(folder_sep / "reference.npz")
         fs = float(ref["fs"])
         tr = translate(ref["p0"], ref["u0"], fs, cal, cfg.translation, ref["temperature_c"])
+        noise = mouthpiece_noise(
+            fs, cal, ref["mic_noise_psd"], Theta(*ref["theta_median"]),
+            float(np.median(ref["temperature_c"])), cfg.separation, cfg.translation,
+        )  # fmt: skip
         write_npz_atomic(
             folder / "mouthpiece.npz", fs=np.float64(fs), p=tr.p, u=tr.u, p0=tr.p0, u0=tr.u0,
-            temperature_c=tr.temperature_c,
+            temperature_c=tr.temperature_c, **noise,
         )  # fmt: skip
         write_atomic(folder / "mouthpiece.wav", lambda t: _write_wav(t, tr.p, tr.u, fs))
         summary = {"p_rms_pa": float(np.std(tr.p)), "u_rms_m3_s": float(np.std(tr.u))}
@@ -150,11 +169,12 @@ def _stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg: Pip
         mp = _load_npz(mouthpiece)
         t_eff = take_temperature(mp.get("temperature_c"), cal)
         val = validate(mp["p"], mp["u"], float(mp["fs"]), cal, cfg.validation, t_eff)
-        write_atomic(folder / "impedance.csv", lambda t: val.table().to_csv(t, index=False))
-        write_atomic(folder / "validation.csv", lambda t: val.resonances.to_csv(t, index=False))
+        write_csv(folder / "impedance.csv", val.table())
+        write_csv(folder / "validation.csv", val.resonances)
         write_atomic(folder / "impedance.png", lambda t: plot_impedance(val, t, 2000.0))
         summary = {
             "verdict": val.verdict,
+            "reason": val.reason,
             "passed": bool(val.passed),
             "failures": list(val.failures),
             "band_error_db": float(val.band_error_db),
@@ -178,12 +198,12 @@ def _stage_conditioning(mouthpiece: Path, cfg: PipelineConfig):
         mp = _load_npz(mouthpiece)
         fs = float(mp["fs"])
         table = plan_inversion(mp["p"], fs, cfg.conditioning, inv.window_s, inv.hop_s)
-        write_atomic(folder / "plan.csv", lambda t: table.to_csv(t, index=False))
+        write_csv(folder / "plan.csv", table)
         summary = {
             "windows": len(table),
             "steady": int(table["steady"].sum()),
             "to_invert": int(table["invert"].sum()),
-            "zero_mean_flow": bool(detect_zero_mean(mp["u"], inv.signal)),
+            "zero_mean_flow": bool(detect_zero_mean(mp["u"], inv.signal, inv.zero_mean_ratio)),
             "f0_hz_median": float(np.nanmedian(table["f0_hz"])) if len(table) else float("nan"),
         }
         return {"plan": "plan.csv"}, summary
@@ -195,7 +215,7 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
     from mpipe import resynthesis as rs
     from mpipe.inversion.status import count as count_status
     from mpipe.inversion.status import summary_line
-    from mpipe.inversion.tracking import ProgressBar, track, write_table
+    from mpipe.inversion.tracking import ProgressBar, track, write_correlations, write_table
 
     inv = cfg.inversion
 
@@ -220,8 +240,10 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
             bar.close()
         table = result.table
         written = write_table(table, folder)
+        write_correlations(result.correlations, folder)
         rs.plot_tracks(table, folder / "tracks.png")
         outputs = {"windows": "windows.csv", "tracks": "tracks.png"}
+        outputs["correlations"] = "correlations.csv"
         if any(w.suffix == ".parquet" for w in written):
             outputs["windows_parquet"] = "windows.parquet"
         outputs.update(
@@ -254,6 +276,7 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
 
 def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
     from mpipe import resynthesis as rs
+    from mpipe.progress import ProgressBar
 
     def work(folder: Path):
         mp = _load_npz(mouthpiece)
@@ -262,7 +285,11 @@ def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
         table = pd.read_csv(windows, keep_default_na=False, na_values=[""], dtype={"error": str})
         table["error"] = table["error"].fillna("")
         kernel, _ = bore_kernel(cal, fs, take_temperature(mp.get("temperature_c"), cal))
-        res = rs.resynthesise(table, p, u, fs, kernel, cfg.inversion, zero_mean)
+        bar = ProgressBar(len(table), desc="resynthesis")
+        try:
+            res = rs.resynthesise(table, p, u, fs, kernel, cfg.inversion, zero_mean, bar)
+        finally:
+            bar.close()
         write_npz_atomic(folder / "resynthesis.npz", fs=np.float64(fs), p=res.p, u=res.u)
         filled = np.nan_to_num(res.p)
         rs.write_wav(folder / "resynthesis.wav", filled, fs, cfg.resynthesis.wav_full_scale_pa)
@@ -297,6 +324,31 @@ def run_take(
     force: bool = False,
     client=None,
     say: Callable[[str], None] = print,
+    accept_failed_validation: bool = False,
+) -> TakeRun:
+    """Run every stage on one take, holding the lock of its output folder ``out/<take>``.
+
+    The arguments and result are those of :func:`_run_take`. Raises
+    :class:`mpipe.errors.UserError` at once when the folder is not writable or another run
+    holds it: two runs on one folder would mix their results.
+    """
+    from mpipe.io import folder_lock
+
+    with folder_lock(Path(out) / take_name([Path(p) for p in take_paths])):
+        return _run_take(
+            cfg, cal_path, take_paths, out, force, client, say, accept_failed_validation
+        )
+
+
+def _run_take(
+    cfg: PipelineConfig,
+    cal_path: Path,
+    take_paths: Sequence[str | Path],
+    out: str | Path,
+    force: bool = False,
+    client=None,
+    say: Callable[[str], None] = print,
+    accept_failed_validation: bool = False,
 ) -> TakeRun:
     """Run every stage on one take.
 
@@ -316,10 +368,18 @@ def run_take(
         Shared Dask client for the inversion.
     say : callable
         Where the one-line-per-stage progress goes.
+    accept_failed_validation : bool
+        Invert even when the impedance validation FAILs (the report says so).
 
     Returns
     -------
     TakeRun
+
+    Raises
+    ------
+    ValidationFailed
+        When the validation FAILs and ``accept_failed_validation`` is not set: the run
+        stops before the inversion.
     """
     take_paths = [Path(p) for p in take_paths]
     cal = load_calibration(cal_path)
@@ -340,7 +400,8 @@ def run_take(
         t0 = time.perf_counter()
         # Once a stage is redone, the stages after it are derived from new data: they are
         # this run's own results, replaced without --force.
-        rec = run_stage(d[key], key, inputs, config, work, force or redone)
+        with stage_timer(f"[{name}] {i}/{len(STAGES)} {key}"):
+            rec = run_stage(d[key], key, inputs, config, work, force or redone)
         redone = redone or rec.status == "done"
         records[key] = rec
         what = "done" if rec.status == "done" else "already done, skipped"
@@ -357,7 +418,16 @@ def run_take(
     mouthpiece = d["translation"] / "mouthpiece.npz"
     val = stage(3, "validation", {"mouthpiece": mouthpiece, "blocks": blocks, **cal_inputs},
                 cfg.validation, _stage_validation(mouthpiece, blocks, cal, cfg))  # fmt: skip
-    say(f"[{name}]     impedance validation: {val.summary['verdict']}")
+    verdict = val.summary["verdict"]
+    say(f"[{name}]     impedance validation: {verdict.upper()} ({val.summary.get('reason', '')})")
+    if verdict == "fail":
+        if not accept_failed_validation:
+            raise ValidationFailed(
+                f"{name}: stopped before the inversion: the impedance validation FAILED "
+                f"({val.summary.get('reason', '')}); see {d['validation']}; pass "
+                "--accept-failed-validation to invert anyway"
+            )
+        say(f"[{name}]     inverting despite the FAILED validation (--accept-failed-validation)")
     cond_config = {"conditioning": cfg.conditioning, "window_s": cfg.inversion.window_s,
                    "hop_s": cfg.inversion.hop_s, "signal": cfg.inversion.signal}  # fmt: skip
     cond = stage(4, "conditioning", {"mouthpiece": mouthpiece}, cond_config,
@@ -387,66 +457,7 @@ def usable(run: TakeRun) -> bool:
 
 def write_take_report(root: Path, name: str, take_paths, cal_path, records: dict) -> Path:
     """Write ``root/report.html`` from the stage folders and their manifests."""
-    val = records["validation"].summary
-    inv = records["inversion"].summary
-    res = records["resynthesis"].summary
-    sep = records["separation"].summary
-    windows = pd.read_csv(root / "inversion" / "windows.csv", keep_default_na=False)
-    cols = [c for c in ("t_start_s", "status", "k", "S", "y_m", "p_m", "m", "g", "lam", "k_c",
-                        "f2", "relative_residual", "n_evaluations", "status_reason")
-            if c in windows.columns]  # fmt: skip
-    timings = pd.DataFrame(
-        [{"stage": k, "status": r.status, "wall_s": r.wall_s} for k, r in records.items()]
-    )
-    plan = pd.read_csv(root / "conditioning" / "plan.csv", keep_default_na=False)
-    inv_root = root / "inversion"
-    sections = [
-        Section(
-            "Measurement: impedance validation",
-            f"{val['text']}\n\nEffective temperature from the wave separation: "
-            f"{val['temperature_c']:.2f} °C (blocks span {sep['temperature_c_range'][0]:.2f}"
-            f"–{sep['temperature_c_range'][1]:.2f} °C), loss scale {sep['loss_scale_median']:.3f}, "
-            f"Mach {sep['mach_median']:.4f}.",
-            ("PASS" if val["passed"] else "FAIL", "pass" if val["passed"] else "fail"),
-            (root / "validation" / "impedance.png", root / "separation" / "blocks.png"),
-        ),
-        Section(
-            "Reed parameters over time",
-            f"{inv['status_line']} (ok: the search met its tolerance, no parameter on a "
-            "bound, residual within a few times the take's best; see status_reason). "
-            f"Medians over the ok windows; median relative residual "
-            f"{inv['relative_residual_median']}; flow treated as "
-            f"{'zero-mean (measured)' if inv['zero_mean_flow'] else 'carrying its mean (model)'}.",
-            (
-                "OK" if inv["status_counts"]["ok"] else "NO USABLE WINDOW",
-                "pass" if inv["status_counts"]["ok"] else "fail",
-            ),
-            tuple(
-                p
-                for p in (
-                    inv_root / "tracks.png",
-                    inv_root / "flow_pressure.png",
-                    inv_root / "history.png",
-                )
-                if p.exists()
-            ),  # fmt: skip
-            (("Per-window results", windows[cols]),),
-        ),
-        Section(
-            "Resynthesis",
-            f"Relative residual of the resynthesised pressure over the inverted windows: "
-            f"{res['relative_residual_p']}. The resynthesised pressure is in "
-            "resynthesis/resynthesis.wav.",
-            None,
-            tuple(sorted((root / "resynthesis").glob("overlay_*.png"))),
-        ),
-        Section(
-            "Run",
-            f"Take: {', '.join(str(p) for p in take_paths)}. Calibration: {cal_path}.",
-            ("mpipe " + __version__, "info"),
-            (),
-            (("Stage timings", timings), ("Window plan (conditioning)", plan)),
-        ),
-    ]
-    return write_report(root / "report.html", f"mpipe report: {name}",
-                        time.strftime("%Y-%m-%d %H:%M"), sections)  # fmt: skip
+    from mpipe import report
+
+    when = time.strftime("%Y-%m-%d %H:%M")
+    return report.write_take_report(root, name, take_paths, cal_path, records, __version__, when)

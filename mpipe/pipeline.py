@@ -12,11 +12,20 @@ valid. The loader needs no change: :func:`mpipe.config.build` walks the type hin
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
 
-from mpipe.config import ConfigError, Where, between, build, load_yaml, positive, spec
+from mpipe.config import (
+    ConfigError,
+    Where,
+    between,
+    build,
+    load_yaml,
+    positive,
+    spec,
+    to_commented_yaml,
+)
 from mpipe.separation import SeparationConfig
 from mpipe.translation import TranslationConfig
 from mpipe.validation import ValidationConfig
@@ -52,6 +61,9 @@ class ParameterBounds:
     g: tuple[float, ...] = _bound("1/s", "reed damping coefficient", 1e2, 2e4)
     lam: tuple[float, ...] = _bound("m", "effective reed width lambda", 5e-3, 20e-3)
     k_c: tuple[float, ...] = _bound("Pa/m^alpha", "reed-lay contact stiffness", 1e9, 1e13)
+    y_c: tuple[float, ...] = _bound(
+        "m", "displacement where contact begins (searched with contact: free only)", 2e-5, 1e-3
+    )
 
     def absolute(self, name: str, max_p: float) -> tuple[float, float]:
         """Bounds of parameter ``name`` in SI units; ``max_p`` (Pa) scales the p_m factors."""
@@ -89,6 +101,22 @@ class InversionConfig:
         default=2.4e-4,
     )
     alpha: float = spec("", "exponent of the contact force (fixed)", between(1.0, 4.0), default=2.0)
+    contact: Literal["fixed", "closure", "free"] = spec(
+        "",
+        "where reed-lay contact begins. fixed: at the configured y_c (the paper); closure: "
+        "at y_m (y_c = y_m, the convention of several time-domain simulators); free: y_c is "
+        "searched (within bounds.y_c, at most y_m). With closure or free the model is scale "
+        "invariant (k, S, lam, m / a, y_m, y_c * a, k_c / a^2 give the same p and u), so lam "
+        "is held at its configured value to fix the scale and only the combinations p_M, "
+        "gamma, zeta, f_r, Q_r are determined",
+        default="fixed",
+    )
+    determined_limit: float = spec(
+        "",
+        "a parameter is determined when its relative standard error is below this (0.10 = 10 %)",
+        between(1e-6, 10.0),
+        default=0.10,
+    )
     m: float = spec(
         "kg/m^2", "start value of the reed mass per unit area", between(1e-4, 10.0), default=0.05
     )
@@ -241,6 +269,14 @@ class InversionConfig:
     )
     window_s: float = spec("s", "analysis window length", between(1e-3, 1.0), default=0.02)
     hop_s: float = spec("s", "hop between window starts", between(1e-3, 10.0), default=0.02)
+    zero_mean_ratio: float = spec(
+        "",
+        "signal auto: the flow counts as measured (zero-mean) when |mean(u)| / std(u) is "
+        "below this; model flow carries a mean of 1-3 times its AC amplitude, a high-passed "
+        "measurement about 0",
+        between(0.0, 1.0),
+        default=0.2,
+    )
     signal: Literal["measured", "model", "auto"] = spec(
         "",
         "measured: zero-mean flow, model output is low-passed like the measurement before "
@@ -256,10 +292,22 @@ class InversionConfig:
     )
     sample_rate: float = spec(
         "Hz",
-        "model sample rate; must equal the signals' rate",
+        "sample rate of the whole pipeline: takes recorded at other rates are resampled "
+        "to it when read (mpipe run), mouthpiece signals at other rates when inverted "
+        "(mpipe invert)",
         between(1e3, 1e6),
         default=100_000.0,
     )
+
+    @property
+    def search_parameters(self) -> tuple[str, ...]:
+        """The parameters step 2 searches, in order.
+
+        ``free`` without lam when the contact point moves with y_m (lam then fixes the
+        scale), and y_c last when ``contact`` is free.
+        """
+        names = tuple(n for n in self.free if not (self.contact != "fixed" and n == "lam"))
+        return (*names, "y_c") if self.contact == "free" else names
 
     def _check(self, where: Where) -> None:
         for name in PARAMETER_NAMES:
@@ -377,6 +425,36 @@ class PipelineConfig:
         return (Path(self.source).parent / self.calibration).resolve()
 
 
+PIPELINE_HEADER = """\
+# mpipe pipeline: how to run every stage (Chatziioannou & van Walstijn 2012, sections 3-4).
+# SI units throughout (temperatures in degC); each key's unit is in [brackets] before it.
+# Every key is optional except `calibration`; a missing key takes the value shown by
+# `mpipe config` (which printed this file).
+"""
+
+
+def pipeline_yaml(cfg: PipelineConfig | None = None, calibration: str | None = None) -> str:
+    """The pipeline as commented YAML: every key of every stage, with unit and meaning.
+
+    Parameters
+    ----------
+    cfg : PipelineConfig, optional
+        The pipeline to write (default: every default, and ``calibration`` as given).
+    calibration : str, optional
+        Calibration path to write (default: the one of ``cfg``, or a placeholder).
+
+    Returns
+    -------
+    str
+        YAML that :func:`load_pipeline` reads back into an equal configuration.
+    """
+    if cfg is None:
+        cfg = PipelineConfig(calibration=calibration or "CALIBRATION.yaml")
+    elif calibration is not None:
+        cfg = replace(cfg, calibration=calibration)
+    return PIPELINE_HEADER + to_commented_yaml(cfg, skip=("source",))
+
+
 def load_pipeline(path: str | Path) -> PipelineConfig:
     """Read and validate a pipeline file.
 
@@ -412,4 +490,5 @@ __all__ = [
     "ParameterBounds",
     "PipelineConfig",
     "load_pipeline",
+    "pipeline_yaml",
 ]

@@ -133,14 +133,15 @@ class ReedParameters:
     k_c : float
         Contact stiffness, Pa/m^alpha (0 switches contact off).
     y_c : float
-        Displacement at which the reed starts to touch the lay, m; must be below y_m.
+        Displacement at which the reed starts to touch the lay, m; at most y_m (y_c = y_m:
+        contact starts at closure, the convention of several time-domain simulators).
     alpha : float
         Exponent of the contact force (dimensionless).
 
     Raises
     ------
     InvalidReedError
-        On construction, when a value is non-positive, implausible or y_c >= y_m.
+        On construction, when a value is non-positive, implausible or y_c > y_m.
 
     References
     ----------
@@ -177,11 +178,11 @@ class ReedParameters:
                 raise InvalidReedError(f.name, message)
             # normalise ints from YAML or callers to float, so numba sees one signature
             object.__setattr__(self, f.name, float(value))
-        if self.y_c >= self.y_m:
+        if self.y_c > self.y_m:
             raise InvalidReedError(
                 "y_c",
-                f"contact must begin before closure: expected y_c < y_m = {self.y_m:g} m, "
-                f"got {self.y_c:g} m",
+                f"contact must begin at or before closure: expected y_c <= y_m = "
+                f"{self.y_m:g} m, got {self.y_c:g} m",
             )
 
     @property
@@ -255,7 +256,7 @@ def load_reed(path: str | Path) -> ReedParameters:
     ------
     ConfigError
         Naming the file and the key: unknown or missing keys, non-numbers, non-positive
-        or implausible values, y_c >= y_m.
+        or implausible values, y_c > y_m.
     """
     data = dict(load_yaml(path))
     return reed_from_mapping(data, Where(str(path)))

@@ -84,6 +84,7 @@ def resynthesise(
     kernel: BoreKernel,
     config: InversionConfig,
     zero_mean: bool,
+    progress=None,
 ) -> Resynthesis:
     """Run the model with each window's parameters and stitch the windows together.
 
@@ -104,6 +105,8 @@ def resynthesise(
         Start method and filters.
     zero_mean : bool
         Whether the target flow is zero-mean.
+    progress : mpipe.progress.ProgressBar, optional
+        Counted once per window.
 
     Returns
     -------
@@ -118,6 +121,8 @@ def resynthesise(
         lowpass=design_lowpass(fs, config.lowpass_hz) if zero_mean else None,
     )
     for _, row in table.iterrows():
+        if progress is not None:
+            progress.update(1)
         err = row["error"]
         # a table read back from CSV may hold NaN for "no error"
         if (isinstance(err, str) and err) or not np.isfinite(row["k"]):
@@ -255,7 +260,13 @@ def plot_history(history: np.ndarray, path: str | Path, f1: float | None = None)
 
 
 def plot_tracks(table: pd.DataFrame, path: str | Path) -> Path:
-    """Every parameter against window time.
+    """Every parameter and identifiable combination against window time, with error bands.
+
+    The band is the estimate plus or minus two standard errors (``<name>_se`` columns,
+    where present). Windows where a quantity is undetermined (relative standard error above
+    the limit, or infinite) are drawn as open circles, determined ones as filled dots;
+    a panel whose quantity is undetermined in most windows says so in its title. Windows
+    whose status is not ok are drawn in grey.
 
     Parameters
     ----------
@@ -268,14 +279,53 @@ def plot_tracks(table: pd.DataFrame, path: str | Path) -> Path:
     -------
     Path
     """
-    t = 0.5 * (table["t_start_s"] + table["t_end_s"])
-    fig, axes = plt.subplots(3, 3, sharex=True, figsize=(10, 7))
-    names = [*PARAMETER_NAMES, "relative_residual"]
-    for ax, name in zip(axes.ravel(), names, strict=True):
-        ax.plot(t, table[name], "k.-", ms=4)
-        ax.set_title(f"{name} [{_UNITS.get(name, '-')}]", fontsize=9)
+    from mpipe.inversion.uncertainty import COMBINATIONS
+
+    t = (0.5 * (table["t_start_s"] + table["t_end_s"])).to_numpy(dtype=float)
+    units = {**_UNITS, "y_c": "m", **{c.name: c.unit or "-" for c in COMBINATIONS}}
+    names = [*PARAMETER_NAMES, "y_c", *(c.name for c in COMBINATIONS), "relative_residual"]
+    names = [n for n in names if n in table]
+    ncol = 4
+    nrow = -(-len(names) // ncol)
+    fig, axes = plt.subplots(nrow, ncol, sharex=True, figsize=(13, 2.3 * nrow + 0.6))
+    ok = (
+        (table["status"].astype(str) == "ok").to_numpy()
+        if "status" in table
+        else np.ones(len(t), bool)
+    )
+    for ax, name in zip(axes.ravel(), names, strict=False):
+        x = pd.to_numeric(table[name], errors="coerce").to_numpy(dtype=float)
+        title = f"{name} [{units.get(name, '-')}]"
+        se_col, det_col = f"{name}_se", f"determined_{name}"
+        if se_col in table:
+            se = pd.to_numeric(table[se_col], errors="coerce").to_numpy(dtype=float)
+            band = np.isfinite(se) & ok
+            ax.fill_between(
+                t, np.where(band, x - 2 * se, np.nan), np.where(band, x + 2 * se, np.nan),
+                color="tab:blue", alpha=0.25, lw=0, label="±2 SE",
+            )  # fmt: skip
+            det = table[det_col].astype(str).str.lower().isin(("true", "1")).to_numpy()
+            if np.isnan(se[ok]).all():
+                title += " fixed"
+                det = np.ones(len(t), bool)
+            elif not ok.any() or det[ok].mean() < 0.5:
+                title += " UNDETERMINED"
+        else:
+            det = np.ones(len(t), bool)
+        ax.plot(t, x, "-", color="0.6", lw=0.6)
+        ax.plot(t[ok & det], x[ok & det], "k.", ms=5)
+        ax.plot(t[ok & ~det], x[ok & ~det], "o", mfc="none", mec="tab:red", ms=4)
+        ax.plot(t[~ok], x[~ok], ".", color="0.7", ms=4)
+        ax.set_title(title, fontsize=9, color="tab:red" if "UNDET" in title else "k")
+        ax.tick_params(labelsize=7)
+    for ax in axes.ravel()[len(names) :]:
+        ax.set_visible(False)
     for ax in axes[-1]:
         ax.set_xlabel("time [s]")
+    fig.suptitle(
+        "estimate (dots: determined; open red: undetermined; grey: status not ok), band ±2 SE",
+        fontsize=9,
+    )
     return _save(fig, path)
 
 

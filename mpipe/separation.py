@@ -12,17 +12,32 @@ the reference plane)::
     P0  = A + B,   U0 = (A - B) / Z_c
 
 ``k_ZK`` is the Zwikker-Kosten wavenumber of the main bore (physics.md B.2) for air at the
-effective temperature that has sound speed ``c``; ``eta`` scales its visco-thermal excess
-and ``M`` is the Mach number of the mean flow (positive towards the bell).
+effective temperature ``T`` (the calibration's air model gives ``c(T)``); ``eta`` scales its
+visco-thermal excess and ``M`` is the Mach number of the mean flow (positive to the bell).
 
-The propagation parameters ``theta = (c, eta, M)`` are estimated per block by minimising
-the least-squares residual of predicting the three microphones (physics.md E.3, E.5)::
+Estimation of theta = (T, eta, M)
+---------------------------------
+Per block, theta maximises the likelihood of the microphone signals under white sensor
+noise of known power spectral density ``D_m`` per channel (measured once per take), the two
+wave amplitudes of every bin being eliminated (concentrated likelihood). The residual is
+the signal ``e = sum_m n_m * p_m`` filtered from the block (with context on both sides) by
+the null filter, normalised to unit noise variance, then Hann-windowed::
 
-    J(theta) = sum_omega w(omega) n^T S_PP conj(n) / ||n||^2,   n = h+ x h-
+    E(f) = n(f)^T P(f) / sqrt(sum_m D_m |n_m(f)|^2),
+    n = h+ x h-   (the null vector of the 3 x 2 model matrix, n^T H = 0)
 
-where ``h+-`` are the columns of the 3 x 2 model matrix and ``S_PP`` is the 3 x 3 Welch
-cross-spectral matrix of the block. Spatially white sensor noise adds a constant to every
-term (``n^T sigma^2 I conj(n) / ||n||^2 = sigma^2``), so it does not move the minimum.
+and the cost is ``sum |r|^2 / kappa`` plus Gaussian priors on T, eta and M about the
+configured values. Every bin thus weighs by its own signal-to-noise ratio, so the strong
+low harmonics, where the flow's energy is, determine theta. Only bins whose signal exceeds
+the noise by ``min_snr_db`` and that lie in ``fmin_hz``..``fmax_hz`` (where the plane-wave
+model with the calibrated positions is trusted) are used; the band actually used is
+reported per block. ``kappa`` (>= 1) accounts for the correlation of adjacent bins of the
+windowed, zero-padded residual (computed from the window, a sandwich estimate), so that the
+standard errors from the Gauss-Newton curvature are honest.
+
+Blocks are then combined by a weighted local linear regression over ``smooth_s`` seconds
+with each block's information matrix (the prior counted once), which follows a linear
+drift of temperature or flow without lag.
 
 Reconstruction has no block seams: every block is multiplied by a periodic Hann window
 (hop = half a block, so the windows sum to one), zero-padded on both sides, separated in
@@ -42,14 +57,13 @@ physics.md sections E.1-E.5.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
 from scipy import fft as sfft
-from scipy import ndimage, optimize
+from scipy import optimize
 
 from mpipe import ducts
 from mpipe.air import Air, temperature_from_sound_speed
@@ -58,17 +72,29 @@ from mpipe.config import Where, between, positive, spec
 
 log = logging.getLogger(__name__)
 
-# Floor of the coherence weight, so that a block without coherent bins still has a cost.
-# Cap of the coherent-to-incoherent power ratio in the weights (clean data: all bins alike).
-_MAX_SNR_WEIGHT = 1e4
-_MIN_COHERENCE_WEIGHT = 1e-3
+# Floor of the noise levels relative to the strongest bin of a block's microphone spectra:
+# a virtual take without noise (or a 24-bit take of a loud note) would otherwise weigh the
+# weakest harmonics by numerical noise far below the accuracy of any propagation model.
+_NOISE_FLOOR = 1e-10
+# Bin offsets over which the residuals of a Hann-windowed block on the twice zero-padded
+# grid are correlated; beyond them the correlation is below 1e-3.
+_CORR_BINS = 8
+
+
+def _width(what: str):
+    def check(v: float | None) -> str | None:
+        if v is None:
+            return None
+        return None if v > 0 else f"expected a positive {what} or null (no prior)"
+
+    return check
 
 
 @dataclass(frozen=True)
 class SeparationConfig:
     """Settings of the adaptive wave separation (physics.md E.5).
 
-    All frequencies in Hz, times in s, speeds in m/s.
+    All frequencies in Hz, times in s, speeds in m/s, temperatures in degC.
     """
 
     block_s: float = spec(
@@ -79,7 +105,7 @@ class SeparationConfig:
     )
     welch_segment_s: float = spec(
         "s",
-        "Welch segment length inside a block for the 3x3 cross-spectral matrix "
+        "Welch segment length of the estimate of the sensor noise levels "
         "(segments overlap by half)",
         between(0.001, 2.0),
         default=0.04,
@@ -88,42 +114,32 @@ class SeparationConfig:
         "Hz", "lower edge of the band used to estimate theta", between(1.0, 1e5), default=100.0
     )
     fmax_hz: float = spec(
-        "Hz", "upper edge of the band used to estimate theta", between(10.0, 1e5), default=7000.0
-    )
-    envelope_hz: float = spec(
         "Hz",
-        "width of the running mean of the spectral envelope that whitens the cost; bins "
-        "between harmonics then weigh little, the harmonics of all orders alike",
-        positive,
-        default=300.0,
+        "upper edge of the band used to estimate theta: the plane-wave model with the "
+        "calibrated microphone positions and sensitivities must hold below it (a position "
+        "error dx shifts a phase by k dx and the microphone's own size averages the field, "
+        "both growing with frequency while the harmonics weaken)",
+        between(10.0, 1e5),
+        default=4000.0,
     )
-    weighting: str = spec(
-        "",
-        "cost weights over the spectral envelope: 'coherence' (gamma^2) or 'snr' "
-        "(gamma^2 / (1 - gamma^2), drops noise-dominated bins)",
-        lambda v: None if v in ("coherence", "snr") else "expected 'coherence' or 'snr'",
-        default="coherence",
-    )
-    noise_model: str = spec(
-        "",
-        "sensor noise in the cost: 'white' (estimate one white noise level per channel "
-        "over the whole take and divide each bin's residual by the noise power it carries, "
-        "a generalised least squares that makes the noise part of J independent of theta) "
-        "or 'none' (plain least squares, physics.md E.3)",
-        lambda v: None if v in ("white", "none") else "expected 'white' or 'none'",
-        default="white",
+    min_snr_db: float = spec(
+        "dB",
+        "a bin enters the estimate when its coherent power exceeds the sensor noise power "
+        "by this much (the band used is reported per block)",
+        between(-20.0, 100.0),
+        default=10.0,
     )
     noise_fmin_hz: float | None = spec(
         "Hz",
         "lower edge of the band above the separation band where the noise level of each "
         "channel is measured (null: 1.1 (band_edge_hz + band_taper_hz)); the band ends at "
-        "0.95 of the Nyquist frequency. When it is narrower than 1 kHz the noise level is "
-        "the low quantile of the spectrum in the estimation band (between the harmonics)",
+        "0.95 of the Nyquist frequency of the recording. When it is narrower than 1 kHz the "
+        "noise level is the low quantile of the spectrum in the estimation band",
         positive,
         default=None,
     )
     adaptive: bool = spec(
-        "", "estimate theta per block (false: hold it at the start values)", default=True
+        "", "estimate theta per block (false: hold it at the prior values)", default=True
     )
     estimate_loss: bool = spec("", "estimate the loss scale eta (false: hold it)", default=True)
     mach: float | None = spec(
@@ -140,53 +156,75 @@ class SeparationConfig:
     )
     temperature_c: float | None = spec(
         "degC",
-        "start value of the effective temperature (null: the calibration file's)",
+        "prior mean (and start value) of the effective temperature (null: the calibration file's)",
         between(-20.0, 60.0),
         default=None,
     )
-    loss_scale: float = spec("", "start value of eta", between(0.1, 10.0), default=1.0)
-    c_bounds_m_s: tuple[float, ...] = spec(
-        "m/s", "lower and upper bound of the effective sound speed", default=(330.0, 365.0)
+    temperature_prior_c: float | None = spec(
+        "degC",
+        "standard deviation of the Gaussian prior on the effective temperature (null: none)",
+        _width("temperature width"),
+        default=5.0,
     )
-    loss_bounds: tuple[float, ...] = spec("", "bounds of eta", default=(0.5, 3.0))
-    mach_bounds: tuple[float, ...] = spec("", "bounds of M", default=(-0.01, 0.05))
+    loss_scale: float = spec(
+        "", "prior mean (and start value) of eta", between(0.1, 10.0), default=1.0
+    )
+    loss_prior: float | None = spec(
+        "",
+        "standard deviation of the Gaussian prior on eta (null: none); Zwikker-Kosten "
+        "theory holds within a few per cent in smooth tubes",
+        _width("width"),
+        default=0.2,
+    )
+    mach_prior: float | None = spec(
+        "",
+        "standard deviation of the Gaussian prior on M about 0 (null: none); a player's "
+        "breath gives |M| ~ 0.002",
+        _width("width"),
+        default=0.01,
+    )
+    mic_position_prior_m: float | None = spec(
+        "m",
+        "standard deviation of the Gaussian prior on the correction to the position of the "
+        "middle microphone relative to the outer two (null: hold it at the calibrated "
+        "position). A position error, or a delay between channels, is frequency-linear "
+        "in phase and otherwise biases the temperature; it is identifiable from the data "
+        "because the temperature scales both spacings alike and this correction moves them "
+        "oppositely",
+        _width("width"),
+        default=5e-4,
+    )
+    mic_position_bounds_m: tuple[float, ...] = spec(
+        "m", "bounds of the position correction of the middle microphone", default=(-2e-3, 2e-3)
+    )
+    temperature_bounds_c: tuple[float, ...] = spec(
+        "degC", "lower and upper bound of the effective temperature", default=(-10.0, 50.0)
+    )
+    loss_bounds: tuple[float, ...] = spec("", "bounds of eta", default=(0.3, 3.0))
+    mach_bounds: tuple[float, ...] = spec("", "bounds of M", default=(-0.02, 0.05))
     min_level_db: float = spec(
         "dB",
         "blocks whose energy in the estimation band lies more than this below the median "
-        "block are not fitted (silence, fades); they take the estimates of their neighbours",
+        "block are not fitted (silence, fades)",
         between(0.0, 200.0),
         default=30.0,
     )
     max_residual_ratio: float = spec(
         "",
-        "fitted blocks whose residual J exceeds this multiple of the median J (onsets, "
-        "clicks: the stationary two-wave model does not hold) are not trusted and take "
-        "their neighbours' estimates",
+        "fitted blocks whose residual per term (chi^2 / terms) exceeds this multiple of the "
+        "median (onsets, clicks: the stationary two-wave model does not hold) are left out "
+        "of the smoother",
         between(1.0, 1e6),
         default=4.0,
     )
-    pool_s: float = spec(
+    smooth_s: float = spec(
         "s",
-        "with noise_model 'white': blocks whose fitted residual is within "
-        "pool_residual_ratio of the residual that sensor noise alone leaves are fitted "
-        "together, over consecutive stretches of this length (the cost is summed over the "
-        "blocks, weighted by the signal-to-noise ratio of each bin rather than whitened); "
-        "one 80 ms block at 40 dB SNR holds too little information to fix theta",
-        between(0.01, 1e4),
-        default=4.0,
-    )
-    pool_residual_ratio: float = spec(
-        "",
-        "a block counts as noise-dominated when its residual J is below this multiple of "
-        "the residual expected from the sensor noise levels",
-        between(1.0, 1e6),
-        default=3.0,
-    )
-    smooth_blocks: int = spec(
-        "",
-        "length (odd, blocks) of the centred running median applied to the estimates",
-        between(1, 101),
-        default=5,
+        "half-width of the tricube kernel of the local linear regression that combines the "
+        "blocks' estimates (weighted by their information; twice as wide at the ends of the "
+        "take); a linear drift is followed without bias, changes faster than about this "
+        "time are smoothed (air temperature and mean flow change over seconds)",
+        between(0.0, 1e4),
+        default=1.0,
     )
     max_evaluations: int = spec(
         "",
@@ -224,17 +262,19 @@ class SeparationConfig:
             raise where.error("fmax_hz", f"expected fmax_hz > fmin_hz = {self.fmin_hz:g} Hz")
         if self.welch_segment_s > self.block_s:
             raise where.error("welch_segment_s", "expected a segment no longer than block_s")
-        if self.smooth_blocks % 2 == 0:
-            raise where.error("smooth_blocks", "expected an odd number of blocks")
         if self.mach is not None and self.mean_flow_m3_s is not None:
             raise where.error("mach", "give either mach or mean_flow_m3_s, not both")
         for key, b in (
-            ("c_bounds_m_s", self.c_bounds_m_s),
+            ("temperature_bounds_c", self.temperature_bounds_c),
             ("loss_bounds", self.loss_bounds),
             ("mach_bounds", self.mach_bounds),
+            ("mic_position_bounds_m", self.mic_position_bounds_m),
         ):
             if len(b) != 2 or not b[0] < b[1]:
                 raise where.error(key, f"expected [lower, upper] with lower < upper, got {b}")
+        lo, hi = self.temperature_bounds_c
+        if lo < -20.0 or hi > 60.0:
+            raise where.error("temperature_bounds_c", "expected bounds within -20..60 degC")
 
     def validate(self) -> SeparationConfig:
         """Run the cross-field checks on an instance built in Python; returns it."""
@@ -260,11 +300,6 @@ class Theta:
     eta: float = 1.0
     mach: float = 0.0
 
-    @property
-    def temperature_c(self) -> float:
-        """Effective temperature in degC from ``c`` (inverse Keefe fit, physics.md A.2)."""
-        return temperature_from_sound_speed(self.c)
-
 
 @dataclass(frozen=True)
 class Geometry:
@@ -280,6 +315,8 @@ class Geometry:
         Loss model of :mod:`mpipe.ducts`.
     air_model : str
         Air model name for :func:`mpipe.air.air_properties`.
+    calibration : Calibration
+        The calibration (air model, humidity, CO2).
     """
 
     offsets: np.ndarray
@@ -300,10 +337,27 @@ class Geometry:
             calibration=calibration,
         )
 
+    def temperature(self, c: float) -> float:
+        """Effective temperature in degC at which the calibration's air has sound speed c."""
+        a = self.calibration.air
+        return temperature_from_sound_speed(c, a.model, a.humidity, a.co2_fraction)
+
+    def sound_speed(self, temperature_c: float) -> float:
+        """Sound speed in m/s of the calibration's air at ``temperature_c`` degC."""
+        return self.calibration.air_properties(temperature_c).c
+
     def air(self, c: float) -> Air:
-        """Air at the effective temperature whose Keefe sound speed is ``c`` (m/s)."""
-        t = float(np.clip(temperature_from_sound_speed(c), -19.9, 59.9))
+        """Air at the effective temperature whose sound speed (calibration's model) is c."""
+        t = float(np.clip(self.temperature(c), -19.9, 59.9))
         return self.calibration.air_properties(t)
+
+    def corrected(self, dx: float) -> Geometry:
+        """The geometry with the middle microphone moved by ``dx`` metres (+x: downstream)."""
+        if dx == 0.0:
+            return self
+        offsets = self.offsets.copy()
+        offsets[int(np.argsort(self.offsets)[1])] += dx
+        return replace(self, offsets=offsets)
 
     @property
     def spacing(self) -> float:
@@ -325,17 +379,15 @@ class SeparationResult:
         Volume flow at the reference plane, m^3/s, positive towards the bell; zero mean
         (unmeasurable at DC).
     blocks : pandas.DataFrame
-        One row per block: ``time_s`` (block centre), ``temperature_c``, ``c_m_s``,
-        ``loss_scale``, ``mach`` (smoothed values used for the reconstruction),
-        ``residual`` (fraction of the weighted microphone energy the model cannot
-        explain), ``coherence`` (mean pairwise squared coherence in the estimation band),
-        the raw estimates ``c_raw_m_s``, ``loss_scale_raw``, ``mach_raw`` (NaN where the
-        block was not fitted), ``evaluations``, ``fitted`` (false for blocks over the
-        ends of the take or below ``min_level_db``) and ``trusted`` (fitted with a
-        residual within ``max_residual_ratio`` of the median); the other blocks take
-        the values of their trusted neighbours.
+        One row per block, see :data:`BLOCK_COLUMNS`.
     config : SeparationConfig
         The settings used.
+    noise_psd : ndarray
+        One-sided power spectral density of the white sensor noise of each microphone,
+        Pa^2/Hz, shape ``(3,)`` (as measured, before the numerical floor).
+    geometry : Geometry
+        Microphones and bore used, with the median position correction of the middle
+        microphone.
     """
 
     fs: float
@@ -343,12 +395,68 @@ class SeparationResult:
     u0: np.ndarray
     blocks: pd.DataFrame
     config: SeparationConfig
+    noise_psd: np.ndarray
+    geometry: Geometry
 
     def temperature_track(self) -> np.ndarray:
         """Effective temperature in degC at every sample (linear between block centres)."""
         t = np.arange(self.p0.size) / self.fs
         b = self.blocks
         return np.interp(t, b["time_s"].to_numpy(), b["temperature_c"].to_numpy())
+
+    def median_theta(self) -> Theta:
+        """The median of the smoothed parameters over the blocks."""
+        b = self.blocks
+        return Theta(
+            float(np.median(b["c_m_s"])),
+            float(np.median(b["loss_scale"])),
+            float(np.median(b["mach"])),
+        )
+
+    def bound_warnings(self) -> list[str]:
+        """One line per parameter whose per-block estimate sat on a bound."""
+        out = []
+        hits = self.blocks["at_bound"].fillna("").astype(str)
+        for name in _NAMES:
+            count = int(hits.str.contains(name).sum())
+            if count:
+                out.append(
+                    f"{name} estimate on its bound in {count} of {int(self.blocks.fitted.sum())}"
+                    " fitted blocks (see blocks.csv, column at_bound)"
+                )
+        return out
+
+
+#: Columns of :attr:`SeparationResult.blocks` with their meaning.
+BLOCK_COLUMNS = {
+    "time_s": "block centre, s",
+    "temperature_c": "smoothed effective temperature used for the reconstruction, degC",
+    "temperature_se_c": "its standard error, degC",
+    "c_m_s": "sound speed of the calibration's air at that temperature, m/s",
+    "loss_scale": "smoothed eta used for the reconstruction",
+    "loss_scale_se": "its standard error",
+    "mach": "smoothed Mach number used for the reconstruction",
+    "mach_se": "its standard error",
+    "temperature_raw_c": "this block's own estimate (with the prior), degC; NaN if not fitted",
+    "temperature_raw_se_c": "its standard error from the Gauss-Newton curvature, degC",
+    "loss_scale_raw": "this block's eta",
+    "loss_scale_raw_se": "its standard error",
+    "mach_raw": "this block's Mach number",
+    "mach_raw_se": "its standard error",
+    "mic_position_m": "smoothed correction to the middle microphone's position, m",
+    "mic_position_se_m": "its standard error, m",
+    "mic_position_raw_m": "this block's own correction, m",
+    "at_bound": "parameters whose estimate sits on a bound (a warning), ';'-separated",
+    "band_lo_hz": "lowest frequency of the bins used, Hz",
+    "band_hi_hz": "highest frequency of the bins used, Hz",
+    "bins": "number of bins used (signal over noise by min_snr_db, in fmin_hz..fmax_hz)",
+    "residual": "chi^2 per term at the estimate (about 1 when noise explains the misfit)",
+    "kappa": "variance inflation from correlated bins",
+    "snr_db": "median signal-to-noise ratio of the bins used, dB",
+    "evaluations": "residual evaluations of the solver",
+    "fitted": "false for blocks over the ends, below min_level_db or without enough bins",
+    "trusted": "fitted and residual within max_residual_ratio of the median: enters the smoother",
+}
 
 
 # ---------------------------------------------------------------------------------------
@@ -483,135 +591,239 @@ def separation_filters(
     return g_p, g_u
 
 
+def projection_residual(pressures: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Part of the microphone spectra that two plane waves cannot explain, any number >= 2.
+
+    Parameters
+    ----------
+    pressures : ndarray
+        Microphone spectra ``P`` (Pa), shape ``(n, n_mics)``.
+    h : ndarray
+        Model matrices of :func:`model_matrix`, shape ``(n, n_mics, 2)``.
+
+    Returns
+    -------
+    ndarray
+        ``P - H H^+ P``, shape ``(n, n_mics)``: zero for two microphones (the exact
+        solution, wherever H is regular) and for a field of two plane waves; for three
+        microphones its squared norm is ``|n^T P|^2 / ||n||^2`` with the null vector
+        ``n = h+ x h-`` (physics.md E.3), which generalises to more microphones.
+    """
+    hh = np.conj(np.swapaxes(h, -1, -2))
+    ab = np.linalg.solve(hh @ h, hh @ pressures[..., None])
+    return pressures - (h @ ab)[..., 0]
+
+
+def singular_frequencies(geometry: Geometry, theta: Theta, fmax_hz: float) -> np.ndarray:
+    """Frequencies (Hz, up to ``fmax_hz``) where the microphones cannot tell the waves apart.
+
+    ``H`` loses rank where ``exp(j (k+ + k-) (d_i - d_j)) = 1`` for every pair of
+    microphones, i.e. (lossless) at ``f = n c (1 - M^2) / (2 s_ij)`` for all spacings
+    ``s_ij`` at once. Two microphones ``s`` apart are singular at every multiple of
+    ``c (1 - M^2) / (2 s)``; with three or more, only where the spacings are commensurate
+    (equal spacings ``s``: at multiples of ``c (1 - M^2) / (2 s)`` still).
+
+    Returns
+    -------
+    ndarray
+        The singular frequencies in Hz, increasing (possibly empty).
+    """
+    d = np.sort(geometry.offsets)
+    spacings = np.abs(d[:, None] - d[None, :])[np.triu_indices(d.size, 1)]
+    base = theta.c * (1 - theta.mach**2) / 2.0
+    first = base / spacings[0]
+    out = []
+    for n in range(1, int(fmax_hz / first) + 1):
+        f = n * first
+        m = f * spacings / base
+        if np.all(np.abs(m - np.round(m)) < 1e-6 * np.maximum(m, 1.0)):
+            out.append(f)
+    return np.array(out)
+
+
 # ---------------------------------------------------------------------------------------
-# Cost
+# Spectra and noise
+
+
+# Context taken on each side of a block before the null filter is applied, s: longer than
+# the filter's impulse response (the delays between microphones, ~0.1 ms, and the tails of
+# the visco-thermal terms), so that the residual inside the block is an exact filtering.
+_FILTER_MARGIN_S = 0.005
 
 
 @dataclass(frozen=True)
 class BlockSpectra:
-    """Cross-spectral statistics of one block in the estimation band.
+    """One block prepared for the estimation: its spectra and the residual filter grid.
 
     Attributes
     ----------
     freqs : ndarray
-        Frequencies in Hz.
-    s_pp : ndarray
-        Cross-spectral matrices ``S[f, i, j] = E[P_i conj(P_j)]``, Pa^2/Hz, ``(n, 3, 3)``.
-    weights : ndarray
-        Cost weights w(omega) (1/Pa^2 Hz): mean pairwise coherence over the smoothed
-        spectral envelope.
-    coherence : ndarray
-        Mean pairwise squared coherence per bin.
-    segments : ndarray
-        Scaled segment spectra ``X[s, f, m]`` with ``S = sum_s X X^H``, Pa/Hz^0.5,
-        shape ``(n_segments, n, 3)``.
-    noise : ndarray
-        Relative noise power spectral density of the three channels, shape ``(3,)``,
-        mean 1 (dimensionless). The residual of a bin is divided by the noise power it
-        carries, ``n^T diag(noise) conj(n)`` (generalised least squares); equal values
-        give the plain least-squares residual of physics.md E.3.
+        Frequencies in Hz of the estimation bins (``fmin_hz..fmax_hz`` on the grid of the
+        windowed residual, an FFT of ``nfft_out`` = twice the block).
+    bins : ndarray
+        Integer index of each estimation bin on that grid.
+    mic_power : ndarray
+        ``|X_m(f)|^2`` of the Hann-windowed microphone signals at the estimation bins,
+        scaled as :func:`noise_levels` (Pa^2/Hz), shape ``(n, 3)``.
+    model_freqs : ndarray
+        Frequencies (Hz) where the null filter is evaluated, on the grid of ``nfft_in``.
+    model_taper : ndarray
+        Raised-cosine taper of the null filter over ``model_freqs`` (1 inside the band).
+    spectra : ndarray
+        Spectra of the unwindowed block with its context on each side, zero-padded, at
+        ``model_freqs`` (unnormalised FFT, Pa), shape ``(n_model, 3)``.
+    window : ndarray
+        Periodic Hann window of the block at the reduced rate ``fs / dec``.
+    margin : int
+        Samples of context on each side at the reduced rate.
+    nfft_in, nfft_out : int
+        Lengths of the inverse FFT of the residual and of the windowed FFT, at the
+        reduced rate.
+    fs : float
+        Sample rate, Hz.
+    scale : float
+        Normalisation of the windowed residual to unit noise variance.
     """
 
     freqs: np.ndarray
-    s_pp: np.ndarray
-    weights: np.ndarray
-    coherence: np.ndarray
-    segments: np.ndarray
-    noise: np.ndarray = dataclasses.field(default_factory=lambda: np.ones(3))
+    bins: np.ndarray
+    mic_power: np.ndarray
+    model_freqs: np.ndarray
+    model_taper: np.ndarray
+    model_index: np.ndarray
+    spectra: np.ndarray
+    window: np.ndarray
+    margin: int
+    nfft_in: int
+    nfft_out: int
+    fs: float
+    scale: float = 1.0
 
     @property
-    def norm(self) -> float:
-        """``sum w tr S``: the weighted microphone energy that normalises J."""
-        return float(np.dot(self.weights, np.real(np.einsum("fii->f", self.s_pp))))
+    def hop(self) -> int:
+        """Hop between segments (one segment per block), samples."""
+        return self.window.size
+
+    @property
+    def nfft(self) -> int:
+        """FFT length of the windowed residual."""
+        return self.nfft_out
+
+    def use(self, noise: np.ndarray, min_snr_db: float) -> np.ndarray:
+        """Bins whose coherent power exceeds the noise power by ``min_snr_db`` (bool)."""
+        total = float(np.sum(noise))
+        trace = np.sum(self.mic_power, axis=1)
+        return trace - total >= 10 ** (min_snr_db / 10) * total
+
+    def residual(
+        self, n0: np.ndarray, n1: np.ndarray, n2: np.ndarray, use: np.ndarray
+    ) -> np.ndarray:
+        """Windowed spectrum of the residual signal ``sum_m n_m * p_m`` at the used bins.
+
+        ``n_m`` are the (noise-normalised) null-filter responses at ``model_freqs``. The
+        filter is applied to the unwindowed block with context, and the window only
+        afterwards, so that a harmonic between two bins is cancelled exactly at the true
+        parameters (filtering the windowed segments instead evaluates the model at the
+        bin frequency, not at the harmonic's, a bias of the order of the bin width over
+        the harmonic's frequency). The residual signal is band-limited by the filter's
+        taper, so it is formed at ``fs / decimation`` (exactly, not an approximation).
+        Scaled to unit variance for white noise.
+        """
+        e = (n0 * self.spectra[:, 0] + n1 * self.spectra[:, 1] + n2 * self.spectra[:, 2]) * (
+            self.model_taper
+        )
+        full = np.zeros(self.nfft_in // 2 + 1, dtype=complex)
+        full[self.model_index] = e
+        sig = sfft.irfft(full, self.nfft_in)[self.margin : self.margin + self.window.size]
+        out = sfft.rfft(sig * self.window, self.nfft_out)[self.bins[use]]
+        return out * self.scale
+
+
+def _taper(f: np.ndarray, lo0: float, lo1: float, hi0: float, hi1: float) -> np.ndarray:
+    up = np.clip((f - lo0) / max(lo1 - lo0, 1e-9), 0.0, 1.0)
+    down = np.clip((hi1 - f) / max(hi1 - hi0, 1e-9), 0.0, 1.0)
+    return 0.25 * (1 - np.cos(np.pi * up)) * (1 - np.cos(np.pi * down))
 
 
 def cross_spectra(
     block: np.ndarray,
     fs: float,
-    segment: int,
     fmin_hz: float,
     fmax_hz: float,
-    envelope_hz: float,
-    weighting: str = "coherence",
-    noise: np.ndarray | None = None,
+    margin: int = 0,
+    f_singular_hz: float | None = None,
 ) -> BlockSpectra:
-    """Welch estimate of the 3 x 3 cross-spectral matrix of a block (Hann, 50 % overlap).
+    """Prepare a block for the estimation (see :class:`BlockSpectra`).
 
     Parameters
     ----------
     block : ndarray
-        Microphone pressures in Pa, shape ``(n, 3)``.
+        Microphone pressures in Pa, shape ``(length + 2 margin, 3)``: the block with
+        ``margin`` samples of context on each side.
     fs : float
         Sample rate in Hz.
-    segment : int
-        Welch segment length in samples.
     fmin_hz, fmax_hz : float
-        Band kept, Hz.
-    envelope_hz : float
-        Width of the running mean that gives the spectral envelope, Hz.
-    weighting : {"coherence", "snr"}
-        Numerator of the weights: the mean pairwise squared coherence, or the coherent-to-
-        incoherent power ratio (which drops noise-dominated bins).
-    noise : ndarray, optional
-        Noise power spectral density of the three channels, Pa^2/Hz, shape ``(3,)``
-        (:func:`noise_levels`); only the ratios matter. None: equal noise (plain least
-        squares).
+        Estimation band, Hz.
+    margin : int
+        Context samples on each side.
+    f_singular_hz : float, optional
+        First singular frequency of the microphone spacing, Hz: the null filter's taper
+        ends below 0.9 of it.
 
     Returns
     -------
     BlockSpectra
     """
-    n = block.shape[0]
-    segment = min(segment, n)
-    hop = max(segment // 2, 1)
-    starts = np.arange(0, n - segment + 1, hop)
-    win = np.hanning(segment + 1)[:-1]
-    segs = np.stack([block[s : s + segment] * win[:, None] for s in starts])
-    # Twice the segment length: a denser grid for the same statistics, so that the
-    # residual is close to the energy of the filtered signal (physics.md E.3).
-    nfft = 2 * segment
-    spec_ = np.fft.rfft(segs, nfft, axis=1)
-    freqs = np.fft.rfftfreq(nfft, 1 / fs)
-    keep = (freqs >= fmin_hz) & (freqs <= fmax_hz)
-    x = spec_[:, keep, :]
-    scale = 1.0 / (fs * np.sum(win**2) * len(starts))
-    x = x * np.sqrt(scale)
-    s_pp = np.einsum("sfi,sfj->fij", x, np.conj(x))
-    diag = np.real(np.einsum("fii->fi", s_pp))
-    coh = []
-    for i, j in ((0, 1), (1, 2), (0, 2)):
-        coh.append(np.abs(s_pp[:, i, j]) ** 2 / np.maximum(diag[:, i] * diag[:, j], 1e-300))
-    coherence = np.mean(coh, axis=0)
-    trace = np.sum(diag, axis=1)
-    width = max(int(round(envelope_hz / (fs / nfft))), 1)
-    envelope = ndimage.uniform_filter1d(trace, min(width, max(trace.size, 1)), mode="nearest")
-    tiny = 1e-300 + 1e-12 * float(np.max(trace, initial=0.0))
-    # "snr": coherent-to-incoherent power ratio gamma^2 / (1 - gamma^2), capped: with the envelope
-    # it weights a bin by about 1 / (noise PSD) where the signal dominates (maximum
-    # likelihood for white noise) and drops bins where noise dominates. There the noise
-    # floor n^T D conj(n) / ||n||^2 would otherwise pull theta, because sensor noise is
-    # never exactly equal in the three channels.
-    if weighting == "snr":
-        snr = np.minimum(coherence / np.maximum(1.0 - coherence, 1e-12), _MAX_SNR_WEIGHT)
-        weights = np.maximum(snr, _MIN_COHERENCE_WEIGHT) / np.maximum(envelope, tiny)
-    else:
-        weights = np.maximum(coherence, _MIN_COHERENCE_WEIGHT) / np.maximum(envelope, tiny)
-    rel = np.ones(3) if noise is None else _relative_noise(noise)
-    return BlockSpectra(freqs[keep], s_pp, weights, coherence, x, rel)
+    lo0, lo1 = 0.5 * fmin_hz, 0.8 * fmin_hz
+    hi1 = 1.2 * fmax_hz + 200.0
+    cap = 0.45 * fs if f_singular_hz is None else min(0.9 * f_singular_hz, 0.45 * fs)
+    hi1 = min(hi1, cap)
+    hi0 = min(fmax_hz + 100.0, 0.5 * (fmax_hz + hi1))
+    # The residual signal holds nothing above hi1: it is formed at fs / dec, with a
+    # Nyquist frequency at least 1.25 hi1 (the window widens its spectrum a little).
+    dec = max(int(fs // (2.5 * hi1)), 1)
+    skip = margin % dec
+    block = block[skip:]
+    margin -= skip
+    total = block.shape[0]
+    length = (total - 2 * margin) // dec * dec
+    win_full = np.hanning(length + 1)[:-1]
+    nfft_out = 2 * length
+    f_out = np.fft.rfftfreq(nfft_out, 1 / fs)
+    keep = (f_out >= fmin_hz) & (f_out <= fmax_hz)
+    xw = sfft.rfft(block[margin : margin + length] * win_full[:, None], nfft_out, axis=0)[keep]
+    power = np.abs(xw) ** 2 / (fs * np.sum(win_full**2))
+    n_small = sfft.next_fast_len(-(-2 * total // dec), real=True)
+    nfft_in = n_small * dec
+    f_in = np.fft.rfftfreq(nfft_in, 1 / fs)
+    model = (f_in > lo0) & (f_in < hi1)
+    spec_ = sfft.rfft(block, nfft_in, axis=0)[model]
+    win = np.hanning(length // dec + 1)[:-1]
+    return BlockSpectra(
+        freqs=f_out[keep],
+        bins=np.flatnonzero(keep),
+        mic_power=power,
+        model_freqs=f_in[model],
+        model_taper=_taper(f_in[model], lo0, lo1, hi0, hi1),
+        model_index=np.flatnonzero(model),
+        spectra=spec_,
+        window=win,
+        margin=margin // dec,
+        nfft_in=n_small,
+        nfft_out=nfft_out // dec,
+        fs=float(fs),
+        scale=float(1.0 / np.sqrt(fs * dec * np.sum(win**2))),
+    )
 
 
 # Quantile of the per-bin power spectrum taken as the noise floor when there is no band
 # above the separation band (bins between the harmonics of a note).
 _NOISE_QUANTILE = 0.2
-# Relative noise levels are clipped to this range around their mean: they only reweight
-# the channels, and a channel without noise (or a wrong estimate) must not take over.
-_NOISE_RATIO_LIMIT = 4.0
-# With weighting "noise", a bin counts when its power exceeds this multiple of the noise
-# power (trace of S over the summed noise levels); noise alone gives 1 +- about 0.3.
-_NOISE_RATIO_THRESHOLD = 2.0
 
 
-def noise_levels(x: np.ndarray, fs: float, config: SeparationConfig) -> np.ndarray:
+def noise_levels(
+    x: np.ndarray, fs: float, config: SeparationConfig, band_limit_hz: float | None = None
+) -> np.ndarray:
     """White noise power spectral density of each channel over the whole take.
 
     Parameters
@@ -622,23 +834,26 @@ def noise_levels(x: np.ndarray, fs: float, config: SeparationConfig) -> np.ndarr
         Sample rate in Hz.
     config : SeparationConfig
         ``noise_fmin_hz``, the separation and estimation bands, ``welch_segment_s``.
+    band_limit_hz : float, optional
+        Highest frequency the recording holds, Hz: the Nyquist frequency of the file when
+        the take was resampled to a higher rate (default ``fs / 2``).
 
     Returns
     -------
     ndarray
         Shape ``(3,)``, Pa^2/Hz in the scaling of the diagonal of
-        :attr:`BlockSpectra.s_pp`: the median Welch power spectral density between
-        ``noise_fmin_hz`` and 0.95 of the Nyquist frequency, where a played note has
-        little energy left; without such a band, the ``_NOISE_QUANTILE`` quantile of the
-        spectrum in the estimation band, i.e. the floor between the harmonics.
+        :attr:`BlockSpectra.mic_power` (two-sided: the one-sided PSD is twice this): the
+        median incoherent power spectral density between ``noise_fmin_hz`` and 0.95 of
+        ``band_limit_hz``, where a played note has little energy left; without such a band,
+        the ``_NOISE_QUANTILE`` quantile of the spectrum in the estimation band, i.e. the
+        floor between the harmonics.
 
     Notes
     -----
     Sensor noise is stationary, so one level per channel for the whole take is far more
-    precise than a per-block estimate (a block of 80 ms has three Welch segments). The
-    levels differ between channels by the sensitivity of each microphone and by its
-    relative calibration, typically by several per cent; in plain least squares that
-    difference makes the noise floor of J depend on theta (see :func:`residual_cost`).
+    precise than a per-block estimate. It is assumed white: where it is not, the weights
+    of the estimate are off by the ratio of the noise in the estimation band to the noise
+    measured, which moves the standard errors, not the minimum.
     """
     segment = min(max(int(round(config.welch_segment_s * fs)), 16), x.shape[0])
     hop = max(segment // 2, 1)
@@ -651,22 +866,29 @@ def noise_levels(x: np.ndarray, fs: float, config: SeparationConfig) -> np.ndarr
         spec_ = np.fft.rfft(x[s0 : s0 + segment] * win[:, None], axis=0)
         cross += spec_[:, :, None] * np.conj(spec_[:, None, :])
         n_seg += 1
-    # The scaling of :func:`cross_spectra` (no factor 2 of a one-sided spectrum), so that
-    # these levels compare directly with the diagonal of its ``s_pp``.
     cross *= 1.0 / (fs * np.sum(win**2) * max(n_seg, 1))
     # Incoherent part of each channel (three-channel method): the coherent power of
     # channel i is |S_ij| |S_ik| / |S_jk|, so harmonics of the note in the band (a clean
     # take) do not count as noise.
     diag = np.real(np.einsum("fii->fi", cross))
     psd = np.empty_like(diag)
+    # Only bins where all three pairs are clearly coherent carry signal: for independent
+    # noise, |S_ij|^2 / (S_ii S_jj) of n averages is about 1 / n, and subtracting that
+    # random coherent part everywhere would bias the noise level low by ~20 %.
+    gamma2 = [
+        np.abs(cross[:, i, j]) ** 2 / np.maximum(diag[:, i] * diag[:, j], 1e-300)
+        for i, j in ((0, 1), (0, 2), (1, 2))
+    ]
+    signal = np.min(gamma2, axis=0) > 5.0 / max(n_seg, 1)
     for i, j, k in ((0, 1, 2), (1, 0, 2), (2, 0, 1)):
         coh = np.abs(cross[:, i, j]) * np.abs(cross[:, i, k])
         coh = coh / np.maximum(np.abs(cross[:, j, k]), 1e-300)
-        psd[:, i] = np.maximum(diag[:, i] - coh, 0.0)
+        psd[:, i] = np.maximum(diag[:, i] - np.where(signal, coh, 0.0), 0.0)
     lo = config.noise_fmin_hz
     if lo is None:
         lo = 1.1 * (config.band_edge_hz + config.band_taper_hz)
-    high = (freqs >= lo) & (freqs <= 0.95 * fs / 2)
+    top = fs / 2 if band_limit_hz is None else min(band_limit_hz, fs / 2)
+    high = (freqs >= lo) & (freqs <= 0.95 * top)
     if np.any(high) and np.ptp(freqs[high]) >= 1000.0:
         return np.median(psd[high], axis=0)
     band = (freqs >= config.fmin_hz) & (freqs <= config.fmax_hz)
@@ -675,54 +897,27 @@ def noise_levels(x: np.ndarray, fs: float, config: SeparationConfig) -> np.ndarr
     return np.quantile(psd[band], _NOISE_QUANTILE, axis=0)
 
 
-def noise_weighted(spectra: list[BlockSpectra], noise: np.ndarray) -> BlockSpectra:
-    """Pool blocks into one cost weighted for sensor noise (maximum likelihood).
-
-    Parameters
-    ----------
-    spectra : list of BlockSpectra
-        Blocks on the same frequency grid.
-    noise : ndarray
-        Noise levels of :func:`noise_levels`, shape ``(3,)``.
+def window_correlation(spectra: BlockSpectra) -> dict[int, np.ndarray]:
+    """Correlation of white noise between the bins of a windowed block spectrum.
 
     Returns
     -------
-    BlockSpectra
-        Summed cross-spectra and all segments. The weights are not whitened by the
-        spectral envelope: with the generalised residual every bin carries noise of the
-        same variance, so uniform weights are the maximum-likelihood choice and the
-        strong harmonics, where theta is best resolved, dominate. Bins whose power does
-        not exceed ``_NOISE_RATIO_THRESHOLD`` times the noise are dropped, because they
-        only add the random, theta-dependent part of the noise floor.
+    dict
+        Bin offset ``df`` to ``E[X(f) conj(X(f + df))] / E|X|^2`` for white noise: for a
+        window ``w`` on a grid of ``N`` bins, ``sum_n w[n]^2 exp(2 pi j df n / N) /
+        sum_n w[n]^2`` (the same for every bin).
     """
-    s_pp = np.sum([sp.s_pp for sp in spectra], axis=0)
-    segments = np.concatenate([sp.segments for sp in spectra], axis=0)
-    trace = np.real(np.einsum("fii->f", s_pp)) / len(spectra)
-    total = max(float(np.sum(noise)), 1e-300)
-    ratio = trace / total
-    signal = np.clip((ratio - _NOISE_RATIO_THRESHOLD) / np.maximum(ratio, 1e-300), 0.0, 1.0)
-    weights = np.maximum(signal, _MIN_COHERENCE_WEIGHT) / total
-    coherence = np.mean([sp.coherence for sp in spectra], axis=0)
-    return BlockSpectra(spectra[0].freqs, s_pp, weights, coherence, segments, spectra[0].noise)
+    w = spectra.window
+    n = np.arange(w.size)
+    norm = float(np.sum(w**2))
+    return {
+        df: complex(np.sum(w**2 * np.exp(2j * np.pi * df * n / spectra.nfft_out)) / norm)
+        for df in range(-_CORR_BINS, _CORR_BINS + 1)
+    }
 
 
-def noise_residual(spectra: BlockSpectra, noise: np.ndarray) -> float:
-    """Residual J that the sensor noise alone leaves (expectation, any theta).
-
-    With the generalised residual the noise of every bin contributes
-    ``n^T N conj(n) / n^T D conj(n) = mean(noise)``, so the expected noise part of
-    :func:`residual_cost` is ``mean(noise) sum w / sum w tr S``.
-    """
-    return float(np.mean(noise) * np.sum(spectra.weights) / max(spectra.norm, 1e-300))
-
-
-def _relative_noise(noise: np.ndarray) -> np.ndarray:
-    """Noise levels scaled to mean 1 and clipped to ``_NOISE_RATIO_LIMIT`` around it."""
-    d = np.asarray(noise, dtype=float)
-    mean = float(np.mean(d))
-    if not np.all(np.isfinite(d)) or mean <= 0:
-        return np.ones(3)
-    return np.clip(d / mean, 1 / _NOISE_RATIO_LIMIT, _NOISE_RATIO_LIMIT)
+# ---------------------------------------------------------------------------------------
+# Cost
 
 
 def _null_components(
@@ -743,71 +938,6 @@ def _null_components(
     return n0, n1, n2
 
 
-def residual_vector(
-    theta: Theta, spectra: BlockSpectra, geometry: Geometry, excess: np.ndarray | None = None
-) -> np.ndarray:
-    """Weighted per-segment, per-bin residuals whose squared norm is :func:`residual_cost`.
-
-    ``r[s, f] = sqrt(w_f / sum w tr S) n(f)^T X_s(f) / sqrt(n(f)^T D conj(n(f)))`` with
-    ``D = diag(spectra.noise)`` (complex, dimensionless).
-    The least-squares form lets a Gauss-Newton method minimise J in a few iterations.
-    """
-    n0, n1, n2 = _null_components(theta, spectra.freqs, geometry, excess)
-    d = spectra.noise
-    norm = np.sqrt(d[0] * np.abs(n0) ** 2 + d[1] * np.abs(n1) ** 2 + d[2] * np.abs(n2) ** 2)
-    scale = np.sqrt(spectra.weights / max(spectra.norm, 1e-300)) / np.maximum(norm, 1e-300)
-    x = spectra.segments
-    return (n0 * x[..., 0] + n1 * x[..., 1] + n2 * x[..., 2]) * scale
-
-
-def residual_cost(
-    theta: Theta, spectra: BlockSpectra, geometry: Geometry, excess: np.ndarray | None = None
-) -> float:
-    """Normalised least-squares residual J(theta) of predicting the microphones.
-
-    Parameters
-    ----------
-    theta : Theta
-        Propagation parameters.
-    spectra : BlockSpectra
-        Cross-spectra of the block.
-    geometry : Geometry
-        Microphone offsets and bore.
-    excess : ndarray, optional
-        Wavenumber excess of :func:`zk_excess` on the band (recomputed when omitted).
-
-    Returns
-    -------
-    float
-        ``sum w n^T S conj(n) / n^T D conj(n)`` divided by ``sum w tr S``, with
-        ``D = diag(spectra.noise)`` of mean 1: about the fraction of the weighted
-        microphone energy not explained by two waves (dimensionless).
-
-    References
-    ----------
-    physics.md E.3 and E.5.
-    """
-    n0, n1, n2 = _null_components(theta, spectra.freqs, geometry, excess)
-    s = spectra.s_pp
-    a0, a1, a2 = np.abs(n0) ** 2, np.abs(n1) ** 2, np.abs(n2) ** 2
-    quad = (
-        a0 * s[:, 0, 0].real
-        + a1 * s[:, 1, 1].real
-        + a2 * s[:, 2, 2].real
-        + 2
-        * np.real(
-            n0 * np.conj(n1) * s[:, 0, 1]
-            + n0 * np.conj(n2) * s[:, 0, 2]
-            + n1 * np.conj(n2) * s[:, 1, 2]
-        )
-    ) / np.maximum(spectra.noise @ np.array([a0, a1, a2]), 1e-300)
-    return float(np.dot(spectra.weights, quad) / max(spectra.norm, 1e-300))
-
-
-# ---------------------------------------------------------------------------------------
-# Estimation per block
-
-
 def _fixed_mach(config: SeparationConfig, geometry: Geometry, c: float) -> float | None:
     if config.mach is not None:
         return config.mach
@@ -816,116 +946,420 @@ def _fixed_mach(config: SeparationConfig, geometry: Geometry, c: float) -> float
     return None
 
 
-def estimate_theta(
+def _null_weights(
+    theta: Theta, freqs: np.ndarray, geometry: Geometry, excess: np.ndarray | None, noise
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    n0, n1, n2 = _null_components(theta, freqs, geometry, excess)
+    d = np.asarray(noise, dtype=float)
+    norm = np.sqrt(d[0] * np.abs(n0) ** 2 + d[1] * np.abs(n1) ** 2 + d[2] * np.abs(n2) ** 2)
+    inv = 1.0 / np.maximum(norm, 1e-300)
+    return n0 * inv, n1 * inv, n2 * inv
+
+
+def residual_vector(
+    theta: Theta,
     spectra: BlockSpectra,
     geometry: Geometry,
-    start: Theta,
+    noise: np.ndarray,
+    use: np.ndarray | None = None,
+    excess: np.ndarray | None = None,
+) -> np.ndarray:
+    """Unit-variance residuals at the used bins (complex), see :meth:`BlockSpectra.residual`.
+
+    The residual signal is ``sum_m n_m * p_m / sqrt(sum_m D_m |n_m|^2)`` with the null
+    vector ``n = h+ x h-`` (``n^T H = 0``, physics.md E.3): the two waves cancel and, under
+    white sensor noise of power spectral densities ``noise`` (:func:`noise_levels`
+    scaling), ``E |r|^2 = 1`` at the true theta. ``sum |r|^2`` is the negative
+    log-likelihood with the wave amplitudes eliminated. ``excess``: :func:`zk_excess` on
+    ``spectra.model_freqs``.
+    """
+    use = np.ones(spectra.freqs.size, bool) if use is None else use
+    n0, n1, n2 = _null_weights(theta, spectra.model_freqs, geometry, excess, noise)
+    return spectra.residual(n0, n1, n2, use)
+
+
+def residual_cost(
+    theta: Theta,
+    spectra: BlockSpectra,
+    geometry: Geometry,
+    noise: np.ndarray | None = None,
+    use: np.ndarray | None = None,
+) -> float:
+    """Residual per term ``mean |r|^2`` of :func:`residual_vector` (dimensionless).
+
+    About 1 when the sensor noise explains the misfit; with ``noise`` None (equal unit
+    noise) it is the mean energy of the microphones that two waves cannot explain.
+    """
+    d = np.ones(3) if noise is None else noise
+    r = residual_vector(theta, spectra, geometry, d, use)
+    return float(np.mean(np.abs(r) ** 2)) if r.size else float("nan")
+
+
+# ---------------------------------------------------------------------------------------
+# Estimation per block
+
+
+@dataclass(frozen=True)
+class Prior:
+    """Gaussian prior on (T, eta, M) and which of them are free.
+
+    Attributes
+    ----------
+    mean : ndarray
+        Prior means: temperature (degC), eta, Mach number, position correction of the
+        middle microphone (m).
+    width : ndarray
+        Standard deviations (inf: no prior).
+    lower, upper : ndarray
+        Bounds.
+    free : ndarray
+        Boolean, which parameters are estimated.
+    """
+
+    mean: np.ndarray
+    width: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    free: np.ndarray
+
+    @property
+    def information(self) -> np.ndarray:
+        """Prior information matrix of the free parameters."""
+        w = self.width[self.free]
+        return np.diag(np.where(np.isfinite(w), 1.0 / w**2, 0.0))
+
+    @classmethod
+    def from_config(cls, config: SeparationConfig, t0: float, free_mach: bool) -> Prior:
+        """Build the prior of a configuration around the start temperature ``t0`` degC."""
+
+        def wid(v: float | None) -> float:
+            return np.inf if v is None else float(v)
+
+        bounds = (
+            config.temperature_bounds_c,
+            config.loss_bounds,
+            config.mach_bounds,
+            config.mic_position_bounds_m,
+        )
+        return cls(
+            mean=np.array([t0, config.loss_scale, 0.0, 0.0]),
+            width=np.array(
+                [
+                    wid(config.temperature_prior_c),
+                    wid(config.loss_prior),
+                    wid(config.mach_prior),
+                    wid(config.mic_position_prior_m),
+                ]
+            ),
+            lower=np.array([b[0] for b in bounds]),
+            upper=np.array([b[1] for b in bounds]),
+            free=np.array(
+                [True, config.estimate_loss, free_mach, config.mic_position_prior_m is not None]
+            ),
+        )
+
+
+@dataclass(frozen=True)
+class BlockEstimate:
+    """The estimate of one block.
+
+    Attributes
+    ----------
+    values : ndarray
+        Temperature (degC), eta, Mach number, position correction of the middle microphone
+        (m); fixed ones at their held values.
+    cov : ndarray
+        Posterior covariance of the free parameters (data and prior).
+    data_information : ndarray
+        Information matrix of the data alone (without the prior), free parameters.
+    residual : float
+        chi^2 per term at the estimate.
+    kappa : float
+        Variance inflation from correlated residual terms.
+    at_bound : tuple of str
+        Names of the parameters on a bound.
+    evaluations : int
+        Residual evaluations.
+    """
+
+    values: np.ndarray
+    cov: np.ndarray
+    data_information: np.ndarray
+    residual: float
+    kappa: float
+    at_bound: tuple[str, ...]
+    evaluations: int
+
+
+_NAMES = ("temperature", "eta", "mach", "position")
+# Solver scales: 1 degC, 0.1 of eta, 1e-3 of Mach, 0.1 mm.
+_SCALES = np.array([1.0, 0.1, 1e-3, 1e-4])
+
+
+def _fixed_mach_t(config: SeparationConfig, geometry: Geometry, t: float) -> float | None:
+    return _fixed_mach(config, geometry, geometry.sound_speed(t))
+
+
+def estimate_block(
+    spectra: BlockSpectra,
+    use: np.ndarray,
+    noise: np.ndarray,
+    geometry: Geometry,
+    start: np.ndarray,
+    prior: Prior,
     config: SeparationConfig,
-) -> tuple[Theta, float, int]:
-    """Minimise J over theta for one block (bounded Gauss-Newton, trust region).
+    corr: dict | None = None,
+    kappa_start: float = 1.0,
+) -> BlockEstimate:
+    """Maximum a posteriori (T, eta, M) of one block (bounded Gauss-Newton, trust region).
 
     Parameters
     ----------
     spectra : BlockSpectra
-        Cross-spectra of the block.
+        Segment spectra of the block.
+    use : ndarray
+        Bins entering the estimate (bool over ``spectra.freqs``).
+    noise : ndarray
+        Noise levels of the three channels (:func:`noise_levels`), floored.
     geometry : Geometry
         Microphone offsets and bore.
-    start : Theta
-        Warm start (the previous block's estimate).
+    start : ndarray
+        Start values (degC, -, -).
+    prior : Prior
+        Prior means, widths, bounds and the free parameters.
     config : SeparationConfig
-        Bounds and which parameters are free.
+        ``max_evaluations``, the held Mach number.
+    corr : dict, optional
+        :func:`window_correlation` of the block (computed when omitted).
+    kappa_start : float
+        First guess of ``kappa`` (the previous block's: it depends mostly on the window,
+        so the fit is rarely repeated).
 
     Returns
     -------
-    theta : Theta
-        Estimate.
-    cost : float
-        J at the estimate.
-    evaluations : int
-        Number of residual evaluations.
+    BlockEstimate
 
     Notes
     -----
-    J is a sum of squares of :func:`residual_vector`, so a trust-region least-squares
-    solver converges in a few iterations where Nelder-Mead (physics.md E.5) needs about a
-    hundred evaluations. The visco-thermal excess is evaluated at the start temperature
-    and once more when the estimate moved by more than 0.25 degC: it changes by about
-    0.4 % per degC, which the free ``eta`` would otherwise absorb.
+    The real residual vector is ``[sqrt(2 / kappa) Re r, sqrt(2 / kappa) Im r,
+    (theta - mean) / width]``, so that half its squared norm is the negative log posterior
+    and the inverse Gauss-Newton matrix its covariance. ``kappa`` is found from the
+    sandwich ``(2 Re G^H C G)`` against ``(2 Re G^H G)`` at the estimate, ``C`` the
+    correlation of the residual terms (:func:`window_correlation`), and the fit is
+    repeated once with it. The visco-thermal excess is evaluated at the start
+    temperature and again when the estimate moved by more than 0.25 degC: it changes by
+    about 0.4 % per degC, which the free ``eta`` would otherwise absorb.
     """
-    omega = 2 * np.pi * spectra.freqs
-    free_mach = _fixed_mach(config, geometry, start.c) is None
-    free_eta = config.estimate_loss
-    # Scaled coordinates: 1 unit is 1 m/s, 0.1 of eta, 0.001 of Mach.
-    scales = [1.0] + ([0.1] if free_eta else []) + ([1e-3] if free_mach else [])
-    lo = [config.c_bounds_m_s[0]] + ([config.loss_bounds[0]] if free_eta else [])
-    hi = [config.c_bounds_m_s[1]] + ([config.loss_bounds[1]] if free_eta else [])
-    if free_mach:
-        lo.append(config.mach_bounds[0])
-        hi.append(config.mach_bounds[1])
-    scales_a = np.array(scales)
-    lo_a, hi_a = np.array(lo) / scales_a, np.array(hi) / scales_a
+    omega = 2 * np.pi * spectra.model_freqs
+    free = prior.free
+    idx = np.flatnonzero(free)
+    scales = _SCALES[idx]
+    lo = prior.lower[idx] / scales
+    hi = prior.upper[idx] / scales
+    info_prior = prior.information
+    has_prior = np.isfinite(prior.width[idx])
+    if corr is None:
+        corr = window_correlation(spectra)
 
-    def unpack(z: np.ndarray) -> Theta:
-        v = z * scales_a
-        i = 1
-        eta = start.eta
-        if free_eta:
-            eta = float(v[i])
-            i += 1
-        c = float(v[0])
-        mach = float(v[i]) if free_mach else _fixed_mach(config, geometry, c)
-        return Theta(c=c, eta=eta, mach=mach)
+    def values(z: np.ndarray) -> np.ndarray:
+        v = np.array(start, dtype=float)
+        v[idx] = z * scales
+        held = _fixed_mach_t(config, geometry, v[0])
+        if not free[2]:
+            v[2] = held if held is not None else start[2]
+        return v
 
-    total_evals = 0
-    current = start
-    for _ in range(3):
-        excess = zk_excess(omega, geometry, current.c)[0]
-        x0 = (
-            [current.c]
-            + ([current.eta] if free_eta else [])
-            + ([current.mach] if free_mach else [])
-        )
-        z0 = np.clip(np.array(x0) / scales_a, lo_a + 1e-9, hi_a - 1e-9)
+    def theta_of(v: np.ndarray) -> Theta:
+        return Theta(geometry.sound_speed(float(v[0])), float(v[1]), float(v[2]))
 
-        def fun(z: np.ndarray, excess: np.ndarray = excess) -> np.ndarray:
-            r = residual_vector(unpack(z), spectra, geometry, excess).ravel()
-            return np.concatenate([r.real, r.imag])
+    def geometry_of(v: np.ndarray) -> Geometry:
+        return geometry.corrected(float(v[3]))
+
+    current = values(np.clip(np.asarray(start)[idx] / scales, lo, hi))
+    kappa = float(kappa_start)
+    evals = 0
+    res = None
+    m = int(np.sum(use))
+    excess = zk_excess(omega, geometry, geometry.sound_speed(current[0]))[0]
+    for _ in range(4):
+        z0 = np.clip(current[idx] / scales, lo + 1e-9, hi - 1e-9)
+        kappa_fit = kappa
+
+        def fun(z, excess=excess, kappa=kappa_fit):
+            v = values(z)
+            g = geometry_of(v)
+            n0, n1, n2 = _null_weights(theta_of(v), spectra.model_freqs, g, excess, noise)
+            r = np.sqrt(2.0 / kappa) * spectra.residual(n0, n1, n2, use)
+            pr = ((v[idx] - prior.mean[idx]) / prior.width[idx])[has_prior]
+            return np.concatenate([r.real, r.imag, pr])
 
         res = optimize.least_squares(
             fun,
             z0,
-            bounds=(lo_a, hi_a),
+            bounds=(lo, hi),
             method="trf",
             x_scale=1.0,
             diff_step=1e-7,
-            xtol=1e-10,
-            ftol=1e-12,
-            gtol=1e-12,
+            # half the cost is the negative log-likelihood: a change of 1e-8 of it, or a
+            # step of 1e-6 of a scale unit, is far below one standard error
+            xtol=1e-6,
+            ftol=1e-8,
+            gtol=1e-8,
             max_nfev=config.max_evaluations,
         )
-        total_evals += int(res.nfev) * (1 + z0.size)
-        new = unpack(res.x)
-        moved = abs(new.temperature_c - current.temperature_c)
+        evals += int(res.nfev) * (1 + z0.size)
+        new = values(res.x)
+        moved = abs(new[0] - current[0])
         current = new
-        if moved < 0.25:
+        # kappa from the sandwich at this estimate (Jacobian per natural unit)
+        jac = np.asarray(res.jac)[: 2 * m] / scales[None, :]
+        g = (jac[:m] + 1j * jac[m:]) * np.sqrt(kappa_fit / 2.0)
+        kappa = _kappa(g, use, corr, prior, idx)
+        if moved >= 0.25:
+            excess = zk_excess(omega, geometry, geometry.sound_speed(current[0]))[0]
+        elif abs(kappa - kappa_fit) <= 0.1 * kappa_fit:
             break
-    return current, float(2 * res.cost), total_evals
+    jac = np.asarray(res.jac)[: 2 * m] / scales[None, :]
+    # data information with the final kappa (the Jacobian carries 1 / kappa_fit)
+    info_data = (jac.T @ jac) * (kappa_fit / kappa)
+    cov = np.linalg.pinv(info_data + info_prior)
+    chi2 = float(np.sum(res.fun[: 2 * m] ** 2) / 2.0 * kappa_fit / max(m, 1))
+    at = tuple(
+        _NAMES[i]
+        for j, i in enumerate(idx)
+        if min(current[i] - prior.lower[i], prior.upper[i] - current[i])
+        <= 1e-6 * max(prior.upper[i] - prior.lower[i], 1e-12)
+    )
+    return BlockEstimate(current, cov, info_data, chi2, kappa, at, evals)
 
 
-def _smooth(values: np.ndarray, width: int) -> np.ndarray:
-    """Centred running median, its window clipped at the ends of the track.
+def _kappa(g: np.ndarray, use: np.ndarray, corr: dict, prior: Prior, idx: np.ndarray) -> float:
+    """Variance inflation of correlated residual terms (sandwich over naive), >= 1.
 
-    A centred window follows a linear drift without lag, unlike a causal tracker, and the
-    median ignores a single block thrown off by a transient (also the first or last one).
+    ``g[f, p]`` is the derivative of the unit-variance residual at the used bins.
     """
-    if width <= 1 or values.size < 3:
-        return values.copy()
-    half = width // 2
-    out = np.empty_like(values)
-    n = values.size
-    for i in range(n):
-        out[i] = np.median(values[max(i - half, 0) : i + half + 1])
-    return out
+    p = g.shape[1]
+    full = np.zeros((use.size, p), dtype=complex)
+    full[use] = g
+    naive = 2 * np.real(np.conj(full).T @ full)
+    sand = np.zeros((p, p))
+    n_f = use.size
+    for df, c in corr.items():
+        f0, f1 = max(0, -df), min(n_f, n_f - df)
+        if f1 <= f0:
+            continue
+        # E[r_i conj(r_j)] = c for j = i + df: G^H C G sums conj(G_i) C_ij G_j
+        sand += 2 * np.real(c * (np.conj(full[f0:f1]).T @ full[f0 + df : f1 + df]))
+    # Summarise the matrix ratio by a trace weighted with the prior variances (unit-free).
+    w = np.where(np.isfinite(prior.width[idx]), prior.width[idx] ** 2, _SCALES[idx] ** 2)
+    num = float(np.sum(np.diag(sand) * w))
+    den = float(np.sum(np.diag(naive) * w))
+    if not den > 0:
+        return 1.0
+    return float(max(num / den, 1.0))
+
+
+# ---------------------------------------------------------------------------------------
+# Combination of the blocks
+
+
+def smooth_blocks(
+    times: np.ndarray,
+    estimates: list[BlockEstimate | None],
+    prior: Prior,
+    half_width_s: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted local linear regression of the blocks' estimates, with the prior once.
+
+    Parameters
+    ----------
+    times : ndarray
+        Block centres, s.
+    estimates : list
+        Per block its :class:`BlockEstimate`, or None (not fitted or not trusted).
+    prior : Prior
+        Prior on (T, eta, M, dx); counted once in every local fit.
+    half_width_s : float
+        Half-width of the tricube kernel, s (0: each block alone with the prior); it grows
+        to twice that at the first and last estimated block.
+
+    Returns
+    -------
+    values : ndarray
+        Shape ``(n_blocks, 4)``: temperature (degC), eta, Mach number, position correction
+        of the middle microphone (m).
+    se : ndarray
+        Shape ``(n_blocks, 4)``: their standard errors (0 for held parameters).
+
+    Notes
+    -----
+    Each block contributes its data alone: the information ``I_j`` and the information
+    vector ``h_j = (I_j + P) mu_j - P mu_0`` (its posterior with the prior removed), as a
+    Gaussian measurement of ``a + b (t_j - t)``. The local fit minimises
+    ``sum_j k_j |y_j - a - b tau_j|^2_{I_j} + |a - mu_0|^2_P``; its covariance is the
+    sandwich with the kernel weights.
+    """
+    idx = np.flatnonzero(prior.free)
+    p = idx.size
+    n = times.size
+    out = np.tile(prior.mean, (n, 1))
+    se = np.zeros((n, prior.mean.size))
+    for j, e in enumerate(estimates):
+        if e is not None:
+            out[j, ~prior.free] = e.values[~prior.free]
+    if p == 0:
+        return out, se
+    info_p = prior.information
+    mu0 = prior.mean[idx]
+    hs, infos, ts = [], [], []
+    for j, e in enumerate(estimates):
+        if e is None:
+            continue
+        i_j = e.data_information
+        post = np.linalg.pinv(e.cov)
+        hs.append(post @ e.values[idx] - info_p @ mu0)
+        infos.append(i_j)
+        ts.append(times[j])
+    if not infos:
+        out[:, idx] = mu0
+        return out, se
+    ts_a = np.array(ts)
+    # a weak prior on the slope keeps the local fit regular with one block in reach
+    slope_info = np.eye(p) * 1e-12
+    t_first, t_last = float(ts_a.min()), float(ts_a.max())
+    for b in range(n):
+        tau = ts_a - times[b]
+        if half_width_s > 0:
+            # Near an end the kernel is one-sided; widening it there (up to twice at the
+            # end) keeps the number of blocks, so the extrapolated intercept stays precise.
+            edge = min(times[b] - t_first, t_last - times[b])
+            h = max(half_width_s, 2 * half_width_s - max(edge, 0.0))
+            u = np.abs(tau) / h
+            k = np.where(u < 1, (1 - u**3) ** 3, 0.0)
+        else:
+            k = (np.abs(tau) < 1e-12).astype(float)
+        m = np.zeros((2 * p, 2 * p))
+        rhs = np.zeros(2 * p)
+        meat = np.zeros((2 * p, 2 * p))
+        for kj, tj, i_j, h_j in zip(k, tau, infos, hs, strict=True):
+            if kj <= 0:
+                continue
+            x = np.hstack([np.eye(p), tj * np.eye(p)])
+            m += kj * x.T @ i_j @ x
+            rhs += kj * x.T @ h_j
+            meat += kj**2 * x.T @ i_j @ x
+        m[:p, :p] += info_p
+        rhs[:p] += info_p @ mu0
+        meat[:p, :p] += info_p
+        m[p:, p:] += slope_info
+        minv = np.linalg.pinv(m)
+        beta = minv @ rhs
+        cov = minv @ meat @ minv
+        out[b, idx] = beta[:p]
+        se[b, idx] = np.sqrt(np.maximum(np.diag(cov)[:p], 0.0))
+    lo, hi = prior.lower, prior.upper
+    out = np.clip(out, lo, hi)
+    return out, se
 
 
 # ---------------------------------------------------------------------------------------
@@ -993,7 +1427,11 @@ def check_band(config: SeparationConfig, geometry: Geometry, fs: float, c: float
 
 
 def separate(
-    pressures: np.ndarray, fs: float, calibration: Calibration, config: SeparationConfig
+    pressures: np.ndarray,
+    fs: float,
+    calibration: Calibration,
+    config: SeparationConfig,
+    band_limit_hz: float | None = None,
 ) -> SeparationResult:
     """Separate the waves of a three-microphone take and rebuild p0, u0 at the reference plane.
 
@@ -1008,6 +1446,9 @@ def separate(
         Geometry, air and microphone positions.
     config : SeparationConfig
         Settings.
+    band_limit_hz : float, optional
+        Highest frequency the recording holds (the file's Nyquist frequency when the take
+        was resampled to ``fs``), Hz; the sensor noise is measured below it.
 
     Returns
     -------
@@ -1033,13 +1474,16 @@ def separate(
     t_start = (
         calibration.air.temperature_c if config.temperature_c is None else config.temperature_c
     )
-    c_start = calibration.air_properties(t_start).c
+    c_start = geometry.sound_speed(t_start)
     check_band(config, geometry, fs, c_start)
     n = x.shape[0]
     hop, length, starts = _block_layout(n, fs, config.block_s)
-    segment = max(int(round(config.welch_segment_s * fs)), 16)
-    fixed = _fixed_mach(config, geometry, c_start)
-    theta = Theta(c=c_start, eta=config.loss_scale, mach=0.0 if fixed is None else fixed)
+    free_mach = _fixed_mach(config, geometry, c_start) is None
+    prior = Prior.from_config(config, t_start, free_mach)
+    held_mach = _fixed_mach(config, geometry, c_start)
+    start = prior.mean.copy()
+    if held_mach is not None:
+        start[2] = held_mach
     log.info(
         "separation: %d blocks of %.0f ms, theta %s",
         starts.size,
@@ -1047,76 +1491,104 @@ def separate(
         "estimated per block" if config.adaptive else "fixed",
     )
 
-    # 1. Estimate theta per block, warm-started from the previous block.
-    noise = noise_levels(x, fs, config) if config.noise_model == "white" else None
-    if noise is not None:
-        log.info("separation: noise PSD per channel %s Pa^2/Hz", np.array2string(noise))
+    # 1. Estimate theta per block.
+    noise_raw = noise_levels(x, fs, config, band_limit_hz)
+    log.info(
+        "separation: noise PSD per channel %s Pa^2/Hz (one-sided)",
+        np.array2string(2 * noise_raw, precision=3),
+    )
+    margin = int(np.ceil(_FILTER_MARGIN_S * fs))
+    f1 = c_start / (2 * geometry.spacing)
     spectra_list = [
         cross_spectra(
-            _block(x, s, length),
-            fs,
-            segment,
-            config.fmin_hz,
-            config.fmax_hz,
-            config.envelope_hz,
-            config.weighting,
-            noise,
+            _block(x, s - margin, length + 2 * margin), fs, config.fmin_hz, config.fmax_hz,
+            margin, f1,
         )
         for s in starts
-    ]
-    level = np.array([float(np.sum(np.real(np.einsum("fii->f", sp.s_pp)))) for sp in spectra_list])
+    ]  # fmt: skip
+    level = np.array([float(np.sum(sp.mic_power)) for sp in spectra_list])
     floor = np.median(level) * 10 ** (-config.min_level_db / 10)
     inside = (starts >= 0) & (starts + length <= n)
     if not np.any(inside):
         inside[:] = True  # take shorter than one block: use what there is
-    # Blocks hanging over either end hold half silence and an abrupt edge; they take the
-    # estimates of their neighbours.
-    fitted = (
-        inside & (level > max(floor, 0.0)) & np.array([sp.freqs.size >= 4 for sp in spectra_list])
+    peak = max(
+        (float(np.max(sp.mic_power, initial=0.0)) for sp in spectra_list),
+        default=0.0,
     )
-    raw = np.full((starts.size, 3), np.nan)
-    residual = np.full(starts.size, np.nan)
-    coherence = np.array(
-        [float(np.mean(sp.coherence)) if sp.coherence.size else np.nan for sp in spectra_list]
-    )
-    evals = np.zeros(starts.size, dtype=int)
-    trusted = theta
-    accepted: list[float] = []
+    noise = np.maximum(noise_raw, _NOISE_FLOOR * peak + 1e-300)
+    uses = [sp.use(noise, config.min_snr_db) for sp in spectra_list]
+    n_free = int(np.sum(prior.free))
+    # Blocks hanging over either end hold half silence and an abrupt edge: not fitted.
+    fitted = inside & (level > max(floor, 0.0)) & np.array([np.sum(u) >= 3 for u in uses])
+    nb = starts.size
+    n_par = prior.mean.size
+    raw = np.full((nb, n_par), np.nan)
+    raw_se = np.full((nb, n_par), np.nan)
+    residual = np.full(nb, np.nan)
+    kappa = np.full(nb, np.nan)
+    evals = np.zeros(nb, dtype=int)
+    at_bound = [""] * nb
+    band_lo = np.full(nb, np.nan)
+    band_hi = np.full(nb, np.nan)
+    n_bins = np.zeros(nb, dtype=int)
+    snr_db = np.full(nb, np.nan)
+    estimates: list[BlockEstimate | None] = [None] * nb
+    corr = None
+    kappa_start = 1.0
+    current = start.copy()
     for b, spectra in enumerate(spectra_list):
+        use = uses[b]
+        if np.any(use):
+            band_lo[b] = float(spectra.freqs[use][0])
+            band_hi[b] = float(spectra.freqs[use][-1])
+            n_bins[b] = int(np.sum(use))
+            snr = np.sum(spectra.mic_power[use], axis=1) / np.sum(noise) - 1.0
+            snr_db[b] = float(10 * np.log10(max(np.median(snr), 1e-30)))
         if not fitted[b]:
             continue
-        if config.adaptive:
-            # Warm start from the last trusted block, so that one transient block does not
-            # drag the next ones away.
-            est, residual[b], evals[b] = estimate_theta(spectra, geometry, trusted, config)
-            if not accepted or residual[b] <= config.max_residual_ratio * np.median(accepted):
-                trusted = est
-                accepted.append(residual[b])
-            raw[b] = (est.c, est.eta, est.mach)
+        if config.adaptive and n_free:
+            if corr is None:
+                corr = window_correlation(spectra)
+            est = estimate_block(
+                spectra, use, noise, geometry, current, prior, config, corr, kappa_start
+            )
+            kappa_start = est.kappa
+            estimates[b] = est
+            raw[b] = est.values
+            cov_full = np.zeros(n_par)
+            cov_full[prior.free] = np.diag(est.cov)
+            raw_se[b] = np.sqrt(np.maximum(cov_full, 0.0))
+            residual[b] = est.residual
+            kappa[b] = est.kappa
+            evals[b] = est.evaluations
+            at_bound[b] = ";".join(est.at_bound)
+            current = est.values
         else:
-            residual[b] = residual_cost(theta, spectra, geometry)
-            raw[b] = (theta.c, theta.eta, theta.mach)
-        log.debug("block %d: c %.3f m/s, eta %.3f, M %.5f, J %.2e", b, *raw[b], residual[b])
-    if config.adaptive and noise is not None:
-        _pool_noisy_blocks(
-            spectra_list, fitted, raw, residual, evals, noise, geometry, config, theta
-        )
-    if not np.any(fitted):
+            th = Theta(c_start, start[1], start[2])
+            residual[b] = residual_cost(th, spectra, geometry, noise, use)
+            raw[b] = start
+            raw_se[b] = 0.0
+        log.debug("block %d: T %.3f degC, eta %.3f, M %.5f, chi2 %.2f", b, *raw[b], residual[b])
+    adaptive = config.adaptive and n_free > 0
+    if not np.any(fitted) and adaptive:
         raise ValueError(
             "no block has enough signal in the estimation band "
             f"{config.fmin_hz:g}-{config.fmax_hz:g} Hz to estimate the propagation parameters"
         )
-    median_j = float(np.median(residual[fitted]))
+    median_j = float(np.median(residual[fitted])) if np.any(fitted) else float("nan")
     trust = fitted & (residual <= config.max_residual_ratio * median_j)
     if not np.any(trust):
-        trust = fitted
-    # Blocks that were not fitted or not trusted take the values of the nearest trusted
-    # blocks.
-    good = np.flatnonzero(trust)
-    filled = np.column_stack(
-        [np.interp(np.arange(starts.size), good, raw[good, i]) for i in range(3)]
-    )
-    smooth = np.column_stack([_smooth(filled[:, i], config.smooth_blocks) for i in range(3)])
+        trust = fitted.copy()
+    centres = (starts + hop) / fs
+    if adaptive:
+        kept = [e if trust[j] else None for j, e in enumerate(estimates)]
+        smooth, smooth_se = smooth_blocks(centres, kept, prior, config.smooth_s)
+    else:
+        smooth = np.tile(start, (nb, 1))
+        smooth_se = np.zeros((nb, n_par))
+    if held_mach is not None:
+        smooth[:, 2] = [_fixed_mach_t(config, geometry, t) for t in smooth[:, 0]]
+    c_track = np.array([geometry.sound_speed(float(t)) for t in smooth[:, 0]])
 
     # 2. Separate every windowed block with its smoothed theta, overlap-add.
     pad = int(round(config.pad_s * fs))
@@ -1129,9 +1601,10 @@ def separate(
     out = np.zeros((n + 2 * (pad + length), 2))
     origin = pad + length  # index in ``out`` of sample 0
     for b, s in enumerate(starts):
-        th = Theta(*smooth[b])
-        g_p, g_u = separation_filters(fb, th, geometry)
-        taper = _band_taper(fb, config, geometry, th)
+        th = Theta(c_track[b], smooth[b, 1], smooth[b, 2])
+        geo_b = geometry.corrected(float(smooth[b, 3]))
+        g_p, g_u = separation_filters(fb, th, geo_b)
+        taper = _band_taper(fb, config, geo_b, th)
         g_p *= taper[:, None]
         g_u *= (taper * ramp)[:, None]
         seg = np.zeros((nfft, 3))
@@ -1145,73 +1618,205 @@ def separate(
     p0 = out[origin : origin + n, 0].copy()
     u0 = out[origin : origin + n, 1].copy()
 
-    centres = (starts + hop) / fs
     table = pd.DataFrame(
         {
             "time_s": centres,
-            "temperature_c": [temperature_from_sound_speed(c) for c in smooth[:, 0]],
-            "c_m_s": smooth[:, 0],
+            "temperature_c": smooth[:, 0],
+            "temperature_se_c": smooth_se[:, 0],
+            "c_m_s": c_track,
             "loss_scale": smooth[:, 1],
+            "loss_scale_se": smooth_se[:, 1],
             "mach": smooth[:, 2],
-            "residual": residual,
-            "coherence": coherence,
-            "c_raw_m_s": raw[:, 0],
+            "mach_se": smooth_se[:, 2],
+            "temperature_raw_c": raw[:, 0],
+            "temperature_raw_se_c": raw_se[:, 0],
             "loss_scale_raw": raw[:, 1],
+            "loss_scale_raw_se": raw_se[:, 1],
             "mach_raw": raw[:, 2],
+            "mach_raw_se": raw_se[:, 2],
+            "mic_position_m": smooth[:, 3],
+            "mic_position_se_m": smooth_se[:, 3],
+            "mic_position_raw_m": raw[:, 3],
+            "at_bound": at_bound,
+            "band_lo_hz": band_lo,
+            "band_hi_hz": band_hi,
+            "bins": n_bins,
+            "residual": residual,
+            "kappa": kappa,
+            "snr_db": snr_db,
             "evaluations": evals,
             "fitted": fitted,
             "trusted": trust,
         }
     )
+    result = SeparationResult(
+        fs=float(fs),
+        p0=p0,
+        u0=u0,
+        blocks=table,
+        config=config,
+        noise_psd=2 * noise_raw,
+        geometry=geometry.corrected(float(np.median(smooth[:, 3]))),
+    )
+    for line in result.bound_warnings():
+        log.warning("separation: %s", line)
     log.info(
-        "separation: T %.2f..%.2f degC, eta %.3f..%.3f, M %.4f..%.4f, median J %.2e",
+        "separation: T %.2f..%.2f degC, eta %.3f..%.3f, M %.4f..%.4f, median chi2/term %.2f",
         table.temperature_c.min(),
         table.temperature_c.max(),
         table.loss_scale.min(),
         table.loss_scale.max(),
         table.mach.min(),
         table.mach.max(),
-        float(np.nanmedian(residual)),
+        median_j,
     )
-    return SeparationResult(fs=float(fs), p0=p0, u0=u0, blocks=table, config=config)
+    return result
 
 
-def _pool_noisy_blocks(
-    spectra_list: list[BlockSpectra],
-    fitted: np.ndarray,
-    raw: np.ndarray,
-    residual: np.ndarray,
-    evals: np.ndarray,
-    noise: np.ndarray,
+def reference_noise(
+    freqs: np.ndarray,
+    theta: Theta,
     geometry: Geometry,
+    noise_psd: np.ndarray,
     config: SeparationConfig,
-    start: Theta,
-) -> None:
-    """Refit the noise-dominated blocks together, over stretches of ``pool_s`` (in place).
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Power spectral densities of the sensor noise carried into p0 and u0.
 
-    The fit starts from ``start`` (the configured values), not from the blocks' own
-    estimates, which noise has scattered up to the bounds.
+    Parameters
+    ----------
+    freqs : ndarray
+        Frequencies, Hz.
+    theta : Theta
+        Propagation parameters of the separation filters.
+    geometry : Geometry
+        Microphones and bore.
+    noise_psd : ndarray
+        One-sided white-noise PSD of each microphone, Pa^2/Hz, shape ``(3,)``.
+    config : SeparationConfig
+        Band taper and u0 ramp.
+
+    Returns
+    -------
+    s_pp : ndarray
+        One-sided PSD of the noise in p0, Pa^2/Hz.
+    s_uu : ndarray
+        One-sided PSD of the noise in u0, (m^3/s)^2/Hz.
+    s_pu : ndarray
+        Their cross-spectral density ``E[N_p conj(N_u)]``, Pa m^3/s/Hz (complex).
+
+    Notes
+    -----
+    ``N_U0 = sum_m g_u,m N_m`` with independent channel noises, so ``S_uu = sum_m |g_u,m|^2
+    D_m``. Below the first resonance of the microphone spacing, ``|g_u| ~ 1 / (Z_c k s)``:
+    the noise of u0 rises as 1 / f towards low frequency (physics.md E.4).
     """
-    expected = np.array([noise_residual(sp, noise) for sp in spectra_list])
-    noisy = fitted & (residual <= config.pool_residual_ratio * expected)
-    idx = np.flatnonzero(noisy)
+    g_p, g_u = separation_filters(np.asarray(freqs, dtype=float), theta, geometry)
+    taper = _band_taper(np.asarray(freqs, dtype=float), config, geometry, theta)
+    ramp = _u_ramp(np.asarray(freqs, dtype=float), config)
+    g_p = g_p * taper[:, None]
+    g_u = g_u * (taper * ramp)[:, None]
+    d = np.asarray(noise_psd, dtype=float)[None, :]
+    s_pp = np.sum(np.abs(g_p) ** 2 * d, axis=1)
+    s_uu = np.sum(np.abs(g_u) ** 2 * d, axis=1)
+    s_pu = np.sum(g_p * np.conj(g_u) * d, axis=1)
+    return s_pp, s_uu, s_pu
+
+
+def check_channel_order(
+    pressures: np.ndarray, fs: float, calibration: Calibration, seconds: float = 1.0
+) -> str | None:
+    """Whether the channels of a take look like the calibration's microphones in order.
+
+    Two cheap tests on the strongest bins in 50-1000 Hz of (at most) ``seconds`` of the
+    take, with the plane-wave field at the calibration's temperature, no loss scaling, no
+    flow:
+
+    1. the fraction of power two plane waves cannot explain, for the given order and for
+       every other order of the channels; an order explaining the data 30 times better
+       means channels are swapped;
+    2. the direction of the active acoustic power, ``|A|^2 - |B|^2`` over ``|A|^2 + |B|^2``
+       summed over those bins: a note played at the reed (or any source at the
+       mouthpiece) sends power towards the bell, so a clearly negative value means the
+       order is reversed (a mirror image that test 1 cannot see).
+
+    Returns
+    -------
+    str or None
+        A one-line description of the problem, or None (also when no bin is strong
+        enough to tell).
+    """
+    from itertools import permutations
+
+    from scipy import signal
+
+    x = np.asarray(pressures, dtype=float)
+    n = min(x.shape[0], int(seconds * fs))
+    start = (x.shape[0] - n) // 2
+    x = x[start : start + n] - np.mean(x[start : start + n], axis=0)
+    nper = min(int(2 ** np.ceil(np.log2(0.1 * fs))), n)
+    freqs, s = signal.csd(
+        x[:, :, None], x[:, None, :], fs=fs, nperseg=nper, axis=0, window="hann"
+    )  # S[f, i, j] = E[conj(X_i) X_j]
+    s = np.conj(s)  # E[X_i conj(X_j)]
+    band = (freqs >= 50.0) & (freqs <= 1000.0)
+    if not np.any(band):
+        return None
+    trace = np.real(np.einsum("fii->f", s))
+    ref = np.median(trace[band])
+    idx = np.flatnonzero(band)
+    idx = idx[np.argsort(trace[idx])[::-1][:10]]
+    idx = idx[trace[idx] > 100 * ref]
     if idx.size == 0:
-        return
-    hop_s = config.block_s / 2
-    per_pool = max(int(round(config.pool_s / hop_s)), 1)
-    n_pools = max(int(round(idx.size / per_pool)), 1)
-    for group in np.array_split(idx, n_pools):
-        pooled = noise_weighted([spectra_list[b] for b in group], noise)
-        est, _, n_eval = estimate_theta(pooled, geometry, start, config)
-        raw[group] = (est.c, est.eta, est.mach)
-        evals[group[0]] += n_eval
-        log.info(
-            "separation: %d noise-dominated blocks fitted together: T %.2f degC, eta %.3f, M %.4f",
-            group.size,
-            est.temperature_c,
-            est.eta,
-            est.mach,
+        return None
+    geometry = Geometry.from_calibration(calibration)
+    c = calibration.air_properties().c
+    theta = Theta(c, 1.0, 0.0)
+    f = freqs[idx]
+    omega = 2 * np.pi * f
+    excess = zk_excess(omega, geometry, c)[0]
+    k_p, k_m = wavenumbers(omega, theta, excess)
+    h = model_matrix(k_p, k_m, geometry.offsets)
+    null = null_vector(h)
+    sb = s[idx]
+
+    hh = np.conj(np.swapaxes(h, -1, -2))
+    pinv = np.linalg.solve(hh @ h, hh)  # (f, 2, 3): rows g_A, g_B
+
+    def arranged(order) -> np.ndarray:
+        return sb[:, list(order)][:, :, list(order)]
+
+    def unexplained(order) -> float:
+        sp = arranged(order)
+        quad = np.real(np.einsum("fi,fij,fj->f", null, sp, np.conj(null)))
+        return float(np.sum(quad) / np.sum(np.real(np.einsum("fii->f", sp))))
+
+    def power_flow(order) -> float:
+        s_ab = np.einsum("fai,fij,fbj->fab", pinv, arranged(order), np.conj(pinv))
+        a2, b2 = np.real(s_ab[:, 0, 0]), np.real(s_ab[:, 1, 1])
+        return float(np.sum(a2 - b2) / np.sum(a2 + b2))
+
+    fits = {o: unexplained(o) for o in permutations(range(3))}
+    given = fits[(0, 1, 2)]
+    best = min(fits.values())
+    mics = calibration.microphones
+    if given > 1e-5 and given > 30 * best:
+        # of the equally good orders (mirror images), the one sending power to the bell
+        near = [o for o, v in fits.items() if v <= 2 * best]
+        order = max(near, key=power_flow)
+        chans = ", ".join(str(mics[i].channel) for i in order)
+        return (
+            f"channels look swapped: two plane waves leave {100 * given:.2g} % of the power "
+            f"unexplained in the calibration's order but {100 * best:.2g} % with channels "
+            f"{chans} as {', '.join(m.name for m in mics)}; check the channel map"
         )
+    ratio = power_flow((0, 1, 2))
+    if ratio < -0.01:
+        return (
+            f"acoustic power at the microphones flows towards the mouthpiece (net "
+            f"{100 * ratio:.2g} % of the wave power); the channels are probably in reverse "
+            "order: the calibration lists the microphones from the mouthpiece outwards"
+        )
+    return None
 
 
 def fixed_config(config: SeparationConfig, mach: float = 0.0) -> SeparationConfig:

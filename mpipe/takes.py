@@ -49,6 +49,19 @@ BAND_LOW_HZ = 20.0
 FS_FACTOR = 2.2
 #: Largest tolerated fraction of samples at full scale, per channel.
 MAX_CLIP_FRACTION = 1e-4
+#: A channel's mean (DC offset) is refused above this fraction of its standard deviation
+#: (and above ``DC_MIN_FULL_SCALE`` of full scale): microphones in a bore record acoustic
+#: pressure, whose mean is a few Pa at most, and the separation keeps the pressure's DC.
+DC_MAX_RATIO = 0.05
+DC_MIN_FULL_SCALE = 1e-3
+#: Flat tops: runs of at least this many equal samples at a channel's own maximum or
+#: minimum (clipping below full scale, e.g. in a preamplifier), refused above
+#: ``MAX_CLIP_FRACTION`` of the samples.
+FLAT_RUN = 5
+#: Plausible RMS pressure in a played wind instrument, Pa (60 to 180 dB SPL).
+LEVEL_RANGE_PA = (0.02, 2.0e4)
+#: Largest plausible RMS ratio between two microphones a few cm apart in one bore.
+MAX_LEVEL_RATIO = 10.0
 #: Shortest take, s: one 100 ms adaptive-estimation block (physics.md E.5) plus the 10 ms
 #: discarded at each end after translation (physics.md F.1), with margin.
 MIN_DURATION_S = 0.2
@@ -75,6 +88,8 @@ class Take:
         Channel (counted from 1) of each microphone.
     clip_fraction : tuple of float
         Fraction of samples at digital full scale, per microphone.
+    fs_file : float
+        Sample rate of the file, Hz (``fs`` differs when the take was resampled).
     """
 
     pressures: np.ndarray
@@ -82,6 +97,12 @@ class Take:
     paths: tuple[str, ...]
     channels: tuple[int, int, int]
     clip_fraction: tuple[float, float, float]
+    fs_file: float = 0.0
+
+    @property
+    def band_limit_hz(self) -> float:
+        """Highest frequency the recording holds, Hz: the file's Nyquist frequency."""
+        return 0.5 * (self.fs_file or self.fs)
 
     @property
     def path(self) -> str:
@@ -108,8 +129,10 @@ def read_take(
     band_hz: float = BAND_HZ,
     band_low_hz: float = BAND_LOW_HZ,
     fs_factor: float = FS_FACTOR,
+    fs: float | None = None,
+    check: bool = True,
 ) -> Take:
-    """Read a take and calibrate it to Pa.
+    """Read a take, check it, calibrate it to Pa and bring it to the pipeline's rate.
 
     Parameters
     ----------
@@ -129,6 +152,12 @@ def read_take(
         Lowest frequency calibration tables must reach, Hz.
     fs_factor : float
         Required ratio of sample rate to ``band_hz``.
+    fs : float, optional
+        Sample rate of the pipeline, Hz: a take recorded at another rate is resampled to
+        it (:func:`resample`, after the checks and the calibration), so that every command
+        works at one rate whatever the interface recorded. None keeps the file's rate.
+    check : bool
+        Run the input sanity checks (:func:`check_take`).
 
     Returns
     -------
@@ -140,9 +169,11 @@ def read_take(
     UserError
         Naming the file (and channel) for: a missing or unreadable file, a wrong channel
         count, mono files of different lengths or rates, a sample rate too low for the band,
-        a take too short, non-finite samples, clipping, or a malformed calibration table or
-        one that does not cover the band.
+        a take too short, non-finite samples, clipping (at or below full scale), a DC
+        offset, an implausible pressure level, channels in the wrong order, or a malformed
+        calibration table or one that does not cover the band.
     """
+    target = fs
     if isinstance(paths, str | Path):
         files = [Path(paths)]
     else:
@@ -164,6 +195,7 @@ def read_take(
             )
         if data.shape[1] > max(channels):
             log.info("%s: channels beyond %d are not used", name, max(channels))
+        fs_file = fs
         names = {c: name for c in channels}
         subtypes = {c: subtype for c in channels}
     else:
@@ -194,9 +226,10 @@ def read_take(
                     f"{files[c - 1]}: {columns[c - 1].size} samples differ from "
                     f"{files[0]} ({columns[0].size} samples)"
                 )
-        data, fs = np.column_stack(columns), rates[0]
+        data, fs_file = np.column_stack(columns), rates[0]
         name = " + ".join(str(f) for f in files)
 
+    fs = fs_file
     if fs < fs_factor * band_hz:
         raise UserError(
             f"{name}: sample rate {fs:g} Hz is too low for the {band_hz:g} Hz band "
@@ -239,13 +272,144 @@ def read_take(
         raw[:, i] = _divide_response(raw[:, i], fs, freqs, h)
         log.debug("%s: applied relative calibration %s", mic.name, table)
 
+    if check:
+        # after every file-format and calibration-table error: these are about the signal
+        for mic, c in zip(mics, channels, strict=True):
+            _check_channel(
+                data[:, c - 1], f"{names[c]}: channel {c} ({mic.name})", max_clip_fraction
+            )
+        check_take(raw, fs, calibration, name)
+    from mpipe.mic_calibration import level_warning  # plausible, yet no clarinet plays there
+
+    if (warning := level_warning(raw, name)) is not None:
+        log.warning("%s", warning)
+    out_fs = float(fs)
+    if target is not None and abs(target - fs) > 1e-9 * fs:
+        log.info("%s: resampling %g Hz -> %g Hz (the pipeline's rate)", name, fs, target)
+        raw = resample(raw, fs, target)
+        out_fs = float(target)
     return Take(
         pressures=raw,
-        fs=float(fs),
+        fs=out_fs,
         paths=tuple(str(f) for f in files),
         channels=channels,  # type: ignore[arg-type]
         clip_fraction=tuple(clip),  # type: ignore[arg-type]
+        fs_file=float(fs),
     )
+
+
+# Anti-aliasing window of resample_poly: scipy's default (Kaiser beta 5) ripples by ~1e-3 in
+# the pass band; beta 10 keeps the gain within 1e-5 over the analysis band.
+_RESAMPLE_WINDOW = ("kaiser", 10.0)
+
+
+def resample(x: np.ndarray, fs_from: float, fs_to: float) -> np.ndarray:
+    """Resample signals along axis 0 with a polyphase filter (``scipy.signal.resample_poly``).
+
+    The one place where mpipe changes a sample rate, shared by every command: takes at
+    the pipeline's rate, mouthpiece signals at the inversion's rate.
+
+    Parameters
+    ----------
+    x : ndarray
+        Signals, time along axis 0.
+    fs_from, fs_to : float
+        Sample rates in Hz; their ratio must be rational with a denominator below 10000
+        (any pair of integer rates in Hz up to 10 MHz qualifies after reduction).
+
+    Returns
+    -------
+    ndarray
+        ``round(n fs_to / fs_from)`` samples (up to one sample more from the filter).
+
+    Raises
+    ------
+    ValueError
+        When the ratio is not such a fraction (e.g. a non-integer rate in Hz).
+    """
+    from fractions import Fraction
+
+    from scipy import signal
+
+    ratio = Fraction(fs_to / fs_from).limit_denominator(10_000)
+    if abs(float(ratio) - fs_to / fs_from) > 1e-9 * fs_to / fs_from:
+        raise ValueError(
+            f"cannot resample {fs_from:g} Hz to {fs_to:g} Hz: the ratio is not a simple fraction"
+        )
+    if ratio == 1:
+        return np.array(x, dtype=float)
+    return signal.resample_poly(
+        x, ratio.numerator, ratio.denominator, axis=0, window=_RESAMPLE_WINDOW
+    )
+
+
+def _check_channel(x: np.ndarray, where: str, max_fraction: float) -> None:
+    """DC offset and flat tops of one channel (recorded units, full scale 1)."""
+    mean = float(np.mean(x))
+    std = float(np.std(x))
+    if abs(mean) > DC_MIN_FULL_SCALE and abs(mean) > DC_MAX_RATIO * std:
+        raise UserError(
+            f"{where}: DC offset of {mean:+.3g} of full scale ({abs(mean) / max(std, 1e-300):.2g}"
+            " x its RMS about the mean); expected an AC-coupled pressure signal near 0 "
+            "(remove the offset or high-pass the take)"
+        )
+    hi, lo = float(np.max(x)), float(np.min(x))
+    if hi == lo:
+        raise UserError(f"{where}: constant signal ({hi:g}); expected a recorded pressure")
+    flat = 0
+    for value in (hi, lo):
+        at = np.concatenate([[False], x == value, [False]])
+        edges = np.flatnonzero(np.diff(at.astype(np.int8)))
+        runs = edges[1::2] - edges[::2]
+        flat += int(np.sum(runs[runs >= FLAT_RUN]))
+    if flat > max_fraction * x.size:
+        raise UserError(
+            f"{where}: {100 * flat / x.size:.3g} % of samples in flat tops at {hi:+.3g} / "
+            f"{lo:+.3g} of full scale; the take is clipped below full scale (preamplifier "
+            "or converter input)"
+        )
+
+
+def check_take(pressures: np.ndarray, fs: float, calibration: Calibration, name: str) -> None:
+    """Input sanity of a calibrated take, each failure one line naming what is wrong.
+
+    Checks (cheap, before any long work): every channel's RMS pressure lies in
+    ``LEVEL_RANGE_PA`` and no two differ by more than ``MAX_LEVEL_RATIO`` (a sensitivity
+    off by orders of magnitude); and the channels are in the calibration's order
+    (:func:`mpipe.separation.check_channel_order`: the middle microphone lies between
+    the others in a smooth low-frequency field, and acoustic power flows towards the
+    bell).
+
+    Raises
+    ------
+    UserError
+        On the first failed check.
+    """
+    from mpipe.separation import check_channel_order
+
+    mics = calibration.microphones
+    rms = np.sqrt(np.mean((pressures - np.mean(pressures, axis=0)) ** 2, axis=0))
+    lo, hi = LEVEL_RANGE_PA
+    for i, mic in enumerate(mics):
+        if not lo <= rms[i] <= hi:
+            spl = 20 * np.log10(max(rms[i], 1e-300) / 2e-5)
+            raise UserError(
+                f"{name}: channel {mic.channel} ({mic.name}): RMS pressure {rms[i]:.3g} Pa "
+                f"({spl:.0f} dB SPL) is implausible in a played instrument (expected "
+                f"{lo:g}-{hi:g} Pa); check microphones[{i}].sensitivity "
+                f"({mic.sensitivity:g} Pa per full-scale unit)"
+            )
+    j, k = int(np.argmax(rms)), int(np.argmin(rms))
+    if rms[j] > MAX_LEVEL_RATIO * rms[k]:
+        raise UserError(
+            f"{name}: channel {mics[j].channel} ({mics[j].name}) is "
+            f"{20 * np.log10(rms[j] / rms[k]):.0f} dB louder than channel {mics[k].channel} "
+            f"({mics[k].name}), a few cm apart in one bore; check the sensitivities "
+            f"microphones[{j}] and [{k}]"
+        )
+    problem = check_channel_order(pressures, fs, calibration)
+    if problem:
+        raise UserError(f"{name}: {problem}")
 
 
 def read_mic_calibration(

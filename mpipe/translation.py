@@ -227,3 +227,80 @@ def translate(
         temperature_c=np.array(temps),
         lowpass=lp,
     )
+
+
+def mouthpiece_noise(
+    fs: float,
+    calibration: Calibration,
+    mic_noise_psd: np.ndarray,
+    theta,
+    temperature_c: float,
+    separation_config=None,
+    config: TranslationConfig | None = None,
+    df_hz: float = 5.0,
+    geometry=None,
+) -> dict[str, np.ndarray]:
+    """Noise of the mouthpiece pressure and flow, propagated from the microphone noise.
+
+    The white sensor noise of each microphone (one-sided PSD ``mic_noise_psd``, Pa^2/Hz)
+    passes through the separation filters (:func:`mpipe.separation.reference_noise`,
+    with the take's median propagation parameters ``theta``), the transfer matrix to the
+    mouthpiece and the low-pass::
+
+        S_UU = |H_lp|^2 (|T10|^2 S_p0p0 + |T11|^2 S_u0u0 + 2 Re(T10 conj(T11) S_p0u0))
+
+    and likewise ``S_PP`` with ``T00``, ``T01``. At low frequency the flow's noise rises as
+    ``1 / (k s)``: two waves are told apart by the small phase differences across the
+    microphone spacing ``s``.
+
+    Parameters
+    ----------
+    fs : float
+        Sample rate, Hz.
+    calibration : Calibration
+        Bore, microphones, reference plane.
+    mic_noise_psd : ndarray
+        One-sided noise PSD per microphone, Pa^2/Hz, shape ``(3,)``.
+    theta : mpipe.separation.Theta
+        Propagation parameters of the separation.
+    temperature_c : float
+        Temperature of the translation, degC.
+    separation_config : SeparationConfig, optional
+        Band taper and u0 ramp (default settings when omitted).
+    config : TranslationConfig, optional
+        Low-pass (default settings when omitted).
+    df_hz : float
+        Frequency step of the grid, Hz.
+    geometry : mpipe.separation.Geometry, optional
+        Microphone geometry of the separation (default: the calibration's; pass
+        ``SeparationResult.geometry`` to include its position correction).
+
+    Returns
+    -------
+    dict
+        ``u_noise_freq_hz`` (Hz, 0 to fs/2), ``u_noise_psd`` ((m^3/s)^2/Hz, one-sided) and
+        ``p_noise_psd`` (Pa^2/Hz, one-sided) at the mouthpiece entry.
+    """
+    from mpipe.separation import Geometry, SeparationConfig, reference_noise
+
+    sep_cfg = SeparationConfig() if separation_config is None else separation_config
+    cfg = TranslationConfig() if config is None else config
+    freqs = np.arange(0.0, fs / 2 + 0.5 * df_hz, df_hz)
+    freqs = freqs[freqs <= fs / 2]
+    geo = Geometry.from_calibration(calibration) if geometry is None else geometry
+    s_pp0, s_uu0, s_pu0 = reference_noise(freqs, theta, geo, mic_noise_psd, sep_cfg)
+    t = reference_to_mouthpiece(np.maximum(freqs, 1e-3), calibration, temperature_c)
+
+    def out(a, b):
+        return np.abs(a) ** 2 * s_pp0 + np.abs(b) ** 2 * s_uu0 + 2 * np.real(a * np.conj(b) * s_pu0)
+
+    lp = design_lowpass(fs, cfg.lowpass_hz, cfg.transition_hz, cfg.stopband_db)
+    w = np.exp(-2j * np.pi * np.outer(freqs / fs, np.arange(lp.taps.size)))
+    h2 = np.abs(w @ lp.taps) ** 2
+    s_pp = h2 * out(t[:, 0, 0], t[:, 0, 1])
+    s_uu = h2 * out(t[:, 1, 0], t[:, 1, 1])
+    return {
+        "u_noise_freq_hz": freqs,
+        "u_noise_psd": np.maximum(s_uu, 0.0),
+        "p_noise_psd": np.maximum(s_pp, 0.0),
+    }

@@ -46,3 +46,13 @@ def test_implausible_temperature_is_rejected():
 def test_unknown_model_is_rejected():
     with pytest.raises(ValueError, match="unknown air model"):
         air_properties(20.0, "ideal")
+
+
+def test_temperature_inverts_the_ernoult_sound_speed():
+    # the calibration's own model: the Keefe inverse would read a perfect c ~0.2-0.6 degC off
+    for t, h, co2 in ((12.0, 0.0, 4.2e-4), (20.0, 0.5, 4.2e-4), (31.0, 1.0, 0.03)):
+        c = air_properties(t, "ernoult", humidity=h, co2_fraction=co2).c
+        back = temperature_from_sound_speed(c, "ernoult", humidity=h, co2_fraction=co2)
+        assert back == pytest.approx(t, abs=1e-9)
+    c20 = air_properties(20.0, "ernoult").c
+    assert abs(temperature_from_sound_speed(c20) - 20.0) > 0.1  # the models do differ

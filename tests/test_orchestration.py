@@ -71,8 +71,19 @@ def test_full_pipeline_recovers_the_truth(finished):
         got = windows[name].median()
         assert abs(got / true - 1) < tolerance, (name, got, true)
     assert windows["relative_residual"].max() < 0.02
+    # every searched parameter carries a standard error, the correlations a side file
+    ok = windows[windows["status"] == "ok"]
+    for name in ("k", "y_m", "p_m", "p_M", "gamma", "zeta"):
+        assert (pd.to_numeric(ok[f"{name}_se"]) > 0).all(), name
+    corr = pd.read_csv(run.folder / "inversion" / "correlations.csv")
+    assert corr["correlation"].abs().max() <= 1 + 1e-9 and len(corr) >= len(windows)
     report = (run.folder / "report.html").read_text()
-    assert "PASS" in report and "tracks.png" in report and "overlay_1.png" in report
+    assert "PASS" in report and "Reed parameters per window" in report and "overlay 1" in report
+    # self-contained: every figure embedded, none linked
+    assert report.count('src="data:image/png;base64,') >= 6 and 'src="' not in report.replace(
+        'src="data:', ""
+    )
+    assert "uncertainty" in report.lower()
     for stage in STAGES:
         assert (run.folder / stage / "manifest.json").exists()
 
@@ -128,3 +139,121 @@ def test_malformed_pipeline_and_take_give_clear_errors(tmp_path, take, capsys):
     assert "2 of 2 takes failed" in capsys.readouterr().out
     assert main(["run", str(good), str(tmp_path / "missing.flac"), "-o", str(tmp_path)]) == 2
     assert "no such take file" in capsys.readouterr().err
+
+
+def test_every_door_gives_the_same_table(finished, take, pipeline, tmp_path):
+    # `mpipe run`, `mpipe separate` + `mpipe invert` and the Python API build the same bore
+    # kernel (one temperature) and invert the same windows: the same numbers to 0.1 %.
+    from mpipe.calibration import load_calibration
+    from mpipe.conditioning import plan_inversion
+    from mpipe.inversion.kernel import bore_kernel, take_temperature
+    from mpipe.inversion.tracking import track
+    from mpipe.pipeline import PARAMETER_NAMES
+    from mpipe.separation import separate
+    from mpipe.takes import read_take
+    from mpipe.translation import translate
+
+    _, run, _ = finished
+    via_run = pd.read_csv(run.folder / "inversion" / "windows.csv", keep_default_na=False)
+    sep_dir, inv_dir = tmp_path / "sep", tmp_path / "inv"
+    argv = ["separate", str(take.audio), str(take.calibration), "--pipeline", pipeline.source]
+    assert main([*argv, "-o", str(sep_dir)]) == 0
+    argv = ["invert", str(sep_dir / "mouthpiece.npz"), "--pipeline", pipeline.source]
+    assert main([*argv, "-o", str(inv_dir)]) == 0
+    via_cli = pd.read_csv(inv_dir / "windows.csv", keep_default_na=False)
+
+    cal = load_calibration(take.calibration)
+    t = read_take(take.audio, cal)
+    sep = separate(t.pressures, t.fs, cal, pipeline.separation)
+    tr = translate(sep.p0, sep.u0, t.fs, cal, pipeline.translation, sep.temperature_track())
+    inv = pipeline.inversion
+    plan = plan_inversion(tr.p, t.fs, pipeline.conditioning, inv.window_s, inv.hop_s)
+    kernel, air = bore_kernel(cal, t.fs, take_temperature(tr.temperature_c, cal))
+    starts = plan.loc[plan["invert"], "start"].tolist()
+    via_api = track(tr.p, tr.u, t.fs, kernel, air.rho, inv, pipeline.executor, starts=starts).table
+
+    for other in (via_cli, via_api):
+        np.testing.assert_array_equal(other["t_start_s"], via_run["t_start_s"])
+        assert list(other["status"]) == list(via_run["status"])
+        for name in PARAMETER_NAMES:
+            np.testing.assert_allclose(other[name], via_run[name], rtol=1e-3, err_msg=name)
+
+
+def _is_number(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def test_load_run_gives_tables_and_signals_with_units(finished):
+    import mpipe
+
+    out, run, _ = finished
+    data = mpipe.load_run(out)
+    assert data.folder == run.folder and data.fs == 100_000.0
+    assert data.verdict == "pass"
+    assert set(data.tables) == {"blocks", "impedance", "resonances", "plan", "windows"}
+    assert data.unit("windows.k") == "Pa/m" and data.unit("windows.t_start_s") == "s"
+    assert data.unit("mouthpiece.p") == "Pa" and data.unit("mouthpiece.u") == "m³/s"
+    assert data.unit("blocks.temperature_c") == "°C" and data.unit("plan.f0_hz") == "Hz"
+    p = data.signals["mouthpiece.p"]
+    assert p.ndim == 1 and p.size == data.signals["mouthpiece.u"].size
+    # the table is read from Parquet at full precision; the CSV carries 10 digits
+    csv = pd.read_csv(run.folder / "inversion" / "windows.csv", keep_default_na=False)
+    np.testing.assert_allclose(csv["k"], data.tables["windows"]["k"], rtol=1e-9)
+    import csv as csv_module
+
+    with open(run.folder / "inversion" / "windows.csv", newline="") as f:
+        rows = list(csv_module.reader(f))[1:]
+    numeric = [tok for row in rows for tok in row if _is_number(tok)]
+    assert numeric and not any(len(tok) > 17 for tok in numeric)
+    with pytest.raises(TypeError):
+        data.tables["windows"] = None
+
+
+@pytest.fixture(scope="module")
+def wrong_bore(tmp_path_factory, take):
+    """The take's calibration with a main bore 3 % longer: the validation must FAIL."""
+    data = yaml.safe_load(Path(take.calibration).read_text())
+    data["bore"]["segments"][-1]["x_end"] *= 1.03
+    for mic in data["microphones"]:
+        if mic.get("calibration"):
+            mic["calibration"] = str(Path(take.calibration).parent / mic["calibration"])
+    path = tmp_path_factory.mktemp("wrong") / "long.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_failed_validation_stops_the_run_and_separate_exits_non_zero(
+    tmp_path, take, pipeline, wrong_bore, capsys, monkeypatch
+):
+    import mpipe.orchestration as orch
+
+    assert main(["separate", str(take.audio), str(wrong_bore), "-o", str(tmp_path / "s")]) == 1
+    out = capsys.readouterr().out
+    assert "impedance validation: FAIL" in out and "validation FAILED" in out
+    assert (tmp_path / "s" / "mouthpiece.npz").exists()
+    with np.load(tmp_path / "s" / "mouthpiece.npz") as mp:
+        assert {"u_noise_freq_hz", "u_noise_psd", "p_noise_psd"} <= set(mp.files)
+        assert mp["u_noise_psd"].shape == mp["u_noise_freq_hz"].shape
+    # mpipe run stops before the inversion, and says how to go on
+    pipe = tmp_path / "pipe.yaml"
+    pipe.write_text(f"calibration: {wrong_bore}\nexecutor: {{kind: local, workers: 1}}\n")
+    code = main(["run", str(pipe), str(take.audio), "-o", str(tmp_path / "r")])
+    err = capsys.readouterr().err
+    assert code == 2 and "stopped before the inversion" in err
+    assert "--accept-failed-validation" in err
+    assert not (tmp_path / "r" / take.audio.stem / "inversion").exists()
+    # with --accept-failed-validation it goes on to the inversion (stopped here by a probe)
+    reached = []
+
+    def probe(*args, **kwargs):
+        reached.append(True)
+        raise ValueError("probe: inversion reached")
+
+    monkeypatch.setattr(orch, "_stage_inversion", probe)
+    code = main(["run", str(pipe), str(take.audio), "-o", str(tmp_path / "r"),
+                 "--accept-failed-validation"])  # fmt: skip
+    assert reached and "inverting despite the FAILED validation" in capsys.readouterr().out

@@ -31,7 +31,12 @@ def write(tmp_path, text, calibration=True):
 def test_minimal_file_takes_defaults(tmp_path):
     cfg = load_pipeline(write(tmp_path, "calibration: cal.yaml\n"))
     assert cfg.inversion.start == "history"
-    assert cfg.inversion.optimiser == "trust-region"
+    assert cfg.inversion.optimiser == "trust-region" and cfg.inversion.cold_start == "global"
+    # the shipped pipeline writes out the same inversion defaults as the code holds
+    shipped = load_pipeline(
+        Path(__file__).resolve().parents[1] / "pipelines" / "simplified_clarinet.yaml"
+    )
+    assert shipped.inversion == cfg.inversion
 
 
 @pytest.mark.parametrize(
@@ -76,3 +81,70 @@ def test_missing_calibration_file(tmp_path):
 def test_error_names_the_file(tmp_path):
     with pytest.raises(ConfigError, match=r"pipe\.yaml"):
         load_pipeline(write(tmp_path, "calibration: cal.yaml\nexecutor: {kind: cloud}\n"))
+
+
+def _leaf_keys(data, prefix=""):
+    keys = set()
+    for k, v in data.items():
+        if isinstance(v, dict):
+            keys |= _leaf_keys(v, f"{prefix}{k}.")
+        else:
+            keys.add(prefix + k)
+    return keys
+
+
+def test_shipped_pipeline_shows_every_setting_of_every_stage():
+    import dataclasses
+
+    import yaml
+
+    from mpipe.config import describe_keys
+    from mpipe.pipeline import PipelineConfig
+
+    expected = set()
+    for key, _, doc in describe_keys(PipelineConfig):
+        assert doc, f"{key}: every setting needs a one-line meaning"
+        expected.add(key)
+    # sections are not leaves, and `source` is set by the loader
+    sections = {f.name for f in dataclasses.fields(PipelineConfig)} - {"calibration", "source"}
+    expected -= sections | {"source", "inversion.bounds"}
+    shipped = _leaf_keys(yaml.safe_load(SHIPPED.read_text()))
+    assert not expected - shipped, f"missing from {SHIPPED.name}: {sorted(expected - shipped)}"
+
+
+def test_printed_defaults_read_back_as_the_defaults(tmp_path):
+    import dataclasses
+
+    from mpipe.pipeline import PipelineConfig, pipeline_yaml
+
+    (tmp_path / "cal.yaml").write_text("name: x\n")
+    path = tmp_path / "pipe.yaml"
+    path.write_text(pipeline_yaml(calibration="cal.yaml"))
+    cfg = load_pipeline(path)
+    assert dataclasses.replace(cfg, source="") == PipelineConfig(calibration="cal.yaml")
+    # a changed value is written and flagged against its default
+    changed = dataclasses.replace(cfg, inversion=dataclasses.replace(cfg.inversion, hop_s=0.01))
+    text = pipeline_yaml(changed)
+    assert "hop_s: 0.01" in text and "(default 0.02)" in text
+
+
+@pytest.mark.parametrize("value", [1e-5, 0.1, 1 / 3, 8.23e10, -0.01, 2.4e-4, 1e300, 123456.0])
+def test_floats_are_written_so_that_yaml_reads_them_back_exactly(value):
+    import yaml
+
+    from mpipe.config import _yaml_scalar
+
+    assert yaml.safe_load(f"x: {_yaml_scalar(value)}")["x"] == value
+
+
+def test_config_command_prints_and_refuses_to_overwrite(tmp_path, capsys):
+    from mpipe.cli import main
+
+    assert main(["config", str(SHIPPED)]) == 0
+    out = capsys.readouterr().out
+    assert "# [dB] tolerance on the mean |magnitude error| over coherent bins" in out
+    assert "max_band_db: 1.5" in out
+    target = tmp_path / "p.yaml"
+    target.write_text("mine")
+    assert main(["config", "-o", str(target)]) == 2
+    assert target.read_text() == "mine"

@@ -79,10 +79,12 @@ def test_missing_key(tmp_path):
 
 
 def test_contact_beyond_closure_rejected(tmp_path):
-    with pytest.raises(ConfigError, match=r"reed\.yaml: y_c: .*y_c < y_m"):
-        load_reed(write(tmp_path, TABLE1_TEXT + "y_c: 4.0e-4\n"))
+    with pytest.raises(ConfigError, match=r"reed\.yaml: y_c: .*y_c <= y_m"):
+        load_reed(write(tmp_path, TABLE1_TEXT + "y_c: 4.1e-4\n"))
     with pytest.raises(InvalidReedError, match="y_c"):
         dataclasses.replace(table1(), y_c=5e-4)
+    # contact from closure (y_c = y_m) is a valid reed
+    assert load_reed(write(tmp_path, TABLE1_TEXT + "y_c: 4.0e-4\n")).y_c == 4e-4
 
 
 @pytest.mark.parametrize(

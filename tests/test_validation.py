@@ -74,3 +74,32 @@ def test_harmonics_only_for_a_played_note():
 def test_bad_input():
     with pytest.raises(ValueError, match="equal length"):
         validate(np.zeros(100), np.zeros(99), FS, CAL, ValidationConfig())
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_nothing_measurable_cannot_verify(seed):
+    # Incoherent p and u (sensor noise only): no resonance, no harmonic can be compared,
+    # so the verdict is neither PASS nor FAIL (it used to PASS over "1 % coherent bins").
+    rng = np.random.default_rng(seed)
+    n = int(2 * FS)
+    p, u = rng.normal(size=n), 1e-6 * rng.normal(size=n)
+    res = validate(p, u, FS, CAL, ValidationConfig())
+    assert res.verdict == "cannot-verify", res.summary()
+    assert not res.passed
+    assert "need 3" in res.reason and "CANNOT-VERIFY" in res.summary()
+
+
+def test_two_coherent_harmonics_are_not_enough_to_pass():
+    # a played note with two harmonics only: consistent with the theory, but two compared
+    # quantities are below min_checks = 3; with min_checks = 2 it passes
+    n = int(2 * FS)
+    t = np.arange(n) / FS
+    f0 = 104.5
+    f = np.fft.rfftfreq(n, 1 / FS)
+    z = input_impedance(CAL.bore, 2 * np.pi * np.maximum(f, 1e-3), CAL.air_properties())
+    u = sum(1e-5 / h * np.cos(2 * np.pi * h * f0 * t + h) for h in (1, 3))
+    p = np.fft.irfft(z * np.fft.rfft(u), n)
+    res = validate(p, u, FS, CAL, ValidationConfig(note_f0_hz=f0))
+    assert res.checks == 2 and res.verdict == "cannot-verify", res.summary()
+    res2 = validate(p, u, FS, CAL, ValidationConfig(note_f0_hz=f0, min_checks=2))
+    assert res2.verdict == "pass", res2.summary()

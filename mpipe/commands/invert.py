@@ -21,6 +21,7 @@ log = logging.getLogger(__name__)
 #: Files written into the output directory.
 OUTPUTS = (
     "windows.csv",
+    "correlations.csv",
     "plan.csv",
     "signals.png",
     "flow_pressure.png",
@@ -87,12 +88,19 @@ def load_mouthpiece(path: str | Path) -> tuple[float, np.ndarray, np.ndarray, np
 
 
 def run(args: argparse.Namespace) -> int:
-    """Execute ``mpipe invert``."""
+    """Execute ``mpipe invert``, holding the lock of the output folder."""
+    from mpipe.io import folder_lock
+
+    with folder_lock(args.output):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     from mpipe import resynthesis as rs
     from mpipe.conditioning import plan_inversion
     from mpipe.inversion.kernel import bore_kernel, take_temperature
     from mpipe.inversion.status import summary_line
-    from mpipe.inversion.tracking import ProgressBar, track, write_table
+    from mpipe.inversion.tracking import ProgressBar, track, write_correlations, write_table
 
     out = Path(args.output)
     check_writable([out / name for name in (*OUTPUTS, "windows.parquet")], args.force)
@@ -100,10 +108,21 @@ def run(args: argparse.Namespace) -> int:
     inv = cfg.inversion
     fs, p, u, temperature = load_mouthpiece(args.mouthpiece)
     if abs(fs - inv.sample_rate) > 1e-6 * fs:
-        raise UserError(
-            f"{args.mouthpiece}: fs = {fs:g} Hz but {args.pipeline}: inversion.sample_rate = "
-            f"{inv.sample_rate:g} Hz"
+        # One rate for the pipeline, as in `mpipe run` (which resamples the take when read).
+        from mpipe.takes import resample
+
+        log.info(
+            "%s: resampling %g Hz -> %g Hz (inversion.sample_rate)",
+            args.mouthpiece,
+            fs,
+            inv.sample_rate,
         )
+        try:
+            pu = resample(np.column_stack([p, u]), fs, inv.sample_rate)
+        except ValueError as exc:
+            raise UserError(f"{args.mouthpiece}: {exc}") from None
+        p, u = np.ascontiguousarray(pu[:, 0]), np.ascontiguousarray(pu[:, 1])
+        fs = inv.sample_rate
     cal = load_calibration(cfg.calibration_path)
     # The same windows and the same bore kernel as `mpipe run` (one answer per take).
     plan = plan_inversion(p, fs, cfg.conditioning, inv.window_s, inv.hop_s, args.start, args.end)
@@ -126,6 +145,7 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     write_atomic(out / "plan.csv", lambda tmp: plan.to_csv(tmp, index=False))
     write_table(table, out)
+    write_correlations(result.correlations, out)
     res = rs.resynthesise(table, p, u, fs, kernel, inv, result.zero_mean)
     ok = table[table["error"] == ""]
     t = np.arange(p.size) / fs

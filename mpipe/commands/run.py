@@ -34,12 +34,20 @@ def add_parser(sub) -> None:
         help="calibration file to use instead of the pipeline's (e.g. a virtual take's copy)",
     )
     p.add_argument("--force", action="store_true", help="redo finished stages and windows")
+    p.add_argument(
+        "--accept-failed-validation",
+        action="store_true",
+        help="invert a take whose impedance validation FAILs (by default the run stops "
+        "before the inversion; the report records that it went on)",
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe run``."""
-    from mpipe.orchestration import run_take, usable
+    from mpipe.io import check_output_folder
+    from mpipe.orchestration import run_take, take_name, usable
+    from mpipe.progress import write
 
     cfg = load_pipeline(args.pipeline)
     cal_path = Path(args.calibration) if args.calibration else cfg.calibration_path
@@ -52,6 +60,10 @@ def run(args: argparse.Namespace) -> int:
         for p in t:
             if not p.is_file():
                 raise UserError(f"{p}: no such take file")
+    # a bad output path fails now, not after the computation
+    check_output_folder(args.output)
+    for t in takes:
+        check_output_folder(Path(args.output) / take_name(t))
     client = None
     if cfg.executor.kind == "dask":
         from distributed import Client
@@ -62,10 +74,19 @@ def run(args: argparse.Namespace) -> int:
     try:
         for t in takes:
             try:
-                result = run_take(cfg, cal_path, t, args.output, args.force, client)
+                result = run_take(
+                    cfg,
+                    cal_path,
+                    t,
+                    args.output,
+                    args.force,
+                    client,
+                    say=write,
+                    accept_failed_validation=args.accept_failed_validation,
+                )
                 if not usable(result):
                     failed.append(t[0])
-                    print(f"[{t[0].stem}] failed: no window has status ok (no usable result)")
+                    write(f"[{t[0].stem}] failed: no window has status ok (no usable result)")
             except (ValueError, OSError, UserError) as exc:
                 if isinstance(exc, ConfigError | UserError) and len(takes) == 1:
                     raise

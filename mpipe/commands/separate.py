@@ -5,7 +5,13 @@ Outputs in ``DIR``:
 ``mouthpiece.npz``
     ``fs`` (Hz), ``p`` (Pa) and ``u`` (m^3/s, into the bore) at the mouthpiece entry,
     ``p0`` (Pa) and ``u0`` (m^3/s) at the reference plane, ``temperature_c`` (degC per
-    sample), all after the 7.25 kHz low-pass.
+    sample), all after the 7.25 kHz low-pass; the noise propagated from the microphones:
+    ``u_noise_freq_hz`` (Hz), ``u_noise_psd`` ((m^3/s)^2/Hz) and ``p_noise_psd`` (Pa^2/Hz),
+    one-sided power spectral densities at the mouthpiece entry.
+
+The take is resampled to ``--sample-rate`` (the pipeline's ``inversion.sample_rate``,
+100 kHz by default) when it was recorded at another rate. The exit status is 1 when the
+validation FAILs, 0 for PASS and CANNOT-VERIFY.
 ``mouthpiece.wav``
     32-bit float, two channels at ``fs``: channel 1 is ``p / 10 kPa``, channel 2 is
     ``u / (1e-3 m^3/s)`` (fixed scales, so files compare across takes).
@@ -29,13 +35,16 @@ import numpy as np
 from mpipe.calibration import load_calibration
 from mpipe.errors import UserError
 from mpipe.inversion.kernel import take_temperature
-from mpipe.io import check_writable, write_atomic, write_npz_atomic
-from mpipe.pipeline import load_pipeline
+from mpipe.io import check_writable, write_atomic, write_csv, write_npz_atomic
+from mpipe.pipeline import InversionConfig, load_pipeline
 from mpipe.separation import SeparationConfig, separate
-from mpipe.translation import TranslationConfig, translate
+from mpipe.translation import TranslationConfig, mouthpiece_noise, translate
 from mpipe.validation import ValidationConfig, plot_impedance, validate
 
 log = logging.getLogger(__name__)
+
+#: Default rate of every command: the default of the pipeline's inversion.sample_rate.
+DEFAULT_RATE = InversionConfig().sample_rate
 
 # Fixed scales of the WAV output: full scale is 10 kPa and 1e-3 m^3/s.
 WAV_PRESSURE_SCALE_PA = 1e4
@@ -76,6 +85,14 @@ def add_parser(sub) -> None:
         "file, as `mpipe run` does (default: the settings' defaults)",
     )
     p.add_argument(
+        "--sample-rate",
+        type=float,
+        default=None,
+        metavar="HZ",
+        help="rate of the outputs; takes at other rates are resampled (default: the "
+        f"pipeline's inversion.sample_rate, {DEFAULT_RATE:g} without --pipeline)",
+    )
+    p.add_argument(
         "--fixed-mach",
         type=float,
         metavar="M",
@@ -85,7 +102,14 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Execute ``mpipe separate``."""
+    """Execute ``mpipe separate``, holding the lock of the output folder."""
+    from mpipe.io import folder_lock
+
+    with folder_lock(args.output):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     from mpipe.takes import read_take
 
     if len(args.inputs) not in (2, 4):
@@ -103,12 +127,17 @@ def run(args: argparse.Namespace) -> int:
     log.info("reading calibration %s", cal_path)
     cal = load_calibration(cal_path)
     log.info("reading take %s", ", ".join(takes))
-    take = read_take(takes if len(takes) == 3 else takes[0], cal)
     if args.pipeline:
         pipe = load_pipeline(args.pipeline)
         sep_cfg, tr_cfg, val_cfg = pipe.separation, pipe.translation, pipe.validation
+        rate = pipe.inversion.sample_rate
     else:
         sep_cfg, tr_cfg, val_cfg = SeparationConfig(), TranslationConfig(), ValidationConfig()
+        rate = DEFAULT_RATE
+    rate = args.sample_rate if args.sample_rate is not None else rate
+    if not 1000.0 <= rate <= 1e6:
+        raise UserError(f"--sample-rate: expected a rate in Hz (1e3-1e6), got {rate:g}")
+    take = read_take(takes if len(takes) == 3 else takes[0], cal, fs=rate)
     if args.fixed_mach is not None:
         if not -0.05 <= args.fixed_mach <= 0.1:
             raise UserError(
@@ -117,12 +146,13 @@ def run(args: argparse.Namespace) -> int:
         sep_cfg = dataclasses.replace(sep_cfg, mach=args.fixed_mach)
     try:
         log.info("stage 1/3: wave separation")
-        sep = separate(take.pressures, take.fs, cal, sep_cfg)
+        sep = separate(take.pressures, take.fs, cal, sep_cfg, take.band_limit_hz)
         log.info("stage 2/3: translation to the mouthpiece entry")
         tr = translate(sep.p0, sep.u0, take.fs, cal, tr_cfg, sep.temperature_track())
         log.info("stage 3/3: impedance validation")
         t_eff = take_temperature(tr.temperature_c, cal)
         val = validate(tr.p, tr.u, take.fs, cal, val_cfg, t_eff)
+        noise = mouthpiece_noise(take.fs, cal, sep.noise_psd, sep.median_theta(), t_eff, sep_cfg)
     except ValueError as exc:
         raise UserError(f"{takes[0]}: {exc}") from None
 
@@ -134,22 +164,30 @@ def run(args: argparse.Namespace) -> int:
         "p0": tr.p0,
         "u0": tr.u0,
         "temperature_c": tr.temperature_c,
+        **noise,
     }
     write_npz_atomic(out / "mouthpiece.npz", **arrays)
     write_atomic(out / "mouthpiece.wav", lambda tmp: _write_wav(tmp, tr.p, tr.u, take.fs))
-    write_atomic(out / "blocks.csv", lambda tmp: sep.blocks.to_csv(tmp, index=False))
-    write_atomic(out / "impedance.csv", lambda tmp: val.table().to_csv(tmp, index=False))
-    write_atomic(out / "validation.csv", lambda tmp: val.resonances.to_csv(tmp, index=False))
+    write_csv(out / "blocks.csv", sep.blocks)
+    write_csv(out / "impedance.csv", val.table())
+    write_csv(out / "validation.csv", val.resonances)
     write_atomic(out / "impedance.png", lambda tmp: plot_impedance(val, tmp, 2000.0))
 
     b = sep.blocks
     print(
-        f"{len(b)} blocks: T {b.temperature_c.min():.2f}..{b.temperature_c.max():.2f} degC, "
-        f"eta {b.loss_scale.median():.3f}, M {b.mach.median():.4f}, "
-        f"median residual {np.nanmedian(b.residual):.2e}"
+        f"{len(b)} blocks: T {b.temperature_c.median():.2f} +- {b.temperature_se_c.median():.2f}"
+        f" degC ({b.temperature_c.min():.2f}..{b.temperature_c.max():.2f}), "
+        f"eta {b.loss_scale.median():.3f} +- {b.loss_scale_se.median():.3f}, "
+        f"M {b.mach.median():.4f} +- {b.mach_se.median():.4f}, "
+        f"median chi2/term {np.nanmedian(b.residual):.2f}"
     )
+    for line in sep.bound_warnings():
+        print(f"warning: {line}")
     print(val.summary())
     print(f"wrote {', '.join(str(p) for p in paths)}")
+    if val.verdict == "fail":
+        print("validation FAILED: the mouthpiece signals do not match the bore's impedance")
+        return 1
     return 0
 
 

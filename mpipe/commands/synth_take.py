@@ -202,6 +202,7 @@ def make_take(
     from mpipe.reed import load_reed
 
     out = Path(out)
+    check_file_rate(out, options.fs_out if options.fs_out is not None else options.fs_model)
     planned = take_file_paths(out, options.mic_calibration)
     check_writable([planned.audio, planned.sidecar, planned.truth, planned.calibration], force)
     calibration = load_calibration(calibration_path)
@@ -234,6 +235,33 @@ def make_take(
         mic_calibration=options.mic_calibration,
         force=force,
     )
+
+
+#: Highest sample rate a FLAC stream can declare in its header (20-bit field in units of
+#: 10 Hz for the streamable subset libsndfile writes), Hz.
+FLAC_MAX_RATE_HZ = 655_350
+
+
+def check_file_rate(path: str | Path, fs: float) -> None:
+    """Refuse, before any work, a sample rate the audio file cannot store.
+
+    Every audio container stores an integer rate in Hz; FLAC (as written by libsndfile)
+    at most ``FLAC_MAX_RATE_HZ``.
+
+    Raises
+    ------
+    ValueError
+        Naming the rate and what the format allows.
+    """
+    if not fs > 0 or abs(fs - round(fs)) > 1e-9 * fs:
+        raise ValueError(
+            f"sample rate {fs:g} Hz cannot be stored: audio files hold an integer rate in Hz"
+        )
+    if Path(path).suffix.lower() == ".flac" and round(fs) > FLAC_MAX_RATE_HZ:
+        raise ValueError(
+            f"sample rate {fs:g} Hz cannot be stored in FLAC (at most {FLAC_MAX_RATE_HZ} Hz); "
+            "use --fs-out for a lower file rate or write .wav"
+        )
 
 
 def _sha256(path: str | Path) -> str:

@@ -10,6 +10,9 @@ objective
     The step-2 objective F2 and the two ways of starting the model.
 tracking
     Per-window inversion over a take, in parallel.
+uncertainty
+    Standard errors (coloured residual), undetermined directions, identifiable
+    combinations (p_M, gamma, zeta, f_r, Q_r) and their coverage.
 
 References
 ----------

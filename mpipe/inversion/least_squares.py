@@ -240,7 +240,8 @@ def trust_region(
     SearchResult
         ``f`` is the residual norm at ``x``; ``converged`` is True when a tolerance (not
         the budget) ended the search; ``jacobian`` is d residual / d ln x at ``x``
-        (shape ``(n_residuals, n_parameters)``) and ``residuals`` the residual vector.
+        (shape ``(n_residuals, n_parameters)``) and ``residuals`` the residual vector (both
+        None in the rare case where the best point is not scipy's end point).
     """
     lower = np.asarray(lower, dtype=float)
     upper = np.asarray(upper, dtype=float)
@@ -303,9 +304,12 @@ def trust_region(
     )
     z = np.asarray(res.x)
     f = float(np.linalg.norm(res.fun))
+    jac, fun = np.asarray(res.jac), np.asarray(res.fun)
     if best[0] < f:
         # The reflective steps keep the accepted point, but a Jacobian column can land lower.
+        # scipy's Jacobian belongs to its own end point: none is returned for this one.
         z, f = best[1], best[0]
+        jac = fun = None
     converged = bool(res.status > 0) and f < infeasible_norm
     messages = {
         0: "evaluation budget spent",
@@ -324,8 +328,8 @@ def trust_region(
         message=messages.get(int(res.status), str(res.message)),
         history=np.asarray(history),
         method="trust-region",
-        jacobian=np.asarray(res.jac),
-        residuals=np.asarray(res.fun),
+        jacobian=jac,
+        residuals=fun,
     )
 
 

@@ -404,6 +404,8 @@ class F2Objective:
         Values of the fixed parameters (and the start of the free ones).
     free : tuple of str
         Names of the free parameters (fields of ReedParameters).
+    contact_at_closure : bool
+        Tie the contact point to the rest opening (y_c = y_m) in every candidate.
     fast : bool
         Compute F2 and the residuals by the compiled evaluator of
         :mod:`mpipe.inversion.fastpath` (history start only; the same numbers to rounding).
@@ -416,6 +418,7 @@ class F2Objective:
     settings: ObjectiveSettings
     base: ReedParameters
     free: tuple[str, ...]
+    contact_at_closure: bool = False
     fast: bool = True
 
     @functools.cached_property
@@ -436,6 +439,8 @@ class F2Objective:
     def reed(self, x: np.ndarray) -> ReedParameters:
         """Reed parameters for free-parameter values ``x`` (may raise InvalidReedError)."""
         values = {name: float(v) for name, v in zip(self.free, np.ravel(x), strict=True)}
+        if self.contact_at_closure:
+            values["y_c"] = values.get("y_m", self.base.y_m)
         return dataclasses.replace(self.base, **values)
 
     def evaluate(self, x: np.ndarray) -> ModelWindow:

@@ -35,8 +35,8 @@ STATUSES = ("ok", "high-residual", "at-bound", "not-converged", "failed")
 def search_bounds(config: InversionConfig, max_p: float) -> np.ndarray:
     """Search bounds of the free parameters in SI units, shape ``(n_free, 2)``.
 
-    The lower bound of y_m is raised to just above y_c: the reed model requires the rest
-    opening to exceed the contact displacement.
+    With ``contact: fixed`` the lower bound of y_m is raised to just above y_c: the contact
+    must begin before closure. The parameters are those of ``config.search_parameters``.
 
     Parameters
     ----------
@@ -59,9 +59,9 @@ def search_bounds(config: InversionConfig, max_p: float) -> np.ndarray:
             f"max p over the window is {max_p:g} Pa; expected > 0 (a silent or unplayed window)"
         )
     rows = []
-    for name in config.free:
+    for name in config.search_parameters:
         lo, hi = config.bounds.absolute(name, max_p)
-        if name == "y_m":
+        if name == "y_m" and config.contact == "fixed":
             lo = max(lo, config.y_c * (1 + 1e-6))
         rows.append((lo, hi))
     return np.array(rows, dtype=float)
@@ -73,7 +73,8 @@ def on_bounds(values: dict, bounds: np.ndarray, config: InversionConfig) -> list
     Parameters
     ----------
     values : dict
-        Free parameter name to value (SI units), in the order of ``config.free``.
+        Searched parameter name to value (SI units), in the order of
+        ``config.search_parameters``.
     bounds : ndarray
         Bounds from :func:`search_bounds`.
     config : InversionConfig
@@ -88,7 +89,7 @@ def on_bounds(values: dict, bounds: np.ndarray, config: InversionConfig) -> list
     hits = []
     for (name, value), (lo, hi) in zip(values.items(), bounds, strict=True):
         if math.log(value / lo) < tol:
-            at_yc = name == "y_m" and lo <= config.y_c * (1 + 2e-6)
+            at_yc = name == "y_m" and config.contact == "fixed" and lo <= config.y_c * (1 + 2e-6)
             hits.append(f"{name}={'y_c' if at_yc else 'lower'}")
         elif math.log(hi / value) < tol:
             hits.append(f"{name}=upper")

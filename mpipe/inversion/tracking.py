@@ -17,14 +17,13 @@ Chatziioannou & van Walstijn 2012, sections 3 and 4.2; physics.md H, I, J.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
 import os
-import sys
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,9 +38,19 @@ from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWind
 from mpipe.inversion.rosenbrock import SearchResult, minimise
 from mpipe.inversion.status import classify, on_bounds, search_bounds, window_status
 from mpipe.inversion.step1 import Step1Result, step1
-from mpipe.io import write_atomic, write_text_atomic
+from mpipe.inversion.uncertainty import (
+    CORRELATION_COLUMNS,
+    SE_PARAMETERS,
+    correlation_records,
+    covariance,
+    log_jacobian,
+    uncertainty_columns,
+    window_uncertainty,
+)
+from mpipe.io import write_atomic, write_csv, write_text_atomic
 from mpipe.model import BoreKernel
 from mpipe.pipeline import PARAMETER_NAMES, ExecutorConfig, InversionConfig
+from mpipe.progress import ProgressBar  # the bar drawn by the commands (tqdm)
 from mpipe.reed import ReedParameters
 
 log = logging.getLogger(__name__)
@@ -49,7 +58,7 @@ log = logging.getLogger(__name__)
 #: Columns of the per-window table, in order.
 COLUMNS = (
     "window", "t_start_s", "t_end_s", *PARAMETER_NAMES, "y_c", "alpha",
-    "status", "status_reason", "converged",
+    "status", "status_reason", "converged", *uncertainty_columns(),
     "step1_p_m", "k_closing", "S_closing", "y_m_closing", "f1_closing",
     "k_opening", "S_opening", "y_m_opening", "f1_opening",
     "f2", "relative_residual", "n_iterations", "n_evaluations", "optimiser",
@@ -80,7 +89,7 @@ class WindowOutcome:
     reed: ReedParameters | None
 
 
-def detect_zero_mean(u: np.ndarray, kind: str) -> bool:
+def detect_zero_mean(u: np.ndarray, kind: str, ratio: float = 0.2) -> bool:
     """Whether a take's flow is zero-mean (measured) from the configured ``signal`` kind.
 
     Parameters
@@ -89,6 +98,8 @@ def detect_zero_mean(u: np.ndarray, kind: str) -> bool:
         Flow, m^3/s.
     kind : {"measured", "model", "auto"}
         Configured signal kind; "auto" decides from mean(u)/rms(u).
+    ratio : float
+        "auto": zero-mean when |mean(u)| / rms(u) is below this (``zero_mean_ratio``).
 
     Returns
     -------
@@ -98,7 +109,7 @@ def detect_zero_mean(u: np.ndarray, kind: str) -> bool:
         return True
     if kind == "model":
         return False
-    return is_zero_mean(u)
+    return is_zero_mean(u, ratio)
 
 
 def plan_windows(
@@ -140,7 +151,8 @@ def start_point(
 ) -> ReedParameters:
     """Step-2 start from step 1 (k, S, y_m of the seed branch, p_m) and the configuration.
 
-    Values are clipped into the search bounds, and y_m is kept above y_c.
+    Values are clipped into the search bounds, and y_m is kept above y_c (with
+    ``contact: closure`` y_c is y_m).
 
     Parameters
     ----------
@@ -171,6 +183,8 @@ def start_point(
         if not math.isfinite(v):
             v = math.sqrt(lo * hi)
         values[name] = float(np.clip(v, lo, hi))
+    if config.contact == "closure":
+        return ReedParameters(**values, y_c=values["y_m"], alpha=config.alpha)
     values["y_m"] = max(values["y_m"], 1.1 * config.y_c)
     return ReedParameters(**values, y_c=config.y_c, alpha=config.alpha)
 
@@ -282,7 +296,9 @@ def invert_window(
         at_bound="",
         warm=not cold,
         retried_cold=False,
+        uncertainty_note="no estimate",
     )
+    row.update({c: False for c in COLUMNS if c.startswith("determined_")})
     s1 = search = reed = None
     try:
         pw, uw = p[start : start + n], u[start : start + n]
@@ -299,7 +315,8 @@ def invert_window(
                 p_m=config.step1_p_m,
                 solver=config.step1_solver,
                 zero_mean=zero_mean,
-                y_c=config.y_c if estimate else None,
+                # with contact from closure, step 1's shut-reed test already covers it
+                y_c=config.y_c if estimate and config.contact != "closure" else None,
             )
             row.update(step1_p_m=s1.p_m)
             for b in ("closing", "opening"):
@@ -315,11 +332,18 @@ def invert_window(
             settle_s=config.settle_s,
             lowpass=design_lowpass(fs, config.lowpass_hz) if zero_mean else None,
         )
+        names = config.search_parameters
         objective = F2Objective(
-            kernel, target, settings, base, config.free, fast=config.fast_objective
+            kernel,
+            target,
+            settings,
+            base,
+            names,
+            fast=config.fast_objective,
+            contact_at_closure=config.contact == "closure",
         )
         bounds = search_bounds(config, float(np.max(pw)))
-        x0 = np.clip([getattr(base, name) for name in config.free], bounds[:, 0], bounds[:, 1])
+        x0 = np.clip([getattr(base, name) for name in names], bounds[:, 0], bounds[:, 1])
         if cold and config.cold_start == "global":
             found = global_search(
                 objective,
@@ -349,10 +373,16 @@ def invert_window(
             n_evaluations=search.n_evaluations,
             optimiser_converged=search.converged,
             optimiser_message=search.message,
-            at_bound=";".join(
-                on_bounds(dict(zip(config.free, search.x, strict=True)), bounds, config)
-            ),
+            at_bound=";".join(on_bounds(dict(zip(names, search.x, strict=True)), bounds, config)),
         )
+        try:
+            row.update(
+                _uncertainty(objective, search, bounds, reed, kernel, config, row["at_bound"])
+            )
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            # the estimate stands; only its error bars are missing
+            log.warning("window at %.4f s: no standard errors: %s", start / fs, exc)
+            row["uncertainty_note"] = f"no standard errors: {exc}"
     except Exception as exc:  # noqa: BLE001 - a failed window is recorded, the take goes on
         log.warning("window at %.4f s failed: %s", start / fs, exc)
         row["error"] = f"{type(exc).__name__}: {exc}"
@@ -360,6 +390,44 @@ def invert_window(
     row.update(zip(("status", "status_reason"), window_status(row), strict=True))
     row["converged"] = row["status"] == "ok"
     return WindowOutcome(row=row, step1=s1, search=search, reed=reed)
+
+
+def _uncertainty(objective, search, bounds, reed, kernel, config, at_bound: str) -> dict:
+    """Standard errors, combinations and correlations of one window.
+
+    See :mod:`mpipe.inversion.uncertainty`.
+    The trust-region search's own Jacobian at the solution is used; other searches (and
+    the rare trust-region end that is not scipy's point) get a forward-difference one.
+    The correlation matrix rides in the row under ``_correlation`` (not a table column).
+    """
+    names = objective.free
+    if search.jacobian is not None and search.residuals is not None:
+        jac, res = search.jacobian, search.residuals
+    else:
+        res = objective.residuals(search.x)
+        jac = log_jacobian(objective.residuals, search.x, r0=res, upper=bounds[:, 1])
+    cov = covariance(jac, res, names)
+    invalid = {
+        hit.split("=")[0]: f"estimate on its {hit.split('=')[1]} bound: the Gauss-Newton "
+        "covariance assumes an interior minimum"
+        for hit in at_bound.split(";")
+        if hit
+    }
+    out = window_uncertainty(
+        cov,
+        {n: getattr(reed, n) for n in SE_PARAMETERS},
+        z_c=kernel.z0,
+        rho=kernel.rho,
+        limit=config.determined_limit,
+        scale_gauge=None if config.contact == "fixed" else "lam",
+        invalid=invalid,
+    )
+    if not search.converged:
+        out["uncertainty_note"] = "; ".join(
+            x for x in ("search not converged: SEs at its last point", out["uncertainty_note"]) if x
+        )
+    out["_correlation"] = {"names": list(names), "matrix": cov.correlation().tolist()}
+    return out
 
 
 def _checkpoint_path(checkpoint: Path, start: int) -> Path:
@@ -485,57 +553,6 @@ def split_chains(starts: Sequence[int], n_chains: int) -> list[list[int]]:
     return [list(c) for c in np.array_split(np.asarray(starts, dtype=int), n_chains) if c.size]
 
 
-class ProgressBar:
-    """A minimal text progress bar: windows done and estimated time left.
-
-    Parameters
-    ----------
-    total : int
-        Number of windows.
-    stream : file-like, optional
-        Where to draw (default ``sys.stderr``); nothing is drawn when it is not a terminal
-        unless ``force`` is set.
-    force : bool
-        Draw even when the stream is not a terminal.
-    clock : callable
-        Returns the time in s (injected for tests).
-    """
-
-    def __init__(self, total: int, stream=None, force: bool = False, clock=time.monotonic):
-        self.total = max(int(total), 0)
-        self.done = 0
-        self.stream = sys.stderr if stream is None else stream
-        self.enabled = force or bool(getattr(self.stream, "isatty", lambda: False)())
-        self.clock = clock
-        self.t0 = clock()
-
-    def text(self) -> str:
-        """The bar as a line of text."""
-        frac = self.done / self.total if self.total else 1.0
-        width = 30
-        filled = int(round(width * frac))
-        elapsed = self.clock() - self.t0
-        if self.done:
-            left = elapsed / self.done * (self.total - self.done)
-            eta = f"{int(left // 60):d}:{int(left % 60):02d} left"
-        else:
-            eta = "--:-- left"
-        return f"[{'#' * filled}{'.' * (width - filled)}] {self.done}/{self.total} windows, {eta}"
-
-    def update(self, n: int = 1) -> None:
-        """Count ``n`` more windows done and redraw."""
-        self.done += n
-        if self.enabled:
-            self.stream.write("\r" + self.text())
-            self.stream.flush()
-
-    def close(self) -> None:
-        """End the bar's line."""
-        if self.enabled:
-            self.stream.write("\n")
-            self.stream.flush()
-
-
 @dataclass(frozen=True)
 class Tracking:
     """Result of :func:`track`.
@@ -548,11 +565,17 @@ class Tracking:
         Window index -> step-2 objective history (best F2 after each evaluation, Pa).
     zero_mean : bool
         Whether the flow was treated as zero-mean (measured).
+    correlations : pandas.DataFrame
+        Correlation of the log parameters per window, long format: ``window,
+        t_start_s, parameter_a, parameter_b, correlation`` (one row per pair a < b).
     """
 
     table: pd.DataFrame
     histories: dict
     zero_mean: bool
+    correlations: pd.DataFrame = dataclasses.field(
+        default_factory=lambda: pd.DataFrame(columns=list(CORRELATION_COLUMNS))
+    )
 
 
 def track(
@@ -624,7 +647,7 @@ def track(
     u = np.asarray(u, dtype=float)
     if abs(kernel.fs - fs) > 1e-6 * fs:
         raise ValueError(f"signals at {fs:g} Hz but the bore kernel is at {kernel.fs:g} Hz")
-    zero_mean = detect_zero_mean(u, config.signal)
+    zero_mean = detect_zero_mean(u, config.signal, config.zero_mean_ratio)
     if starts is None:
         starts = plan_windows(p.size, fs, config.window_s, config.hop_s, start_s, end_s)
     starts = [int(s) for s in starts]
@@ -668,11 +691,18 @@ def track(
                 results[i] = new
             table = classify(pd.DataFrame([r for r, _ in results], columns=list(COLUMNS)), config)
     histories = {}
-    for i, (_, hist) in enumerate(results):
+    records = []
+    for i, (row, hist) in enumerate(results):
         if hist is not None:
             histories[i] = hist
+        corr = row.get("_correlation")
+        if corr:
+            records += correlation_records(i, row["t_start_s"], corr["names"], corr["matrix"])
     table["window"] = np.arange(len(table))
-    return Tracking(table=table, histories=histories, zero_mean=zero_mean)
+    correlations = pd.DataFrame(records, columns=list(CORRELATION_COLUMNS))
+    return Tracking(
+        table=table, histories=histories, zero_mean=zero_mean, correlations=correlations
+    )
 
 
 def _dispatch(job, items, warm, executor, workers, client, update):
@@ -694,22 +724,23 @@ def _dispatch(job, items, warm, executor, workers, client, update):
 
 def _track_processes(job, groups, warm, workers, update):
     import contextlib
-    import multiprocessing
     from concurrent.futures import FIRST_COMPLETED, wait
 
+    from mpipe.workers import manager as worker_manager
+    from mpipe.workers import process_pool
+
+    # workers (and the queue's server) end with this process, whatever ends it
     with contextlib.ExitStack() as stack:
         queue = None
         if update is not None:
-            queue = stack.enter_context(multiprocessing.Manager()).Queue()
+            queue = stack.enter_context(worker_manager()).Queue()
 
         def drain() -> None:
             while queue is not None and not queue.empty():
                 update(queue.get())
 
         pool = stack.enter_context(
-            ProcessPoolExecutor(
-                max_workers=min(workers, len(groups)), initializer=_init_worker, initargs=(job,)
-            )
+            process_pool(min(workers, len(groups)), initializer=_init_worker, initargs=(job,))
         )
         futures = [pool.submit(_windows_task, (g, warm, queue)) for g in groups]
         pending = set(futures)
@@ -750,7 +781,7 @@ def _dask_windows(job, items, warm):
 
 
 def write_table(table: pd.DataFrame, directory: str | Path, stem: str = "windows") -> list[Path]:
-    """Write the per-window table as CSV, and as Parquet when pyarrow is importable.
+    """Write the per-window table as CSV (10 significant digits) and as Parquet (full precision).
 
     Parameters
     ----------
@@ -767,16 +798,11 @@ def write_table(table: pd.DataFrame, directory: str | Path, stem: str = "windows
         Files written (atomically).
     """
     directory = Path(directory)
-    written = [
-        write_atomic(
-            directory / f"{stem}.csv",
-            lambda tmp: table.to_csv(tmp, index=False, float_format="%.17g"),
-        )
-    ]
+    written = [write_csv(directory / f"{stem}.csv", table)]
     try:
         import pyarrow  # noqa: F401
-    except ImportError:
-        log.info("pyarrow not installed: no Parquet output")
+    except ImportError:  # a dependency; only a broken installation lacks it
+        log.warning("pyarrow cannot be imported: no Parquet output")
     else:
         written.append(
             write_atomic(
@@ -784,6 +810,30 @@ def write_table(table: pd.DataFrame, directory: str | Path, stem: str = "windows
             )
         )
     return written
+
+
+def write_correlations(
+    correlations: pd.DataFrame, directory: str | Path, stem: str = "correlations"
+) -> Path:
+    """Write the per-window correlation matrices (long format CSV, atomically).
+
+    Parameters
+    ----------
+    correlations : pandas.DataFrame
+        :attr:`Tracking.correlations`.
+    directory : str or Path
+        Output directory.
+    stem : str
+        File name without suffix.
+
+    Returns
+    -------
+    Path
+    """
+    return write_atomic(
+        Path(directory) / f"{stem}.csv",
+        lambda tmp: correlations.to_csv(tmp, index=False, float_format="%.6g"),
+    )
 
 
 __all__ = [
@@ -798,5 +848,6 @@ __all__ = [
     "split_chains",
     "start_point",
     "track",
+    "write_correlations",
     "write_table",
 ]

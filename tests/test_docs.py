@@ -1,0 +1,21 @@
+"""The documentation stands on its own: every relative link resolves inside the repository."""
+
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+LINK = re.compile(r"\]\(([^)#\s]+)(?:#[^)]*)?\)")
+
+
+def test_relative_links_resolve_inside_the_repository():
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+    assert len(pages) >= 3
+    for page in pages:
+        text = page.read_text()
+        assert "../shared" not in text, f"{page.name} points outside the repository"
+        for target in LINK.findall(text):
+            if "://" in target:
+                continue
+            path = (page.parent / target).resolve()
+            assert path.is_relative_to(ROOT), f"{page.name}: {target} leaves the repository"
+            assert path.exists(), f"{page.name}: {target} does not exist"
