@@ -36,6 +36,7 @@ Chatziioannou & van Walstijn 2012, Appendix A, eqs. (A.1)-(A.17); physics.md D.2
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from dataclasses import dataclass
@@ -113,6 +114,11 @@ class BoreKernel:
     def n_partitions(self) -> int:
         """Number P of FFT partitions of the tail."""
         return int(self.tail_re.shape[0])
+
+    @functools.cached_property
+    def lean(self) -> LeanKernel:
+        """The two-level partition of the lean kernel (:func:`prepare_lean`), made once."""
+        return prepare_lean(self)
 
 
 @dataclass(frozen=True)
@@ -597,6 +603,190 @@ def _run(
     return y, y_prev, dp
 
 
+@njit(cache=True)
+def history_spectra(x, n0, block, n_part, bitrev, tw_re, tw_im, w_re, w_im):
+    """Spectra of the P history blocks -1..-P of ``x`` for the frequency-domain delay line.
+
+    Returns ``(f_re, f_im)`` of shape ``(max(P, 1), B + 1)``, slot ``c mod P`` holding the
+    ``rfft`` of ``x[n0 + (c - 1) B : n0 + (c + 1) B]``: what :func:`_run` computes before
+    its first sample. Built once per window (the history does not depend on the candidate)
+    and handed to :func:`_run_pressure`.
+    """
+    nb = block + 1
+    f_re = np.zeros((max(n_part, 1), nb))
+    f_im = np.zeros((max(n_part, 1), nb))
+    zr = np.zeros(block)
+    zi = np.zeros(block)
+    for c in range(-n_part, 0):
+        slot = c % n_part
+        _rfft(
+            x, n0 + (c - 1) * block, f_re[slot], f_im[slot], zr, zi, bitrev, tw_re, tw_im,
+            w_re, w_im,
+        )  # fmt: skip
+    return f_re, f_im
+
+
+@njit(cache=True, fastmath={"reassoc", "contract"})
+def _accumulate(acc_re, acc_im, g_re, g_im, f_re, f_im, newest):
+    """Acc = sum_k G_k F_{newest - k}: the spectral products of the delay line.
+
+    Reassociation lets the inner loop over bins run on SIMD lanes; the sum over partitions
+    keeps its order, so the result differs from :func:`_run`'s only by contraction (fma).
+    """
+    n_part = g_re.shape[0]
+    nb = acc_re.size
+    for j in range(nb):
+        acc_re[j] = 0.0
+        acc_im[j] = 0.0
+    for k in range(n_part):
+        slot = newest - k
+        if slot < 0:
+            slot += n_part
+        gr = g_re[k]
+        gi = g_im[k]
+        fr = f_re[slot]
+        fi = f_im[slot]
+        for j in range(nb):
+            acc_re[j] += gr[j] * fr[j] - gi[j] * fi[j]
+            acc_im[j] += gr[j] * fi[j] + gi[j] * fr[j]
+
+
+@njit(cache=True)
+def _rfft_lean(x, start, out_re, out_im, zr, zi, bitrev, tw_re, tw_im, w_re, w_im):
+    """:func:`_rfft` with the split loop free of modulo indexing (the lean kernel's).
+
+    Bins 0 and M are set apart; bins 1..M-1 pair z[k] with z[M - k] through slices, which
+    spares two integer divisions per bin (this loop cost as much as the FFT itself).
+    """
+    m = zr.size
+    xs = x[start : start + 2 * m]
+    for n in range(m):
+        zr[n] = xs[2 * n]
+        zi[n] = xs[2 * n + 1]
+    _fft(zr, zi, bitrev, tw_re, tw_im)
+    out_re[0] = zr[0] + zi[0]
+    out_im[0] = 0.0
+    out_re[m] = zr[0] - zi[0]
+    out_im[m] = 0.0
+    za_r = zr[1:m]
+    za_i = zi[1:m]
+    wr = w_re[1:m]
+    wi = w_im[1:m]
+    ore = out_re[1:m]
+    oim = out_im[1:m]
+    for k in range(m - 1):
+        kb = m - 2 - k
+        ar = za_r[k]
+        ai = za_i[k]
+        br = za_r[kb]
+        bi = za_i[kb]
+        er = 0.5 * (ar + br)
+        ei = 0.5 * (ai - bi)
+        orr = 0.5 * (ai + bi)
+        oi = -0.5 * (ar - br)
+        ore[k] = er + wr[k] * orr - wi[k] * oi
+        oim[k] = ei + wr[k] * oi + wi[k] * orr
+
+
+@njit(cache=True)
+def _fdl_tail(x, n0, blk, level, f_re, f_im, work):
+    """Tail of one delay-line level for output block ``blk`` into ``work[4, :B]``.
+
+    ``level`` is (G_re, G_im, bitrev, tw_re, tw_im, w_re, w_im) of block size B; block
+    ``blk - 1`` of p+ has just been completed, so its spectrum enters the delay line first.
+    """
+    g_re, g_im, bitrev, tw_re, tw_im, w_re, w_im = level
+    b = bitrev.size
+    n_part = g_re.shape[0]
+    acc_re = work[0, : b + 1]
+    acc_im = work[1, : b + 1]
+    zr = work[2, :b]
+    zi = work[3, :b]
+    tail = work[4, :b]
+    if blk > 0:
+        c = blk - 1
+        _rfft_lean(
+            x, n0 + (c - 1) * b, f_re[c % n_part], f_im[c % n_part], zr, zi, bitrev, tw_re,
+            tw_im, w_re, w_im,
+        )  # fmt: skip
+    _accumulate(acc_re, acc_im, g_re, g_im, f_re, f_im, (blk - 1) % n_part)
+    _irfft_last_half(acc_re, acc_im, tail, zr, zi, bitrev, tw_re, tw_im, w_re, w_im)
+
+
+@njit(cache=True)
+def _run_pressure(
+    x, n0, n, head_rev, h0, z0, rho, a1, a2, a3, b1, y_m, y_c, alpha, lam, s_fs, p_m, y,
+    y_prev, dp, level1, f1_re, f1_im, work1, level2, f2_re, f2_im, work2, out_p,
+):  # fmt: skip
+    """The scheme of :func:`_run` for a constant mouth pressure, pressure output only.
+
+    The lean kernel of the inversion, with a two-level (non-uniform) partition of the
+    reflection function: lags 1..B1-1 direct, lags B1..B2-1 by a frequency-domain delay
+    line of block B1 (``level1``), lags >= B2 by one of block B2 (``level2``); see
+    :class:`LeanKernel`. Each level's history spectra ``f*_re, f*_im`` come precomputed
+    (:func:`history_spectra`; overwritten here) and the scratch ``work*`` (shape
+    ``(5, B + 1)``) is the caller's, so a run allocates nothing. Returns the final
+    (y, y_prev, dp).
+    """
+    n_head = head_rev.size
+    blk1 = level1[2].size
+    blk2 = level2[2].size
+    on1 = level1[0].shape[0] > 0
+    on2 = level2[0].shape[0] > 0
+    tail1 = work1[4, :blk1]
+    tail2 = work2[4, :blk2]
+    inv = 1.0 / (1.0 - h0)
+    z0p = z0 * (1.0 + h0) * inv
+    two_over_rho = 2.0 / rho
+    square = alpha == 2.0
+    r1 = 0
+    r2 = 0
+    c1 = 0
+    c2 = 0
+    for i in range(n):
+        m = n0 + i
+        if on2 and r2 == 0:
+            _fdl_tail(x, n0, c2, level2, f2_re, f2_im, work2)
+        if on1 and r1 == 0:
+            _fdl_tail(x, n0, c1, level1, f1_re, f1_im, work1)
+        y_new = a1 * y + a2 * y_prev + b1 * dp
+        e = y - y_c
+        if e > 0.0:
+            y_new += a3 * (e * e if square else e**alpha)
+        hh = y_m - y_new
+        if hh < 0.0:
+            hh = 0.0
+        ur = s_fs * (y_new - y)
+        q = _dot(head_rev, x[m - n_head : m])
+        if on1:
+            q += tail1[r1]
+        if on2:
+            q += tail2[r2]
+        uf = 0.0
+        if hh > 0.0:
+            lh2 = (lam * hh) ** 2
+            big_l = lh2 * z0p / rho
+            big_g = lh2 * two_over_rho * (2.0 * q * inv + z0p * ur - p_m)
+            uf = -big_g / (big_l + math.sqrt(big_l * big_l + abs(big_g)))
+        u = uf + ur
+        pp = (q + z0 * u) * inv
+        x[m] = pp
+        p = 2.0 * pp - z0 * u
+        out_p[i] = p
+        y_prev = y
+        y = y_new
+        dp = p_m - p
+        r1 += 1
+        if r1 == blk1:
+            r1 = 0
+            c1 += 1
+        r2 += 1
+        if r2 == blk2:
+            r2 = 0
+            c2 += 1
+    return y, y_prev, dp
+
+
 # ---------------------------------------------------------------------------------------
 # Plain reference
 
@@ -923,3 +1113,181 @@ def playing_frequency(x: np.ndarray, fs: float, fmin: float = 50.0, fmax: float 
             d = lo + ratio * (hi - lo)
             fd = magnitude(d)
     return float(0.5 * (lo + hi))
+
+
+def _fft_tables(b: int) -> tuple[np.ndarray, ...]:
+    """Bit reversal, FFT twiddles and real-FFT twiddles for blocks of B samples."""
+    bits = int(round(math.log2(b)))
+    idx = np.arange(b)
+    bitrev = np.zeros(b, dtype=np.int64)
+    for k in range(bits):
+        bitrev |= ((idx >> k) & 1) << (bits - 1 - k)
+    tw = np.concatenate(
+        [np.exp(-1j * np.pi * np.arange(half) / half) for half in 2 ** np.arange(bits)]
+    )
+    rw = np.exp(-2j * np.pi * np.arange(b + 1) / (2 * b))
+    return bitrev, tw.real.copy(), tw.imag.copy(), rw.real.copy(), rw.imag.copy()
+
+
+def _partition_spectra(segment: np.ndarray, b: int) -> tuple[np.ndarray, np.ndarray]:
+    """Spectra (rfft of length 2B) of ``segment`` cut into zero-padded blocks of B taps."""
+    n_part = -(-segment.size // b)
+    padded = np.zeros((n_part, 2 * b))
+    padded[:, :b].flat[: segment.size] = segment
+    spectra = np.fft.rfft(padded, axis=1) if n_part else np.zeros((0, b + 1), complex)
+    return spectra.real.copy(), spectra.imag.copy()
+
+
+@dataclass(frozen=True)
+class LeanKernel:
+    """The reflection function partitioned for the lean (pressure-only) kernel.
+
+    Two delay-line levels (non-uniform partitioned convolution): lags ``1..B1-1`` run as a
+    direct dot product every sample, lags ``B1..B2-1`` by a frequency-domain delay line of
+    block B1 (a few short partitions, recomputed every B1 samples), and the long tail,
+    lags ``>= B2``, by one of block B2 (few long partitions, every B2 samples). A uniform
+    partition must trade the direct part's cost (B per sample) against the delay line's
+    (about 8 N / B flops per sample for N taps); two levels make both small. Each level is
+    exact by the same argument as the uniform one: a block of B outputs only needs p+ at
+    least B samples old.
+
+    Attributes
+    ----------
+    block1, block2 : int
+        B1 and B2, powers of two with B1 < B2.
+    n0 : int
+        Samples of p+ history a run buffer holds before its first output sample.
+    head_rev : ndarray
+        h[B1 - 1], ..., h[1] (the direct part).
+    h0 : float
+        Lag-0 tap.
+    level1, level2 : tuple of ndarray
+        (G_re, G_im, bitrev, tw_re, tw_im, w_re, w_im) of each level; G has shape
+        ``(P, B + 1)``.
+    """
+
+    block1: int
+    block2: int
+    n0: int
+    head_rev: np.ndarray
+    h0: float
+    level1: tuple
+    level2: tuple
+
+    def history_spectra(self, x: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Delay-line spectra of the history in ``x[:n0]``: (f1_re, f1_im, f2_re, f2_im)."""
+        out = []
+        for level in (self.level1, self.level2):
+            g_re = level[0]
+            b = level[2].size
+            out.extend(history_spectra(x, self.n0, b, g_re.shape[0], *level[2:]))
+        return tuple(out)
+
+
+#: Block sizes of the lean kernel's two levels, chosen by measurement on the shipped
+#: instrument (7200 taps at 100 kHz), interleaved runs against today's kernel, thread CPU
+#: time (medians of 7): (16, 256) 1.25x, (32, 256) 1.39x, (32, 512) 1.49x, (64, 256) 1.52x,
+#: (64, 512) 1.60x (benchmarks/bench_realtime.py prints the rate beside today's kernel).
+LEAN_BLOCKS = (64, 512)
+
+
+def prepare_lean(kernel: BoreKernel, block1: int | None = None, block2: int | None = None):
+    """Partition a prepared bore's reflection function for the lean kernel.
+
+    Parameters
+    ----------
+    kernel : BoreKernel
+        Prepared bore.
+    block1, block2 : int, optional
+        Block sizes B1 < B2 (powers of two, >= 4); default :data:`LEAN_BLOCKS`.
+
+    Returns
+    -------
+    LeanKernel
+    """
+    b1 = LEAN_BLOCKS[0] if block1 is None else int(block1)
+    b2 = LEAN_BLOCKS[1] if block2 is None else int(block2)
+    for b in (b1, b2):
+        if b < 4 or b > 8192 or b & (b - 1):
+            raise ValueError(f"lean kernel blocks: expected powers of two in [4, 8192], got {b}")
+    if not b1 < b2:
+        raise ValueError(f"lean kernel blocks: expected block1 < block2, got {b1}, {b2}")
+    h = kernel.h
+    n = h.size
+    level1 = (*_partition_spectra(h[b1 : min(b2, n)], b1), *_fft_tables(b1))
+    level2 = (*_partition_spectra(h[b2:], b2), *_fft_tables(b2))
+    p1, p2 = level1[0].shape[0], level2[0].shape[0]
+    n0 = max(n - 1, (p1 + 1) * b1, (p2 + 1) * b2)
+    head_rev = np.ascontiguousarray(h[1 : min(b1, n)][::-1])
+    for a in (head_rev, *level1, *level2):
+        a.flags.writeable = False
+    return LeanKernel(b1, b2, n0, head_rev, float(h[0]), level1, level2)
+
+
+def simulate_pressure(
+    reed: ReedParameters,
+    kernel: BoreKernel,
+    n_samples: int,
+    *,
+    state: ModelState | None = None,
+    lean: LeanKernel | None = None,
+) -> np.ndarray:
+    """Mouthpiece pressure of :func:`simulate` at constant mouth pressure, by the lean kernel.
+
+    The same scheme as ``simulate(..., method="fast")`` with ``mouth_pressure = reed.p_m``
+    and no onset, but only the pressure is computed and kept, and the reflection function
+    is split over two delay-line levels (:class:`LeanKernel`); this is the kernel the
+    inversion runs (:mod:`mpipe.inversion.fastpath`). Agrees with :func:`simulate` to
+    rounding.
+
+    Parameters
+    ----------
+    reed : ReedParameters
+        Reed parameters (SI units).
+    kernel : BoreKernel
+        Prepared bore.
+    n_samples : int
+        Number of samples.
+    state : ModelState, optional
+        Start from this history instead of from rest.
+    lean : LeanKernel, optional
+        The partition to use (default: :func:`prepare_lean` of ``kernel``).
+
+    Returns
+    -------
+    ndarray
+        Pressure, Pa; sample i at t = (i + 1) / fs, as :attr:`Simulation.p`.
+
+    Raises
+    ------
+    ValueError
+        As :func:`simulate`.
+    """
+    n_samples = int(n_samples)
+    if n_samples < 1:
+        raise ValueError(f"n_samples: expected at least 1, got {n_samples}")
+    check_stability(reed, kernel.fs)
+    lean = prepare_lean(kernel) if lean is None else lean
+    n_taps = kernel.n_taps
+    n0 = lean.n0
+    x = np.zeros(n0 + n_samples)
+    if state is None:
+        y, y_prev, dp = 0.0, 0.0, float(reed.p_m)
+    else:
+        hist = np.asarray(state.p_plus, dtype=float)
+        if hist.ndim != 1 or hist.size < n_taps:
+            raise ValueError(
+                f"state.p_plus: expected at least len(h) = {n_taps} past samples, got {hist.size}"
+            )
+        x[n0 - (n_taps - 1) : n0] = hist[-(n_taps - 1) :]
+        y, y_prev, dp = float(state.y), float(state.y_prev), float(state.dp)
+    out = np.empty(n_samples)
+    f1_re, f1_im, f2_re, f2_im = lean.history_spectra(x)
+    a1, a2, a3, b1 = reed_coefficients(reed, kernel.fs)
+    _run_pressure(
+        x, n0, n_samples, lean.head_rev, lean.h0, kernel.z0, kernel.rho, a1, a2, a3, b1,
+        reed.y_m, reed.y_c, reed.alpha, reed.lam, reed.S * kernel.fs, reed.p_m, y, y_prev,
+        dp, lean.level1, f1_re, f1_im, np.zeros((5, lean.block1 + 1)), lean.level2, f2_re,
+        f2_im, np.zeros((5, lean.block2 + 1)), out,
+    )  # fmt: skip
+    return out

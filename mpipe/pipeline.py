@@ -223,6 +223,26 @@ class InversionConfig:
         between(1, 1_000_000),
         default=400,
     )
+    warm_secant: bool = spec(
+        "",
+        "trust-region on warm windows: update the Jacobian by Broyden's secant rule between "
+        "difference Jacobians (a fresh one at the start, after a failed step and before "
+        "stopping); false: a difference Jacobian at every step (scipy's method)",
+        default=True,
+    )
+    warm_f_tolerance: float = spec(
+        "",
+        "warm windows with warm_secant: also stop when a fresh difference Jacobian predicts "
+        "the sum of squares to fall by less than this fraction (1e-4: F2 by 0.005 %)",
+        between(0.0, 0.1),
+        default=1e-4,
+    )
+    fast_objective: bool = spec(
+        "",
+        "compute F2's residuals by the compiled per-window evaluator (the same numbers to "
+        "rounding, ~4x cheaper); false: the plain reference implementation",
+        default=True,
+    )
     warm_initial_step: float = spec(
         "",
         "initial log step of a warm-started window (rosenbrock, powell, nelder-mead)",

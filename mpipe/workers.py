@@ -23,7 +23,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 
 log = logging.getLogger(__name__)
@@ -97,7 +97,9 @@ def _plain_log_handlers() -> None:
 
 
 @contextlib.contextmanager
-def process_pool(max_workers: int) -> Iterator[ProcessPoolExecutor]:
+def process_pool(
+    max_workers: int, initializer: Callable | None = None, initargs: tuple = ()
+) -> Iterator[ProcessPoolExecutor]:
     """A process pool whose workers end with this process.
 
     On leaving the block by an exception (including ``KeyboardInterrupt`` and the
@@ -108,9 +110,16 @@ def process_pool(max_workers: int) -> Iterator[ProcessPoolExecutor]:
     ----------
     max_workers : int
         Number of worker processes.
+    initializer : callable, optional
+        Run in each worker after :func:`worker_init`, with ``initargs`` (e.g. to receive
+        data shared by every task once per worker instead of once per task).
+    initargs : tuple
+        Arguments of ``initializer``.
     """
     pool = ProcessPoolExecutor(
-        max_workers=max_workers, initializer=worker_init, initargs=(os.getpid(),)
+        max_workers=max_workers,
+        initializer=_init_then,
+        initargs=(os.getpid(), initializer, initargs),
     )
     try:
         yield pool
@@ -119,6 +128,12 @@ def process_pool(max_workers: int) -> Iterator[ProcessPoolExecutor]:
         raise
     else:
         pool.shutdown(wait=True)
+
+
+def _init_then(parent_pid: int, initializer, initargs: tuple) -> None:
+    worker_init(parent_pid)
+    if initializer is not None:
+        initializer(*initargs)
 
 
 def terminate_pool(pool: ProcessPoolExecutor) -> None:

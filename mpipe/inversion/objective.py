@@ -33,6 +33,7 @@ Chatziioannou & van Walstijn 2012, eq. (15), sections 3.2 and 4.2; physics.md I,
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass
 from typing import Literal
@@ -405,6 +406,11 @@ class F2Objective:
         Names of the free parameters (fields of ReedParameters).
     contact_at_closure : bool
         Tie the contact point to the rest opening (y_c = y_m) in every candidate.
+    fast : bool
+        Compute F2 and the residuals by the compiled evaluator of
+        :mod:`mpipe.inversion.fastpath` (history start only; the same numbers to rounding).
+        False: by :func:`run_model`, the plain reference. :meth:`evaluate` (model pressure
+        and flow, for plots) always uses the reference.
     """
 
     kernel: BoreKernel
@@ -413,6 +419,17 @@ class F2Objective:
     base: ReedParameters
     free: tuple[str, ...]
     contact_at_closure: bool = False
+    fast: bool = True
+
+    @functools.cached_property
+    def _evaluator(self):
+        # built on first use, once per window: the history spectra and buffers it holds
+        # are shared by every candidate of the window
+        from mpipe.inversion.fastpath import WindowEvaluator
+
+        if not self.fast or self.settings.start != "history":
+            return None
+        return WindowEvaluator(self.kernel, self.target, self.settings)
 
     @property
     def penalty(self) -> float:
@@ -438,7 +455,10 @@ class F2Objective:
 
     def __call__(self, x: np.ndarray) -> float:
         """F2 in Pa for free-parameter values ``x``."""
-        return self.evaluate(x).f2
+        if self._evaluator is None:
+            return self.evaluate(x).f2
+        r = self.residuals(x)
+        return float(np.linalg.norm(r))
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
         """Target minus model pressure over the window, Pa (F2 is its norm).
@@ -446,8 +466,18 @@ class F2Objective:
         An infeasible candidate gives a constant vector whose norm is ``penalty``, so the
         residual vector always has the window's length.
         """
-        w = self.evaluate(x)
         n = self.target.p.size
-        if not w.feasible:
+        ev = self._evaluator
+        if ev is None:
+            w = self.evaluate(x)
+            if not w.feasible:
+                return np.full(n, self.penalty / math.sqrt(n))
+            return self.target.p - w.p
+        try:
+            reed = self.reed(x)
+        except ValueError:
             return np.full(n, self.penalty / math.sqrt(n))
-        return self.target.p - w.p
+        out = np.empty(n)
+        if ev.residuals_into(reed, out):
+            return np.full(n, self.penalty / math.sqrt(n))
+        return out

@@ -209,9 +209,13 @@ def local_search(
             lower=bounds[:, 0],
             upper=bounds[:, 1],
             x_tolerance=config.step_tolerance,
-            f_tolerance=config.f_tolerance or None,
+            f_tolerance=(
+                config.warm_f_tolerance if not cold and config.warm_secant else config.f_tolerance
+            )
+            or None,
             max_evaluations=budget,
             infeasible_norm=objective.penalty,
+            secant=not cold and config.warm_secant,
         )
     return minimise(
         objective,
@@ -330,7 +334,13 @@ def invert_window(
         )
         names = config.search_parameters
         objective = F2Objective(
-            kernel, target, settings, base, names, contact_at_closure=config.contact == "closure"
+            kernel,
+            target,
+            settings,
+            base,
+            names,
+            fast=config.fast_objective,
+            contact_at_closure=config.contact == "closure",
         )
         bounds = search_bounds(config, float(np.max(pw)))
         x0 = np.clip([getattr(base, name) for name in names], bounds[:, 0], bounds[:, 1])
@@ -473,6 +483,24 @@ def _run_windows(
     A window given with a previous row is a retry: it gets a cold start of its own, and its
     row is replaced when the cold start reaches a lower F2 (``retried_cold`` either way).
     """
+    with _one_blas_thread():
+        return _run_windows_inner(job, items, warm, report)
+
+
+def _one_blas_thread():
+    """Limit BLAS to one thread while windows run (a context manager).
+
+    The searches use BLAS only on tiny matrices (a (2000, 8) Jacobian at most), where a
+    threaded BLAS gains nothing and, on a machine whose cores are busy (other workers,
+    other users), its spinning threads stall each call by tens of ms: the cold start took
+    5-7x longer wall time with the default threads on a loaded 2-core machine.
+    """
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(limits=1, user_api="blas")
+
+
+def _run_windows_inner(job, items, warm, report):
     out = []
     for s, previous in items:
         saved = None if job.checkpoint is None else load_checkpoint(job.checkpoint, s)
@@ -503,10 +531,20 @@ def _run_windows(
     return out
 
 
+# The take's shared data in a worker process of the local pool: set once per worker by the
+# pool initializer, so a task ships only its window starts and the warm start (the signals
+# and the bore kernel are several MB; pickling them per task cost more than the windows).
+_WORKER_JOB: list = []
+
+
+def _init_worker(job: _Job) -> None:
+    _WORKER_JOB[:] = [job]
+
+
 def _windows_task(args) -> list[tuple[dict, np.ndarray | None]]:
-    # Top-level function: picklable for process pools and Dask.
-    job, items, warm, queue = args
-    return _run_windows(job, items, warm, None if queue is None else queue.put)
+    # Top-level function: picklable for process pools.
+    items, warm, queue = args
+    return _run_windows(_WORKER_JOB[0], items, warm, None if queue is None else queue.put)
 
 
 def split_chains(starts: Sequence[int], n_chains: int) -> list[list[int]]:
@@ -673,9 +711,11 @@ def _dispatch(job, items, warm, executor, workers, client, update):
         return []
     if executor.kind == "local" and workers == 1 and client is None:
         return _run_windows(job, items, warm, update)
+    # Several chunks per worker, handed out as workers free up: windows differ in cost
+    # (a few need more steps), and one chunk per worker left one idle at the end.
     groups = [
         [items[i] for i in g]
-        for g in split_chains(list(range(len(items))), executor.chunks or workers)
+        for g in split_chains(list(range(len(items))), executor.chunks or 4 * workers)
     ]
     if executor.kind == "dask" or client is not None:
         return _track_dask(job, groups, warm, executor, client, update)
@@ -683,29 +723,32 @@ def _dispatch(job, items, warm, executor, workers, client, update):
 
 
 def _track_processes(job, groups, warm, workers, update):
+    import contextlib
+    from concurrent.futures import FIRST_COMPLETED, wait
+
     from mpipe.workers import manager as worker_manager
     from mpipe.workers import process_pool
 
-    results = []
     # workers (and the queue's server) end with this process, whatever ends it
-    with worker_manager() as manager:
-        queue = manager.Queue() if update is not None else None
-        with process_pool(min(workers, len(groups))) as pool:
-            futures = [pool.submit(_windows_task, (job, g, warm, queue)) for g in groups]
-            pending = set(futures)
-            while pending:
-                finished = {f for f in pending if f.done()}
-                pending -= finished
-                if queue is not None:
-                    while not queue.empty():
-                        update(queue.get())
-                if pending:
-                    time.sleep(0.05)
-            for f in futures:
-                results.extend(f.result())
-            if queue is not None:
-                while not queue.empty():
-                    update(queue.get())
+    with contextlib.ExitStack() as stack:
+        queue = None
+        if update is not None:
+            queue = stack.enter_context(worker_manager()).Queue()
+
+        def drain() -> None:
+            while queue is not None and not queue.empty():
+                update(queue.get())
+
+        pool = stack.enter_context(
+            process_pool(min(workers, len(groups)), initializer=_init_worker, initargs=(job,))
+        )
+        futures = [pool.submit(_windows_task, (g, warm, queue)) for g in groups]
+        pending = set(futures)
+        while pending:
+            _, pending = wait(pending, timeout=0.1, return_when=FIRST_COMPLETED)
+            drain()
+        results = [r for f in futures for r in f.result()]
+        drain()
     return results
 
 

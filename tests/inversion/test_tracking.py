@@ -113,6 +113,25 @@ def test_track_does_not_depend_on_workers_or_executor(take):
     pd.testing.assert_frame_equal(one.table[SAME], three.table[SAME])
 
 
+def test_track_dask_local_cluster_of_processes_matches_in_process(take):
+    # two worker processes on loopback: the job is scattered once, the table is the same
+    distributed = pytest.importorskip("distributed")
+    kernel, rho, sim = take
+    one = track(
+        sim.p, sim.u, FS, kernel, rho, LIGHT, ExecutorConfig(workers=1), start_s=0.30, end_s=0.36
+    )
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+        host="127.0.0.1",
+    ) as cluster:  # fmt: skip
+        with distributed.Client(cluster) as client:
+            cfg = ExecutorConfig(kind="dask", scheduler=cluster.scheduler_address)
+            result = track(
+                sim.p, sim.u, FS, kernel, rho, LIGHT, cfg, start_s=0.30, end_s=0.36, client=client
+            )
+    pd.testing.assert_frame_equal(one.table[SAME], result.table[SAME])
+
+
 def test_sample_rate_mismatch(take):
     kernel, rho, sim = take
     with pytest.raises(ValueError, match="Hz"):
