@@ -106,7 +106,7 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
     def work(folder: Path):
         # one rate for the whole pipeline: takes at other rates are resampled when read
         fs = cfg.inversion.sample_rate
-        take = read_take(take_paths if len(take_paths) == 3 else take_paths[0], cal, fs=fs)
+        take = read_take(take_paths if len(take_paths) > 1 else take_paths[0], cal, fs=fs)
         sep = separate(take.pressures, take.fs, cal, cfg.separation, take.band_limit_hz)
         temps = sep.temperature_track()
         th = sep.median_theta()
@@ -359,7 +359,7 @@ def _run_take(
     cal_path : Path
         Calibration file (the pipeline's, or an override).
     take_paths : sequence of path
-        One multichannel file or three mono files.
+        One multichannel file or one mono file per microphone.
     out : path
         Output directory; the take's results go to ``out/<take>/``.
     force : bool
