@@ -198,11 +198,11 @@ class SeparationConfig:
     mic_position_prior_m: float | None = spec(
         "m",
         "standard deviation of the Gaussian prior on the correction to the position of the "
-        "middle microphone relative to the outer two (null: hold it at the calibrated "
-        "position). A position error, or a delay between channels, is frequency-linear "
-        "in phase and otherwise biases the temperature; it is identifiable from the data "
-        "because the temperature scales both spacings alike and this correction moves them "
-        "oppositely",
+        "middle microphone relative to the outer two, with exactly three microphones (null, "
+        "or another count: hold the calibrated positions). A position error, or a delay "
+        "between channels, is frequency-linear in phase and otherwise biases the "
+        "temperature; it is identifiable from the data because the temperature scales both "
+        "spacings alike and this correction moves them oppositely",
         _width("width"),
         default=5e-4,
     )

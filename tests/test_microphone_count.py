@@ -97,7 +97,7 @@ def takes(tmp_path_factory):
 def test_mouthpiece_p_and_u_from_2_3_4_microphones(takes):
     """Held at the truth (20 degC, eta 1, M 0): p and u within 1 % for 3 and 4 microphones.
 
-    In every seed. Two microphones 2 cm apart carry twice the noise of three into u (the
+    Every seed must pass. Two microphones 2 cm apart carry twice the noise of three into u (the
     least-squares gradient over spacings 0, 2, 4 cm has a quarter of the variance of one
     2 cm difference): within 1.25 % in every seed, and about twice the three-microphone
     error.
