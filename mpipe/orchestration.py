@@ -126,7 +126,11 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
             "temperature_c_range": [float(b.temperature_c.min()), float(b.temperature_c.max())],
             "loss_scale_median": float(np.median(b.loss_scale)),
             "mach_median": float(np.median(b.mach)),
-            "residual_median": float(np.nanmedian(b.residual)),
+            # None with two microphones: they leave no residual
+            "residual_median": (
+                float(np.nanmedian(b.residual)) if np.any(np.isfinite(b.residual)) else None
+            ),
+            "theta": str(b.theta.iloc[0]),
             "fs_file_hz": take.fs_file,
             "temperature_se_c_median": float(np.median(b.temperature_se_c)),
             "loss_scale_se_median": float(np.median(b.loss_scale_se)),

@@ -74,7 +74,10 @@ def mouthpiece_errors(take, cal, truth, config):
 
 @pytest.fixture(scope="module")
 def takes(tmp_path_factory):
-    """Virtual 0.4 s takes at 70 dB SNR per channel: {(n_mics, seed): (take, cal, truth)}."""
+    """Virtual 0.4 s takes at 70 dB SNR per channel.
+
+    ``{(n_mics, seed): (take, cal, truth, files)}``.
+    """
     tmp = tmp_path_factory.mktemp("mics")
     out = {}
     for n in (2, 3, 4):
@@ -90,7 +93,7 @@ def takes(tmp_path_factory):
             assert len(cal.microphones) == n
             take = read_take(files.audio, cal, fs=FS)
             assert take.pressures.shape[1] == n
-            out[n, seed] = (take, cal, dict(np.load(files.truth)))
+            out[n, seed] = (take, cal, dict(np.load(files.truth)), files)
     return out
 
 
@@ -104,7 +107,7 @@ def test_mouthpiece_p_and_u_from_2_3_4_microphones(takes):
     """
     held = fixed_config(SeparationConfig())
     errors = {}
-    for (n, seed), (take, cal, truth) in takes.items():
+    for (n, seed), (take, cal, truth, _) in takes.items():
         ep, eu, sep = mouthpiece_errors(take, cal, truth, held)
         errors[n, seed] = (ep, eu)
         assert ep < 0.01, (n, seed, ep)
@@ -119,7 +122,7 @@ def test_estimated_propagation_with_3_and_4_microphones(takes):
     u within 2 % (issue 12's figure for the estimated separation) and p within 1 %, in
     every seed.
     """
-    for (n, seed), (take, cal, truth) in takes.items():
+    for (n, seed), (take, cal, truth, _) in takes.items():
         if n == 2:
             continue
         ep, eu, sep = mouthpiece_errors(take, cal, truth, SeparationConfig())
@@ -133,7 +136,7 @@ def test_estimated_propagation_with_3_and_4_microphones(takes):
 
 
 def test_two_microphones_hold_the_propagation_and_say_so(takes, caplog):
-    take, cal, truth = takes[2, SEEDS[0]]
+    take, cal, truth, _ = takes[2, SEEDS[0]]
     with caplog.at_level(logging.WARNING, logger="mpipe.separation"):
         sep = separate(take.pressures, take.fs, cal, SeparationConfig(), take.band_limit_hz)
     assert "two microphones leave no redundancy" in caplog.text
@@ -150,7 +153,7 @@ def test_two_microphones_hold_the_propagation_and_say_so(takes, caplog):
 
 
 def test_mono_files_and_channel_checks_follow_the_microphone_count(takes, tmp_path):
-    take, cal, _ = takes[4, SEEDS[0]]
+    take, cal, _, _ = takes[4, SEEDS[0]]
     x = take.pressures / np.max(np.abs(take.pressures)) / 2
     sens = np.max(np.abs(take.pressures)) * 2
     mics = tuple(dataclasses.replace(m, sensitivity=float(sens)) for m in cal.microphones)
@@ -172,7 +175,7 @@ def test_mono_files_and_channel_checks_follow_the_microphone_count(takes, tmp_pa
     with pytest.raises(UserError, match="channels look swapped"):
         read_take(swapped, cal4)
     # two microphones cannot see a swap, but a reversed pair sends power to the mouthpiece
-    take2, cal2, _ = takes[2, SEEDS[0]]
+    take2, cal2, _, _ = takes[2, SEEDS[0]]
     y = take2.pressures[:, ::-1] / np.max(np.abs(take2.pressures)) / 2
     rev = tmp_path / "reversed.wav"
     sf.write(rev, y, int(take2.fs), subtype="FLOAT")
@@ -182,3 +185,20 @@ def test_mono_files_and_channel_checks_follow_the_microphone_count(takes, tmp_pa
     cal2_path.write_text(yaml.safe_dump(mapping, sort_keys=False))
     with pytest.raises(UserError, match="reverse order"):
         read_take(rev, load_calibration(cal2_path))
+
+
+def test_commands_follow_the_calibration(takes, tmp_path, capsys):
+    from mpipe.cli import main
+
+    files = takes[2, SEEDS[0]][3]
+    out = tmp_path / "sep2"
+    main(["separate", str(files.audio), str(files.calibration), "-o", str(out)])
+    assert "no residual (held: two microphones, no redundancy)" in capsys.readouterr().out
+    blocks = (out / "blocks.csv").read_text()
+    assert "held: two microphones, no redundancy" in blocks
+    # one error value per microphone of the calibration, refused before simulating
+    cal4 = calibration_with(tmp_path, 4)
+    with pytest.raises(UserError, match="--gain-error-db: 3 values given, but .*cal4.yaml has 4"):
+        make_take(
+            cal4, REED, tmp_path / "t.flac", SynthOptions(duration_s=0.3, gain_error_db=(0, 0, 0))
+        )

@@ -174,12 +174,16 @@ def _run(args: argparse.Namespace) -> int:
     write_atomic(out / "impedance.png", lambda tmp: plot_impedance(val, tmp, 2000.0))
 
     b = sep.blocks
+    fit = (
+        f"median chi2/term {np.nanmedian(b.residual):.2f}"
+        if np.any(np.isfinite(b.residual))
+        else f"no residual ({b.theta.iloc[0]})"
+    )
     print(
         f"{len(b)} blocks: T {b.temperature_c.median():.2f} +- {b.temperature_se_c.median():.2f}"
         f" degC ({b.temperature_c.min():.2f}..{b.temperature_c.max():.2f}), "
         f"eta {b.loss_scale.median():.3f} +- {b.loss_scale_se.median():.3f}, "
-        f"M {b.mach.median():.4f} +- {b.mach_se.median():.4f}, "
-        f"median chi2/term {np.nanmedian(b.residual):.2f}"
+        f"M {b.mach.median():.4f} +- {b.mach_se.median():.4f}, {fit}"
     )
     for line in sep.bound_warnings():
         print(f"warning: {line}")
