@@ -70,15 +70,22 @@ class Calibration:
     name: str = spec("", "human-readable name of the set-up")
     air: AirSettings = spec("", "air conditions")
     bore: Bore = spec("", "bore geometry and termination")
-    microphones: tuple[Microphone, ...] = spec("", "the three wall microphones, upstream first")
+    microphones: tuple[Microphone, ...] = spec(
+        "",
+        "the wall microphones, upstream first: two or more, all in the cylinder holding the "
+        "reference plane (two: exact separation, propagation held; three or more: least "
+        "squares, propagation estimated)",
+    )
     reference_plane: float = spec("m", "position where p0, u0 are reconstructed", between(0.0, 5.0))
     source: str = spec("", "file the calibration was read from (set by the loader)", default="")
 
     def _check(self, where: Where) -> None:
         length = self.bore.length
-        if len(self.microphones) != 3:
+        if len(self.microphones) < 2:
             raise where.error(
-                "microphones", f"expected exactly 3 microphones, got {len(self.microphones)}"
+                "microphones",
+                f"expected at least 2 microphones (two waves are unknown), got "
+                f"{len(self.microphones)}",
             )
         positions = [m.position for m in self.microphones]
         for i, x in enumerate(positions):
@@ -98,7 +105,7 @@ class Calibration:
                 f"reference plane at {self.reference_plane:g} m is outside the bore "
                 f"(0 to {length:g} m)",
             )
-        # The three-microphone field model assumes one uniform duct around the microphones
+        # The two-wave field model assumes one uniform duct around the microphones
         # and the reference plane (physics.md E.1).
         lo = min(positions[0], self.reference_plane)
         hi = max(positions[-1], self.reference_plane)

@@ -37,7 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
     """Assemble the argument parser from the command modules."""
     parser = argparse.ArgumentParser(
         prog="mpipe",
-        description="Clarinet reed parameters from in-bore three-microphone recordings.",
+        description="Clarinet reed parameters from in-bore multi-microphone recordings.",
     )
     parser.add_argument("--version", action="version", version=f"mpipe {__version__}")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")

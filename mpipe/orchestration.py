@@ -106,7 +106,7 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
     def work(folder: Path):
         # one rate for the whole pipeline: takes at other rates are resampled when read
         fs = cfg.inversion.sample_rate
-        take = read_take(take_paths if len(take_paths) == 3 else take_paths[0], cal, fs=fs)
+        take = read_take(take_paths if len(take_paths) > 1 else take_paths[0], cal, fs=fs)
         sep = separate(take.pressures, take.fs, cal, cfg.separation, take.band_limit_hz)
         temps = sep.temperature_track()
         th = sep.median_theta()
@@ -126,7 +126,11 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
             "temperature_c_range": [float(b.temperature_c.min()), float(b.temperature_c.max())],
             "loss_scale_median": float(np.median(b.loss_scale)),
             "mach_median": float(np.median(b.mach)),
-            "residual_median": float(np.nanmedian(b.residual)),
+            # None with two microphones: they leave no residual
+            "residual_median": (
+                float(np.nanmedian(b.residual)) if np.any(np.isfinite(b.residual)) else None
+            ),
+            "theta": str(b.theta.iloc[0]),
             "fs_file_hz": take.fs_file,
             "temperature_se_c_median": float(np.median(b.temperature_se_c)),
             "loss_scale_se_median": float(np.median(b.loss_scale_se)),
@@ -359,7 +363,7 @@ def _run_take(
     cal_path : Path
         Calibration file (the pipeline's, or an override).
     take_paths : sequence of path
-        One multichannel file or three mono files.
+        One multichannel file or one mono file per microphone.
     out : path
         Output directory; the take's results go to ``out/<take>/``.
     force : bool

@@ -403,7 +403,7 @@ class PipelineConfig:
 
     calibration: str = spec("", "calibration file, relative to the pipeline file")
     separation: SeparationConfig = spec(
-        "", "three-microphone wave separation", default=SeparationConfig()
+        "", "wave separation (two or more microphones)", default=SeparationConfig()
     )
     translation: TranslationConfig = spec(
         "", "translation to the mouthpiece and low-pass", default=TranslationConfig()

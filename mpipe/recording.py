@@ -1,7 +1,7 @@
-"""The virtual three-microphone recording: a stand-in for a real take, with known truth.
+"""The virtual multi-microphone recording: a stand-in for a real take, with known truth.
 
 From the pressure p(t) (Pa) and volume flow u(t) (m^3/s) at the mouthpiece entry, as the
-reed model produces them, this module computes what the three wall microphones of a
+reed model produces them, this module computes what the N >= 2 wall microphones of a
 :class:`~mpipe.calibration.Calibration` would record, and what a recorder would store:
 
 1. **Bore, mouthpiece -> reference plane** (no mean flow): the whole signal is transformed
@@ -100,7 +100,7 @@ class VirtualTake:
     Attributes
     ----------
     signals : ndarray
-        Shape ``(n, 3)``: recorded signal of each microphone, upstream first, in recorded
+        Shape ``(n, N)``: recorded signal of each microphone, upstream first, in recorded
         units (Pa / calibration sensitivity, with microphone errors, noise, quantisation).
     fs : float
         Sample rate of every array here, Hz.
@@ -110,7 +110,7 @@ class VirtualTake:
     p0, u0 : ndarray
         Shape ``(n,)``: pressure (Pa) and volume flow (m^3/s) at the reference plane.
     pressures : ndarray
-        Shape ``(n, 3)``: true acoustic pressure at the microphones, Pa (no microphone
+        Shape ``(n, N)``: true acoustic pressure at the microphones, Pa (no microphone
         error, no noise, no quantisation).
     temperature_c : float or tuple of float
         Air temperature in degC, or ``(start, end)`` of a linear drift over the take.
@@ -148,13 +148,13 @@ class VirtualTake:
     pressures: np.ndarray
     temperature_c: float | tuple[float, float]
     mach: float
-    gain_error_db: tuple[float, float, float]
-    phase_error_deg: tuple[float, float, float]
+    gain_error_db: tuple[float, ...]
+    phase_error_deg: tuple[float, ...]
     snr_db: float | None
     bits: int | None
     full_scale: float
-    sensitivity: tuple[float, float, float]
-    noise_rms: tuple[float, float, float]
+    sensitivity: tuple[float, ...]
+    noise_rms: tuple[float, ...]
     seed: int
     fs_model: float
     edge_s: float
@@ -171,7 +171,7 @@ class VirtualTake:
 
     @property
     def file_samples(self) -> np.ndarray:
-        """The signals scaled to digital full scale (shape ``(n, 3)``, dimensionless)."""
+        """The signals scaled to digital full scale (shape ``(n, N)``, dimensionless)."""
         return self.signals / self.full_scale
 
     @property
@@ -181,7 +181,7 @@ class VirtualTake:
 
     @property
     def mic_gains(self) -> np.ndarray:
-        """Complex gains G_m of the microphone errors, shape ``(3,)``."""
+        """Complex gains G_m of the microphone errors, shape ``(N,)``."""
         return complex_gain(self.gain_error_db, self.phase_error_deg)
 
     def temperature_at(self, t: np.ndarray) -> np.ndarray:
@@ -260,7 +260,7 @@ def microphone_field(
     mach : float
         Mean-flow Mach number, positive towards the bell.
     positions : sequence of float, optional
-        Positions in m from the mouthpiece entry; default: the three microphones.
+        Positions in m from the mouthpiece entry; default: the calibration's microphones.
 
     Returns
     -------
@@ -301,7 +301,7 @@ def microphone_spectra(
     air: Air,
     mach: float = 0.0,
 ) -> np.ndarray:
-    """True pressure spectra at the three microphones from reference-plane spectra.
+    """True pressure spectra at the microphones from reference-plane spectra.
 
     Parameters
     ----------
@@ -320,7 +320,7 @@ def microphone_spectra(
     Returns
     -------
     ndarray
-        Shape ``(n_freq, 3)``, complex pressure in Pa, upstream microphone first.
+        Shape ``(n_freq, N)``, complex pressure in Pa, upstream microphone first.
 
     References
     ----------
@@ -337,8 +337,8 @@ def virtual_recording(
     *,
     temperature_c: float | tuple[float, float] | None = None,
     mach: float = 0.0,
-    gain_error_db: Sequence[float] = (0.0, 0.0, 0.0),
-    phase_error_deg: Sequence[float] = (0.0, 0.0, 0.0),
+    gain_error_db: Sequence[float] | None = None,
+    phase_error_deg: Sequence[float] | None = None,
     snr_db: float | None = None,
     bits: int | None = None,
     fs_out: float | None = None,
@@ -346,7 +346,7 @@ def virtual_recording(
     headroom_db: float = 6.0,
     drift_step_c: float = DRIFT_STEP_C,
 ) -> VirtualTake:
-    """Record mouthpiece signals with the three virtual wall microphones.
+    """Record mouthpiece signals with the calibration's virtual wall microphones (N >= 2).
 
     Parameters
     ----------
@@ -366,10 +366,10 @@ def virtual_recording(
     mach : float
         Mean-flow Mach number between the reference plane and the microphones, positive for
         breath flowing towards the bell (physics.md E.1).
-    gain_error_db : sequence of 3 float
-        Sensitivity error of each microphone, dB (recorded = true x 10^(dB/20)).
-    phase_error_deg : sequence of 3 float
-        Phase error of each microphone, degrees, constant over frequency.
+    gain_error_db : sequence of N float, optional
+        Sensitivity error of each microphone, dB (recorded = true x 10^(dB/20)); default 0.
+    phase_error_deg : sequence of N float, optional
+        Phase error of each microphone, degrees, constant over frequency; default 0.
     snr_db : float, optional
         Add white Gaussian noise with an RMS ``snr_db`` below each channel's RMS.
     bits : {16, 24, 32}, optional
@@ -407,8 +407,9 @@ def virtual_recording(
     if not fs > 0:
         raise ValueError(f"sample rate must be positive, got {fs} Hz")
     _check_mach(mach)
-    gains = _three(gain_error_db, "gain_error_db")
-    phases = _three(phase_error_deg, "phase_error_deg")
+    n_mics = len(calibration.microphones)
+    gains = _per_mic(gain_error_db, n_mics, "gain_error_db")
+    phases = _per_mic(phase_error_deg, n_mics, "phase_error_deg")
     if bits is not None and bits not in SUPPORTED_BITS:
         raise ValueError(f"bits must be one of {SUPPORTED_BITS}, got {bits}")
     fs_out = float(fs if fs_out is None else fs_out)
@@ -439,7 +440,7 @@ def virtual_recording(
     recorded, mics = resample(recorded), resample(mics)
     p_out, u_out, p0, u0 = (resample(x) for x in (p, u, p0, u0))
 
-    noise_rms = (0.0, 0.0, 0.0)
+    noise_rms = (0.0,) * n_mics
     if snr_db is not None:
         rms = np.sqrt(np.mean(recorded**2, axis=0))
         std = rms * 10.0 ** (-snr_db / 20.0)
@@ -577,12 +578,17 @@ class TakeFiles:
     mic_calibrations: tuple[Path, ...] = ()
 
 
-def take_file_paths(audio: str | Path, with_mic_calibration: bool = True) -> TakeFiles:
-    """The file names that :func:`write_virtual_take` uses beside ``audio``."""
+def take_file_paths(
+    audio: str | Path, with_mic_calibration: bool = True, n_mics: int = 3
+) -> TakeFiles:
+    """The file names that :func:`write_virtual_take` uses beside ``audio``.
+
+    ``n_mics`` is the calibration's microphone count (tables for microphones 2 to N).
+    """
     audio = Path(audio)
     stem = audio.with_suffix("")
     mics = (
-        tuple(Path(f"{stem}.mic{m}_calibration.csv") for m in (2, 3))
+        tuple(Path(f"{stem}.mic{m}_calibration.csv") for m in range(2, n_mics + 1))
         if with_mic_calibration
         else ()
     )
@@ -613,9 +619,9 @@ def write_virtual_take(
     errors), ``TAKE.truth.npz`` (true p, u at the mouthpiece and p0, u0 at the reference
     plane, true microphone pressures, temperature, Mach number, microphone errors, plus
     ``truth_extra``), ``TAKE.calibration.yaml`` (the calibration with the sensitivities of
-    the file, in Pa per full-scale unit) and, when microphones 2 and 3 have errors relative
-    to microphone 1 and ``mic_calibration`` is set, ``TAKE.mic2_calibration.csv`` and
-    ``TAKE.mic3_calibration.csv`` holding the exact H_c = G_m / G_1 (physics.md E.6).
+    the file, in Pa per full-scale unit) and, when microphones 2 to N have errors relative
+    to microphone 1 and ``mic_calibration`` is set, ``TAKE.mic2_calibration.csv`` to
+    ``TAKE.micN_calibration.csv`` holding the exact H_c = G_m / G_1 (physics.md E.6).
     Microphone 1's gain error goes into its sensitivity (as a pistonphone would find it); its
     phase error is not calibratable and stays in the data. The original calibration's own
     tables are not carried over: the virtual microphones have exactly the errors requested.
@@ -633,7 +639,7 @@ def write_virtual_take(
     truth_extra : mapping, optional
         More arrays or numbers for the truth file (for example the reed parameters).
     mic_calibration : bool
-        Write the relative calibration tables of microphones 2 and 3.
+        Write the relative calibration tables of microphones 2 to N.
     subtype : str, optional
         soundfile subtype; default ``PCM_24`` (``PCM_16`` / ``PCM_32`` for those ``bits``).
     force : bool
@@ -651,7 +657,7 @@ def write_virtual_take(
     g = take.mic_gains
     relative = g / g[0]
     need_tables = mic_calibration and bool(np.any(np.abs(relative[1:] - 1.0) > 1e-12))
-    files = take_file_paths(audio_path, need_tables)
+    files = take_file_paths(audio_path, need_tables, len(calibration.microphones))
     check_writable(
         [files.audio, files.sidecar, files.truth, files.calibration, *files.mic_calibrations], force
     )
@@ -790,11 +796,16 @@ def _check_mach(mach: float) -> None:
         )
 
 
-def _three(values: Sequence[float], name: str) -> tuple[float, float, float]:
+def _per_mic(values: Sequence[float] | None, n_mics: int, name: str) -> tuple[float, ...]:
+    if values is None:
+        return (0.0,) * n_mics
     vals = tuple(float(v) for v in values)
-    if len(vals) != 3 or not all(math.isfinite(v) for v in vals):
-        raise ValueError(f"{name} needs three finite numbers, one per microphone, got {values!r}")
-    return vals  # type: ignore[return-value]
+    if len(vals) != n_mics or not all(math.isfinite(v) for v in vals):
+        raise ValueError(
+            f"{name} needs {n_mics} finite numbers, one per microphone of the calibration, "
+            f"got {values!r}"
+        )
+    return vals
 
 
 def _rate_ratio(fs: float, fs_out: float) -> tuple[int, int]:
@@ -881,7 +892,7 @@ def _render_drift(
     n = p.size
     k_nodes = max(int(math.ceil(abs(temps[1] - temps[0]) / step_c - 1e-9)), 1)
     hop = (n - 1) / k_nodes
-    mics = np.zeros((n, 3))
+    mics = np.zeros((n, len(calibration.microphones)))
     p0 = np.zeros(n)
     u0 = np.zeros(n)
     t = np.arange(n)

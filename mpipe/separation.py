@@ -1,8 +1,9 @@
-"""Adaptive three-microphone wave separation in the main bore.
+"""Adaptive wave separation in the main bore from N >= 2 wall microphones.
 
-The three calibrated wall pressures are split, per analysis block, into a forward and a
-backward travelling wave with a lossy, convected plane-wave model, and recombined into
-pressure ``p0`` and volume flow ``u0`` at the reference plane (physics.md E.1-E.5).
+The calibrated wall pressures (any number N >= 2, all in one cylinder) are split, per
+analysis block, into a forward and a backward travelling wave with a lossy, convected
+plane-wave model, and recombined into pressure ``p0`` and volume flow ``u0`` at the
+reference plane (physics.md E.1-E.5).
 
 Field model (e^{+j omega t}; microphone ``m`` at ``d_m = x_m - x_ref`` metres downstream of
 the reference plane)::
@@ -26,6 +27,16 @@ the null filter, normalised to unit noise variance, then Hann-windowed::
     E(f) = n(f)^T P(f) / sqrt(sum_m D_m |n_m(f)|^2),
     n = h+ x h-   (the null vector of the 3 x 2 model matrix, n^T H = 0)
 
+With N > 3 microphones the residual has N - 2 components: the null vectors of the
+consecutive triples of microphones (smooth in frequency, spanning the left null space of
+the N x 2 model matrix), decorrelated under the sensor noise by the inverse Cholesky
+factor of their noise covariance, so that the cost is again the concentrated negative
+log-likelihood. With N = 2 there is no redundancy: two microphones determine the two waves
+exactly (wherever ``H`` is regular, i.e. away from ``f_n = n c (1 - M^2) / (2 s)``) and
+leave no residual, so theta cannot be estimated and is held at the configured values (the
+log and the ``theta`` column of the block table say so). The position correction of the
+middle microphone (below) exists for N = 3 only; with N > 3 the positions are held.
+
 and the cost is ``sum |r|^2 / kappa`` plus Gaussian priors on T, eta and M about the
 configured values. Every bin thus weighs by its own signal-to-noise ratio, so the strong
 low harmonics, where the flow's energy is, determine theta. Only bins whose signal exceeds
@@ -48,6 +59,7 @@ filters are cross-faded by the windows.
 References
 ----------
 Chatziioannou & van Walstijn 2012, section 4 (three-microphone set-up, adaptive filter).
+Jang & Ih 1998 (least squares with more than two microphones).
 H.-J. Jang, J.-G. Ih, "On the multiple microphone method for measuring in-duct acoustic
 properties in the presence of mean flow", J. Acoust. Soc. Am. 103(3):1520-1526, 1998.
 J. Y. Chung, D. A. Blaser, "Transfer function method of measuring in-duct acoustic
@@ -186,11 +198,11 @@ class SeparationConfig:
     mic_position_prior_m: float | None = spec(
         "m",
         "standard deviation of the Gaussian prior on the correction to the position of the "
-        "middle microphone relative to the outer two (null: hold it at the calibrated "
-        "position). A position error, or a delay between channels, is frequency-linear "
-        "in phase and otherwise biases the temperature; it is identifiable from the data "
-        "because the temperature scales both spacings alike and this correction moves them "
-        "oppositely",
+        "middle microphone relative to the outer two, with exactly three microphones (null, "
+        "or another count: hold the calibrated positions). A position error, or a delay "
+        "between channels, is frequency-linear in phase and otherwise biases the "
+        "temperature; it is identifiable from the data because the temperature scales both "
+        "spacings alike and this correction moves them oppositely",
         _width("width"),
         default=5e-4,
     )
@@ -308,7 +320,7 @@ class Geometry:
     Attributes
     ----------
     offsets : ndarray
-        Microphone positions relative to the reference plane, m, shape ``(3,)``.
+        Microphone positions relative to the reference plane, m, shape ``(N,)``, N >= 2.
     radius : float
         Radius of the main bore at the microphones, m.
     losses : str
@@ -384,7 +396,7 @@ class SeparationResult:
         The settings used.
     noise_psd : ndarray
         One-sided power spectral density of the white sensor noise of each microphone,
-        Pa^2/Hz, shape ``(3,)`` (as measured, before the numerical floor).
+        Pa^2/Hz, shape ``(N,)`` (as measured, before the numerical floor).
     geometry : Geometry
         Microphones and bore used, with the median position correction of the middle
         microphone.
@@ -456,6 +468,8 @@ BLOCK_COLUMNS = {
     "evaluations": "residual evaluations of the solver",
     "fitted": "false for blocks over the ends, below min_level_db or without enough bins",
     "trusted": "fitted and residual within max_residual_ratio of the median: enters the smoother",
+    "theta": "'estimated' or why theta was held ('held: two microphones, no redundancy', "
+    "'held: adaptive false')",
 }
 
 
@@ -507,7 +521,7 @@ def wavenumbers(
 
 
 def model_matrix(k_plus: np.ndarray, k_minus: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    """The 3 x 2 matrices H with rows ``[exp(-j k+ d_m), exp(+j k- d_m)]``, shape ``(n, 3, 2)``.
+    """The N x 2 matrices H with rows ``[exp(-j k+ d_m), exp(+j k- d_m)]``, shape ``(n, N, 2)``.
 
     References
     ----------
@@ -537,7 +551,7 @@ def separation_filters(
     geometry: Geometry,
     excess: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares filters from the three microphone spectra to P0 and U0.
+    """Least-squares filters from the N >= 2 microphone spectra to P0 and U0.
 
     Parameters
     ----------
@@ -553,9 +567,9 @@ def separation_filters(
     Returns
     -------
     g_p : ndarray
-        Shape ``(n, 3)``: ``P0 = sum_m g_p[:, m] P_m`` (dimensionless).
+        Shape ``(n, N)``: ``P0 = sum_m g_p[:, m] P_m`` (dimensionless).
     g_u : ndarray
-        Shape ``(n, 3)``: ``U0 = sum_m g_u[:, m] P_m`` in m^3/(Pa s). Zero at DC, where
+        Shape ``(n, N)``: ``U0 = sum_m g_u[:, m] P_m`` in m^3/(Pa s). Zero at DC, where
         U0 cannot be measured (physics.md E.4).
 
     Notes
@@ -581,7 +595,7 @@ def separation_filters(
     inv[..., 0, 1] = -b / det
     inv[..., 1, 0] = -c / det
     inv[..., 1, 1] = a / det
-    pinv = inv @ hh  # (n, 2, 3): rows g_A and g_B
+    pinv = inv @ hh  # (n, 2, N): rows g_A and g_B; with N = 2 the exact inverse of H
     air = geometry.air(theta.c)
     z0 = air.impedance(np.pi * geometry.radius**2)
     zc = z0 * (1.0 + theta.eta * excess[1])
@@ -664,14 +678,14 @@ class BlockSpectra:
         Integer index of each estimation bin on that grid.
     mic_power : ndarray
         ``|X_m(f)|^2`` of the Hann-windowed microphone signals at the estimation bins,
-        scaled as :func:`noise_levels` (Pa^2/Hz), shape ``(n, 3)``.
+        scaled as :func:`noise_levels` (Pa^2/Hz), shape ``(n, N)``.
     model_freqs : ndarray
         Frequencies (Hz) where the null filter is evaluated, on the grid of ``nfft_in``.
     model_taper : ndarray
         Raised-cosine taper of the null filter over ``model_freqs`` (1 inside the band).
     spectra : ndarray
         Spectra of the unwindowed block with its context on each side, zero-padded, at
-        ``model_freqs`` (unnormalised FFT, Pa), shape ``(n_model, 3)``.
+        ``model_freqs`` (unnormalised FFT, Pa), shape ``(n_model, N)``.
     window : ndarray
         Periodic Hann window of the block at the reduced rate ``fs / dec``.
     margin : int
@@ -715,12 +729,12 @@ class BlockSpectra:
         trace = np.sum(self.mic_power, axis=1)
         return trace - total >= 10 ** (min_snr_db / 10) * total
 
-    def residual(
-        self, n0: np.ndarray, n1: np.ndarray, n2: np.ndarray, use: np.ndarray
-    ) -> np.ndarray:
-        """Windowed spectrum of the residual signal ``sum_m n_m * p_m`` at the used bins.
+    def residual(self, w: np.ndarray, use: np.ndarray) -> np.ndarray:
+        """Windowed spectra of the residual signals ``sum_m w_mk * p_m`` at the used bins.
 
-        ``n_m`` are the (noise-normalised) null-filter responses at ``model_freqs``. The
+        ``w`` (shape ``(n_model, N, K)``) holds the K = N - 2 noise-whitened null filters
+        at ``model_freqs`` (:func:`_null_weights`); the result is the K residual spectra,
+        one after the other (component-major), shape ``(K * sum(use),)``. The
         filter is applied to the unwindowed block with context, and the window only
         afterwards, so that a harmonic between two bins is cancelled exactly at the true
         parameters (filtering the windowed segments instead evaluates the model at the
@@ -729,14 +743,12 @@ class BlockSpectra:
         taper, so it is formed at ``fs / decimation`` (exactly, not an approximation).
         Scaled to unit variance for white noise.
         """
-        e = (n0 * self.spectra[:, 0] + n1 * self.spectra[:, 1] + n2 * self.spectra[:, 2]) * (
-            self.model_taper
-        )
-        full = np.zeros(self.nfft_in // 2 + 1, dtype=complex)
+        e = np.sum(w * self.spectra[:, :, None], axis=1) * self.model_taper[:, None]
+        full = np.zeros((self.nfft_in // 2 + 1, e.shape[1]), dtype=complex)
         full[self.model_index] = e
-        sig = sfft.irfft(full, self.nfft_in)[self.margin : self.margin + self.window.size]
-        out = sfft.rfft(sig * self.window, self.nfft_out)[self.bins[use]]
-        return out * self.scale
+        sig = sfft.irfft(full, self.nfft_in, axis=0)[self.margin : self.margin + self.window.size]
+        out = sfft.rfft(sig * self.window[:, None], self.nfft_out, axis=0)[self.bins[use]]
+        return (out * self.scale).T.reshape(-1)
 
 
 def _taper(f: np.ndarray, lo0: float, lo1: float, hi0: float, hi1: float) -> np.ndarray:
@@ -758,7 +770,7 @@ def cross_spectra(
     Parameters
     ----------
     block : ndarray
-        Microphone pressures in Pa, shape ``(length + 2 margin, 3)``: the block with
+        Microphone pressures in Pa, shape ``(length + 2 margin, N)``: the block with
         ``margin`` samples of context on each side.
     fs : float
         Sample rate in Hz.
@@ -829,7 +841,7 @@ def noise_levels(
     Parameters
     ----------
     x : ndarray
-        Calibrated microphone pressures in Pa, shape ``(n, 3)``.
+        Calibrated microphone pressures in Pa, shape ``(n, N)``, N >= 2.
     fs : float
         Sample rate in Hz.
     config : SeparationConfig
@@ -841,7 +853,7 @@ def noise_levels(
     Returns
     -------
     ndarray
-        Shape ``(3,)``, Pa^2/Hz in the scaling of the diagonal of
+        Shape ``(N,)``, Pa^2/Hz in the scaling of the diagonal of
         :attr:`BlockSpectra.mic_power` (two-sided: the one-sided PSD is twice this): the
         median incoherent power spectral density between ``noise_fmin_hz`` and 0.95 of
         ``band_limit_hz``, where a played note has little energy left; without such a band,
@@ -859,7 +871,8 @@ def noise_levels(
     hop = max(segment // 2, 1)
     win = np.hanning(segment + 1)[:-1]
     freqs = np.fft.rfftfreq(segment, 1 / fs)
-    cross = np.zeros((freqs.size, 3, 3), dtype=complex)
+    n_mics = x.shape[1]
+    cross = np.zeros((freqs.size, n_mics, n_mics), dtype=complex)
     n_seg = 0
     # Running sum rather than one stacked array: a long take at 100 kHz stays small.
     for s0 in range(0, x.shape[0] - segment + 1, hop):
@@ -867,22 +880,30 @@ def noise_levels(
         cross += spec_[:, :, None] * np.conj(spec_[:, None, :])
         n_seg += 1
     cross *= 1.0 / (fs * np.sum(win**2) * max(n_seg, 1))
-    # Incoherent part of each channel (three-channel method): the coherent power of
-    # channel i is |S_ij| |S_ik| / |S_jk|, so harmonics of the note in the band (a clean
-    # take) do not count as noise.
+    # Incoherent part of each channel (three-channel method, with the two nearest other
+    # channels j, k): the coherent power of channel i is |S_ij| |S_ik| / |S_jk|, so
+    # harmonics of the note in the band (a clean take) do not count as noise. With two
+    # channels it is |S_12| sqrt(S_ii / S_jj), exact when both channels have the same
+    # signal-to-noise ratio (the microphones are a few cm apart in one field).
     diag = np.real(np.einsum("fii->fi", cross))
     psd = np.empty_like(diag)
-    # Only bins where all three pairs are clearly coherent carry signal: for independent
+    # Only bins where all pairs are clearly coherent carry signal: for independent
     # noise, |S_ij|^2 / (S_ii S_jj) of n averages is about 1 / n, and subtracting that
     # random coherent part everywhere would bias the noise level low by ~20 %.
+    pairs = [(i, j) for i in range(n_mics) for j in range(i + 1, n_mics)]
     gamma2 = [
-        np.abs(cross[:, i, j]) ** 2 / np.maximum(diag[:, i] * diag[:, j], 1e-300)
-        for i, j in ((0, 1), (0, 2), (1, 2))
+        np.abs(cross[:, i, j]) ** 2 / np.maximum(diag[:, i] * diag[:, j], 1e-300) for i, j in pairs
     ]
     signal = np.min(gamma2, axis=0) > 5.0 / max(n_seg, 1)
-    for i, j, k in ((0, 1, 2), (1, 0, 2), (2, 0, 1)):
-        coh = np.abs(cross[:, i, j]) * np.abs(cross[:, i, k])
-        coh = coh / np.maximum(np.abs(cross[:, j, k]), 1e-300)
+    for i in range(n_mics):
+        others = sorted((j for j in range(n_mics) if j != i), key=lambda j: (abs(j - i), j))
+        if n_mics == 2:
+            j = others[0]
+            coh = np.abs(cross[:, i, j]) * np.sqrt(diag[:, i] / np.maximum(diag[:, j], 1e-300))
+        else:
+            j, k = others[:2]
+            coh = np.abs(cross[:, i, j]) * np.abs(cross[:, i, k])
+            coh = coh / np.maximum(np.abs(cross[:, j, k]), 1e-300)
         psd[:, i] = np.maximum(diag[:, i] - np.where(signal, coh, 0.0), 0.0)
     lo = config.noise_fmin_hz
     if lo is None:
@@ -893,7 +914,7 @@ def noise_levels(
         return np.median(psd[high], axis=0)
     band = (freqs >= config.fmin_hz) & (freqs <= config.fmax_hz)
     if not np.any(band):
-        return np.ones(3)
+        return np.ones(n_mics)
     return np.quantile(psd[band], _NOISE_QUANTILE, axis=0)
 
 
@@ -922,7 +943,13 @@ def window_correlation(spectra: BlockSpectra) -> dict[int, np.ndarray]:
 
 def _null_components(
     theta: Theta, freqs: np.ndarray, geometry: Geometry, excess: np.ndarray | None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> np.ndarray:
+    """Null vectors of the consecutive microphone triples, shape ``(n, N, N - 2)``.
+
+    Column ``k`` is ``h+ x h-`` over microphones ``k, k + 1, k + 2`` (zero elsewhere):
+    ``n_k^T H = 0``, smooth in frequency, and the N - 2 columns are independent (each
+    brings in one more microphone), so they span the left null space of ``H``.
+    """
     omega = 2 * np.pi * freqs
     if excess is None:
         excess = zk_excess(omega, geometry, theta.c)[0]
@@ -930,12 +957,15 @@ def _null_components(
     d = geometry.offsets
     hp = np.exp(-1j * k_p[:, None] * d[None, :])
     hm = np.exp(1j * k_m[:, None] * d[None, :])
-    # n = h+ x h- written out: this is the inner loop of the optimiser, and np.cross on
+    out = np.zeros((freqs.size, d.size, max(d.size - 2, 0)), dtype=complex)
+    # h+ x h- written out: this is the inner loop of the optimiser, and np.cross on
     # complex arrays is several times slower.
-    n0 = hp[:, 1] * hm[:, 2] - hp[:, 2] * hm[:, 1]
-    n1 = hp[:, 2] * hm[:, 0] - hp[:, 0] * hm[:, 2]
-    n2 = hp[:, 0] * hm[:, 1] - hp[:, 1] * hm[:, 0]
-    return n0, n1, n2
+    for k in range(d.size - 2):
+        a, b, c = k, k + 1, k + 2
+        out[:, a, k] = hp[:, b] * hm[:, c] - hp[:, c] * hm[:, b]
+        out[:, b, k] = hp[:, c] * hm[:, a] - hp[:, a] * hm[:, c]
+        out[:, c, k] = hp[:, a] * hm[:, b] - hp[:, b] * hm[:, a]
+    return out
 
 
 def _fixed_mach(config: SeparationConfig, geometry: Geometry, c: float) -> float | None:
@@ -948,12 +978,26 @@ def _fixed_mach(config: SeparationConfig, geometry: Geometry, c: float) -> float
 
 def _null_weights(
     theta: Theta, freqs: np.ndarray, geometry: Geometry, excess: np.ndarray | None, noise
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    n0, n1, n2 = _null_components(theta, freqs, geometry, excess)
+) -> np.ndarray:
+    """Null filters whitened under the sensor noise, shape ``(n, N, N - 2)``.
+
+    The residuals ``r = N^T P`` have the noise covariance ``G = N^T D conj(N)``; with its
+    Cholesky factor ``G = L L^H`` the filters ``W = N L^{-T}`` give residuals
+    ``L^{-1} r`` of unit, uncorrelated variance. For N = 3 this is ``n / sqrt(sum_m D_m
+    |n_m|^2)``.
+    """
+    nv = _null_components(theta, freqs, geometry, excess)
     d = np.asarray(noise, dtype=float)
-    norm = np.sqrt(d[0] * np.abs(n0) ** 2 + d[1] * np.abs(n1) ** 2 + d[2] * np.abs(n2) ** 2)
-    inv = 1.0 / np.maximum(norm, 1e-300)
-    return n0 * inv, n1 * inv, n2 * inv
+    if nv.shape[2] == 1:
+        norm = np.sqrt(np.sum(d[None, :] * np.abs(nv[:, :, 0]) ** 2, axis=1))
+        return nv / np.maximum(norm, 1e-300)[:, None, None]
+    if nv.shape[2] == 0:
+        return nv
+    gram = np.einsum("fmk,m,fml->fkl", nv, d, np.conj(nv))
+    chol = np.linalg.cholesky(gram)
+    # W^T = L^{-1} N^T
+    wt = np.linalg.solve(chol, np.swapaxes(nv, 1, 2))
+    return np.swapaxes(wt, 1, 2)
 
 
 def residual_vector(
@@ -974,8 +1018,8 @@ def residual_vector(
     ``spectra.model_freqs``.
     """
     use = np.ones(spectra.freqs.size, bool) if use is None else use
-    n0, n1, n2 = _null_weights(theta, spectra.model_freqs, geometry, excess, noise)
-    return spectra.residual(n0, n1, n2, use)
+    w = _null_weights(theta, spectra.model_freqs, geometry, excess, noise)
+    return spectra.residual(w, use)
 
 
 def residual_cost(
@@ -990,7 +1034,9 @@ def residual_cost(
     About 1 when the sensor noise explains the misfit; with ``noise`` None (equal unit
     noise) it is the mean energy of the microphones that two waves cannot explain.
     """
-    d = np.ones(3) if noise is None else noise
+    if geometry.offsets.size < 3:
+        return float("nan")  # two microphones: the two waves explain everything
+    d = np.ones(geometry.offsets.size) if noise is None else noise
     r = residual_vector(theta, spectra, geometry, d, use)
     return float(np.mean(np.abs(r) ** 2)) if r.size else float("nan")
 
@@ -1029,8 +1075,14 @@ class Prior:
         return np.diag(np.where(np.isfinite(w), 1.0 / w**2, 0.0))
 
     @classmethod
-    def from_config(cls, config: SeparationConfig, t0: float, free_mach: bool) -> Prior:
-        """Build the prior of a configuration around the start temperature ``t0`` degC."""
+    def from_config(
+        cls, config: SeparationConfig, t0: float, free_mach: bool, n_mics: int = 3
+    ) -> Prior:
+        """Build the prior of a configuration around the start temperature ``t0`` degC.
+
+        The position correction of the middle microphone is free only with ``n_mics`` = 3
+        (and a ``mic_position_prior_m``); with more microphones the positions are held.
+        """
 
         def wid(v: float | None) -> float:
             return np.inf if v is None else float(v)
@@ -1054,7 +1106,12 @@ class Prior:
             lower=np.array([b[0] for b in bounds]),
             upper=np.array([b[1] for b in bounds]),
             free=np.array(
-                [True, config.estimate_loss, free_mach, config.mic_position_prior_m is not None]
+                [
+                    True,
+                    config.estimate_loss,
+                    free_mach,
+                    config.mic_position_prior_m is not None and n_mics == 3,
+                ]
             ),
         )
 
@@ -1120,7 +1177,7 @@ def estimate_block(
     use : ndarray
         Bins entering the estimate (bool over ``spectra.freqs``).
     noise : ndarray
-        Noise levels of the three channels (:func:`noise_levels`), floored.
+        Noise levels of the N >= 3 channels (:func:`noise_levels`), floored.
     geometry : Geometry
         Microphone offsets and bore.
     start : ndarray
@@ -1179,7 +1236,8 @@ def estimate_block(
     kappa = float(kappa_start)
     evals = 0
     res = None
-    m = int(np.sum(use))
+    # N - 2 residual components per used bin
+    m = int(np.sum(use)) * max(geometry.offsets.size - 2, 1)
     excess = zk_excess(omega, geometry, geometry.sound_speed(current[0]))[0]
     for _ in range(4):
         z0 = np.clip(current[idx] / scales, lo + 1e-9, hi - 1e-9)
@@ -1188,8 +1246,8 @@ def estimate_block(
         def fun(z, excess=excess, kappa=kappa_fit):
             v = values(z)
             g = geometry_of(v)
-            n0, n1, n2 = _null_weights(theta_of(v), spectra.model_freqs, g, excess, noise)
-            r = np.sqrt(2.0 / kappa) * spectra.residual(n0, n1, n2, use)
+            w = _null_weights(theta_of(v), spectra.model_freqs, g, excess, noise)
+            r = np.sqrt(2.0 / kappa) * spectra.residual(w, use)
             pr = ((v[idx] - prior.mean[idx]) / prior.width[idx])[has_prior]
             return np.concatenate([r.real, r.imag, pr])
 
@@ -1236,20 +1294,25 @@ def estimate_block(
 def _kappa(g: np.ndarray, use: np.ndarray, corr: dict, prior: Prior, idx: np.ndarray) -> float:
     """Variance inflation of correlated residual terms (sandwich over naive), >= 1.
 
-    ``g[f, p]`` is the derivative of the unit-variance residual at the used bins.
+    ``g[f, p]`` is the derivative of the unit-variance residual at the used bins (the
+    K components one after the other, as :meth:`BlockSpectra.residual`; the components
+    are uncorrelated, the bins of one component correlated by the window).
     """
     p = g.shape[1]
-    full = np.zeros((use.size, p), dtype=complex)
-    full[use] = g
-    naive = 2 * np.real(np.conj(full).T @ full)
+    m = int(np.sum(use))
+    naive = np.zeros((p, p))
     sand = np.zeros((p, p))
     n_f = use.size
-    for df, c in corr.items():
-        f0, f1 = max(0, -df), min(n_f, n_f - df)
-        if f1 <= f0:
-            continue
-        # E[r_i conj(r_j)] = c for j = i + df: G^H C G sums conj(G_i) C_ij G_j
-        sand += 2 * np.real(c * (np.conj(full[f0:f1]).T @ full[f0 + df : f1 + df]))
+    for comp in range(g.shape[0] // max(m, 1)):
+        full = np.zeros((use.size, p), dtype=complex)
+        full[use] = g[comp * m : (comp + 1) * m]
+        naive += 2 * np.real(np.conj(full).T @ full)
+        for df, c in corr.items():
+            f0, f1 = max(0, -df), min(n_f, n_f - df)
+            if f1 <= f0:
+                continue
+            # E[r_i conj(r_j)] = c for j = i + df: G^H C G sums conj(G_i) C_ij G_j
+            sand += 2 * np.real(c * (np.conj(full[f0:f1]).T @ full[f0 + df : f1 + df]))
     # Summarise the matrix ratio by a trace weighted with the prior variances (unit-free).
     w = np.where(np.isfinite(prior.width[idx]), prior.width[idx] ** 2, _SCALES[idx] ** 2)
     num = float(np.sum(np.diag(sand) * w))
@@ -1433,12 +1496,15 @@ def separate(
     config: SeparationConfig,
     band_limit_hz: float | None = None,
 ) -> SeparationResult:
-    """Separate the waves of a three-microphone take and rebuild p0, u0 at the reference plane.
+    """Separate the waves of a take of N >= 2 microphones and rebuild p0, u0 at the reference plane.
+
+    With N >= 3 theta is estimated per block (``config.adaptive``); with N = 2 it is held
+    at the configured values (two microphones leave no residual to estimate it from).
 
     Parameters
     ----------
     pressures : ndarray
-        Calibrated microphone pressures in Pa, shape ``(n, 3)``, upstream microphone first
+        Calibrated microphone pressures in Pa, shape ``(n, N)``, upstream microphone first
         (the order of ``calibration.microphones``).
     fs : float
         Sample rate in Hz.
@@ -1465,8 +1531,12 @@ def separate(
     physics.md E.1-E.5; Jang & Ih 1998; Chatziioannou & van Walstijn 2012, section 4.
     """
     x = np.asarray(pressures, dtype=float)
-    if x.ndim != 2 or x.shape[1] != 3:
-        raise ValueError(f"expected pressures of shape (n, 3), got {x.shape}")
+    n_mics = len(calibration.microphones)
+    if x.ndim != 2 or x.shape[1] != n_mics:
+        raise ValueError(
+            f"expected pressures of shape (n, {n_mics}) for the {n_mics} microphones of the "
+            f"calibration, got {x.shape}"
+        )
     if not np.all(np.isfinite(x)):
         raise ValueError("pressures contain NaN or infinite samples")
     config.validate()
@@ -1479,17 +1549,36 @@ def separate(
     n = x.shape[0]
     hop, length, starts = _block_layout(n, fs, config.block_s)
     free_mach = _fixed_mach(config, geometry, c_start) is None
-    prior = Prior.from_config(config, t_start, free_mach)
+    prior = Prior.from_config(config, t_start, free_mach, n_mics)
     held_mach = _fixed_mach(config, geometry, c_start)
     start = prior.mean.copy()
     if held_mach is not None:
         start[2] = held_mach
+    # Two microphones determine the two waves exactly: no residual, no estimate of theta.
+    can_estimate = config.adaptive and n_mics >= 3
+    if not config.adaptive:
+        theta_note = "held: adaptive false"
+    elif n_mics < 3:
+        theta_note = "held: two microphones, no redundancy"
+    else:
+        theta_note = "estimated"
     log.info(
-        "separation: %d blocks of %.0f ms, theta %s",
+        "separation: %d microphones, %d blocks of %.0f ms, theta %s",
+        n_mics,
         starts.size,
         1e3 * length / fs,
-        "estimated per block" if config.adaptive else "fixed",
+        "estimated per block" if can_estimate else "fixed",
     )
+    if config.adaptive and n_mics < 3:
+        log.warning(
+            "separation: two microphones leave no redundancy; (c, eta, M) are held at "
+            "T = %.2f degC, eta = %.3g, M = %.4g (configured values), not estimated",
+            t_start,
+            start[1],
+            start[2],
+        )
+    if config.mic_position_prior_m is not None and n_mics > 3:
+        log.info("separation: %d microphones: positions held at the calibration's", n_mics)
 
     # 1. Estimate theta per block.
     noise_raw = noise_levels(x, fs, config, band_limit_hz)
@@ -1546,7 +1635,7 @@ def separate(
             snr_db[b] = float(10 * np.log10(max(np.median(snr), 1e-30)))
         if not fitted[b]:
             continue
-        if config.adaptive and n_free:
+        if can_estimate and n_free:
             if corr is None:
                 corr = window_correlation(spectra)
             est = estimate_block(
@@ -1569,7 +1658,7 @@ def separate(
             raw[b] = start
             raw_se[b] = 0.0
         log.debug("block %d: T %.3f degC, eta %.3f, M %.5f, chi2 %.2f", b, *raw[b], residual[b])
-    adaptive = config.adaptive and n_free > 0
+    adaptive = can_estimate and n_free > 0
     if not np.any(fitted) and adaptive:
         raise ValueError(
             "no block has enough signal in the estimation band "
@@ -1607,7 +1696,7 @@ def separate(
         taper = _band_taper(fb, config, geo_b, th)
         g_p *= taper[:, None]
         g_u *= (taper * ramp)[:, None]
-        seg = np.zeros((nfft, 3))
+        seg = np.zeros((nfft, n_mics))
         seg[pad : pad + length] = _block(x, s, length) * win[:, None]
         spec_ = np.fft.rfft(seg, axis=0)[band]
         y = np.zeros((freqs.size, 2), dtype=complex)
@@ -1647,6 +1736,7 @@ def separate(
             "evaluations": evals,
             "fitted": fitted,
             "trusted": trust,
+            "theta": theta_note,
         }
     )
     result = SeparationResult(
@@ -1691,7 +1781,7 @@ def reference_noise(
     geometry : Geometry
         Microphones and bore.
     noise_psd : ndarray
-        One-sided white-noise PSD of each microphone, Pa^2/Hz, shape ``(3,)``.
+        One-sided white-noise PSD of each microphone, Pa^2/Hz, shape ``(N,)``.
     config : SeparationConfig
         Band taper and u0 ramp.
 
@@ -1731,9 +1821,10 @@ def check_channel_order(
     take, with the plane-wave field at the calibration's temperature, no loss scaling, no
     flow:
 
-    1. the fraction of power two plane waves cannot explain, for the given order and for
-       every other order of the channels; an order explaining the data 30 times better
-       means channels are swapped;
+    1. (three or more microphones) the fraction of power two plane waves cannot explain,
+       for the given order and for every other order of the channels (up to 5
+       microphones; with more, the orders differing by one swap of two channels); an
+       order explaining the data 30 times better means channels are swapped;
     2. the direction of the active acoustic power, ``|A|^2 - |B|^2`` over ``|A|^2 + |B|^2``
        summed over those bins: a note played at the reed (or any source at the
        mouthpiece) sends power towards the bell, so a clearly negative value means the
@@ -1776,18 +1867,20 @@ def check_channel_order(
     excess = zk_excess(omega, geometry, c)[0]
     k_p, k_m = wavenumbers(omega, theta, excess)
     h = model_matrix(k_p, k_m, geometry.offsets)
-    null = null_vector(h)
     sb = s[idx]
+    n_mics = geometry.offsets.size
 
     hh = np.conj(np.swapaxes(h, -1, -2))
-    pinv = np.linalg.solve(hh @ h, hh)  # (f, 2, 3): rows g_A, g_B
+    pinv = np.linalg.solve(hh @ h, hh)  # (f, 2, N): rows g_A, g_B
+    # projector on what two plane waves cannot explain (zero for two microphones)
+    proj = np.eye(n_mics)[None] - h @ pinv
 
     def arranged(order) -> np.ndarray:
         return sb[:, list(order)][:, :, list(order)]
 
     def unexplained(order) -> float:
         sp = arranged(order)
-        quad = np.real(np.einsum("fi,fij,fj->f", null, sp, np.conj(null)))
+        quad = np.real(np.einsum("fij,fjk,fik->f", proj, sp, np.conj(proj)))
         return float(np.sum(quad) / np.sum(np.real(np.einsum("fii->f", sp))))
 
     def power_flow(order) -> float:
@@ -1795,8 +1888,18 @@ def check_channel_order(
         a2, b2 = np.real(s_ab[:, 0, 0]), np.real(s_ab[:, 1, 1])
         return float(np.sum(a2 - b2) / np.sum(a2 + b2))
 
-    fits = {o: unexplained(o) for o in permutations(range(3))}
-    given = fits[(0, 1, 2)]
+    identity = tuple(range(n_mics))
+    if n_mics <= 5:
+        orders = list(permutations(identity))
+    else:
+        orders = [identity]
+        for i in range(n_mics):
+            for j in range(i + 1, n_mics):
+                o = list(identity)
+                o[i], o[j] = o[j], o[i]
+                orders.append(tuple(o))
+    fits = {o: unexplained(o) for o in orders} if n_mics >= 3 else {identity: 0.0}
+    given = fits[identity]
     best = min(fits.values())
     mics = calibration.microphones
     if given > 1e-5 and given > 30 * best:
@@ -1809,7 +1912,7 @@ def check_channel_order(
             f"unexplained in the calibration's order but {100 * best:.2g} % with channels "
             f"{chans} as {', '.join(m.name for m in mics)}; check the channel map"
         )
-    ratio = power_flow((0, 1, 2))
+    ratio = power_flow(identity)
     if ratio < -0.01:
         return (
             f"acoustic power at the microphones flows towards the mouthpiece (net "

@@ -1,9 +1,9 @@
-"""Reading takes: three-microphone recordings in Pa, checked before any analysis.
+"""Reading takes: recordings of two or more wall microphones in Pa, checked before any analysis.
 
 A take is one multichannel audio file (anything soundfile reads: WAV, FLAC, AIFF, ...) or
-three mono files. The calibration maps microphones to channels (``channel``, counted from
-1), gives each microphone's ``sensitivity`` (Pa per unit of the recorded signal, where a
-file's digital full scale is 1.0) and, optionally, a table of the complex relative
+one mono file per microphone. The calibration maps microphones to channels (``channel``,
+counted from 1), gives each microphone's ``sensitivity`` (Pa per unit of the recorded
+signal, where a file's digital full scale is 1.0) and, optionally, a table of the complex relative
 calibration H_c of the microphone against microphone 1 (physics.md E.6). The corrected
 spectrum is ``P_m = sensitivity x recorded P_m / H_c``.
 
@@ -73,17 +73,17 @@ _CSV_COLUMNS = ("frequency_hz", "magnitude", "phase_deg")
 
 @dataclass(frozen=True, eq=False)
 class Take:
-    """A three-microphone recording in Pa.
+    """A recording of N >= 2 wall microphones in Pa.
 
     Attributes
     ----------
     pressures : ndarray
-        Shape ``(n, 3)``: calibrated acoustic pressure at each microphone, Pa, upstream
+        Shape ``(n, N)``: calibrated acoustic pressure at each microphone, Pa, upstream
         microphone first (the calibration's order).
     fs : float
         Sample rate, Hz.
     paths : tuple of str
-        The file (one) or the three mono files the take was read from.
+        The file (one) or the N mono files the take was read from.
     channels : tuple of int
         Channel (counted from 1) of each microphone.
     clip_fraction : tuple of float
@@ -95,8 +95,8 @@ class Take:
     pressures: np.ndarray
     fs: float
     paths: tuple[str, ...]
-    channels: tuple[int, int, int]
-    clip_fraction: tuple[float, float, float]
+    channels: tuple[int, ...]
+    clip_fraction: tuple[float, ...]
     fs_file: float = 0.0
 
     @property
@@ -106,7 +106,7 @@ class Take:
 
     @property
     def path(self) -> str:
-        """The file name (for three mono files: the three names joined by ``+``)."""
+        """The file name (for N mono files: the names joined by ``+``)."""
         return " + ".join(self.paths)
 
     @property
@@ -136,9 +136,10 @@ def read_take(
 
     Parameters
     ----------
-    paths : path or sequence of 3 paths
-        One multichannel file, or three mono files given in channel order (the first is
-        channel 1); then the calibration must map the microphones to channels 1, 2, 3.
+    paths : path or sequence of N paths
+        One multichannel file, or one mono file per microphone (N, the calibration's
+        microphone count) given in channel order (the first is channel 1); then the
+        calibration must map the microphones to channels 1 to N.
     calibration : Calibration
         Channel map, sensitivities (Pa per unit) and optional relative calibration tables.
     min_duration_s : float
@@ -178,11 +179,13 @@ def read_take(
         files = [Path(paths)]
     else:
         files = [Path(p) for p in paths]
-        if len(files) not in (1, 3):
-            raise UserError(
-                f"a take is one multichannel file or three mono files, got {len(files)} files"
-            )
     mics = calibration.microphones
+    n_mics = len(mics)
+    if len(files) not in (1, n_mics):
+        raise UserError(
+            f"a take is one multichannel file or {n_mics} mono files (one per microphone of "
+            f"{calibration.source or 'the calibration'}), got {len(files)} files"
+        )
     channels = tuple(m.channel for m in mics)
 
     if len(files) == 1:
@@ -199,9 +202,9 @@ def read_take(
         names = {c: name for c in channels}
         subtypes = {c: subtype for c in channels}
     else:
-        if sorted(channels) != [1, 2, 3]:
+        if sorted(channels) != list(range(1, n_mics + 1)):
             raise UserError(
-                f"three mono files are read as channels 1, 2, 3, but the calibration maps "
+                f"{n_mics} mono files are read as channels 1 to {n_mics}, but the calibration maps "
                 f"microphones to channels {_list(channels)}"
             )
         columns, rates, names, subtypes = [], [], {}, {}
@@ -209,13 +212,13 @@ def read_take(
             d, fs_c, subtype = _read_audio(f)
             if d.shape[1] != 1:
                 raise UserError(
-                    f"{f}: has {d.shape[1]} channels; expected a mono file when three files "
+                    f"{f}: has {d.shape[1]} channels; expected a mono file when {n_mics} files "
                     "are given"
                 )
             columns.append(d[:, 0])
             rates.append(fs_c)
             names[c], subtypes[c] = str(f), subtype
-        for c in (2, 3):
+        for c in range(2, n_mics + 1):
             if rates[c - 1] != rates[0]:
                 raise UserError(
                     f"{files[c - 1]}: sample rate {rates[c - 1]:g} Hz differs from "
@@ -242,7 +245,7 @@ def read_take(
             f"(minimum {min_duration_s:g} s)"
         )
 
-    raw = np.empty((data.shape[0], 3))
+    raw = np.empty((data.shape[0], n_mics))
     clip = []
     for i, (mic, c) in enumerate(zip(mics, channels, strict=True)):
         x = data[:, c - 1]

@@ -260,7 +260,7 @@ def mouthpiece_noise(
     calibration : Calibration
         Bore, microphones, reference plane.
     mic_noise_psd : ndarray
-        One-sided noise PSD per microphone, Pa^2/Hz, shape ``(3,)``.
+        One-sided noise PSD per microphone, Pa^2/Hz, shape ``(N,)``.
     theta : mpipe.separation.Theta
         Propagation parameters of the separation.
     temperature_c : float

@@ -274,7 +274,7 @@ def test_edge_and_input_checks(shipped_calibration):
         virtual_recording(p, u, FS, shipped_calibration, mach=0.5)
     with pytest.raises(ValueError, match="bits"):
         virtual_recording(p, u, FS, shipped_calibration, bits=12)
-    with pytest.raises(ValueError, match="three finite numbers"):
+    with pytest.raises(ValueError, match="3 finite numbers, one per microphone"):
         virtual_recording(p, u, FS, shipped_calibration, gain_error_db=(0.0, 1.0))
     with pytest.raises(ValueError, match="equal length"):
         virtual_recording(p, u[:-1], FS, shipped_calibration)

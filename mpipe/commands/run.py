@@ -24,8 +24,8 @@ def add_parser(sub) -> None:
         "takes",
         nargs="+",
         metavar="TAKE",
-        help="multichannel take files; three mono files of one take may be joined with "
-        "commas: mic1.wav,mic2.wav,mic3.wav",
+        help="multichannel take files; the mono files of one take (one per microphone) may "
+        "be joined with commas: mic1.wav,mic2.wav,mic3.wav",
     )
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output directory")
     p.add_argument(
@@ -55,8 +55,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"{cal_path}: no such calibration file")
     takes = [[Path(p) for p in t.split(",")] for t in args.takes]
     for t in takes:
-        if len(t) not in (1, 3):
-            raise UserError(f"{','.join(map(str, t))}: expected one file or three mono files")
+        if len(t) == 0 or len(t) > 64:
+            raise UserError(
+                f"{','.join(map(str, t))}: expected one file or one mono file per microphone"
+            )
         for p in t:
             if not p.is_file():
                 raise UserError(f"{p}: no such take file")

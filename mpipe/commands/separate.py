@@ -1,4 +1,4 @@
-"""``mpipe separate``: mouthpiece pressure and flow from a three-microphone take.
+"""``mpipe separate``: mouthpiece pressure and flow from a take of two or more microphones.
 
 Outputs in ``DIR``:
 
@@ -65,16 +65,16 @@ def add_parser(sub) -> None:
     p = sub.add_parser(
         "separate",
         help="wave separation, translation to the mouthpiece and impedance check of a take",
-        description="Separate the waves of a three-microphone take, rebuild pressure and "
-        "flow at the mouthpiece entry, and validate them against the theoretical input "
-        "impedance.",
+        description="Separate the waves of a take of two or more wall microphones, rebuild "
+        "pressure and flow at the mouthpiece entry, and validate them against the theoretical "
+        "input impedance.",
     )
     p.add_argument(
         "inputs",
         nargs="+",
         metavar="FILE",
-        help="TAKE (one multichannel file) or TAKE1 TAKE2 TAKE3 (mono files), "
-        "then CALIBRATION.yaml",
+        help="TAKE (one multichannel file) or TAKE1 ... TAKEN (one mono file per "
+        "microphone), then CALIBRATION.yaml",
     )
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
@@ -112,9 +112,9 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     from mpipe.takes import read_take
 
-    if len(args.inputs) not in (2, 4):
+    if len(args.inputs) < 2:
         raise UserError(
-            f"expected TAKE CALIBRATION.yaml or TAKE1 TAKE2 TAKE3 CALIBRATION.yaml, got "
+            f"expected TAKE CALIBRATION.yaml or TAKE1 ... TAKEN CALIBRATION.yaml, got "
             f"{len(args.inputs)} file(s)"
         )
     *takes, cal_path = args.inputs
@@ -137,7 +137,7 @@ def _run(args: argparse.Namespace) -> int:
     rate = args.sample_rate if args.sample_rate is not None else rate
     if not 1000.0 <= rate <= 1e6:
         raise UserError(f"--sample-rate: expected a rate in Hz (1e3-1e6), got {rate:g}")
-    take = read_take(takes if len(takes) == 3 else takes[0], cal, fs=rate)
+    take = read_take(takes if len(takes) > 1 else takes[0], cal, fs=rate)
     if args.fixed_mach is not None:
         if not -0.05 <= args.fixed_mach <= 0.1:
             raise UserError(
@@ -174,12 +174,16 @@ def _run(args: argparse.Namespace) -> int:
     write_atomic(out / "impedance.png", lambda tmp: plot_impedance(val, tmp, 2000.0))
 
     b = sep.blocks
+    fit = (
+        f"median chi2/term {np.nanmedian(b.residual):.2f}"
+        if np.any(np.isfinite(b.residual))
+        else f"no residual ({b.theta.iloc[0]})"
+    )
     print(
         f"{len(b)} blocks: T {b.temperature_c.median():.2f} +- {b.temperature_se_c.median():.2f}"
         f" degC ({b.temperature_c.min():.2f}..{b.temperature_c.max():.2f}), "
         f"eta {b.loss_scale.median():.3f} +- {b.loss_scale_se.median():.3f}, "
-        f"M {b.mach.median():.4f} +- {b.mach_se.median():.4f}, "
-        f"median chi2/term {np.nanmedian(b.residual):.2f}"
+        f"M {b.mach.median():.4f} +- {b.mach_se.median():.4f}, {fit}"
     )
     for line in sep.bound_warnings():
         print(f"warning: {line}")

@@ -1,4 +1,4 @@
-"""``mpipe synth-take``: a virtual three-microphone take with known truth.
+"""``mpipe synth-take``: a virtual take of N >= 2 wall microphones with known truth.
 
 Runs the reed model (:mod:`mpipe.model`) on the calibration's bore, records the mouthpiece
 signals with the virtual microphones (:mod:`mpipe.recording`) and writes the audio file,
@@ -46,8 +46,9 @@ class SynthOptions:
         flow, ``M = mean(u) / (S_main c)`` (physics.md E.1).
     snr_db : float or None
         Signal-to-noise ratio of the microphone noise per channel, dB.
-    gain_error_db, phase_error_deg : tuple of float
-        Microphone errors, dB and degrees, upstream microphone first.
+    gain_error_db, phase_error_deg : tuple of float or None
+        Microphone errors, dB and degrees, one per microphone of the calibration, upstream
+        microphone first (None: no error).
     swell : float
         Relative rise of the mouth pressure over the take (0.1: p_m rises linearly to 1.1 p_m).
     breath_noise_pa : float
@@ -59,7 +60,7 @@ class SynthOptions:
     bits : int
         Word length of the file (16 or 24 for FLAC).
     mic_calibration : bool
-        Write the exact relative calibration tables of microphones 2 and 3.
+        Write the exact relative calibration tables of microphones 2 to N.
     """
 
     duration_s: float
@@ -68,8 +69,8 @@ class SynthOptions:
     temperature_c: float | tuple[float, float] | None = None
     mach: float | str = 0.0
     snr_db: float | None = None
-    gain_error_db: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    phase_error_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gain_error_db: tuple[float, ...] | None = None
+    phase_error_deg: tuple[float, ...] | None = None
     swell: float = 0.0
     breath_noise_pa: float = 0.0
     onset_s: float = 0.01
@@ -206,6 +207,16 @@ def make_take(
     planned = take_file_paths(out, options.mic_calibration)
     check_writable([planned.audio, planned.sidecar, planned.truth, planned.calibration], force)
     calibration = load_calibration(calibration_path)
+    n_mics = len(calibration.microphones)
+    for name, values in (
+        ("gain_error_db", options.gain_error_db),
+        ("phase_error_deg", options.phase_error_deg),
+    ):
+        if values is not None and len(values) != n_mics:
+            raise UserError(
+                f"--{name.replace('_', '-')}: {len(values)} values given, but "
+                f"{calibration_path} has {n_mics} microphones (one value per microphone)"
+            )
     reed = load_reed(reed_path)
     take, sim, mach = synthesize(calibration, reed, options)
     breath_seed, noise_seed = child_seeds(options.seed)
@@ -284,10 +295,11 @@ def add_parser(sub) -> None:
     """Register the ``synth-take`` subcommand."""
     p = sub.add_parser(
         "synth-take",
-        help="synthesise a three-microphone take with known truth",
+        help="synthesise a take of the calibration's microphones with known truth",
         description="Simulate the reed model on the calibration's bore, record it with the "
-        "three virtual wall microphones and write TAKE.flac (24-bit), TAKE.yaml (how to "
-        "reproduce it), TAKE.truth.npz (true signals and parameters) and "
+        "calibration's virtual wall microphones (any number >= 2) and write TAKE.flac "
+        "(24-bit), TAKE.yaml (how to reproduce it), TAKE.truth.npz (true signals and "
+        "parameters) and "
         "TAKE.calibration.yaml (sensitivities of the file, Pa per full-scale unit).",
     )
     p.add_argument("calibration", help="calibration YAML (instrument and microphones)")
@@ -316,17 +328,17 @@ def add_parser(sub) -> None:
     p.add_argument("--snr", type=float, metavar="DB", help="microphone noise SNR per channel, dB")
     p.add_argument(
         "--gain-error-db",
-        type=lambda s: _numbers(s, 3, "--gain-error-db"),
-        default=(0.0, 0.0, 0.0),
-        metavar="A,B,C",
-        help="sensitivity errors of the three microphones, dB",
+        type=lambda s: _numbers(s, tuple(range(2, 65)), "--gain-error-db"),
+        default=None,
+        metavar="A,B,...",
+        help="sensitivity errors of the microphones, dB, one per microphone (default 0)",
     )
     p.add_argument(
         "--phase-error-deg",
-        type=lambda s: _numbers(s, 3, "--phase-error-deg"),
-        default=(0.0, 0.0, 0.0),
-        metavar="A,B,C",
-        help="phase errors of the three microphones, degrees",
+        type=lambda s: _numbers(s, tuple(range(2, 65)), "--phase-error-deg"),
+        default=None,
+        metavar="A,B,...",
+        help="phase errors of the microphones, degrees, one per microphone (default 0)",
     )
     p.add_argument(
         "--swell",
@@ -353,7 +365,7 @@ def add_parser(sub) -> None:
     p.add_argument(
         "--no-mic-calibration",
         action="store_true",
-        help="do not write the relative calibration tables of microphones 2 and 3",
+        help="do not write the relative calibration tables of microphones 2 to N",
     )
     p.add_argument("--seed", type=int, default=0, help="random seed (0)")
     p.add_argument("-o", "--output", required=True, metavar="TAKE.flac", help="audio file")
@@ -380,8 +392,8 @@ def run(args: argparse.Namespace) -> int:
         temperature_c=temp,
         mach=mach,
         snr_db=args.snr,
-        gain_error_db=tuple(args.gain_error_db),
-        phase_error_deg=tuple(args.phase_error_deg),
+        gain_error_db=None if args.gain_error_db is None else tuple(args.gain_error_db),
+        phase_error_deg=None if args.phase_error_deg is None else tuple(args.phase_error_deg),
         swell=args.swell,
         breath_noise_pa=args.breath_noise,
         onset_s=args.onset,
@@ -413,8 +425,11 @@ def _reconstruct_argv(args: argparse.Namespace) -> list[str]:
         ("--temperature", args.temperature and ",".join(f"{v:g}" for v in args.temperature)),
         ("--mach", args.mach),
         ("--snr", args.snr),
-        ("--gain-error-db", ",".join(f"{v:g}" for v in args.gain_error_db)),
-        ("--phase-error-deg", ",".join(f"{v:g}" for v in args.phase_error_deg)),
+        ("--gain-error-db", args.gain_error_db and ",".join(f"{v:g}" for v in args.gain_error_db)),
+        (
+            "--phase-error-deg",
+            args.phase_error_deg and ",".join(f"{v:g}" for v in args.phase_error_deg),
+        ),
         ("--swell", args.swell),
         ("--breath-noise", args.breath_noise),
         ("--onset", args.onset),
