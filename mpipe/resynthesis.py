@@ -40,17 +40,6 @@ from mpipe.reed import ReedParameters  # noqa: E402
 
 log = logging.getLogger(__name__)
 
-_UNITS = {
-    "k": "Pa/m",
-    "S": "m²",
-    "y_m": "m",
-    "p_m": "Pa",
-    "m": "kg/m²",
-    "g": "1/s",
-    "lam": "m",
-    "k_c": "Pa/m²",
-}
-
 
 @dataclass(frozen=True)
 class Resynthesis:
@@ -280,9 +269,9 @@ def plot_tracks(table: pd.DataFrame, path: str | Path) -> Path:
     Path
     """
     from mpipe.inversion.uncertainty import COMBINATIONS
+    from mpipe.results import unit_of
 
     t = (0.5 * (table["t_start_s"] + table["t_end_s"])).to_numpy(dtype=float)
-    units = {**_UNITS, "y_c": "m", **{c.name: c.unit or "-" for c in COMBINATIONS}}
     names = [*PARAMETER_NAMES, "y_c", *(c.name for c in COMBINATIONS), "relative_residual"]
     names = [n for n in names if n in table]
     ncol = 4
@@ -295,7 +284,7 @@ def plot_tracks(table: pd.DataFrame, path: str | Path) -> Path:
     )
     for ax, name in zip(axes.ravel(), names, strict=False):
         x = pd.to_numeric(table[name], errors="coerce").to_numpy(dtype=float)
-        title = f"{name} [{units.get(name, '-')}]"
+        title = f"{name} [{unit_of(name) or '-'}]"
         se_col, det_col = f"{name}_se", f"determined_{name}"
         if se_col in table:
             se = pd.to_numeric(table[se_col], errors="coerce").to_numpy(dtype=float)
