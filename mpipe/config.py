@@ -96,9 +96,15 @@ def load_yaml(path: str | Path) -> Mapping:
     """Read a YAML file that must hold a mapping, with errors naming the file."""
     path = Path(path)
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read configuration file: {exc.strerror}") from None
+    except UnicodeDecodeError:
+        # an audio file or another binary where a YAML file belongs (arguments swapped)
+        raise ConfigError(
+            f"{path}: expected a YAML text file here, got binary data (are the arguments in "
+            "the right order?)"
+        ) from None
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:

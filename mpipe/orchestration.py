@@ -203,12 +203,15 @@ def _stage_conditioning(mouthpiece: Path, cfg: PipelineConfig):
         fs = float(mp["fs"])
         table = plan_inversion(mp["p"], fs, cfg.conditioning, inv.window_s, inv.hop_s)
         write_csv(folder / "plan.csv", table)
+        f0 = table["f0_hz"].to_numpy(dtype=float)
         summary = {
             "windows": len(table),
             "steady": int(table["steady"].sum()),
             "to_invert": int(table["invert"].sum()),
             "zero_mean_flow": bool(detect_zero_mean(mp["u"], inv.signal, inv.zero_mean_ratio)),
-            "f0_hz_median": float(np.nanmedian(table["f0_hz"])) if len(table) else float("nan"),
+            "f0_hz_median": float(np.median(f0[np.isfinite(f0)]))
+            if np.isfinite(f0).any()
+            else float("nan"),
         }
         return {"plan": "plan.csv"}, summary
 
@@ -231,7 +234,18 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
         table_plan = pd.read_csv(plan)
         starts = table_plan.loc[table_plan["invert"], "start"].astype(int).tolist()
         if not starts:
-            raise ValueError("no steady window to invert (see conditioning/plan.csv)")
+            reasons = table_plan["reason"].fillna("").astype(str).value_counts()
+            why = ", ".join(f"{n} {r or 'steady'}" for r, n in reasons.items())
+            hint = (
+                f"; silent means below conditioning.min_rms_pa = {cfg.conditioning.min_rms_pa:g} "
+                "Pa: check the microphones' sensitivity (Pa per unit) in the calibration"
+                if "silent" in reasons
+                else ""
+            )
+            raise ValueError(
+                f"no steady window to invert ({len(table_plan)} windows: {why}{hint}; "
+                "see conditioning/plan.csv)"
+            )
         t_eff = take_temperature(mp.get("temperature_c"), cal)
         kernel, air = bore_kernel(cal, fs, t_eff)
         bar = ProgressBar(len(starts))

@@ -43,3 +43,21 @@ def test_python_api_names_resolve():
         assert getattr(mpipe, name) is not None
     with pytest.raises(AttributeError):
         mpipe.nonexistent  # noqa: B018
+
+
+def test_swapped_or_wrong_files_give_one_line_errors(tmp_path, capsys):
+    # a binary file where the pipeline belongs, and an audio file where the npz belongs
+    from pathlib import Path
+
+    import numpy as np
+    import soundfile as sf
+
+    audio = tmp_path / "take.flac"
+    sf.write(audio, np.zeros((4000, 3)), 100000)
+    pipe = Path(__file__).resolve().parents[1] / "pipelines" / "simplified_clarinet.yaml"
+    assert main(["run", str(audio), str(pipe), "-o", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "expected a YAML text file here" in err and "Traceback" not in err
+    assert main(["invert", str(audio), "--pipeline", str(pipe), "-o", str(tmp_path / "i")]) == 2
+    err = capsys.readouterr().err
+    assert "not an npz file" in err and "pickle" not in err

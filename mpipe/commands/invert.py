@@ -68,6 +68,14 @@ def load_mouthpiece(path: str | Path) -> tuple[float, np.ndarray, np.ndarray, np
     ``temperature_c`` (degC per sample, written by the wave separation) is None when the
     file has none (model output). Errors name the file and what is wrong.
     """
+    import zipfile
+
+    if not zipfile.is_zipfile(path):
+        # np.load would take any other file for a pickle and say so: name the real problem
+        raise UserError(
+            f"{path}: not an npz file; expected the mouthpiece.npz written by `mpipe separate` "
+            "(keys fs, p, u)"
+        )
     try:
         data = np.load(path)
     except (OSError, ValueError) as exc:
