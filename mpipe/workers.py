@@ -30,6 +30,8 @@ log = logging.getLogger(__name__)
 
 #: Interval of the parent watchdog, s.
 PARENT_POLL_S = 0.5
+#: Time a terminated main process is given for its cleanup before it exits regardless, s.
+SIGTERM_GRACE_S = 5.0
 #: ``PR_SET_PDEATHSIG`` of ``<linux/prctl.h>``.
 _PR_SET_PDEATHSIG = 1
 
@@ -160,22 +162,43 @@ def manager():
     return m
 
 
-def exit_on_sigterm() -> None:
+def exit_on_sigterm(grace_s: float = SIGTERM_GRACE_S) -> None:
     """Turn SIGTERM into ``SystemExit(143)`` in this (main) process.
 
     ``finally`` blocks then run: worker pools are terminated, temporary files of atomic
-    writes are removed and the output-folder lock is released.
+    writes are removed and the output-folder lock is released. Should that cleanup hang
+    (the standard library's pool shutdown can wait on a worker that is already gone), the
+    process dumps its threads' stacks to stderr and exits anyway after ``grace_s``: a
+    terminated run always ends.
+
+    Parameters
+    ----------
+    grace_s : float
+        Time allowed for the cleanup, s.
     """
 
     def handler(signum, frame):
+        timer = threading.Timer(grace_s, _exit_now, args=(128 + signum,))
+        timer.daemon = True
+        timer.start()
         raise SystemExit(128 + signum)
 
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, handler)
 
 
+def _exit_now(code: int) -> None:
+    import faulthandler
+
+    sys.stderr.write(f"mpipe: cleanup after termination did not finish; exiting (code {code})\n")
+    with contextlib.suppress(Exception):
+        faulthandler.dump_traceback(all_threads=True)
+    os._exit(code)
+
+
 __all__ = [
     "PARENT_POLL_S",
+    "SIGTERM_GRACE_S",
     "exit_on_sigterm",
     "manager",
     "process_pool",

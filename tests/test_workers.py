@@ -178,3 +178,31 @@ def test_workers_log_plainly_not_through_the_parents_progress_bars():
         assert any("tqdm" in type(h).__name__.lower() for h in root.handlers)
         _plain_log_handlers()  # what a forked worker does first
         assert not any("tqdm" in type(h).__name__.lower() for h in root.handlers)
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc (Linux)")
+def test_a_terminated_run_ends_even_when_its_cleanup_hangs():
+    # the cleanup (a finally block) never returns: the grace timer must end the process
+    code = textwrap.dedent(
+        """
+        import time
+        from mpipe.workers import exit_on_sigterm
+        exit_on_sigterm(grace_s=0.5)
+        try:
+            print("ready", flush=True)
+            time.sleep(60)
+        finally:
+            time.sleep(60)
+        """
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+        os.kill(proc.pid, signal.SIGTERM)
+        assert proc.wait(timeout=10) == 128 + signal.SIGTERM
+        assert "did not finish" in proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
