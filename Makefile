@@ -20,7 +20,7 @@ $(TEST_STAMP): pyproject.toml | $(BIN)/python
 	touch $@ $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/python -m mpipe.demo
+	$(BIN)/python -m mpipe.cli.demo
 
 lint: $(TEST_STAMP)
 	$(BIN)/ruff check mpipe tests benchmarks

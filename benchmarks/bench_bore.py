@@ -16,10 +16,10 @@ from unittest import mock
 import numpy as np
 from scipy import special
 
-from mpipe import ducts
-from mpipe.bore import input_impedance
-from mpipe.calibration import load_calibration
-from mpipe.reflection import reflection_function
+from mpipe.acoustics import ducts
+from mpipe.acoustics.bore import input_impedance
+from mpipe.acoustics.reflection import reflection_function
+from mpipe.measurement.calibration import load_calibration
 
 CAL = Path(__file__).resolve().parents[1] / "calibration" / "simplified_clarinet.yaml"
 

@@ -31,17 +31,17 @@ import soundfile as sf  # noqa: E402
 import yaml  # noqa: E402
 from scipy import signal  # noqa: E402
 
-from mpipe.calibration import load_calibration  # noqa: E402
-from mpipe.cli import main as cli  # noqa: E402
-from mpipe.errors import UserError  # noqa: E402
-from mpipe.filters import apply_lowpass, design_lowpass  # noqa: E402
-from mpipe.model import prepare_bore, simulate  # noqa: E402
-from mpipe.recording import virtual_recording, write_virtual_take  # noqa: E402
-from mpipe.reed import load_reed  # noqa: E402
-from mpipe.reflection import reflection_function  # noqa: E402
-from mpipe.separation import SeparationConfig, fixed_config, separate  # noqa: E402
-from mpipe.takes import read_take  # noqa: E402
-from mpipe.translation import TranslationConfig, translate  # noqa: E402
+from mpipe.acoustics.reflection import reflection_function  # noqa: E402
+from mpipe.cli.main import main as cli  # noqa: E402
+from mpipe.core.errors import UserError  # noqa: E402
+from mpipe.core.filters import apply_lowpass, design_lowpass  # noqa: E402
+from mpipe.measurement.calibration import load_calibration  # noqa: E402
+from mpipe.measurement.separation import SeparationConfig, fixed_config, separate  # noqa: E402
+from mpipe.measurement.takes import read_take  # noqa: E402
+from mpipe.measurement.translation import TranslationConfig, translate  # noqa: E402
+from mpipe.reed.model import prepare_bore, simulate  # noqa: E402
+from mpipe.reed.parameters import load_reed  # noqa: E402
+from mpipe.reed.recording import virtual_recording, write_virtual_take  # noqa: E402
 
 ROOT = Path(__file__).parents[1]
 CAL = load_calibration(ROOT / "calibration" / "simplified_clarinet.yaml")

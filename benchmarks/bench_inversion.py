@@ -30,15 +30,15 @@ from pathlib import Path
 
 import numpy as np
 
-from mpipe.calibration import load_calibration
+from mpipe.acoustics.reflection import reflection_function
 from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWindow
 from mpipe.inversion.rosenbrock import rosenbrock
+from mpipe.inversion.settings import PARAMETER_NAMES, ExecutorConfig, InversionConfig
 from mpipe.inversion.step1 import step1
 from mpipe.inversion.tracking import invert_window, start_point
-from mpipe.model import prepare_bore, simulate
-from mpipe.pipeline import PARAMETER_NAMES, ExecutorConfig, InversionConfig
-from mpipe.reed import ReedParameters
-from mpipe.reflection import reflection_function
+from mpipe.measurement.calibration import load_calibration
+from mpipe.reed.model import prepare_bore, simulate
+from mpipe.reed.parameters import ReedParameters
 
 ROOT = Path(__file__).resolve().parents[1]
 FS = 100_000.0
@@ -200,12 +200,12 @@ BASIN = ("k", "y_m", "p_m", "lam")
 
 def measured_path(take_files, pipe, inversion, fixed_front_end: bool):
     """Invert three steady windows of a take through separation and translation."""
-    from mpipe.conditioning import plan_inversion
+    from mpipe.inversion.conditioning import plan_inversion
     from mpipe.inversion.kernel import bore_kernel, take_temperature
     from mpipe.inversion.tracking import track
-    from mpipe.separation import fixed_config, separate
-    from mpipe.takes import read_take
-    from mpipe.translation import translate
+    from mpipe.measurement.separation import fixed_config, separate
+    from mpipe.measurement.takes import read_take
+    from mpipe.measurement.translation import translate
 
     cal = load_calibration(take_files.calibration)
     take = read_take(take_files.audio, cal)
@@ -224,8 +224,8 @@ def basins(seeds: list[int], snrs: list[float]) -> None:
     """Measured-path basin counts over noise seeds, before and after the global cold start."""
     import tempfile
 
-    from mpipe.commands.synth_take import SynthOptions, make_take
-    from mpipe.pipeline import load_pipeline
+    from mpipe.cli.commands.synth_take import SynthOptions, make_take
+    from mpipe.pipeline.settings import load_pipeline
 
     pipe = load_pipeline(ROOT / "pipelines" / "simplified_clarinet.yaml")
     after = pipe.inversion

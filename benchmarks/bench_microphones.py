@@ -30,13 +30,13 @@ import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 from scipy import signal  # noqa: E402
 
-from mpipe.calibration import load_calibration  # noqa: E402
-from mpipe.commands.synth_take import SynthOptions, make_take  # noqa: E402
-from mpipe.filters import apply_lowpass, design_lowpass  # noqa: E402
-from mpipe.recording import calibration_mapping  # noqa: E402
-from mpipe.separation import SeparationConfig, fixed_config, separate  # noqa: E402
-from mpipe.takes import read_take  # noqa: E402
-from mpipe.translation import TranslationConfig, translate  # noqa: E402
+from mpipe.cli.commands.synth_take import SynthOptions, make_take  # noqa: E402
+from mpipe.core.filters import apply_lowpass, design_lowpass  # noqa: E402
+from mpipe.measurement.calibration import load_calibration  # noqa: E402
+from mpipe.measurement.separation import SeparationConfig, fixed_config, separate  # noqa: E402
+from mpipe.measurement.takes import read_take  # noqa: E402
+from mpipe.measurement.translation import TranslationConfig, translate  # noqa: E402
+from mpipe.reed.recording import calibration_mapping  # noqa: E402
 
 ROOT = Path(__file__).parents[1]
 SHIPPED = ROOT / "calibration" / "simplified_clarinet.yaml"

@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from mpipe.calibration import load_calibration
-from mpipe.model import prepare_bore, simulate
-from mpipe.reed import load_reed
-from mpipe.reflection import reflection_function
+from mpipe.acoustics.reflection import reflection_function
+from mpipe.measurement.calibration import load_calibration
+from mpipe.reed.model import prepare_bore, simulate
+from mpipe.reed.parameters import load_reed
 
 ROOT = Path(__file__).resolve().parents[1]
 

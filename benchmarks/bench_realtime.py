@@ -39,19 +39,20 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from mpipe.calibration import load_calibration
-from mpipe.commands.synth_take import SynthOptions, make_take
-from mpipe.conditioning import plan_inversion
+from mpipe.acoustics.reflection import reflection_function
+from mpipe.cli.commands.synth_take import SynthOptions, make_take
+from mpipe.inversion.conditioning import plan_inversion
 from mpipe.inversion.kernel import bore_kernel, take_temperature
+from mpipe.inversion.resynthesis import reed_from_row
+from mpipe.inversion.settings import PARAMETER_NAMES, ExecutorConfig
 from mpipe.inversion.tracking import invert_window, track
-from mpipe.model import prepare_bore, simulate, simulate_pressure
-from mpipe.pipeline import PARAMETER_NAMES, ExecutorConfig, load_pipeline
-from mpipe.reed import load_reed
-from mpipe.reflection import reflection_function
-from mpipe.resynthesis import reed_from_row
-from mpipe.separation import separate
-from mpipe.takes import read_take
-from mpipe.translation import translate
+from mpipe.measurement.calibration import load_calibration
+from mpipe.measurement.separation import separate
+from mpipe.measurement.takes import read_take
+from mpipe.measurement.translation import translate
+from mpipe.pipeline.settings import load_pipeline
+from mpipe.reed.model import prepare_bore, simulate, simulate_pressure
+from mpipe.reed.parameters import load_reed
 
 ROOT = Path(__file__).resolve().parents[1]
 CAL = ROOT / "calibration" / "simplified_clarinet.yaml"

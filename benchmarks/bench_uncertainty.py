@@ -7,7 +7,7 @@ through ``mpipe run`` twice:
     the shipped pipeline (adaptive wave separation, as the demo);
 ``fixed``
     the same, with the separation's propagation parameters held at the truth
-    (``mpipe.separation.fixed_config``: no adaptation, the take's true Mach number, the
+    (``mpipe.measurement.separation.fixed_config``: no adaptation, the take's true Mach number, the
     calibration's temperature, which is the take's).
 
 and, with ``--closure``, a third take whose reed touches the lay only at closure
@@ -39,11 +39,11 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from mpipe.calibration import load_calibration
-from mpipe.cli import main as cli_main
-from mpipe.examples import EXAMPLE_CALIBRATION, EXAMPLE_OPTIONS, EXAMPLE_REED, example_take
+from mpipe.cli.examples import EXAMPLE_CALIBRATION, EXAMPLE_OPTIONS, EXAMPLE_REED, example_take
+from mpipe.cli.main import main as cli_main
 from mpipe.inversion.kernel import bore_kernel
 from mpipe.inversion.uncertainty import COMBINATION_NAMES, combination_values, summary
+from mpipe.measurement.calibration import load_calibration
 
 ROOT = Path(__file__).resolve().parents[1]
 PIPELINE = ROOT / "pipelines" / "simplified_clarinet.yaml"
@@ -140,7 +140,7 @@ def main(argv=None) -> int:
     for label in paths:
         sep = None
         if label == "fixed":
-            # mpipe.separation.fixed_config(config, mach) as pipeline-file keys
+            # mpipe.measurement.separation.fixed_config(config, mach) as pipeline-file keys
             sep = {"adaptive": False, "mach": float(truth["mach"]), "mean_flow_m3_s": None}
         pipe = write_pipeline(out / label / "pipeline.yaml", take.calibration, sep)
         windows = run_path(label, take, pipe, out / label / "run")
@@ -151,13 +151,13 @@ def main(argv=None) -> int:
         reed_path = out / "closure" / "reed_closure.yaml"
         reed_path.parent.mkdir(parents=True, exist_ok=True)
         reed_path.write_text(yaml.safe_dump(reed))
-        from mpipe.commands.synth_take import make_take
+        from mpipe.cli.commands.synth_take import make_take
 
         files = out / "closure" / "take" / "closure_take.flac"
         if not files.exists():
             c_take = make_take(EXAMPLE_CALIBRATION, reed_path, files, EXAMPLE_OPTIONS)
         else:
-            from mpipe.recording import take_file_paths
+            from mpipe.reed.recording import take_file_paths
 
             c_take = take_file_paths(files, EXAMPLE_OPTIONS.mic_calibration)
         with np.load(c_take.truth) as d:

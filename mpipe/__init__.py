@@ -13,38 +13,42 @@ on first use (so ``import mpipe`` stays light)::
 
 from importlib import import_module
 
+from mpipe import _moved
+
 __version__ = "0.1.0"
 
 _API = {
-    "load_calibration": "mpipe.calibration",
-    "load_pipeline": "mpipe.pipeline",
-    "load_reed": "mpipe.reed",
-    "ReedParameters": "mpipe.reed",
-    "input_impedance": "mpipe.bore",
-    "reflection_function": "mpipe.reflection",
-    "prepare_bore": "mpipe.model",
-    "simulate": "mpipe.model",
-    "virtual_recording": "mpipe.recording",
-    "read_take": "mpipe.takes",
-    "separate": "mpipe.separation",
-    "SeparationConfig": "mpipe.separation",
-    "translate": "mpipe.translation",
-    "TranslationConfig": "mpipe.translation",
-    "validate": "mpipe.validation",
-    "ValidationConfig": "mpipe.validation",
-    "steady_windows": "mpipe.conditioning",
-    "plan_inversion": "mpipe.conditioning",
+    "load_calibration": "mpipe.measurement.calibration",
+    "load_pipeline": "mpipe.pipeline.settings",
+    "load_reed": "mpipe.reed.parameters",
+    "ReedParameters": "mpipe.reed.parameters",
+    "input_impedance": "mpipe.acoustics.bore",
+    "reflection_function": "mpipe.acoustics.reflection",
+    "prepare_bore": "mpipe.reed.model",
+    "simulate": "mpipe.reed.model",
+    "virtual_recording": "mpipe.reed.recording",
+    "read_take": "mpipe.measurement.takes",
+    "separate": "mpipe.measurement.separation",
+    "SeparationConfig": "mpipe.measurement.separation",
+    "translate": "mpipe.measurement.translation",
+    "TranslationConfig": "mpipe.measurement.translation",
+    "validate": "mpipe.measurement.validation",
+    "ValidationConfig": "mpipe.measurement.validation",
+    "steady_windows": "mpipe.inversion.conditioning",
+    "plan_inversion": "mpipe.inversion.conditioning",
     "bore_kernel": "mpipe.inversion.kernel",
     "take_temperature": "mpipe.inversion.kernel",
     "step1": "mpipe.inversion.step1",
     "track": "mpipe.inversion.tracking",
-    "resynthesise": "mpipe.resynthesis",
-    "run_take": "mpipe.orchestration",
-    "load_run": "mpipe.results",
-    "RunData": "mpipe.results",
+    "resynthesise": "mpipe.inversion.resynthesis",
+    "run_take": "mpipe.pipeline.orchestration",
+    "load_run": "mpipe.pipeline.results",
+    "RunData": "mpipe.pipeline.results",
 }
 
 __all__ = ["__version__", *_API]
+
+_moved.install()
 
 
 def __getattr__(name: str):

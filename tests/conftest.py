@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from mpipe.calibration import load_calibration
+from mpipe.measurement.calibration import load_calibration
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ROOT / "calibration" / "simplified_clarinet.yaml"

@@ -17,10 +17,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from mpipe.air import Air
-from mpipe.calibration import Calibration
-from mpipe.model import BoreKernel, prepare_bore
-from mpipe.reflection import reflection_function
+from mpipe.acoustics.air import Air
+from mpipe.acoustics.reflection import reflection_function
+from mpipe.measurement.calibration import Calibration
+from mpipe.reed.model import BoreKernel, prepare_bore
 
 
 def take_temperature(temperature_c: np.ndarray | float | None, calibration: Calibration) -> float:

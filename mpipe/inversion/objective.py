@@ -41,16 +41,16 @@ from typing import Literal
 import numpy as np
 from numba import njit
 
-from mpipe.conditioning import (
+from mpipe.core.filters import LowPass, apply_lowpass
+from mpipe.inversion.conditioning import (
     estimate_period,
     match_measurement,
     relative_residual,
     steady_state,
     synchronise,
 )
-from mpipe.filters import LowPass, apply_lowpass
-from mpipe.model import BoreKernel, ModelState, reed_coefficients, simulate
-from mpipe.reed import ReedParameters, check_stability
+from mpipe.reed.model import BoreKernel, ModelState, reed_coefficients, simulate
+from mpipe.reed.parameters import ReedParameters, check_stability
 
 StartMethod = Literal["history", "rest"]
 

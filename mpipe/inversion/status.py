@@ -26,7 +26,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from mpipe.pipeline import InversionConfig
+from mpipe.inversion.settings import InversionConfig
 
 #: The statuses, best first.
 STATUSES = ("ok", "high-residual", "at-bound", "not-converged", "failed")

@@ -30,12 +30,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from mpipe.conditioning import is_zero_mean
-from mpipe.filters import design_lowpass
+from mpipe.core.filters import design_lowpass
+from mpipe.core.io import write_atomic, write_csv, write_text_atomic
+from mpipe.core.progress import ProgressBar  # the bar drawn by the commands (tqdm)
 from mpipe.inversion.coldstart import global_search
+from mpipe.inversion.conditioning import is_zero_mean
 from mpipe.inversion.least_squares import trust_region
 from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWindow
 from mpipe.inversion.rosenbrock import SearchResult, minimise
+from mpipe.inversion.settings import PARAMETER_NAMES, ExecutorConfig, InversionConfig
 from mpipe.inversion.status import classify, on_bounds, search_bounds, window_status
 from mpipe.inversion.step1 import Step1Result, step1
 from mpipe.inversion.uncertainty import (
@@ -47,11 +50,8 @@ from mpipe.inversion.uncertainty import (
     uncertainty_columns,
     window_uncertainty,
 )
-from mpipe.io import write_atomic, write_csv, write_text_atomic
-from mpipe.model import BoreKernel
-from mpipe.pipeline import PARAMETER_NAMES, ExecutorConfig, InversionConfig
-from mpipe.progress import ProgressBar  # the bar drawn by the commands (tqdm)
-from mpipe.reed import ReedParameters
+from mpipe.reed.model import BoreKernel
+from mpipe.reed.parameters import ReedParameters
 
 log = logging.getLogger(__name__)
 
@@ -640,7 +640,7 @@ def track(
     ValueError
         When the sample rates differ or no window fits in the span.
     """
-    from mpipe.resynthesis import reed_from_row
+    from mpipe.inversion.resynthesis import reed_from_row
 
     executor = executor or ExecutorConfig()
     p = np.asarray(p, dtype=float)
@@ -726,8 +726,8 @@ def _track_processes(job, groups, warm, workers, update):
     import contextlib
     from concurrent.futures import FIRST_COMPLETED, wait
 
-    from mpipe.workers import manager as worker_manager
-    from mpipe.workers import process_pool
+    from mpipe.core.workers import manager as worker_manager
+    from mpipe.core.workers import process_pool
 
     # workers (and the queue's server) end with this process, whatever ends it
     with contextlib.ExitStack() as stack:

@@ -6,14 +6,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mpipe.calibration import load_calibration
-from mpipe.filters import design_lowpass
+from mpipe.acoustics.reflection import reflection_function
+from mpipe.core.filters import design_lowpass
 from mpipe.inversion.fastpath import WindowEvaluator
 from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWindow
-from mpipe.model import ModelState, prepare_bore, simulate, simulate_pressure
-from mpipe.pipeline import PARAMETER_NAMES
-from mpipe.reed import ReedParameters
-from mpipe.reflection import reflection_function
+from mpipe.inversion.settings import PARAMETER_NAMES
+from mpipe.measurement.calibration import load_calibration
+from mpipe.reed.model import ModelState, prepare_bore, simulate, simulate_pressure
+from mpipe.reed.parameters import ReedParameters
 
 FS = 100_000.0
 ROOT = Path(__file__).resolve().parents[2]

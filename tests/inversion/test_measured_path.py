@@ -11,15 +11,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mpipe.calibration import load_calibration
-from mpipe.commands.synth_take import SynthOptions, make_take
-from mpipe.conditioning import plan_inversion
+from mpipe.cli.commands.synth_take import SynthOptions, make_take
+from mpipe.inversion.conditioning import plan_inversion
 from mpipe.inversion.kernel import bore_kernel, take_temperature
+from mpipe.inversion.settings import ExecutorConfig
 from mpipe.inversion.tracking import track
-from mpipe.pipeline import ExecutorConfig, load_pipeline
-from mpipe.separation import separate
-from mpipe.takes import read_take
-from mpipe.translation import translate
+from mpipe.measurement.calibration import load_calibration
+from mpipe.measurement.separation import separate
+from mpipe.measurement.takes import read_take
+from mpipe.measurement.translation import translate
+from mpipe.pipeline.settings import load_pipeline
 
 ROOT = Path(__file__).resolve().parents[2]
 TRUTH = dict(k=8.66e6, S=7.62e-5, y_m=4e-4, p_m=1800.0, m=0.05, g=3000.0, lam=0.013, k_c=8.23e10)

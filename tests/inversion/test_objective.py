@@ -5,8 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mpipe.calibration import load_calibration
-from mpipe.filters import design_lowpass
+from mpipe.acoustics.reflection import reflection_function
+from mpipe.core.filters import design_lowpass
 from mpipe.inversion.objective import (
     F2Objective,
     ObjectiveSettings,
@@ -14,10 +14,10 @@ from mpipe.inversion.objective import (
     reed_state_from_pressure,
 )
 from mpipe.inversion.rosenbrock import rosenbrock
-from mpipe.model import prepare_bore, simulate
-from mpipe.pipeline import PARAMETER_NAMES
-from mpipe.reed import ReedParameters
-from mpipe.reflection import reflection_function
+from mpipe.inversion.settings import PARAMETER_NAMES
+from mpipe.measurement.calibration import load_calibration
+from mpipe.reed.model import prepare_bore, simulate
+from mpipe.reed.parameters import ReedParameters
 
 FS = 100_000.0
 ROOT = Path(__file__).resolve().parents[2]
@@ -67,7 +67,7 @@ def test_zero_mean_target_has_its_minimum_at_the_truth(setup):
     # The measurement chain as the separation delivers it: p keeps its DC, the flow loses
     # it (high-pass over the whole take), both are low-passed at 7.25 kHz.
     kernel, sim, _ = setup
-    from mpipe.filters import apply_lowpass, highpass_zero_phase
+    from mpipe.core.filters import apply_lowpass, highpass_zero_phase
 
     lp = design_lowpass(FS)
     p = apply_lowpass(sim.p, lp)

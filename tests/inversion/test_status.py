@@ -4,8 +4,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from mpipe.inversion.settings import InversionConfig
 from mpipe.inversion.status import classify, count, on_bounds, search_bounds, summary_line
-from mpipe.pipeline import InversionConfig
 
 CFG = InversionConfig()
 

@@ -148,9 +148,9 @@ def test_bad_branch_and_short_input():
 
 @pytest.fixture(scope="module")
 def bore():
-    from mpipe.calibration import load_calibration
-    from mpipe.model import prepare_bore
-    from mpipe.reflection import reflection_function
+    from mpipe.acoustics.reflection import reflection_function
+    from mpipe.measurement.calibration import load_calibration
+    from mpipe.reed.model import prepare_bore
 
     cal = load_calibration(ROOT / "calibration" / "simplified_clarinet.yaml")
     air = cal.air_properties()
@@ -159,8 +159,8 @@ def bore():
 
 def test_quasi_static_model_run_recovers_k_and_y_m(bore):
     """physics.md H check: small m, k_c = 0 -> y_m within 1 %, k within 4 %."""
-    from mpipe.model import simulate
-    from mpipe.reed import ReedParameters
+    from mpipe.reed.model import simulate
+    from mpipe.reed.parameters import ReedParameters
 
     kernel, air = bore
     reed = ReedParameters(
@@ -176,8 +176,8 @@ def test_quasi_static_model_run_recovers_k_and_y_m(bore):
 
 def test_quasi_static_model_run_with_contact_estimates_p_m(bore):
     """Small m (reed resonance 6.6 kHz) with contact: estimated p_m, contact dropped: near exact."""
-    from mpipe.model import simulate
-    from mpipe.reed import ReedParameters
+    from mpipe.reed.model import simulate
+    from mpipe.reed.parameters import ReedParameters
 
     kernel, air = bore
     reed = ReedParameters(
@@ -201,8 +201,8 @@ def test_table1_step1_as_close_as_the_paper(bore):
     The paper's step 1 was off by k +0.7 %, S +27 %, y_m +10 %, p_m -6.5 %. Here the reed's
     inertia (resonance 2.1 kHz) biases S: even with the true p_m, S is about +20 % off.
     """
-    from mpipe.model import simulate
-    from mpipe.reed import load_reed
+    from mpipe.reed.model import simulate
+    from mpipe.reed.parameters import load_reed
 
     kernel, air = bore
     reed = load_reed(ROOT / "calibration" / "reed_table1.yaml")

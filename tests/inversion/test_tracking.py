@@ -7,7 +7,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from mpipe.calibration import load_calibration
+from mpipe.acoustics.reflection import reflection_function
+from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.tracking import (
     COLUMNS,
     ProgressBar,
@@ -16,10 +17,9 @@ from mpipe.inversion.tracking import (
     track,
     write_table,
 )
-from mpipe.model import prepare_bore, simulate
-from mpipe.pipeline import ExecutorConfig, InversionConfig
-from mpipe.reed import ReedParameters
-from mpipe.reflection import reflection_function
+from mpipe.measurement.calibration import load_calibration
+from mpipe.reed.model import prepare_bore, simulate
+from mpipe.reed.parameters import ReedParameters
 
 FS = 100_000.0
 ROOT = Path(__file__).resolve().parents[2]

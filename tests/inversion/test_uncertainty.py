@@ -8,8 +8,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from mpipe.calibration import load_calibration
-from mpipe.filters import apply_lowpass, design_lowpass
+from mpipe.acoustics.reflection import reflection_function
+from mpipe.core.filters import apply_lowpass, design_lowpass
 from mpipe.inversion.least_squares import trust_region
 from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWindow
 from mpipe.inversion.uncertainty import (
@@ -22,9 +22,9 @@ from mpipe.inversion.uncertainty import (
     summary,
     window_uncertainty,
 )
-from mpipe.model import prepare_bore, simulate
-from mpipe.reed import ReedParameters
-from mpipe.reflection import reflection_function
+from mpipe.measurement.calibration import load_calibration
+from mpipe.reed.model import prepare_bore, simulate
+from mpipe.reed.parameters import ReedParameters
 
 FS = 100_000.0
 ROOT = Path(__file__).resolve().parents[2]
@@ -240,8 +240,8 @@ def test_closure_inversion_flags_the_scale_and_recovers_the_combinations(kernel)
     y_c = y_m and lam configured 15 % off the truth: k, S, y_m, lam, m, k_c undetermined;
     p_M, zeta, gamma and p_m within 2 %.
     """
+    from mpipe.inversion.settings import InversionConfig
     from mpipe.inversion.tracking import invert_window
-    from mpipe.pipeline import InversionConfig
 
     sim = simulate(CLOSURE, kernel, 32000)
     config = InversionConfig(
@@ -270,9 +270,9 @@ def test_free_contact_point_is_searched_and_recovered(kernel):
 
     From a start 10 % off, a warm window recovers y_c of the Table 1 reed within 2 %.
     """
+    from mpipe.inversion.settings import InversionConfig
     from mpipe.inversion.status import search_bounds
     from mpipe.inversion.tracking import invert_window
-    from mpipe.pipeline import InversionConfig
 
     config = InversionConfig(contact="free")
     assert config.search_parameters == ("k", "S", "y_m", "p_m", "m", "g", "k_c", "y_c")
@@ -297,8 +297,8 @@ def test_error_bars_of_the_reed_model_are_honest_under_lowpassed_noise(kernel):
     in units of their SE must have an RMS in [0.4, 1.8] (1 for honest error bars; ignoring
     the noise's colour would give about 2.9, inflated SEs well below 0.4).
     """
+    from mpipe.inversion.settings import InversionConfig
     from mpipe.inversion.tracking import invert_window
-    from mpipe.pipeline import InversionConfig
 
     sim = simulate(TABLE1, kernel, 32000)
     lp = design_lowpass(FS, 7250.0)

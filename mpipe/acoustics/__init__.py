@@ -1,0 +1,17 @@
+"""Linear acoustics of the bore: air, ducts, radiation, input impedance, reflection function.
+
+Imports only :mod:`mpipe.core`.
+
+Modules
+-------
+air
+    Thermodynamic and transport properties of air (physics.md B).
+ducts
+    Plane waves with visco-thermal losses; transfer matrices of cylinders and cones.
+radiation
+    Radiation impedance of the open end.
+bore
+    Bore geometry, its transfer matrix, input impedance and resonances (physics.md D.1).
+reflection
+    The reflection function r_f, impulse response of the entry reflectance (physics.md D.2).
+"""

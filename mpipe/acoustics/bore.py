@@ -1,0 +1,326 @@
+"""Bore geometry, its transfer matrices, input impedance and reflectance.
+
+The bore is a chain of cylinders and truncated cones along +x, from the mouthpiece
+entry (x = 0) to the open end. Steps between radii at segment junctions are allowed and
+have the identity matrix (physics.md B.7).
+
+References
+----------
+Chatziioannou & van Walstijn 2012, section 2 and Fig. 3 (bore of the simplified
+clarinet); physics.md sections B-D.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mpipe.acoustics import ducts
+from mpipe.acoustics.air import Air
+from mpipe.acoustics.radiation import RADIATION_MODELS, radiation_impedance
+from mpipe.core.config import Where, between, spec
+
+# Plausible radii of a woodwind bore, m: below 0.5 mm or above 5 cm is a unit slip.
+RADIUS_RANGE = (5e-4, 0.05)
+# Plausible positions along a woodwind, m.
+LENGTH_RANGE = (0.0, 5.0)
+# Tolerance on gaps or overlaps between consecutive segments, m.
+JOIN_TOLERANCE = 1e-9
+
+_RADIUS_HINT = "radii are in metres; 7.5 mm is 0.0075"
+_POSITION_HINT = "positions are in metres from the mouthpiece entry"
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One duct segment: a cylinder when both radii are equal, otherwise a truncated cone.
+
+    In YAML give ``radius`` for a cylinder or ``radius_start`` and ``radius_end`` for a cone.
+    """
+
+    x_start: float = spec(
+        "m", "position of the upstream end", between(*LENGTH_RANGE, _POSITION_HINT)
+    )
+    x_end: float = spec(
+        "m", "position of the downstream end", between(*LENGTH_RANGE, _POSITION_HINT)
+    )
+    radius: float | None = spec(
+        "m", "radius of a cylinder", between(*RADIUS_RANGE, _RADIUS_HINT), default=None
+    )
+    radius_start: float | None = spec(
+        "m", "upstream radius of a cone", between(*RADIUS_RANGE, _RADIUS_HINT), default=None
+    )
+    radius_end: float | None = spec(
+        "m", "downstream radius of a cone", between(*RADIUS_RANGE, _RADIUS_HINT), default=None
+    )
+    name: str = spec("", "label used in plots and messages", default="")
+
+    def _check(self, where: Where) -> None:
+        if self.x_end <= self.x_start:
+            raise where.error(
+                "x_end", f"expected x_end > x_start = {self.x_start:g} m, got {self.x_end:g} m"
+            )
+        cylinder = self.radius is not None
+        cone = self.radius_start is not None or self.radius_end is not None
+        if cylinder == cone or (cone and (self.radius_start is None or self.radius_end is None)):
+            raise where.error(
+                None,
+                "give either 'radius' (cylinder) or both 'radius_start' and 'radius_end' (cone)",
+            )
+
+    @property
+    def length(self) -> float:
+        """Axial length in m."""
+        return self.x_end - self.x_start
+
+    @property
+    def r_in(self) -> float:
+        """Upstream radius in m."""
+        return self.radius if self.radius is not None else self.radius_start
+
+    @property
+    def r_out(self) -> float:
+        """Downstream radius in m."""
+        return self.radius if self.radius is not None else self.radius_end
+
+    @property
+    def is_cylinder(self) -> bool:
+        """True when the segment has a constant radius."""
+        return self.r_in == self.r_out
+
+    def radius_at(self, x: float) -> float:
+        """Radius in m at axial position ``x`` (m) inside the segment."""
+        frac = (x - self.x_start) / self.length
+        return self.r_in + frac * (self.r_out - self.r_in)
+
+    def cut(self, x0: float, x1: float) -> Segment:
+        """The part of this segment between ``x0`` and ``x1`` (m)."""
+        r0, r1 = self.radius_at(x0), self.radius_at(x1)
+        if self.is_cylinder:
+            return Segment(x0, x1, radius=self.radius, name=self.name)
+        return Segment(x0, x1, radius_start=r0, radius_end=r1, name=self.name)
+
+    def matrix(self, omega: np.ndarray, air: Air, losses: str = "bessel") -> np.ndarray:
+        """Transfer matrix, shape ``(n, 2, 2)``, of this segment (physics.md B.4, B.6)."""
+        return ducts.cone_matrix(omega, self.r_in, self.r_out, self.length, air, losses)
+
+
+@dataclass(frozen=True)
+class Radiation:
+    """Termination of the open end."""
+
+    model: str = spec(
+        "",
+        f"radiation model, one of {', '.join(RADIATION_MODELS)}",
+        lambda v: (
+            None if v in RADIATION_MODELS else f"expected one of {RADIATION_MODELS}, got {v!r}"
+        ),
+        default="flanged",
+    )
+    flange_radius: float | None = spec(
+        "m", "outer radius of a finite flange", between(*RADIUS_RANGE, _RADIUS_HINT), default=None
+    )
+
+    def _check(self, where: Where) -> None:
+        if self.model == "finite-flange" and self.flange_radius is None:
+            raise where.error("flange_radius", "required when model is 'finite-flange'")
+
+
+@dataclass(frozen=True)
+class Bore:
+    """The air column: contiguous segments from the mouthpiece entry to the open end."""
+
+    segments: tuple[Segment, ...] = spec("", "segments from the mouthpiece entry outwards")
+    radiation: Radiation = spec("", "open-end termination", default=Radiation())
+    losses: str = spec(
+        "",
+        "visco-thermal loss model: bessel (exact), keefe (large radius) or lossless",
+        lambda v: None if v in ducts.LOSS_MODELS else f"expected one of {ducts.LOSS_MODELS}",
+        default="bessel",
+    )
+
+    def _check(self, where: Where) -> None:
+        if not self.segments:
+            raise where.error("segments", "expected at least one segment")
+        if abs(self.segments[0].x_start) > JOIN_TOLERANCE:
+            raise where.error(
+                "segments[0].x_start",
+                "the bore must start at the mouthpiece entry x = 0, "
+                f"got {self.segments[0].x_start:g} m",
+            )
+        for i in range(1, len(self.segments)):
+            prev, seg = self.segments[i - 1], self.segments[i]
+            gap = seg.x_start - prev.x_end
+            if abs(gap) > JOIN_TOLERANCE:
+                kind = "gap" if gap > 0 else "overlap"
+                raise where.error(
+                    f"segments[{i}].x_start",
+                    f"{kind} of {abs(gap):.6g} m after segment {i - 1} "
+                    f"(which ends at {prev.x_end:g} m); expected x_start = {prev.x_end:g} m",
+                )
+
+    @property
+    def length(self) -> float:
+        """Total length in m."""
+        return self.segments[-1].x_end
+
+    @property
+    def entry_radius(self) -> float:
+        """Radius at the mouthpiece entry in m."""
+        return self.segments[0].r_in
+
+    @property
+    def exit_radius(self) -> float:
+        """Radius of the open end in m."""
+        return self.segments[-1].r_out
+
+    def entry_impedance(self, air: Air) -> float:
+        """Real characteristic impedance Z0 = rho c / S at the entry, Pa s/m^3."""
+        return air.impedance(np.pi * self.entry_radius**2)
+
+    def segment_at(self, x: float) -> Segment:
+        """The segment containing position ``x`` (m); raises ValueError outside the bore."""
+        for seg in self.segments:
+            if seg.x_start <= x <= seg.x_end:
+                return seg
+        raise ValueError(f"position {x:g} m is outside the bore (0 to {self.length:g} m)")
+
+    def between(self, x0: float, x1: float) -> tuple[Segment, ...]:
+        """The pieces of the bore between positions ``x0 < x1`` (m), upstream first."""
+        if not 0.0 <= x0 <= x1 <= self.length + JOIN_TOLERANCE:
+            raise ValueError(f"cannot cut the bore between {x0:g} m and {x1:g} m")
+        pieces = []
+        for seg in self.segments:
+            lo, hi = max(seg.x_start, x0), min(seg.x_end, x1)
+            if hi - lo > JOIN_TOLERANCE:
+                pieces.append(seg.cut(lo, hi))
+        return tuple(pieces)
+
+
+def transfer_matrix(
+    bore: Bore, omega: np.ndarray, air: Air, x0: float = 0.0, x1: float | None = None
+) -> np.ndarray:
+    """Transfer matrix of the bore between positions ``x0`` and ``x1`` (m).
+
+    Parameters
+    ----------
+    bore : Bore
+        Geometry.
+    omega : array_like
+        Angular frequency in rad/s, shape ``(n,)``.
+    air : Air
+        Air properties.
+    x0, x1 : float
+        Upstream and downstream positions in m; defaults to the whole bore.
+
+    Returns
+    -------
+    ndarray
+        Shape ``(n, 2, 2)``: ``[P(x0), U(x0)] = T @ [P(x1), U(x1)]``. The identity when
+        ``x0 == x1``.
+    """
+    omega = np.atleast_1d(np.asarray(omega, dtype=float))
+    x1 = bore.length if x1 is None else x1
+    pieces = bore.between(x0, x1)
+    if not pieces:
+        return ducts.identity_matrix(omega.size)
+    return ducts.chain([p.matrix(omega, air, bore.losses) for p in pieces])
+
+
+def input_impedance(bore: Bore, omega: np.ndarray, air: Air) -> np.ndarray:
+    """Input impedance at the mouthpiece entry, Pa s/m^3 (physics.md D.1).
+
+    Parameters
+    ----------
+    bore : Bore
+        Geometry and termination.
+    omega : array_like
+        Angular frequency in rad/s.
+    air : Air
+        Air properties.
+
+    Returns
+    -------
+    ndarray
+        Complex Z_in, same shape as ``omega``.
+    """
+    omega = np.atleast_1d(np.asarray(omega, dtype=float))
+    z_l = radiation_impedance(
+        omega, bore.exit_radius, air, bore.radiation.model, bore.radiation.flange_radius
+    )
+    return ducts.load_impedance(transfer_matrix(bore, omega, air), z_l)
+
+
+def reflectance(bore: Bore, omega: np.ndarray, air: Air) -> np.ndarray:
+    """Pressure reflectance at the entry, R = (Z_in - Z0) / (Z_in + Z0), Z0 real.
+
+    Z0 is the real characteristic impedance of the entry, the same one that appears in the
+    time-domain model (paper eq. A.7).
+    """
+    z_in = input_impedance(bore, omega, air)
+    z0 = bore.entry_impedance(air)
+    return (z_in - z0) / (z_in + z0)
+
+
+@dataclass(frozen=True)
+class Resonance:
+    """One resonance (peak of |Z_in|).
+
+    Attributes
+    ----------
+    frequency_hz : float
+        Peak frequency in Hz (parabolic interpolation on the grid).
+    level_db : float
+        20 log10 |Z_in / Z0| at the peak, dB.
+    q : float
+        Quality factor f / (half-power bandwidth).
+    """
+
+    frequency_hz: float
+    level_db: float
+    q: float
+
+
+def find_resonances(freqs: np.ndarray, z: np.ndarray, z0: float, count: int = 5) -> list[Resonance]:
+    """Locate the first peaks of |Z| on a frequency grid.
+
+    Parameters
+    ----------
+    freqs : ndarray
+        Uniform frequency grid in Hz.
+    z : ndarray
+        Impedance on that grid, Pa s/m^3.
+    z0 : float
+        Normalising impedance, Pa s/m^3.
+    count : int
+        How many peaks to return at most.
+
+    Returns
+    -------
+    list of Resonance
+    """
+    level = 20 * np.log10(np.abs(z) / z0)
+    mag2 = np.abs(z) ** 2
+    peaks = np.flatnonzero((level[1:-1] > level[:-2]) & (level[1:-1] >= level[2:])) + 1
+    out = []
+    for i in peaks[:count]:
+        # parabolic interpolation of the dB curve around the grid maximum
+        a, b, c = level[i - 1], level[i], level[i + 1]
+        denom = a - 2 * b + c
+        delta = 0.5 * (a - c) / denom if denom != 0 else 0.0
+        df = freqs[1] - freqs[0]
+        f_peak = freqs[i] + delta * df
+        l_peak = b - 0.25 * (a - c) * delta
+        half = mag2[i] / 2
+        lo = i
+        while lo > 0 and mag2[lo] > half:
+            lo -= 1
+        hi = i
+        while hi < len(mag2) - 1 and mag2[hi] > half:
+            hi += 1
+        f_lo = np.interp(half, [mag2[lo], mag2[lo + 1]], [freqs[lo], freqs[lo + 1]])
+        f_hi = np.interp(half, [mag2[hi], mag2[hi - 1]], [freqs[hi], freqs[hi - 1]])
+        q = f_peak / (f_hi - f_lo) if f_hi > f_lo else float("nan")
+        out.append(Resonance(float(f_peak), float(l_peak), float(q)))
+    return out

@@ -1,0 +1,22 @@
+"""The ``mpipe`` command line, the demo and the shipped example; the top layer.
+
+Modules
+-------
+main
+    The parser and the entry point ``mpipe``.
+commands
+    One module per subcommand, each exposing ``add_parser(subparsers)``.
+demo
+    ``make demo``: the whole pipeline on the shipped example, beside the truth.
+
+Examples
+--------
+    The shipped example take.
+"""
+
+
+def main(argv=None) -> int:
+    """Entry point of the ``mpipe`` command (see :mod:`mpipe.cli.main`)."""
+    from mpipe.cli.main import main as _main
+
+    return _main(argv)

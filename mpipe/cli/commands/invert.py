@@ -1,0 +1,198 @@
+"""``mpipe invert``: reed parameters window by window from mouthpiece signals."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from mpipe import __version__
+from mpipe.core.errors import UserError
+from mpipe.core.io import check_writable, write_atomic, write_text_atomic
+from mpipe.measurement.calibration import load_calibration
+from mpipe.pipeline.settings import load_pipeline
+
+log = logging.getLogger(__name__)
+
+#: Files written into the output directory.
+OUTPUTS = (
+    "windows.csv",
+    "correlations.csv",
+    "plan.csv",
+    "signals.png",
+    "flow_pressure.png",
+    "history.png",
+    "tracks.png",
+    "resynthesis.wav",
+    "run.json",
+)
+
+
+def add_parser(sub) -> None:
+    """Register the ``invert`` subcommand."""
+    p = sub.add_parser(
+        "invert",
+        help="estimate reed parameters window by window (step 1 + step 2)",
+        description="Invert the mouthpiece pressure and flow of `mpipe separate` (measured, "
+        "zero-mean flow) or `mpipe simulate` (model output) window by window; write "
+        "DIR/windows.csv, plots and the resynthesised pressure.",
+    )
+    p.add_argument("mouthpiece", help="npz with keys fs, p, u (Pa, m^3/s)")
+    p.add_argument("--pipeline", required=True, help="pipeline YAML")
+    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory")
+    p.add_argument(
+        "--start",
+        type=float,
+        default=None,
+        metavar="S",
+        help="first time in s (default: conditioning.edge_s after the start)",
+    )
+    p.add_argument(
+        "--end",
+        type=float,
+        default=None,
+        metavar="S",
+        help="last time in s (default: conditioning.edge_s before the end)",
+    )
+    p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    p.set_defaults(func=run)
+
+
+def load_mouthpiece(path: str | Path) -> tuple[float, np.ndarray, np.ndarray, np.ndarray | None]:
+    """Read ``fs`` (Hz), ``p`` (Pa), ``u`` (m^3/s) and ``temperature_c`` from an npz.
+
+    ``temperature_c`` (degC per sample, written by the wave separation) is None when the
+    file has none (model output). Errors name the file and what is wrong.
+    """
+    import zipfile
+
+    if not zipfile.is_zipfile(path):
+        # np.load would take any other file for a pickle and say so: name the real problem
+        raise UserError(
+            f"{path}: not an npz file; expected the mouthpiece.npz written by `mpipe separate` "
+            "(keys fs, p, u)"
+        )
+    try:
+        data = np.load(path)
+    except (OSError, ValueError) as exc:
+        raise UserError(f"{path}: cannot read npz file: {exc}") from None
+    with data:
+        missing = [k for k in ("fs", "p", "u") if k not in data.files]
+        if missing:
+            raise UserError(f"{path}: missing key {missing[0]!r} (expected fs, p, u)")
+        fs = float(np.asarray(data["fs"]).ravel()[0])
+        p = np.asarray(data["p"], dtype=float).ravel()
+        u = np.asarray(data["u"], dtype=float).ravel()
+        temperature = data["temperature_c"] if "temperature_c" in data.files else None
+    if p.shape != u.shape:
+        raise UserError(f"{path}: p and u differ in length ({p.size} and {u.size})")
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(u))):
+        raise UserError(f"{path}: p or u contains non-finite samples")
+    return fs, p, u, temperature
+
+
+def run(args: argparse.Namespace) -> int:
+    """Execute ``mpipe invert``, holding the lock of the output folder."""
+    from mpipe.core.io import folder_lock
+
+    with folder_lock(args.output):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from mpipe.inversion import resynthesis as rs
+    from mpipe.inversion.conditioning import plan_inversion
+    from mpipe.inversion.kernel import bore_kernel, take_temperature
+    from mpipe.inversion.status import summary_line
+    from mpipe.inversion.tracking import ProgressBar, track, write_correlations, write_table
+
+    out = Path(args.output)
+    check_writable([out / name for name in (*OUTPUTS, "windows.parquet")], args.force)
+    cfg = load_pipeline(args.pipeline)
+    inv = cfg.inversion
+    fs, p, u, temperature = load_mouthpiece(args.mouthpiece)
+    if abs(fs - inv.sample_rate) > 1e-6 * fs:
+        # One rate for the pipeline, as in `mpipe run` (which resamples the take when read).
+        from mpipe.measurement.takes import resample
+
+        log.info(
+            "%s: resampling %g Hz -> %g Hz (inversion.sample_rate)",
+            args.mouthpiece,
+            fs,
+            inv.sample_rate,
+        )
+        try:
+            pu = resample(np.column_stack([p, u]), fs, inv.sample_rate)
+        except ValueError as exc:
+            raise UserError(f"{args.mouthpiece}: {exc}") from None
+        p, u = np.ascontiguousarray(pu[:, 0]), np.ascontiguousarray(pu[:, 1])
+        fs = inv.sample_rate
+    cal = load_calibration(cfg.calibration_path)
+    # The same windows and the same bore kernel as `mpipe run` (one answer per take).
+    plan = plan_inversion(p, fs, cfg.conditioning, inv.window_s, inv.hop_s, args.start, args.end)
+    starts = plan.loc[plan["invert"], "start"].astype(int).tolist()
+    if not starts:
+        raise UserError(
+            f"{args.mouthpiece}: no steady window to invert ({len(plan)} windows in the span, "
+            f"none steady; see conditioning in {args.pipeline})"
+        )
+    t_eff = take_temperature(temperature, cal)
+    kernel, air = bore_kernel(cal, fs, t_eff)
+    bar = ProgressBar(len(starts))
+    try:
+        result = track(p, u, fs, kernel, air.rho, inv, cfg.executor, progress=bar, starts=starts)
+    except ValueError as exc:
+        raise UserError(f"{args.mouthpiece}: {exc}") from None
+    finally:
+        bar.close()
+    table = result.table
+    out.mkdir(parents=True, exist_ok=True)
+    write_atomic(out / "plan.csv", lambda tmp: plan.to_csv(tmp, index=False))
+    write_table(table, out)
+    write_correlations(result.correlations, out)
+    res = rs.resynthesise(table, p, u, fs, kernel, inv, result.zero_mean)
+    ok = table[table["error"] == ""]
+    t = np.arange(p.size) / fs
+    if len(ok):
+        first = ok.iloc[0]
+        i0, i1 = int(round(first["t_start_s"] * fs)), int(round(first["t_end_s"] * fs))
+        rs.plot_signals(
+            t[i0:i1],
+            p[i0:i1],
+            u[i0:i1],
+            res.p[i0:i1],
+            res.u[i0:i1],
+            out / "signals.png",
+            title=f"window at {first['t_start_s']:.3f} s",
+        )
+    rs.plot_first_window(table, result.histories, p, u, fs, air.rho, inv, result.zero_mean, out)
+    rs.plot_tracks(table, out / "tracks.png")
+    rs.write_wav(out / "resynthesis.wav", res.p, fs)
+    run_info = {
+        "mpipe_version": __version__,
+        "mouthpiece": str(Path(args.mouthpiece).resolve()),
+        "pipeline": cfg.source,
+        "calibration": str(cfg.calibration_path),
+        "temperature_c": t_eff,
+        "zero_mean_flow": result.zero_mean,
+        "start_s": args.start,
+        "end_s": args.end,
+    }
+    write_text_atomic(out / "run.json", json.dumps(run_info, indent=2) + "\n")
+    cols = ["t_start_s", "status", "k", "S", "y_m", "p_m", "m", "g", "lam", "k_c",
+            "relative_residual", "n_evaluations"]  # fmt: skip
+    sys.stdout.write(table[cols].to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+    sys.stdout.write("\n")
+    for _, row in table[table["status"] != "ok"].iterrows():
+        sys.stdout.write(f"window at {row['t_start_s']:.3f} s: {row['status']}: "
+                         f"{row['status_reason']}\n")  # fmt: skip
+    n_ok = int((table["status"] == "ok").sum())
+    sys.stdout.write(f"{summary_line(table)}; results in {out}\n")
+    if n_ok == 0:
+        sys.stderr.write("mpipe invert: no window has status ok: no usable result\n")
+        return 1
+    return 0

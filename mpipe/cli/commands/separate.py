@@ -1,0 +1,197 @@
+"""``mpipe separate``: mouthpiece pressure and flow from a take of two or more microphones.
+
+Outputs in ``DIR``:
+
+``mouthpiece.npz``
+    ``fs`` (Hz), ``p`` (Pa) and ``u`` (m^3/s, into the bore) at the mouthpiece entry,
+    ``p0`` (Pa) and ``u0`` (m^3/s) at the reference plane, ``temperature_c`` (degC per
+    sample), all after the 7.25 kHz low-pass; the noise propagated from the microphones:
+    ``u_noise_freq_hz`` (Hz), ``u_noise_psd`` ((m^3/s)^2/Hz) and ``p_noise_psd`` (Pa^2/Hz),
+    one-sided power spectral densities at the mouthpiece entry.
+
+The take is resampled to ``--sample-rate`` (the pipeline's ``inversion.sample_rate``,
+100 kHz by default) when it was recorded at another rate. The exit status is 1 when the
+validation FAILs, 0 for PASS and CANNOT-VERIFY.
+``mouthpiece.wav``
+    32-bit float, two channels at ``fs``: channel 1 is ``p / 10 kPa``, channel 2 is
+    ``u / (1e-3 m^3/s)`` (fixed scales, so files compare across takes).
+``blocks.csv``
+    The per-block propagation parameters of the wave separation.
+``impedance.csv``, ``impedance.png``
+    Measured and theoretical normalised input impedance with coherence (paper Fig. 10).
+``validation.csv``
+    The resonance metrics of the validation.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from mpipe.core.errors import UserError
+from mpipe.core.io import check_writable, write_atomic, write_csv, write_npz_atomic
+from mpipe.inversion.kernel import take_temperature
+from mpipe.inversion.settings import InversionConfig
+from mpipe.measurement.calibration import load_calibration
+from mpipe.measurement.separation import SeparationConfig, separate
+from mpipe.measurement.translation import (
+    TranslationConfig,
+    mouthpiece_noise,
+    translate,
+    write_mouthpiece_wav,
+)
+from mpipe.measurement.validation import ValidationConfig, plot_impedance, validate
+from mpipe.pipeline.settings import load_pipeline
+
+log = logging.getLogger(__name__)
+
+#: Default rate of every command: the default of the pipeline's inversion.sample_rate.
+DEFAULT_RATE = InversionConfig().sample_rate
+
+OUTPUTS = (
+    "mouthpiece.npz",
+    "mouthpiece.wav",
+    "blocks.csv",
+    "impedance.csv",
+    "impedance.png",
+    "validation.csv",
+)
+
+
+def add_parser(sub) -> None:
+    """Register the ``separate`` subcommand."""
+    p = sub.add_parser(
+        "separate",
+        help="wave separation, translation to the mouthpiece and impedance check of a take",
+        description="Separate the waves of a take of two or more wall microphones, rebuild "
+        "pressure and flow at the mouthpiece entry, and validate them against the theoretical "
+        "input impedance.",
+    )
+    p.add_argument(
+        "inputs",
+        nargs="+",
+        metavar="FILE",
+        help="TAKE (one multichannel file) or TAKE1 ... TAKEN (one mono file per "
+        "microphone), then CALIBRATION.yaml",
+    )
+    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory")
+    p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    p.add_argument(
+        "--pipeline",
+        metavar="PIPE.yaml",
+        help="take the separation, translation and validation settings from this pipeline "
+        "file, as `mpipe run` does (default: the settings' defaults)",
+    )
+    p.add_argument(
+        "--sample-rate",
+        type=float,
+        default=None,
+        metavar="HZ",
+        help="rate of the outputs; takes at other rates are resampled (default: the "
+        f"pipeline's inversion.sample_rate, {DEFAULT_RATE:g} without --pipeline)",
+    )
+    p.add_argument(
+        "--fixed-mach",
+        type=float,
+        metavar="M",
+        help="hold the Mach number of the mean flow at M instead of estimating it",
+    )
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Execute ``mpipe separate``, holding the lock of the output folder."""
+    from mpipe.core.io import folder_lock
+
+    with folder_lock(args.output):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from mpipe.measurement.takes import read_take
+
+    if len(args.inputs) < 2:
+        raise UserError(
+            f"expected TAKE CALIBRATION.yaml or TAKE1 ... TAKEN CALIBRATION.yaml, got "
+            f"{len(args.inputs)} file(s)"
+        )
+    *takes, cal_path = args.inputs
+    if not cal_path.lower().endswith((".yaml", ".yml")):
+        raise UserError(f"{cal_path}: the last argument must be the calibration YAML file")
+    out = Path(args.output)
+    paths = [out / name for name in OUTPUTS]
+    check_writable(paths, args.force)
+
+    log.info("reading calibration %s", cal_path)
+    cal = load_calibration(cal_path)
+    log.info("reading take %s", ", ".join(takes))
+    if args.pipeline:
+        pipe = load_pipeline(args.pipeline)
+        sep_cfg, tr_cfg, val_cfg = pipe.separation, pipe.translation, pipe.validation
+        rate = pipe.inversion.sample_rate
+    else:
+        sep_cfg, tr_cfg, val_cfg = SeparationConfig(), TranslationConfig(), ValidationConfig()
+        rate = DEFAULT_RATE
+    rate = args.sample_rate if args.sample_rate is not None else rate
+    if not 1000.0 <= rate <= 1e6:
+        raise UserError(f"--sample-rate: expected a rate in Hz (1e3-1e6), got {rate:g}")
+    take = read_take(takes if len(takes) > 1 else takes[0], cal, fs=rate)
+    if args.fixed_mach is not None:
+        if not -0.05 <= args.fixed_mach <= 0.1:
+            raise UserError(
+                f"--fixed-mach: expected a value in [-0.05, 0.1], got {args.fixed_mach}"
+            )
+        sep_cfg = dataclasses.replace(sep_cfg, mach=args.fixed_mach)
+    try:
+        log.info("stage 1/3: wave separation")
+        sep = separate(take.pressures, take.fs, cal, sep_cfg, take.band_limit_hz)
+        log.info("stage 2/3: translation to the mouthpiece entry")
+        tr = translate(sep.p0, sep.u0, take.fs, cal, tr_cfg, sep.temperature_track())
+        log.info("stage 3/3: impedance validation")
+        t_eff = take_temperature(tr.temperature_c, cal)
+        val = validate(tr.p, tr.u, take.fs, cal, val_cfg, t_eff)
+        noise = mouthpiece_noise(take.fs, cal, sep.noise_psd, sep.median_theta(), t_eff, sep_cfg)
+    except ValueError as exc:
+        raise UserError(f"{takes[0]}: {exc}") from None
+
+    out.mkdir(parents=True, exist_ok=True)
+    arrays = {
+        "fs": np.float64(take.fs),
+        "p": tr.p,
+        "u": tr.u,
+        "p0": tr.p0,
+        "u0": tr.u0,
+        "temperature_c": tr.temperature_c,
+        **noise,
+    }
+    write_npz_atomic(out / "mouthpiece.npz", **arrays)
+    write_atomic(out / "mouthpiece.wav", lambda tmp: write_mouthpiece_wav(tmp, tr.p, tr.u, take.fs))
+    write_csv(out / "blocks.csv", sep.blocks)
+    write_csv(out / "impedance.csv", val.table())
+    write_csv(out / "validation.csv", val.resonances)
+    write_atomic(out / "impedance.png", lambda tmp: plot_impedance(val, tmp, 2000.0))
+
+    b = sep.blocks
+    fit = (
+        f"median chi2/term {np.nanmedian(b.residual):.2f}"
+        if np.any(np.isfinite(b.residual))
+        else f"no residual ({b.theta.iloc[0]})"
+    )
+    print(
+        f"{len(b)} blocks: T {b.temperature_c.median():.2f} +- {b.temperature_se_c.median():.2f}"
+        f" degC ({b.temperature_c.min():.2f}..{b.temperature_c.max():.2f}), "
+        f"eta {b.loss_scale.median():.3f} +- {b.loss_scale_se.median():.3f}, "
+        f"M {b.mach.median():.4f} +- {b.mach_se.median():.4f}, {fit}"
+    )
+    for line in sep.bound_warnings():
+        print(f"warning: {line}")
+    print(val.summary())
+    print(f"wrote {', '.join(str(p) for p in paths)}")
+    if val.verdict == "fail":
+        print("validation FAILED: the mouthpiece signals do not match the bore's impedance")
+        return 1
+    return 0

@@ -1,0 +1,19 @@
+"""Foundations every layer may use; imports nothing else of mpipe.
+
+Modules
+-------
+errors
+    Errors the user can fix, reported as one line.
+config
+    YAML into validated frozen dataclasses whose fields carry unit and meaning.
+units
+    The unit of every named quantity in mpipe's tables and signals.
+io
+    Atomic writes, no overwriting without ``force``, output-folder locks.
+filters
+    Filters shared by the measurement chain and the model comparison.
+workers
+    Worker processes that end with their parent.
+progress
+    Progress bars (tqdm) for long stages.
+"""

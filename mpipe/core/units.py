@@ -1,0 +1,110 @@
+"""The unit of every named quantity in mpipe's tables and signals.
+
+One table, used by the inversion's plots, the HTML report and :func:`mpipe.load_run`: a
+column is named for its quantity (``k``, ``p_M``) or carries its unit as a suffix
+(``t_start_s``, ``temperature_c``); a standard error ``<name>_se`` has its quantity's unit.
+"""
+
+from __future__ import annotations
+
+#: Units of the columns and signals whose names do not end in a unit suffix.
+UNITS = {
+    "k": "Pa/m",
+    "S": "m²",
+    "y_m": "m",
+    "p_m": "Pa",
+    "m": "kg/m²",
+    "g": "1/s",
+    "lam": "m",
+    "k_c": "Pa/m^α",
+    "y_c": "m",
+    "alpha": "–",
+    "step1_p_m": "Pa",
+    "k_closing": "Pa/m",
+    "S_closing": "m²",
+    "y_m_closing": "m",
+    "f1_closing": "(m³/s)²",
+    "k_opening": "Pa/m",
+    "S_opening": "m²",
+    "y_m_opening": "m",
+    "f1_opening": "(m³/s)²",
+    "f2": "Pa",
+    "p_M": "Pa",
+    "gamma": "–",
+    "zeta": "–",
+    "f_r": "Hz",
+    "Q_r": "–",
+    "residual_sigma": "Pa",
+    "n_eff": "–",
+    "relative_residual": "–",
+    "relative_residual_p": "–",
+    "loss_scale": "–",
+    "loss_scale_raw": "–",
+    "mach": "–",
+    "mach_raw": "–",
+    "coherence": "–",
+    "start": "sample",
+    "p": "Pa",
+    "u": "m³/s",
+    "p0": "Pa",
+    "u0": "m³/s",
+    "residual": "–",
+    "z_measured_re": "–",
+    "z_measured_im": "–",
+    "z_theory_re": "–",
+    "z_theory_im": "–",
+    "fs": "Hz",
+}
+
+#: Name suffixes that carry a unit (longest first).
+SUFFIX_UNITS = (
+    ("_m3_s", "m³/s"),
+    ("_cents", "cent"),
+    ("_pct", "%"),
+    ("_m_s", "m/s"),
+    ("_deg", "°"),
+    ("_hz", "Hz"),
+    ("_db", "dB"),
+    ("_pa", "Pa"),
+    ("_s", "s"),
+    ("_c", "°C"),
+)
+
+
+def unit_of(name: str) -> str:
+    """Unit of a table column or signal named ``name`` ("" when it has none: counts, flags).
+
+    Parameters
+    ----------
+    name : str
+        Column or signal name, e.g. ``"k"``, ``"t_start_s"``, ``"temperature_c"``.
+
+    Returns
+    -------
+    str
+        The SI unit, "–" for dimensionless quantities, "" for counts, flags and text.
+    """
+    if name in UNITS:
+        return UNITS[name]
+    if name.endswith("_se") and name[: -len("_se")] in UNITS:
+        return UNITS[name[: -len("_se")]]  # a standard error has its quantity's unit
+    for suffix, unit in SUFFIX_UNITS:
+        if name.endswith(suffix) and len(name) > len(suffix):
+            return unit
+    return ""
+
+
+def label(name: str) -> str:
+    """Column header with its unit, the unit suffix dropped: ``t_start_s`` -> ``t_start [s]``."""
+    unit = unit_of(name)
+    if not unit:
+        return name
+    if name not in UNITS:
+        for suffix, u in SUFFIX_UNITS:
+            if name.endswith(suffix) and u == unit:
+                name = name[: -len(suffix)]
+                break
+    return f"{name} [{unit}]"
+
+
+__all__ = ["SUFFIX_UNITS", "UNITS", "label", "unit_of"]

@@ -1,0 +1,379 @@
+"""Settings of the inversion stages: conditioning, step 1 and 2, tracking, resynthesis, workers.
+
+The sections ``conditioning``, ``inversion``, ``resynthesis`` and ``executor`` of a pipeline
+file (:mod:`mpipe.pipeline.settings` assembles the whole file). Each field carries its unit
+and meaning, which ``mpipe config`` prints.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from mpipe.core.config import Where, between, positive, spec
+
+#: Reed parameters that step 2 may optimise (physics.md I); y_c and alpha stay fixed.
+PARAMETER_NAMES = ("k", "S", "y_m", "p_m", "m", "g", "lam", "k_c")
+
+
+def _bounds_check(value: tuple[float, ...]) -> str | None:
+    if len(value) != 2:
+        return f"expected two numbers [lower, upper], got {len(value)}"
+    lo, hi = value
+    if not 0 < lo < hi:
+        return f"expected 0 < lower < upper, got [{lo:g}, {hi:g}]"
+    return None
+
+
+def _bound(unit: str, doc: str, lo: float, hi: float):
+    return spec(unit, doc, _bounds_check, default=(lo, hi))
+
+
+@dataclass(frozen=True)
+class ParameterBounds:
+    """Search bounds of the reed parameters in step 2 (physics.md I, "Bounds")."""
+
+    k: tuple[float, ...] = _bound("Pa/m", "reed stiffness per unit area", 1e6, 1e8)
+    S: tuple[float, ...] = _bound("m^2", "effective reed area", 1e-5, 5e-4)
+    y_m: tuple[float, ...] = _bound("m", "rest opening of the reed channel", 1e-4, 1e-3)
+    p_m: tuple[float, ...] = _bound(
+        "", "mouth pressure relative to max(p) over the window (dimensionless factors)", 0.5, 2.0
+    )
+    m: tuple[float, ...] = _bound("kg/m^2", "reed mass per unit area", 0.005, 0.5)
+    g: tuple[float, ...] = _bound("1/s", "reed damping coefficient", 1e2, 2e4)
+    lam: tuple[float, ...] = _bound("m", "effective reed width lambda", 5e-3, 20e-3)
+    k_c: tuple[float, ...] = _bound("Pa/m^alpha", "reed-lay contact stiffness", 1e9, 1e13)
+    y_c: tuple[float, ...] = _bound(
+        "m", "displacement where contact begins (searched with contact: free only)", 2e-5, 1e-3
+    )
+
+    def absolute(self, name: str, max_p: float) -> tuple[float, float]:
+        """Bounds of parameter ``name`` in SI units; ``max_p`` (Pa) scales the p_m factors."""
+        lo, hi = getattr(self, name)
+        if name == "p_m":
+            return lo * max_p, hi * max_p
+        return float(lo), float(hi)
+
+
+def _check_free(value: tuple[str, ...]) -> str | None:
+    bad = [v for v in value if v not in PARAMETER_NAMES]
+    if bad:
+        return f"unknown parameter {bad[0]!r}; expected some of {', '.join(PARAMETER_NAMES)}"
+    if len(set(value)) != len(value):
+        return "a parameter is listed twice"
+    if not value:
+        return "expected at least one free parameter"
+    return None
+
+
+@dataclass(frozen=True)
+class InversionConfig:
+    """Settings of the two-step inversion and of the window tracking (physics.md H, I, J)."""
+
+    lam: float = spec(
+        "m",
+        "reed width lambda: fixed in step 1, start value of step 2",
+        between(1e-3, 0.05, "metres: a reed is about 0.013 m wide"),
+        default=0.013,
+    )
+    y_c: float = spec(
+        "m",
+        "displacement where reed-lay contact begins (fixed)",
+        between(0.0, 2e-3),
+        default=2.4e-4,
+    )
+    alpha: float = spec("", "exponent of the contact force (fixed)", between(1.0, 4.0), default=2.0)
+    contact: Literal["fixed", "closure", "free"] = spec(
+        "",
+        "where reed-lay contact begins. fixed: at the configured y_c (the paper); closure: "
+        "at y_m (y_c = y_m, the convention of several time-domain simulators); free: y_c is "
+        "searched (within bounds.y_c, at most y_m). With closure or free the model is scale "
+        "invariant (k, S, lam, m / a, y_m, y_c * a, k_c / a^2 give the same p and u), so lam "
+        "is held at its configured value to fix the scale and only the combinations p_M, "
+        "gamma, zeta, f_r, Q_r are determined",
+        default="fixed",
+    )
+    determined_limit: float = spec(
+        "",
+        "a parameter is determined when its relative standard error is below this (0.10 = 10 %)",
+        between(1e-6, 10.0),
+        default=0.10,
+    )
+    m: float = spec(
+        "kg/m^2", "start value of the reed mass per unit area", between(1e-4, 10.0), default=0.05
+    )
+    g: float = spec("1/s", "start value of the reed damping", between(1.0, 1e6), default=3000.0)
+    k_c: float = spec(
+        "Pa/m^alpha", "start value of the contact stiffness", between(1e6, 1e15), default=8.23e10
+    )
+    free: tuple[str, ...] = spec(
+        "", "parameters optimised in step 2", _check_free, default=PARAMETER_NAMES
+    )
+    bounds: ParameterBounds = spec("", "search bounds per parameter", default=ParameterBounds())
+    step1_solver: Literal["lstsq", "nelder-mead"] = spec(
+        "", "step-1 solver: exact linear least squares, or the paper's Nelder-Mead", default="lstsq"
+    )
+    step1_p_m: Literal["estimate", "max"] = spec(
+        "",
+        "step-1 mouth pressure (Pa). estimate: the p_m in [1, 2] max p that minimises the "
+        "step-1 misfit profiled over the flow coefficients, leaving out samples in reed-lay "
+        "contact (dp/k > y_c) and with the reed shut; max: the paper's p_m = max p over the "
+        "window, leaving out shut-reed samples only (18 % low on the paper's Table 1 case)",
+        default="estimate",
+    )
+    seed_branch: Literal["closing", "opening"] = spec(
+        "", "step-1 branch whose k, S, y_m start step 2 (the paper: closing)", default="closing"
+    )
+    optimiser: Literal["trust-region", "rosenbrock", "powell", "nelder-mead"] = spec(
+        "",
+        "step-2 local search: trust-region (least squares on the residual vector, log "
+        "parameters; the default, 10-20x fewer model runs) or rosenbrock (the paper's "
+        "rotating-coordinate search), powell, nelder-mead",
+        default="trust-region",
+    )
+    cold_start: Literal["global", "step1"] = spec(
+        "",
+        "how the first window of a take is started. global: a Sobol design over the whole "
+        "bounded box, short local searches from step 1's estimate and the best design points, "
+        "a full search from the best; step1: the paper's single start from step 1",
+        default="global",
+    )
+    design_points: int = spec(
+        "", "points of the cold start's Sobol design (rounded up to a power of two)",
+        between(1, 65536), default=256,
+    )  # fmt: skip
+    local_starts: int = spec(
+        "", "short local searches of the cold start, step 1's estimate included",
+        between(1, 256), default=8,
+    )  # fmt: skip
+    local_evaluations: int = spec(
+        "", "model runs per short local search of the cold start", between(10, 100000),
+        default=300,
+    )  # fmt: skip
+    design_seed: int = spec(
+        "", "scrambling seed of the Sobol design (fixed: the same take gives the same answer)",
+        between(0, 2**31 - 1), default=0,
+    )  # fmt: skip
+    step1_every_window: bool = spec(
+        "",
+        "run step 1 on every window; by default only the cold-started window runs it (warm "
+        "windows start from the take's cold-start result and do not use it)",
+        default=False,
+    )
+    bound_tolerance: float = spec(
+        "",
+        "a parameter within this log distance of a search bound is on the bound "
+        "(0.001 = 0.1 %); such a window's status is at-bound",
+        between(1e-9, 0.1),
+        default=1e-3,
+    )
+    residual_factor: float = spec(
+        "",
+        "a window whose relative residual exceeds this multiple of the take's best is "
+        "high-residual",
+        between(1.0, 1e6),
+        default=3.0,
+    )
+    retry_cold: bool = spec(
+        "",
+        "give a window that is not ok after its warm start a cold start of its own (kept "
+        "when its F2 is lower)",
+        default=True,
+    )
+    initial_step: float = spec(
+        "",
+        "initial step of every log-scaled parameter (0.05 = 5 %)",
+        between(1e-4, 1.0),
+        default=0.05,
+    )
+    step_tolerance: float = spec(
+        "", "stop when every step is below this (log units)", between(1e-9, 0.1), default=1e-5
+    )
+    f_tolerance: float = spec(
+        "",
+        "stop when F2 falls by less than this fraction over a stage (0: off; with noisy "
+        "targets F2 has a floor and this rule stops the search early)",
+        between(0.0, 0.5),
+        default=0.0,
+    )
+    max_evaluations: int = spec(
+        "", "evaluation budget of step 2 per window", between(1, 1_000_000), default=8000
+    )
+    warm_max_evaluations: int = spec(
+        "",
+        "evaluation budget of a window warm-started from the take's cold-start result",
+        between(1, 1_000_000),
+        default=400,
+    )
+    warm_secant: bool = spec(
+        "",
+        "trust-region on warm windows: update the Jacobian by Broyden's secant rule between "
+        "difference Jacobians (a fresh one at the start, after a failed step and before "
+        "stopping); false: a difference Jacobian at every step (scipy's method)",
+        default=True,
+    )
+    warm_f_tolerance: float = spec(
+        "",
+        "warm windows with warm_secant: also stop when a fresh difference Jacobian predicts "
+        "the sum of squares to fall by less than this fraction (1e-4: F2 by 0.005 %)",
+        between(0.0, 0.1),
+        default=1e-4,
+    )
+    fast_objective: bool = spec(
+        "",
+        "compute F2's residuals by the compiled per-window evaluator (the same numbers to "
+        "rounding, ~4x cheaper); false: the plain reference implementation",
+        default=True,
+    )
+    warm_initial_step: float = spec(
+        "",
+        "initial log step of a warm-started window (rosenbrock, powell, nelder-mead)",
+        between(1e-5, 1.0),
+        default=0.01,
+    )
+    start: Literal["history", "rest"] = spec(
+        "",
+        "how each model run starts: from the measured history before the window, or from rest "
+        "into steady state followed by synchronisation",
+        default="history",
+    )
+    lead_s: float = spec(
+        "s",
+        "reed lead-in driven by the measured pressure before the window (start: history)",
+        between(0.0, 0.05),
+        default=0.01,
+    )
+    settle_s: float = spec(
+        "s",
+        "simulated time from rest before the window (start: rest)",
+        between(0.01, 2.0),
+        default=0.25,
+    )
+    window_s: float = spec("s", "analysis window length", between(1e-3, 1.0), default=0.02)
+    hop_s: float = spec("s", "hop between window starts", between(1e-3, 10.0), default=0.02)
+    zero_mean_ratio: float = spec(
+        "",
+        "signal auto: the flow counts as measured (zero-mean) when |mean(u)| / std(u) is "
+        "below this; model flow carries a mean of 1-3 times its AC amplitude, a high-passed "
+        "measurement about 0",
+        between(0.0, 1.0),
+        default=0.2,
+    )
+    signal: Literal["measured", "model", "auto"] = spec(
+        "",
+        "measured: zero-mean flow, model output is low-passed like the measurement before "
+        "comparison; "
+        "model: flow with its mean, compared raw; auto: decide from mean(u)/rms(u)",
+        default="auto",
+    )
+    lowpass_hz: float = spec(
+        "Hz",
+        "cut-off of the linear-phase FIR applied to model output",
+        between(1e3, 2e4),
+        default=7250.0,
+    )
+    sample_rate: float = spec(
+        "Hz",
+        "sample rate of the whole pipeline: takes recorded at other rates are resampled "
+        "to it when read (mpipe run), mouthpiece signals at other rates when inverted "
+        "(mpipe invert)",
+        between(1e3, 1e6),
+        default=100_000.0,
+    )
+
+    @property
+    def search_parameters(self) -> tuple[str, ...]:
+        """The parameters step 2 searches, in order.
+
+        ``free`` without lam when the contact point moves with y_m (lam then fixes the
+        scale), and y_c last when ``contact`` is free.
+        """
+        names = tuple(n for n in self.free if not (self.contact != "fixed" and n == "lam"))
+        return (*names, "y_c") if self.contact == "free" else names
+
+    def _check(self, where: Where) -> None:
+        for name in PARAMETER_NAMES:
+            lo, hi = getattr(self.bounds, name)
+            start = {"lam": self.lam, "m": self.m, "g": self.g, "k_c": self.k_c}.get(name)
+            if start is not None and not lo <= start <= hi:
+                raise where.error(
+                    name, f"start value {start:g} lies outside bounds.{name} [{lo:g}, {hi:g}]"
+                )
+
+
+@dataclass(frozen=True)
+class ExecutorConfig:
+    """Where the windows run."""
+
+    kind: Literal["local", "dask"] = spec(
+        "", "local: processes on this machine; dask: a Dask distributed cluster", default="local"
+    )
+    workers: int = spec(
+        "",
+        "number of local worker processes (0: one per CPU; 1: in this process)",
+        between(0, 4096),
+        default=0,
+    )
+    scheduler: str | None = spec(
+        "", "Dask scheduler address, e.g. tcp://10.0.0.5:8786 (kind: dask)", default=None
+    )
+    chunks: int = spec(
+        "",
+        "contiguous warm-start chains per worker (0: one chain per worker)",
+        between(0, 100000),
+        default=0,
+    )
+
+    def _check(self, where: Where) -> None:
+        if self.kind == "dask" and not self.scheduler:
+            raise where.error("scheduler", "executor kind 'dask' needs a scheduler address")
+
+
+@dataclass(frozen=True)
+class ConditioningConfig:
+    """Choice of the windows that are inverted (physics.md J: steady state only)."""
+
+    steady_tolerance: float = spec(
+        "",
+        "largest relative change of the playing period and of the RMS pressure from one "
+        "window to the next for a window to count as steady",
+        between(0.0, 1.0),
+        default=0.02,
+    )
+    f0_min_hz: float = spec(
+        "Hz", "lowest playing frequency searched", between(20.0, 5000.0), default=60.0
+    )
+    f0_max_hz: float = spec(
+        "Hz", "highest playing frequency searched", between(20.0, 5000.0), default=2000.0
+    )
+    min_rms_pa: float = spec("Pa", "windows quieter than this are silent", positive, default=50.0)
+    edge_s: float = spec(
+        "s",
+        "time left out at both ends of the take (filter edges)",
+        between(0.0, 10.0),
+        default=0.05,
+    )
+    invert_transients: bool = spec(
+        "",
+        "invert unsteady windows too (the paper: step 1 is unreliable there)",
+        default=False,
+    )
+
+    def _check(self, where: Where) -> None:
+        if self.f0_max_hz <= self.f0_min_hz:
+            raise where.error("f0_max_hz", "expected f0_max_hz > f0_min_hz")
+
+
+@dataclass(frozen=True)
+class ResynthesisConfig:
+    """What the resynthesis stage shows."""
+
+    overlay_windows: int = spec(
+        "",
+        "windows drawn as target-versus-resynthesis overlays (paper Figs. 9, 11)",
+        between(1, 20),
+        default=3,
+    )
+    wav_full_scale_pa: float = spec(
+        "Pa", "pressure mapped to full scale in the resynthesis WAV", positive, default=1e4
+    )

@@ -1,0 +1,552 @@
+"""Measured input impedance: reading impedance-head files, and comparing with theory.
+
+Impedance files are a known trap: the same three columns may hold Z/Zc or Z in Pa s/m^3,
+the imaginary part under e^{+jwt} or e^{-jwt} (or stored as -Im Z), and "magnitude, phase"
+files are read as "real, imaginary" without complaint. So mpipe reads a file only when its
+layout is declared, in a small YAML header (leading ``#`` lines) or a sidecar
+``FILE.yaml``, or on the command line:
+
+.. code-block:: yaml
+
+    # columns: [frequency_hz, re, im]   # or magnitude / magnitude_db and phase_deg / phase_rad
+    # normalisation: Z/Zc               # or "Pa s/m^3"
+    # time_convention: +jwt             # e^{+jwt} (mpipe, numpy); -jwt: Im Z has the other sign
+    # temperature_c: 21.5
+    # entry_radius: 0.0075              # m; the Zc of Z/Zc (default: the calibration's entry)
+
+Readers for the common text layouts:
+
+- three numeric columns without a header (OpenWInD's ``write_impedance``: frequency, real
+  and imaginary part, Z/Zc with ``normalize=True``, Pa s/m^3 otherwise): the columns are
+  known, the normalisation must be declared;
+- a header row naming the columns (spreadsheet exports and pympedance-style CSV files):
+  names such as ``f``, ``freq``, ``re``, ``real``, ``im``, ``imag``, ``-im``, ``mag``,
+  ``abs``, ``phase``, ``phase_deg``; ``Z/Zc``, ``norm``, ``Pa`` or ``ohm`` in a name declare
+  the normalisation.
+
+Whatever the declaration, the data are checked against physics: a passive impedance has
+Re Z >= 0, and under e^{+jwt} the phase of an input impedance falls through each peak of
+|Z| (mass-like below, spring-like above). A file whose phase rises through its peaks holds
+-Im Z or uses e^{-jwt}; reading it as declared would be silently wrong, so it is an error.
+
+References
+----------
+physics.md D.1 and F.3 (normalised impedance, resonance metrics).
+"""
+
+from __future__ import annotations
+
+import io
+import logging
+import math
+import re
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import pandas as pd
+import scipy.signal
+import yaml
+
+from mpipe.core.config import ConfigError, Where, build, positive, spec
+from mpipe.core.errors import UserError
+
+log = logging.getLogger(__name__)
+
+COLUMN_KINDS = (
+    "frequency_hz", "re", "im", "minus_im", "magnitude", "magnitude_db", "phase_deg",
+    "phase_rad", "ignore",
+)  # fmt: skip
+
+
+def _check_columns(value: tuple[str, ...]) -> str | None:
+    bad = [c for c in value if c not in COLUMN_KINDS]
+    if bad:
+        return f"unknown column kind {bad[0]!r}; expected some of {', '.join(COLUMN_KINDS)}"
+    if "frequency_hz" not in value:
+        return "expected a frequency_hz column"
+    complex_parts = {"re", "im", "minus_im"} & set(value)
+    polar = {"magnitude", "magnitude_db", "phase_deg", "phase_rad"} & set(value)
+    if complex_parts and polar:
+        return "expected either re and im or magnitude and phase columns, not both"
+    if complex_parts and not ("re" in value and ({"im", "minus_im"} & set(value))):
+        return "expected a re and an im (or minus_im) column"
+    if polar and not (
+        ({"magnitude", "magnitude_db"} & set(value)) and ({"phase_deg", "phase_rad"} & set(value))
+    ):
+        return "expected a magnitude (or magnitude_db) and a phase_deg (or phase_rad) column"
+    if not complex_parts and not polar:
+        return "expected re and im, or magnitude and phase columns"
+    if len([c for c in value if c != "ignore"]) != len({c for c in value if c != "ignore"}):
+        return "a column kind is listed twice"
+    return None
+
+
+@dataclass(frozen=True)
+class ImpedanceFileLayout:
+    """How an impedance file is laid out (its YAML header, sidecar or command-line options)."""
+
+    columns: tuple[str, ...] = spec(
+        "",
+        "kind of each column, in order: frequency_hz, re, im (or minus_im for a stored -Im Z), "
+        "or magnitude / magnitude_db and phase_deg / phase_rad; ignore for others",
+        _check_columns,
+    )
+    normalisation: Literal["Z/Zc", "Pa s/m^3"] = spec(
+        "", "Z/Zc (dimensionless, Zc = rho c / S of the entry) or absolute Z in Pa s/m^3"
+    )
+    time_convention: Literal["+jwt", "-jwt"] = spec(
+        "",
+        "+jwt: e^{+j omega t} as in mpipe and numpy (Im Z > 0 below the first resonance); "
+        "-jwt: the physicists' e^{-j omega t}, whose Im Z has the opposite sign",
+        default="+jwt",
+    )
+    temperature_c: float | None = spec(
+        "degC", "air temperature during the measurement (null: the calibration's)", default=None
+    )
+    entry_radius: float | None = spec(
+        "m",
+        "radius of the entry whose Zc normalises Z (null: the calibration's entry)",
+        positive,
+        default=None,
+    )
+
+
+@dataclass(frozen=True)
+class MeasuredImpedance:
+    """A measured input impedance, in mpipe's conventions.
+
+    Attributes
+    ----------
+    freqs : ndarray
+        Frequencies, Hz, increasing.
+    z : ndarray
+        Complex impedance, e^{+jwt}; dimensionless Z/Zc or Pa s/m^3 (see ``normalisation``).
+    layout : ImpedanceFileLayout
+        The declared layout it was read with.
+    source : str
+        File name.
+    """
+
+    freqs: np.ndarray
+    z: np.ndarray
+    layout: ImpedanceFileLayout
+    source: str
+
+    def normalised(self, z0: float) -> np.ndarray:
+        """Z/Zc (dimensionless); ``z0`` (Pa s/m^3) converts an absolute Z."""
+        return self.z if self.layout.normalisation == "Z/Zc" else self.z / z0
+
+
+_NAMES = {
+    "frequency_hz": ("f", "freq", "frequency", "frequency_hz", "f_hz", "freq_hz", "hz"),
+    "re": ("re", "real", "zr", "z_re", "z_real", "re_z", "rez", "r", "resistance"),
+    "im": ("im", "imag", "zi", "z_im", "z_imag", "im_z", "imz", "x", "reactance"),
+    "minus_im": ("-im", "-imag", "minus_im", "-zi", "-im_z", "-imz", "-x"),
+    "magnitude": ("mag", "abs", "|z|", "magnitude", "modulus", "amplitude"),
+    "magnitude_db": ("mag_db", "db", "magnitude_db", "level_db", "|z|_db"),
+    "phase_deg": ("phase_deg", "arg_deg", "angle_deg", "phase_degrees"),
+    "phase_rad": ("phase_rad", "arg_rad", "angle_rad", "phase_radians"),
+}
+
+
+def _column_kind(name: str) -> str | None:
+    """Kind of a header name; None when it cannot be told (e.g. a bare ``phase``)."""
+    key = re.sub(r"\[.*?\]|\(.*?\)", "", name.strip().lower()).strip().replace(" ", "_")
+    key = key.replace("/zc", "").replace("_norm", "").replace("normalised_", "").strip("_")
+    for kind, names in _NAMES.items():
+        if key in names:
+            return kind
+    if re.fullmatch(r"re(al)?_?\(?z.*", key):
+        return "re"
+    if re.fullmatch(r"-\s*im(ag)?.*", key):
+        return "minus_im"
+    if re.fullmatch(r"im(ag)?_?\(?z.*", key):
+        return "im"
+    return None
+
+
+def _normalisation_from_names(names: list[str]) -> str | None:
+    text = " ".join(names).lower()
+    if "/zc" in text or "norm" in text or "z/z0" in text:
+        return "Z/Zc"
+    if "pa" in text or "ohm" in text or "kg" in text:
+        return "Pa s/m^3"
+    return None
+
+
+def _split(line: str) -> list[str]:
+    line = line.strip()
+    if "," in line or ";" in line:
+        return [t.strip() for t in re.split(r"[,;]", line)]
+    return line.split()
+
+
+def _is_number(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def read_measured_impedance(
+    path: str | Path, declared: dict | None = None, *, check_physics: bool = True
+) -> MeasuredImpedance:
+    """Read a measured input impedance, in mpipe's conventions (e^{+jwt}).
+
+    Parameters
+    ----------
+    path : str or Path
+        Text file (whitespace, comma or semicolon separated).
+    declared : dict, optional
+        Layout keys given by the caller (command line); they override the file's header
+        and sidecar.
+    check_physics : bool
+        Check passivity and the phase direction through the peaks (see module docstring).
+
+    Returns
+    -------
+    MeasuredImpedance
+
+    Raises
+    ------
+    UserError
+        One line naming the file and what is missing or contradictory: an undeclared
+        normalisation, magnitude/phase columns read as real/imaginary, a stored -Im Z...
+    """
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise UserError(f"{path}: cannot read impedance file: {exc}") from None
+    lines = text.splitlines()
+    header_lines = []
+    for line in lines:
+        if line.strip().startswith(("#", "%")):
+            header_lines.append(line.strip().lstrip("#%").rstrip())
+        elif line.strip():
+            break
+    layout: dict = {}
+    sidecar = path.with_suffix(".yaml")
+    if sidecar.exists() and sidecar != path:
+        from mpipe.core.config import load_yaml
+
+        layout.update(load_yaml(sidecar))
+    if header_lines:
+        try:
+            parsed = yaml.safe_load("\n".join(h[1:] if h.startswith(" ") else h
+                                              for h in header_lines))  # fmt: skip
+        except yaml.YAMLError:
+            parsed = None
+        if isinstance(parsed, dict) and set(parsed) & {"columns", "normalisation"}:
+            layout.update(parsed)
+    body = [ln for ln in lines if ln.strip() and not ln.strip().startswith(("#", "%"))]
+    if not body:
+        raise UserError(f"{path}: no data rows")
+    first = _split(body[0])
+    names: list[str] | None = None
+    if not all(_is_number(t) for t in first):
+        names = first
+        body = body[1:]
+    try:
+        data = np.loadtxt(io.StringIO("\n".join(",".join(_split(b)) for b in body)),
+                          delimiter=",", ndmin=2)  # fmt: skip
+    except ValueError as exc:
+        raise UserError(f"{path}: expected numbers in every data row ({exc})") from None
+    n_cols = data.shape[1]
+    if names is not None and "columns" not in layout:
+        kinds = [_column_kind(n) for n in names]
+        unknown = [n for n, k in zip(names, kinds, strict=True) if k is None]
+        if unknown:
+            hint = (
+                " (is it degrees or radians? name it phase_deg or phase_rad)"
+                if any("phase" in u.lower() or "arg" in u.lower() for u in unknown)
+                else ""
+            )
+            raise UserError(
+                f"{path}: cannot tell what the column {unknown[0]!r} holds{hint}; declare "
+                "columns: in a header or --columns"
+            )
+        layout["columns"] = kinds
+        guess = _normalisation_from_names(names)
+        if guess and "normalisation" not in layout:
+            layout["normalisation"] = guess
+    if names is None and "columns" not in layout and n_cols == 3:
+        layout["columns"] = ["frequency_hz", "re", "im"]  # OpenWInD's write_impedance
+    layout.update(declared or {})
+    if "columns" not in layout:
+        raise UserError(
+            f"{path}: {n_cols} columns without a header; declare columns: (e.g. "
+            "[frequency_hz, re, im]) in a header, a sidecar or --columns"
+        )
+    if "normalisation" not in layout:
+        median = float(np.median(np.abs(data[:, 1]))) if n_cols > 1 else float("nan")
+        looks = "Z/Zc" if median < 1e3 else "Pa s/m^3"
+        raise UserError(
+            f"{path}: the normalisation is not declared (Z/Zc or Pa s/m^3; the second column's "
+            f"median magnitude {median:.3g} looks like {looks}); declare normalisation: in a "
+            f"header, a sidecar {sidecar.name} or --normalisation"
+        )
+    layout["columns"] = list(layout["columns"])
+    try:
+        lay = build(ImpedanceFileLayout, layout, Where(str(path)))
+    except ConfigError as exc:
+        raise UserError(str(exc)) from None
+    if len(lay.columns) != n_cols:
+        raise UserError(
+            f"{path}: columns declares {len(lay.columns)} columns, the data rows have {n_cols}"
+        )
+    col = {k: data[:, i] for i, k in enumerate(lay.columns) if k != "ignore"}
+    freqs = col["frequency_hz"]
+    if "re" in col:
+        im = col["im"] if "im" in col else -col["minus_im"]
+        z = col["re"] + 1j * im
+    else:
+        mag = col["magnitude"] if "magnitude" in col else 10 ** (col["magnitude_db"] / 20)
+        phase = col["phase_rad"] if "phase_rad" in col else np.deg2rad(col["phase_deg"])
+        if "phase_rad" in col and np.max(np.abs(phase)) > 2 * np.pi + 1e-6:
+            raise UserError(f"{path}: phase_rad holds values beyond ±2π: are they degrees?")
+        z = mag * np.exp(1j * phase)
+    if lay.time_convention == "-jwt":
+        z = np.conj(z)
+    order = np.argsort(freqs)
+    freqs, z = freqs[order], z[order]
+    if np.any(np.diff(freqs) <= 0) or freqs[0] < 0:
+        raise UserError(f"{path}: frequencies must be >= 0 Hz and distinct")
+    out = MeasuredImpedance(freqs, z, lay, str(path))
+    if check_physics:
+        _check_physics(out)
+    return out
+
+
+def _check_physics(m: MeasuredImpedance) -> None:
+    z = m.z
+    if np.mean(z.real < 0) > 0.05:
+        raise UserError(
+            f"{m.source}: Re Z < 0 at {100 * np.mean(z.real < 0):.0f} % of the frequencies: a "
+            "passive impedance has Re Z >= 0; are the columns magnitude and phase rather than "
+            "real and imaginary parts (declare columns:)?"
+        )
+    direction = phase_direction(m.freqs, z)
+    if direction > 0:
+        raise UserError(
+            f"{m.source}: the phase rises through the impedance peaks, as under e^{{-jwt}} or "
+            f"with a stored -Im Z, but the file declares time_convention "
+            f"{m.layout.time_convention} with these columns; declare the other "
+            "time_convention (or minus_im)"
+        )
+
+
+def phase_direction(freqs: np.ndarray, z: np.ndarray, count: int = 5) -> float:
+    """Mean change of the phase of Z (rad) across its first peaks of |Z|.
+
+    Negative under e^{+jwt} for an input impedance (mass-like below a resonance,
+    spring-like above); 0 when no peak is found.
+    """
+    peaks = resonances(freqs, z, 1.0, count)
+    if peaks.empty:
+        return 0.0
+    changes = []
+    ph = np.unwrap(np.angle(z))
+    for f, bw in zip(peaks["frequency_hz"], peaks["bandwidth_hz"], strict=True):
+        half = max(bw if np.isfinite(bw) else 0.0, 3 * float(np.median(np.diff(freqs))))
+        lo, hi = np.searchsorted(freqs, f - half), np.searchsorted(freqs, f + half) - 1
+        if 0 <= lo < hi < freqs.size:
+            changes.append(ph[hi] - ph[lo])
+    return float(np.mean(changes)) if changes else 0.0
+
+
+def resonances(freqs: np.ndarray, z: np.ndarray, z0: float, count: int = 8,
+               min_prominence_db: float = 3.0) -> pd.DataFrame:  # fmt: skip
+    """Peaks of |Z| on any (possibly non-uniform) grid: frequency, level and bandwidth.
+
+    Parameters
+    ----------
+    freqs : ndarray
+        Frequencies, Hz.
+    z : ndarray
+        Impedance (any unit).
+    z0 : float
+        Normalising impedance, same unit as ``z``; levels are ``20 log10 |z / z0|``.
+    count : int
+        At most this many, lowest first.
+    min_prominence_db : float
+        Peaks must stand out of the curve by this much (measurement noise makes small ones).
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``frequency_hz``, ``level_db`` (parabolic interpolation of the dB curve through the
+        grid maximum and its neighbours) and ``bandwidth_hz`` (-3 dB, NaN when not found).
+    """
+    level = 20 * np.log10(np.maximum(np.abs(z) / z0, 1e-300))
+    idx, _ = scipy.signal.find_peaks(level, prominence=min_prominence_db)
+    rows = []
+    for i in idx[:count]:
+        if i == 0 or i == level.size - 1:
+            continue
+        x, y = freqs[i - 1 : i + 2], level[i - 1 : i + 2]
+        coef = np.polyfit(x - x[1], y, 2)
+        if coef[0] < 0:
+            # vertex of the parabola through the grid maximum and its neighbours
+            dx = float(np.clip(-coef[1] / (2 * coef[0]), x[0] - x[1], x[2] - x[1]))
+            f, lvl = float(x[1] + dx), float(np.polyval(coef, dx))
+        else:
+            f, lvl = float(x[1]), float(y[1])
+        above = level >= lvl - 3.0
+        lo = i
+        while lo > 0 and above[lo - 1]:
+            lo -= 1
+        hi = i
+        while hi < level.size - 1 and above[hi + 1]:
+            hi += 1
+        bw = float(freqs[hi] - freqs[lo]) if 0 < lo and hi < level.size - 1 else math.nan
+        rows.append({"frequency_hz": f, "level_db": lvl, "bandwidth_hz": bw})
+    return pd.DataFrame(rows, columns=["frequency_hz", "level_db", "bandwidth_hz"])
+
+
+@dataclass(frozen=True)
+class ImpedanceComparison:
+    """A measured impedance against a reference (theory, or a take's own impedance).
+
+    Attributes
+    ----------
+    table : pandas.DataFrame
+        Per reference resonance: ``frequency_reference_hz``, ``frequency_measured_hz``,
+        ``error_cents``, ``level_reference_db``, ``level_measured_db``, ``error_db``
+        (NaN when no measured peak lies within ``match_cents``).
+    band_error_db : float
+        Mean |20 log10 |z_measured / z_reference|| over the compared band, dB.
+    band_hz : (float, float)
+        The compared band, Hz.
+    """
+
+    table: pd.DataFrame
+    band_error_db: float
+    band_hz: tuple[float, float]
+
+
+def compare(
+    freqs: np.ndarray,
+    z_measured: np.ndarray,
+    ref_freqs: np.ndarray,
+    z_reference: np.ndarray,
+    band: tuple[float, float] = (50.0, 2000.0),
+    count: int = 6,
+    match_cents: float = 50.0,
+) -> ImpedanceComparison:
+    """Resonance frequencies (cents), peak levels (dB) and band error of two Z/Zc curves.
+
+    Parameters
+    ----------
+    freqs, z_measured : ndarray
+        Measured Z/Zc (dimensionless) on its grid, Hz.
+    ref_freqs, z_reference : ndarray
+        Reference Z/Zc on its grid, Hz.
+    band : (float, float)
+        Band of the resonances and of the band error, Hz.
+    count : int
+        Reference resonances compared.
+    match_cents : float
+        Largest distance of a matched measured peak, cents.
+
+    Returns
+    -------
+    ImpedanceComparison
+    """
+    sel_m = (freqs >= band[0]) & (freqs <= band[1])
+    sel_r = (ref_freqs >= band[0]) & (ref_freqs <= band[1])
+    ref = resonances(ref_freqs[sel_r], z_reference[sel_r], 1.0, count)
+    mea = resonances(freqs[sel_m], z_measured[sel_m], 1.0, 4 * count)
+    rows = []
+    for _, r in ref.iterrows():
+        row = {
+            "frequency_reference_hz": r.frequency_hz,
+            "frequency_measured_hz": math.nan,
+            "error_cents": math.nan,
+            "level_reference_db": r.level_db,
+            "level_measured_db": math.nan,
+            "error_db": math.nan,
+        }
+        if len(mea):
+            cents = 1200 * np.log2(mea["frequency_hz"].to_numpy() / r.frequency_hz)
+            j = int(np.argmin(np.abs(cents)))
+            if abs(cents[j]) <= match_cents:
+                row.update(
+                    frequency_measured_hz=float(mea["frequency_hz"].iloc[j]),
+                    error_cents=float(cents[j]),
+                    level_measured_db=float(mea["level_db"].iloc[j]),
+                    error_db=float(mea["level_db"].iloc[j] - r.level_db),
+                )
+        rows.append(row)
+    zr = np.interp(freqs[sel_m], ref_freqs, z_reference.real) + 1j * np.interp(
+        freqs[sel_m], ref_freqs, z_reference.imag
+    )
+    err = np.abs(20 * np.log10(np.abs(z_measured[sel_m]) / np.maximum(np.abs(zr), 1e-300)))
+    return ImpedanceComparison(pd.DataFrame(rows), float(np.mean(err)), band)
+
+
+def write_impedance_file(
+    path: str | Path, freqs: np.ndarray, z: np.ndarray, layout: ImpedanceFileLayout
+) -> Path:
+    """Write an impedance in mpipe's own layout: a YAML header, then frequency, re, im.
+
+    ``z`` is in mpipe's convention (e^{+jwt}); it is written as ``layout`` declares.
+    """
+    from mpipe.core.io import write_text_atomic
+
+    lay = replace(layout, columns=("frequency_hz", "re", "im"))
+    zz = np.conj(z) if lay.time_convention == "-jwt" else z
+    head = {
+        "columns": list(lay.columns),
+        "normalisation": lay.normalisation,
+        "time_convention": lay.time_convention,
+    }
+    if lay.temperature_c is not None:
+        head["temperature_c"] = lay.temperature_c
+    if lay.entry_radius is not None:
+        head["entry_radius"] = lay.entry_radius
+    lines = ["# " + ln for ln in yaml.safe_dump(head, sort_keys=False).splitlines()]
+    lines += [f"{f:.10g} {v.real:.10g} {v.imag:.10g}" for f, v in zip(freqs, zz, strict=True)]
+    return write_text_atomic(path, "\n".join(lines) + "\n")
+
+
+def plot_comparison(path: str | Path, curves: list[tuple[str, np.ndarray, np.ndarray]],
+                    band: tuple[float, float]) -> None:  # fmt: skip
+    """Plot |Z/Zc| (dB) and phase (deg) of several curves: ``(label, freqs_hz, z/zc)``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(2, 1, sharex=True, figsize=(9, 6),
+                                   gridspec_kw={"height_ratios": [3, 2]})  # fmt: skip
+    for (label, f, z), style in zip(curves, ("k-", "r--", "b:", "g-."), strict=False):
+        sel = (f >= band[0]) & (f <= band[1])
+        ax1.plot(f[sel], 20 * np.log10(np.abs(z[sel])), style, lw=1, label=label)
+        ax2.plot(f[sel], np.rad2deg(np.angle(z[sel])), style, lw=1)
+    ax1.set_ylabel("|Z/Zc| [dB]")
+    ax2.set_ylabel("phase [deg]")
+    ax2.set_xlabel("frequency [Hz]")
+    ax1.legend()
+    for ax in (ax1, ax2):
+        ax.grid(alpha=0.3)
+    ax1.set_title("Input impedance: measured against theory")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, format="png")
+    plt.close(fig)
+
+
+__all__ = [
+    "ImpedanceComparison",
+    "ImpedanceFileLayout",
+    "MeasuredImpedance",
+    "compare",
+    "phase_direction",
+    "plot_comparison",
+    "read_measured_impedance",
+    "resonances",
+    "write_impedance_file",
+]

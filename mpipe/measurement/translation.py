@@ -1,0 +1,331 @@
+"""Translation of p0, u0 from the reference plane to the mouthpiece entry, and the low-pass.
+
+``[P, U] = T(0 -> x_ref) [P0, U0]`` (paper eq. 16, physics.md F.1), where ``T`` is the
+chain of transfer matrices of the bore segments between the mouthpiece entry and the
+reference plane, evaluated with the air at the effective temperature that the wave
+separation found. The elements of ``T`` contain ``exp(+Gamma L)``, a time *advance* of
+L/c, and the transform also has long low-frequency tails, so the whole take is processed
+with one long FFT zero-padded by more than 2L/c at both ends (never short circular blocks).
+The result is then low-passed with the linear-phase FIR of physics.md F.2, delay
+compensated, identical for P and U.
+
+A temperature that drifts over the take is handled without seams: the translation is
+computed for a few node temperatures (at most ``temperature_step_c`` apart), each over the
+whole take, and the outputs are interpolated linearly in temperature sample by sample.
+Since the translation is linear in the signals and smooth in temperature, this equals
+translating with the local temperature up to a second-order interpolation error.
+
+References
+----------
+Chatziioannou & van Walstijn 2012, eq. (16) and section 4; physics.md F.1, F.2.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import fft as sfft
+
+from mpipe.acoustics.bore import transfer_matrix
+from mpipe.core.config import between, positive, spec
+from mpipe.core.filters import LowPass, apply_lowpass, design_lowpass
+from mpipe.measurement.calibration import Calibration
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class TranslationConfig:
+    """Settings of the translation to the mouthpiece and of the final low-pass."""
+
+    lowpass_hz: float = spec(
+        "Hz",
+        "-6 dB frequency of the linear-phase FIR low-pass (paper: 7.25 kHz)",
+        positive,
+        default=7250.0,
+    )
+    transition_hz: float = spec(
+        "Hz", "width of the FIR transition band, centred on lowpass_hz", positive, default=1500.0
+    )
+    stopband_db: float = spec(
+        "dB", "stop-band attenuation of the FIR", between(20.0, 150.0), default=60.0
+    )
+    pad_s: float = spec(
+        "s",
+        "zero padding at each end of the long FFT; raised to 4 L / c when shorter",
+        between(0.0, 10.0),
+        default=0.05,
+    )
+    temperature_step_c: float = spec(
+        "degC",
+        "largest temperature step between the nodes used for a drifting temperature",
+        between(0.01, 10.0),
+        default=0.25,
+    )
+
+
+@dataclass(frozen=True)
+class TranslationResult:
+    """Signals at the mouthpiece entry and at the reference plane, low-passed.
+
+    Attributes
+    ----------
+    fs : float
+        Sample rate in Hz.
+    p : ndarray
+        Pressure at the mouthpiece entry, Pa.
+    u : ndarray
+        Volume flow into the mouthpiece entry, m^3/s (zero mean).
+    p0 : ndarray
+        Pressure at the reference plane after the same low-pass, Pa.
+    u0 : ndarray
+        Volume flow at the reference plane after the same low-pass, m^3/s.
+    temperature_c : ndarray
+        Effective temperature used at each sample, degC.
+    lowpass : LowPass
+        The FIR applied.
+    """
+
+    fs: float
+    p: np.ndarray
+    u: np.ndarray
+    p0: np.ndarray
+    u0: np.ndarray
+    temperature_c: np.ndarray
+    lowpass: LowPass
+
+
+def reference_to_mouthpiece(
+    freqs: np.ndarray, calibration: Calibration, temperature_c: float
+) -> np.ndarray:
+    """Transfer matrices from the reference plane to the mouthpiece entry.
+
+    Parameters
+    ----------
+    freqs : ndarray
+        Frequencies in Hz, shape ``(n,)``.
+    calibration : Calibration
+        Bore and reference plane.
+    temperature_c : float
+        Effective air temperature in degC.
+
+    Returns
+    -------
+    ndarray
+        Shape ``(n, 2, 2)``: ``[P, U] = T @ [P0, U0]`` (physics.md F.1).
+    """
+    air = calibration.air_properties(temperature_c)
+    omega = 2 * np.pi * np.asarray(freqs, dtype=float)
+    return transfer_matrix(calibration.bore, omega, air, 0.0, calibration.reference_plane)
+
+
+def _nodes(temps: np.ndarray, step: float) -> np.ndarray:
+    lo, hi = float(np.min(temps)), float(np.max(temps))
+    if hi - lo < 1e-9:
+        return np.array([lo])
+    return np.linspace(lo, hi, int(np.ceil((hi - lo) / step)) + 1)
+
+
+def translate(
+    p0: np.ndarray,
+    u0: np.ndarray,
+    fs: float,
+    calibration: Calibration,
+    config: TranslationConfig,
+    temperature_c: float | np.ndarray | None = None,
+) -> TranslationResult:
+    """Carry p0, u0 from the reference plane to the mouthpiece entry and low-pass them.
+
+    Parameters
+    ----------
+    p0 : ndarray
+        Pressure at the reference plane, Pa, shape ``(n,)``.
+    u0 : ndarray
+        Volume flow at the reference plane, m^3/s, shape ``(n,)``.
+    fs : float
+        Sample rate in Hz.
+    calibration : Calibration
+        Bore geometry, air model and reference plane.
+    config : TranslationConfig
+        Low-pass and padding settings.
+    temperature_c : float or ndarray, optional
+        Effective temperature in degC, constant or one value per sample (for example
+        :meth:`mpipe.measurement.separation.SeparationResult.temperature_track`); default the
+        calibration's.
+
+    Returns
+    -------
+    TranslationResult
+        P (Pa) and U (m^3/s) at the mouthpiece entry, and p0, u0, all low-passed.
+
+    Raises
+    ------
+    ValueError
+        For signals of different lengths or the low-pass not fitting below Nyquist.
+
+    References
+    ----------
+    Chatziioannou & van Walstijn 2012, eq. (16); physics.md F.1, F.2.
+    """
+    p0 = np.asarray(p0, dtype=float)
+    u0 = np.asarray(u0, dtype=float)
+    if p0.ndim != 1 or p0.shape != u0.shape:
+        raise ValueError(f"p0 and u0 must be 1-D of equal length, got {p0.shape}, {u0.shape}")
+    n = p0.size
+    if temperature_c is None:
+        temperature_c = calibration.air.temperature_c
+    temps = np.broadcast_to(np.asarray(temperature_c, dtype=float), (n,))
+    lp = design_lowpass(fs, config.lowpass_hz, config.transition_hz, config.stopband_db)
+
+    c_min = calibration.air_properties(float(np.min(temps))).c
+    # The transfer matrix advances by L/c and has dispersive tails on both sides; four
+    # times the length over c leaves margin beyond the 2L/c of physics.md F.1.
+    pad = int(np.ceil(max(config.pad_s, 4 * calibration.reference_plane / c_min) * fs))
+    nfft = sfft.next_fast_len(n + 2 * pad, real=True)
+    freqs = np.fft.rfftfreq(nfft, 1 / fs)
+    # Above the FIR's stop-band edge the output is discarded by the low-pass anyway, so the
+    # transfer matrices are evaluated only below it (the Bessel functions dominate the cost).
+    band = freqs <= min(fs / 2, config.lowpass_hz + config.transition_hz)
+    buf = np.zeros((2, nfft))
+    buf[0, pad : pad + n] = p0
+    buf[1, pad : pad + n] = u0
+    spec_ = np.fft.rfft(buf, axis=1)[:, band]
+
+    nodes = _nodes(temps, config.temperature_step_c)
+    log.info(
+        "translation: %.4f m to the mouthpiece at %s degC, FFT of %d samples",
+        calibration.reference_plane,
+        f"{nodes[0]:.2f}" if nodes.size == 1 else f"{nodes[0]:.2f}..{nodes[-1]:.2f}",
+        nfft,
+    )
+    p = np.zeros(n)
+    u = np.zeros(n)
+    for t_node in nodes:
+        t = reference_to_mouthpiece(freqs[band], calibration, float(t_node))
+        out = np.zeros((2, freqs.size), dtype=complex)
+        out[0, band] = t[:, 0, 0] * spec_[0] + t[:, 0, 1] * spec_[1]
+        out[1, band] = t[:, 1, 0] * spec_[0] + t[:, 1, 1] * spec_[1]
+        # DC must stay real; U at DC follows from U0 = 0 there (unmeasurable, E.4).
+        out[:, 0] = out[:, 0].real
+        y = np.fft.irfft(out, nfft, axis=1)[:, pad : pad + n]
+        if nodes.size == 1:
+            weight = np.ones(n)
+        else:
+            # hat function of temperature around this node: linear interpolation
+            step = nodes[1] - nodes[0]
+            weight = np.clip(1.0 - np.abs(temps - t_node) / step, 0.0, 1.0)
+        p += weight * y[0]
+        u += weight * y[1]
+    return TranslationResult(
+        fs=float(fs),
+        p=apply_lowpass(p, lp),
+        u=apply_lowpass(u, lp),
+        p0=apply_lowpass(p0, lp),
+        u0=apply_lowpass(u0, lp),
+        temperature_c=np.array(temps),
+        lowpass=lp,
+    )
+
+
+def mouthpiece_noise(
+    fs: float,
+    calibration: Calibration,
+    mic_noise_psd: np.ndarray,
+    theta,
+    temperature_c: float,
+    separation_config=None,
+    config: TranslationConfig | None = None,
+    df_hz: float = 5.0,
+    geometry=None,
+) -> dict[str, np.ndarray]:
+    """Noise of the mouthpiece pressure and flow, propagated from the microphone noise.
+
+    The white sensor noise of each microphone (one-sided PSD ``mic_noise_psd``, Pa^2/Hz)
+    passes through the separation filters (:func:`mpipe.measurement.separation.reference_noise`,
+    with the take's median propagation parameters ``theta``), the transfer matrix to the
+    mouthpiece and the low-pass::
+
+        S_UU = |H_lp|^2 (|T10|^2 S_p0p0 + |T11|^2 S_u0u0 + 2 Re(T10 conj(T11) S_p0u0))
+
+    and likewise ``S_PP`` with ``T00``, ``T01``. At low frequency the flow's noise rises as
+    ``1 / (k s)``: two waves are told apart by the small phase differences across the
+    microphone spacing ``s``.
+
+    Parameters
+    ----------
+    fs : float
+        Sample rate, Hz.
+    calibration : Calibration
+        Bore, microphones, reference plane.
+    mic_noise_psd : ndarray
+        One-sided noise PSD per microphone, Pa^2/Hz, shape ``(N,)``.
+    theta : mpipe.measurement.separation.Theta
+        Propagation parameters of the separation.
+    temperature_c : float
+        Temperature of the translation, degC.
+    separation_config : SeparationConfig, optional
+        Band taper and u0 ramp (default settings when omitted).
+    config : TranslationConfig, optional
+        Low-pass (default settings when omitted).
+    df_hz : float
+        Frequency step of the grid, Hz.
+    geometry : mpipe.measurement.separation.Geometry, optional
+        Microphone geometry of the separation (default: the calibration's; pass
+        ``SeparationResult.geometry`` to include its position correction).
+
+    Returns
+    -------
+    dict
+        ``u_noise_freq_hz`` (Hz, 0 to fs/2), ``u_noise_psd`` ((m^3/s)^2/Hz, one-sided) and
+        ``p_noise_psd`` (Pa^2/Hz, one-sided) at the mouthpiece entry.
+    """
+    from mpipe.measurement.separation import Geometry, SeparationConfig, reference_noise
+
+    sep_cfg = SeparationConfig() if separation_config is None else separation_config
+    cfg = TranslationConfig() if config is None else config
+    freqs = np.arange(0.0, fs / 2 + 0.5 * df_hz, df_hz)
+    freqs = freqs[freqs <= fs / 2]
+    geo = Geometry.from_calibration(calibration) if geometry is None else geometry
+    s_pp0, s_uu0, s_pu0 = reference_noise(freqs, theta, geo, mic_noise_psd, sep_cfg)
+    t = reference_to_mouthpiece(np.maximum(freqs, 1e-3), calibration, temperature_c)
+
+    def out(a, b):
+        return np.abs(a) ** 2 * s_pp0 + np.abs(b) ** 2 * s_uu0 + 2 * np.real(a * np.conj(b) * s_pu0)
+
+    lp = design_lowpass(fs, cfg.lowpass_hz, cfg.transition_hz, cfg.stopband_db)
+    w = np.exp(-2j * np.pi * np.outer(freqs / fs, np.arange(lp.taps.size)))
+    h2 = np.abs(w @ lp.taps) ** 2
+    s_pp = h2 * out(t[:, 0, 0], t[:, 0, 1])
+    s_uu = h2 * out(t[:, 1, 0], t[:, 1, 1])
+    return {
+        "u_noise_freq_hz": freqs,
+        "u_noise_psd": np.maximum(s_uu, 0.0),
+        "p_noise_psd": np.maximum(s_pp, 0.0),
+    }
+
+
+#: Full scale of ``mouthpiece.wav``: pressure (channel 1), Pa.
+WAV_PRESSURE_SCALE_PA = 1e4
+#: Full scale of ``mouthpiece.wav``: volume flow (channel 2), m^3/s.
+WAV_FLOW_SCALE_M3_S = 1e-3
+
+
+def write_mouthpiece_wav(path, p: np.ndarray, u: np.ndarray, fs: float) -> None:
+    """Write mouthpiece pressure and flow as a two-channel floating-point WAV file, to listen to.
+
+    Parameters
+    ----------
+    path : str or Path
+        WAV file (not atomic: wrap in :func:`mpipe.core.io.write_atomic`).
+    p, u : ndarray
+        Pressure (Pa) and volume flow (m^3/s), scaled by ``WAV_PRESSURE_SCALE_PA`` and
+        ``WAV_FLOW_SCALE_M3_S`` to full scale.
+    fs : float
+        Sample rate, Hz.
+    """
+    import soundfile as sf
+
+    data = np.column_stack([p / WAV_PRESSURE_SCALE_PA, u / WAV_FLOW_SCALE_M3_S])
+    sf.write(path, data.astype(np.float32), int(round(fs)), subtype="FLOAT", format="WAV")

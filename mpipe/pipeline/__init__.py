@@ -1,0 +1,34 @@
+"""Running the stages over takes: the pipeline file, ``mpipe run``, manifests, report, results.
+
+Imports every layer below it (:mod:`mpipe.core` to :mod:`mpipe.inversion`), never the
+command line.
+
+Modules
+-------
+settings
+    The pipeline file: which calibration, and every stage's settings.
+orchestration
+    ``mpipe run``: every stage over one or more takes, resumable.
+manifest
+    What a finished stage used and produced (input hashes), so a run can resume.
+report
+    The self-contained HTML report of a take.
+results
+    A finished run read back (:func:`mpipe.load_run`).
+"""
+
+
+def __getattr__(name: str):
+    # mpipe 0.1 had the pipeline file's names in the module mpipe.pipeline
+    import warnings
+
+    from mpipe.pipeline import settings
+
+    if hasattr(settings, name):
+        warnings.warn(
+            f"mpipe.pipeline.{name} moved to mpipe.pipeline.settings.{name}",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(settings, name)
+    raise AttributeError(f"module 'mpipe.pipeline' has no attribute {name!r}")

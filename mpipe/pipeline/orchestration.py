@@ -1,0 +1,481 @@
+"""``mpipe run``: every stage of the pipeline over one or more takes, resumable.
+
+Each stage writes into ``OUT/<take>/<stage>/`` and records a manifest (input hashes,
+resolved configuration, package version, timings; see :mod:`mpipe.pipeline.manifest`). A stage whose
+manifest matches its inputs is skipped, so an interrupted run resumes; the inversion also
+keeps one file per finished window, so it resumes mid-stage. This module only wires the
+stages together: the physics lives in the stage modules.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from mpipe import __version__
+from mpipe.core.errors import UserError
+from mpipe.core.io import write_atomic, write_csv, write_npz_atomic
+from mpipe.core.progress import stage_timer
+from mpipe.inversion.kernel import bore_kernel, take_temperature
+from mpipe.inversion.settings import PARAMETER_NAMES
+from mpipe.measurement.calibration import Calibration, load_calibration
+from mpipe.pipeline.manifest import PARTIAL, StageRecord, run_stage
+from mpipe.pipeline.settings import PipelineConfig
+
+log = logging.getLogger(__name__)
+
+
+class ValidationFailed(UserError):
+    """The impedance validation failed and the run stops before the inversion."""
+
+
+STAGES = (
+    "separation",
+    "translation",
+    "validation",
+    "conditioning",
+    "inversion",
+    "resynthesis",
+)
+
+
+@dataclass(frozen=True)
+class TakeRun:
+    """What ``mpipe run`` did for one take.
+
+    Attributes
+    ----------
+    name : str
+        Take name (folder under the output directory).
+    folder : Path
+        ``OUT/<take>``.
+    records : dict
+        Stage name to :class:`mpipe.pipeline.manifest.StageRecord`.
+    report : Path
+        The HTML report.
+    """
+
+    name: str
+    folder: Path
+    records: dict
+    report: Path
+
+
+def take_name(paths: Sequence[str | Path]) -> str:
+    """Folder name of a take: the stem of its (first) audio file."""
+    return Path(paths[0]).stem
+
+
+def _load_npz(path: Path) -> dict:
+    with np.load(path) as data:
+        return {k: data[k] for k in data.files}
+
+
+def _plot_blocks(blocks: pd.DataFrame, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(8, 6))
+    for ax, col, label in zip(
+        axes,
+        ("temperature_c", "loss_scale", "mach"),
+        ("effective temperature [°C]", "loss scale η [-]", "Mach number [-]"),
+        strict=True,
+    ):
+        ax.plot(blocks["time_s"], blocks[col], ".-", lw=1)
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("time [s]")
+    axes[0].set_title("Propagation parameters tracked by the wave separation")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, format="png")
+    plt.close(fig)
+
+
+def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
+    from mpipe.measurement.separation import separate
+    from mpipe.measurement.takes import read_take
+
+    def work(folder: Path):
+        # one rate for the whole pipeline: takes at other rates are resampled when read
+        fs = cfg.inversion.sample_rate
+        take = read_take(take_paths if len(take_paths) > 1 else take_paths[0], cal, fs=fs)
+        sep = separate(take.pressures, take.fs, cal, cfg.separation, take.band_limit_hz)
+        temps = sep.temperature_track()
+        th = sep.median_theta()
+        write_npz_atomic(
+            folder / "reference.npz", fs=np.float64(take.fs), p0=sep.p0, u0=sep.u0,
+            temperature_c=temps, mic_noise_psd=sep.noise_psd,
+            theta_median=np.array([th.c, th.eta, th.mach]),
+        )  # fmt: skip
+        write_csv(folder / "blocks.csv", sep.blocks)
+        write_atomic(folder / "blocks.png", lambda t: _plot_blocks(sep.blocks, t))
+        b = sep.blocks
+        summary = {
+            "duration_s": take.pressures.shape[0] / take.fs,
+            "fs_hz": take.fs,
+            "blocks": len(b),
+            "temperature_c_median": float(np.median(b.temperature_c)),
+            "temperature_c_range": [float(b.temperature_c.min()), float(b.temperature_c.max())],
+            "loss_scale_median": float(np.median(b.loss_scale)),
+            "mach_median": float(np.median(b.mach)),
+            # None with two microphones: they leave no residual
+            "residual_median": (
+                float(np.nanmedian(b.residual)) if np.any(np.isfinite(b.residual)) else None
+            ),
+            "theta": str(b.theta.iloc[0]),
+            "fs_file_hz": take.fs_file,
+            "temperature_se_c_median": float(np.median(b.temperature_se_c)),
+            "loss_scale_se_median": float(np.median(b.loss_scale_se)),
+            "warnings": sep.bound_warnings(),
+        }
+        outputs = {"reference": "reference.npz", "blocks": "blocks.csv", "plot": "blocks.png"}
+        return outputs, summary
+
+    return work
+
+
+def _stage_translation(folder_sep: Path, cal: Calibration, cfg: PipelineConfig):
+    from mpipe.measurement.separation import Theta
+    from mpipe.measurement.translation import mouthpiece_noise, translate, write_mouthpiece_wav
+
+    def work(folder: Path):
+        ref = _load_npz(folder_sep / "reference.npz")
+        fs = float(ref["fs"])
+        tr = translate(ref["p0"], ref["u0"], fs, cal, cfg.translation, ref["temperature_c"])
+        noise = mouthpiece_noise(
+            fs, cal, ref["mic_noise_psd"], Theta(*ref["theta_median"]),
+            float(np.median(ref["temperature_c"])), cfg.separation, cfg.translation,
+        )  # fmt: skip
+        write_npz_atomic(
+            folder / "mouthpiece.npz", fs=np.float64(fs), p=tr.p, u=tr.u, p0=tr.p0, u0=tr.u0,
+            temperature_c=tr.temperature_c, **noise,
+        )  # fmt: skip
+        write_atomic(folder / "mouthpiece.wav", lambda t: write_mouthpiece_wav(t, tr.p, tr.u, fs))
+        summary = {"p_rms_pa": float(np.std(tr.p)), "u_rms_m3_s": float(np.std(tr.u))}
+        return {"mouthpiece": "mouthpiece.npz", "wav": "mouthpiece.wav"}, summary
+
+    return work
+
+
+def _stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg: PipelineConfig):
+    from mpipe.measurement.validation import plot_impedance, validate
+
+    def work(folder: Path):
+        mp = _load_npz(mouthpiece)
+        t_eff = take_temperature(mp.get("temperature_c"), cal)
+        val = validate(mp["p"], mp["u"], float(mp["fs"]), cal, cfg.validation, t_eff)
+        write_csv(folder / "impedance.csv", val.table())
+        write_csv(folder / "validation.csv", val.resonances)
+        write_atomic(folder / "impedance.png", lambda t: plot_impedance(val, t, 2000.0))
+        summary = {
+            "verdict": val.verdict,
+            "reason": val.reason,
+            "passed": bool(val.passed),
+            "failures": list(val.failures),
+            "band_error_db": float(val.band_error_db),
+            "text": val.summary(),
+            "temperature_c": t_eff,
+        }
+        outputs = {"impedance": "impedance.csv", "resonances": "validation.csv",
+                   "plot": "impedance.png"}  # fmt: skip
+        return outputs, summary
+
+    return work
+
+
+def _stage_conditioning(mouthpiece: Path, cfg: PipelineConfig):
+    from mpipe.inversion.conditioning import plan_inversion
+    from mpipe.inversion.tracking import detect_zero_mean
+
+    inv = cfg.inversion
+
+    def work(folder: Path):
+        mp = _load_npz(mouthpiece)
+        fs = float(mp["fs"])
+        table = plan_inversion(mp["p"], fs, cfg.conditioning, inv.window_s, inv.hop_s)
+        write_csv(folder / "plan.csv", table)
+        f0 = table["f0_hz"].to_numpy(dtype=float)
+        summary = {
+            "windows": len(table),
+            "steady": int(table["steady"].sum()),
+            "to_invert": int(table["invert"].sum()),
+            "zero_mean_flow": bool(detect_zero_mean(mp["u"], inv.signal, inv.zero_mean_ratio)),
+            "f0_hz_median": float(np.median(f0[np.isfinite(f0)]))
+            if np.isfinite(f0).any()
+            else float("nan"),
+        }
+        return {"plan": "plan.csv"}, summary
+
+    return work
+
+
+def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: PipelineConfig, client):
+    from mpipe.inversion import resynthesis as rs
+    from mpipe.inversion.status import count as count_status
+    from mpipe.inversion.status import summary_line
+    from mpipe.inversion.tracking import ProgressBar, track, write_correlations, write_table
+
+    inv = cfg.inversion
+
+    def work(folder: Path):
+        checkpoint = folder / PARTIAL / "windows"
+        mp = _load_npz(mouthpiece)
+        fs = float(mp["fs"])
+        p, u = mp["p"], mp["u"]
+        table_plan = pd.read_csv(plan)
+        starts = table_plan.loc[table_plan["invert"], "start"].astype(int).tolist()
+        if not starts:
+            reasons = table_plan["reason"].fillna("").astype(str).value_counts()
+            why = ", ".join(f"{n} {r or 'steady'}" for r, n in reasons.items())
+            hint = (
+                f"; silent means below conditioning.min_rms_pa = {cfg.conditioning.min_rms_pa:g} "
+                "Pa: check the microphones' sensitivity (Pa per unit) in the calibration"
+                if "silent" in reasons
+                else ""
+            )
+            raise ValueError(
+                f"no steady window to invert ({len(table_plan)} windows: {why}{hint}; "
+                "see conditioning/plan.csv)"
+            )
+        t_eff = take_temperature(mp.get("temperature_c"), cal)
+        kernel, air = bore_kernel(cal, fs, t_eff)
+        bar = ProgressBar(len(starts))
+        try:
+            result = track(
+                p, u, fs, kernel, air.rho, replace(inv, sample_rate=fs), cfg.executor,
+                progress=bar, client=client, starts=starts, checkpoint=checkpoint,
+            )  # fmt: skip
+        finally:
+            bar.close()
+        table = result.table
+        written = write_table(table, folder)
+        write_correlations(result.correlations, folder)
+        rs.plot_tracks(table, folder / "tracks.png")
+        outputs = {"windows": "windows.csv", "tracks": "tracks.png"}
+        outputs["correlations"] = "correlations.csv"
+        if any(w.suffix == ".parquet" for w in written):
+            outputs["windows_parquet"] = "windows.parquet"
+        outputs.update(
+            rs.plot_first_window(
+                table, result.histories, p, u, fs, air.rho, inv, result.zero_mean, folder
+            )
+        )
+        ok = table[table["status"] == "ok"]
+        summary = {
+            "windows": len(table),
+            "failed": int((table["error"] != "").sum()),
+            "status_counts": count_status(table),
+            "status_line": summary_line(table),
+            "zero_mean_flow": bool(result.zero_mean),
+            "median_over": "windows with status ok",
+            "median": {k: float(ok[k].median()) for k in PARAMETER_NAMES} if len(ok) else {},
+            "relative_residual_median": float(ok["relative_residual"].median())
+            if len(ok)
+            else None,
+            "evaluations_median": float(table["n_evaluations"].median()) if len(table) else None,
+            "wall_per_window_s_median": float(table["wall_time_s"].median())
+            if len(table)
+            else None,
+            "temperature_c": t_eff,
+        }
+        return outputs, summary
+
+    return work
+
+
+def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
+    from mpipe.core.progress import ProgressBar
+    from mpipe.inversion import resynthesis as rs
+
+    def work(folder: Path):
+        mp = _load_npz(mouthpiece)
+        fs = float(mp["fs"])
+        p, u = mp["p"], mp["u"]
+        table = pd.read_csv(windows, keep_default_na=False, na_values=[""], dtype={"error": str})
+        table["error"] = table["error"].fillna("")
+        kernel, _ = bore_kernel(cal, fs, take_temperature(mp.get("temperature_c"), cal))
+        bar = ProgressBar(len(table), desc="resynthesis")
+        try:
+            res = rs.resynthesise(table, p, u, fs, kernel, cfg.inversion, zero_mean, bar)
+        finally:
+            bar.close()
+        write_npz_atomic(folder / "resynthesis.npz", fs=np.float64(fs), p=res.p, u=res.u)
+        filled = np.nan_to_num(res.p)
+        rs.write_wav(folder / "resynthesis.wav", filled, fs, cfg.resynthesis.wav_full_scale_pa)
+        outputs = {"signals": "resynthesis.npz", "wav": "resynthesis.wav"}
+        ok = table[table["error"] == ""]
+        t = np.arange(p.size) / fs
+        picks = np.unique(np.linspace(0, len(ok) - 1, cfg.resynthesis.overlay_windows).round())
+        for j, idx in enumerate(picks.astype(int) if len(ok) else []):
+            row = ok.iloc[idx]
+            i0, i1 = int(round(row["t_start_s"] * fs)), int(round(row["t_end_s"] * fs))
+            name = f"overlay_{j + 1}.png"
+            rs.plot_signals(t[i0:i1], p[i0:i1], u[i0:i1], res.p[i0:i1], res.u[i0:i1],
+                            folder / name, title=f"window at {row['t_start_s']:.3f} s")  # fmt: skip
+            outputs[f"overlay_{j + 1}"] = name
+        mask = np.isfinite(res.p)
+        rel = (
+            float(np.linalg.norm(p[mask] - res.p[mask]) / np.linalg.norm(p[mask]))
+            if mask.any()
+            else None
+        )
+        summary = {"relative_residual_p": rel, "samples_resynthesised": int(mask.sum())}
+        return outputs, summary
+
+    return work
+
+
+def run_take(
+    cfg: PipelineConfig,
+    cal_path: Path,
+    take_paths: Sequence[str | Path],
+    out: str | Path,
+    force: bool = False,
+    client=None,
+    say: Callable[[str], None] = print,
+    accept_failed_validation: bool = False,
+) -> TakeRun:
+    """Run every stage on one take, holding the lock of its output folder ``out/<take>``.
+
+    The arguments and result are those of :func:`_run_take`. Raises
+    :class:`mpipe.core.errors.UserError` at once when the folder is not writable or another run
+    holds it: two runs on one folder would mix their results.
+    """
+    from mpipe.core.io import folder_lock
+
+    with folder_lock(Path(out) / take_name([Path(p) for p in take_paths])):
+        return _run_take(
+            cfg, cal_path, take_paths, out, force, client, say, accept_failed_validation
+        )
+
+
+def _run_take(
+    cfg: PipelineConfig,
+    cal_path: Path,
+    take_paths: Sequence[str | Path],
+    out: str | Path,
+    force: bool = False,
+    client=None,
+    say: Callable[[str], None] = print,
+    accept_failed_validation: bool = False,
+) -> TakeRun:
+    """Run every stage on one take.
+
+    Parameters
+    ----------
+    cfg : PipelineConfig
+        The pipeline.
+    cal_path : Path
+        Calibration file (the pipeline's, or an override).
+    take_paths : sequence of path
+        One multichannel file or one mono file per microphone.
+    out : path
+        Output directory; the take's results go to ``out/<take>/``.
+    force : bool
+        Redo finished stages and replace results of other inputs.
+    client : distributed.Client, optional
+        Shared Dask client for the inversion.
+    say : callable
+        Where the one-line-per-stage progress goes.
+    accept_failed_validation : bool
+        Invert even when the impedance validation FAILs (the report says so).
+
+    Returns
+    -------
+    TakeRun
+
+    Raises
+    ------
+    ValidationFailed
+        When the validation FAILs and ``accept_failed_validation`` is not set: the run
+        stops before the inversion.
+    """
+    take_paths = [Path(p) for p in take_paths]
+    cal = load_calibration(cal_path)
+    name = take_name(take_paths)
+    root = Path(out) / name
+    d = {s: root / s for s in STAGES}
+    records: dict[str, StageRecord] = {}
+    cal_inputs = {"calibration": cal_path}
+    for mic in cal.microphones:
+        path = cal.calibration_path(mic)
+        if path is not None:
+            cal_inputs[f"mic_calibration_{mic.name}"] = path
+
+    redone = False
+
+    def stage(i: int, key: str, inputs: dict, config, work) -> StageRecord:
+        nonlocal redone
+        t0 = time.perf_counter()
+        # Once a stage is redone, the stages after it are derived from new data: they are
+        # this run's own results, replaced without --force.
+        with stage_timer(f"[{name}] {i}/{len(STAGES)} {key}"):
+            rec = run_stage(d[key], key, inputs, config, work, force or redone)
+        redone = redone or rec.status == "done"
+        records[key] = rec
+        what = "done" if rec.status == "done" else "already done, skipped"
+        say(f"[{name}] {i}/{len(STAGES)} {key}: {what} ({time.perf_counter() - t0:.1f} s)")
+        return rec
+
+    takes = {f"take_{i}": p for i, p in enumerate(take_paths)}
+    stage(1, "separation", {**takes, **cal_inputs}, cfg.separation,
+          _stage_separation(take_paths, cal, cfg))  # fmt: skip
+    reference = d["separation"] / "reference.npz"
+    blocks = d["separation"] / "blocks.csv"
+    stage(2, "translation", {"reference": reference, **cal_inputs}, cfg.translation,
+          _stage_translation(d["separation"], cal, cfg))  # fmt: skip
+    mouthpiece = d["translation"] / "mouthpiece.npz"
+    val = stage(3, "validation", {"mouthpiece": mouthpiece, "blocks": blocks, **cal_inputs},
+                cfg.validation, _stage_validation(mouthpiece, blocks, cal, cfg))  # fmt: skip
+    verdict = val.summary["verdict"]
+    say(f"[{name}]     impedance validation: {verdict.upper()} ({val.summary.get('reason', '')})")
+    if verdict == "fail":
+        if not accept_failed_validation:
+            raise ValidationFailed(
+                f"{name}: stopped before the inversion: the impedance validation FAILED "
+                f"({val.summary.get('reason', '')}); see {d['validation']}; pass "
+                "--accept-failed-validation to invert anyway"
+            )
+        say(f"[{name}]     inverting despite the FAILED validation (--accept-failed-validation)")
+    cond_config = {"conditioning": cfg.conditioning, "window_s": cfg.inversion.window_s,
+                   "hop_s": cfg.inversion.hop_s, "signal": cfg.inversion.signal}  # fmt: skip
+    cond = stage(4, "conditioning", {"mouthpiece": mouthpiece}, cond_config,
+                 _stage_conditioning(mouthpiece, cfg))  # fmt: skip
+    say(f"[{name}]     {cond.summary['to_invert']} of {cond.summary['windows']} windows to invert")
+    plan = d["conditioning"] / "plan.csv"
+    inv_inputs = {"mouthpiece": mouthpiece, "plan": plan, "blocks": blocks, **cal_inputs}
+    inv = stage(5, "inversion", inv_inputs, cfg.inversion,
+                _stage_inversion(mouthpiece, plan, cal, cfg, client))  # fmt: skip
+    say(f"[{name}]     {inv.summary['status_line']}")
+    if not inv.summary["status_counts"]["ok"]:
+        say(f"[{name}]     no window has status ok: see inversion/windows.csv, status_reason")
+    windows = d["inversion"] / "windows.csv"
+    zero_mean = bool(records["inversion"].summary["zero_mean_flow"])
+    stage(6, "resynthesis", {"mouthpiece": mouthpiece, "windows": windows, **cal_inputs},
+          {"resynthesis": cfg.resynthesis, "inversion": cfg.inversion},
+          _stage_resynthesis(mouthpiece, windows, cal, cfg, zero_mean))  # fmt: skip
+    report = write_take_report(root, name, take_paths, cal_path, records)
+    say(f"[{name}]     report: {report}")
+    return TakeRun(name, root, records, report)
+
+
+def usable(run: TakeRun) -> bool:
+    """Whether a take's run has at least one window with status ok."""
+    return bool(run.records["inversion"].summary.get("status_counts", {}).get("ok", 0))
+
+
+def write_take_report(root: Path, name: str, take_paths, cal_path, records: dict) -> Path:
+    """Write ``root/report.html`` from the stage folders and their manifests."""
+    from mpipe.pipeline import report
+
+    when = time.strftime("%Y-%m-%d %H:%M")
+    return report.write_take_report(root, name, take_paths, cal_path, records, __version__, when)

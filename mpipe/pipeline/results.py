@@ -1,0 +1,159 @@
+"""A finished run read back: its tables and signals with their units.
+
+``mpipe.load_run(OUT)`` reads what ``mpipe run`` wrote for one take (``OUT/<take>/``) into a
+frozen :class:`RunData`. The units of table columns and signals come from
+:func:`mpipe.core.units.unit_of`,
+which the HTML report also uses for its table headers.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from types import MappingProxyType
+
+import numpy as np
+import pandas as pd
+
+from mpipe.core.units import unit_of
+
+#: Tables of a take folder: name -> (stage folder, file).
+TABLES = {
+    "blocks": ("separation", "blocks.csv"),
+    "impedance": ("validation", "impedance.csv"),
+    "resonances": ("validation", "validation.csv"),
+    "plan": ("conditioning", "plan.csv"),
+    "windows": ("inversion", "windows.csv"),
+}
+#: Signal files: prefix -> (stage folder, file).
+SIGNALS = {
+    "reference": ("separation", "reference.npz"),
+    "mouthpiece": ("translation", "mouthpiece.npz"),
+    "resynthesis": ("resynthesis", "resynthesis.npz"),
+}
+
+
+@dataclass(frozen=True)
+class RunData:
+    """One take of a finished ``mpipe run``.
+
+    Attributes
+    ----------
+    folder : Path
+        The take's folder, ``OUT/<take>``.
+    fs : float
+        Sample rate of the signals, Hz.
+    tables : Mapping[str, pandas.DataFrame]
+        ``blocks`` (wave separation per block), ``impedance`` (measured and theoretical
+        Z/Z0), ``resonances`` (validation metrics), ``plan`` (window selection),
+        ``windows`` (reed parameters per window); those the run got to.
+    signals : Mapping[str, ndarray]
+        ``mouthpiece.p`` (Pa), ``mouthpiece.u`` (m^3/s), ``reference.p0``,
+        ``reference.u0``, ``resynthesis.p``, ``resynthesis.u``, ... (see :attr:`units`).
+    units : Mapping[str, str]
+        Unit of every table column (``"windows.k"``) and signal (``"mouthpiece.p"``).
+    manifests : Mapping[str, dict]
+        Each finished stage's manifest: configuration, input hashes, summary, timings.
+    """
+
+    folder: Path
+    fs: float
+    tables: Mapping[str, pd.DataFrame]
+    signals: Mapping[str, np.ndarray]
+    units: Mapping[str, str]
+    manifests: Mapping[str, dict]
+
+    def unit(self, name: str) -> str:
+        """Unit of ``"table.column"`` or ``"file.signal"``."""
+        return self.units[name]
+
+    @property
+    def verdict(self) -> str | None:
+        """The impedance validation's verdict (``"pass"``/``"fail"``), if it ran."""
+        val = self.manifests.get("validation")
+        return None if val is None else val["summary"]["verdict"]
+
+
+def _take_folder(out: Path, take: str | None) -> Path:
+    if (out / "separation").is_dir():
+        return out
+    if take is not None:
+        folder = out / take
+        if not folder.is_dir():
+            raise FileNotFoundError(f"{out}: no take {take!r}")
+        return folder
+    takes = sorted(p.name for p in out.iterdir() if (p / "separation").is_dir())
+    if not takes:
+        raise FileNotFoundError(f"{out}: no mpipe run output (no <take>/separation folder)")
+    if len(takes) > 1:
+        raise ValueError(f"{out}: holds {len(takes)} takes ({', '.join(takes)}); pass take=")
+    return out / takes[0]
+
+
+def load_run(out: str | Path, take: str | None = None) -> RunData:
+    """Read a finished ``mpipe run`` back: tables and signals with units.
+
+    Parameters
+    ----------
+    out : str or Path
+        The run's output folder (``-o OUT``) or one take's folder ``OUT/<take>``.
+    take : str, optional
+        Take name, needed when ``out`` holds several takes.
+
+    Returns
+    -------
+    RunData
+
+    Raises
+    ------
+    FileNotFoundError
+        When ``out`` holds no run output.
+    ValueError
+        When ``out`` holds several takes and ``take`` is not given.
+    """
+    folder = _take_folder(Path(out), take)
+    tables, units, manifests = {}, {}, {}
+    for stage in ("separation", "translation", "validation", "conditioning", "inversion",
+                  "resynthesis"):  # fmt: skip
+        path = folder / stage / "manifest.json"
+        if path.exists():
+            manifests[stage] = json.loads(path.read_text())
+    for name, (stage, file) in TABLES.items():
+        path = folder / stage / file
+        if not path.exists():
+            continue
+        parquet = path.with_suffix(".parquet")
+        if parquet.exists():
+            table = pd.read_parquet(parquet)
+        else:
+            table = pd.read_csv(path, keep_default_na=False, na_values=[""])
+        if "error" in table.columns:
+            table["error"] = [("" if pd.isna(v) else str(v)) for v in table["error"]]
+        tables[name] = table
+        units.update({f"{name}.{c}": unit_of(c) for c in table.columns})
+    signals, fs = {}, float("nan")
+    for prefix, (stage, file) in SIGNALS.items():
+        path = folder / stage / file
+        if not path.exists():
+            continue
+        with np.load(path) as data:
+            for key in data.files:
+                if key == "fs":
+                    fs = float(data["fs"])
+                    continue
+                signals[f"{prefix}.{key}"] = np.asarray(data[key])
+                units[f"{prefix}.{key}"] = unit_of(key)
+    units["fs"] = "Hz"
+    return RunData(
+        folder=folder,
+        fs=fs,
+        tables=MappingProxyType(tables),
+        signals=MappingProxyType(signals),
+        units=MappingProxyType(units),
+        manifests=MappingProxyType(manifests),
+    )
+
+
+__all__ = ["RunData", "load_run"]

@@ -1,0 +1,133 @@
+"""The pipeline file: which calibration to use and how to run each stage.
+
+One YAML file per analysis (see ``pipelines/simplified_clarinet.yaml``). It is parsed once
+into the frozen dataclasses below; unknown keys are errors naming the file and the key path.
+
+Extending
+---------
+A stage adds its own section by declaring a configuration dataclass (``spec`` fields) and
+adding one field to :class:`PipelineConfig`, with a default so that older pipeline files stay
+valid. The loader needs no change: :func:`mpipe.core.config.build` walks the type hints.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from mpipe.core.config import (
+    ConfigError,
+    Where,
+    build,
+    load_yaml,
+    spec,
+    to_commented_yaml,
+)
+from mpipe.inversion.settings import (
+    PARAMETER_NAMES,
+    ConditioningConfig,
+    ExecutorConfig,
+    InversionConfig,
+    ParameterBounds,
+    ResynthesisConfig,
+)
+from mpipe.measurement.separation import SeparationConfig
+from mpipe.measurement.translation import TranslationConfig
+from mpipe.measurement.validation import ValidationConfig
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """A whole pipeline file."""
+
+    calibration: str = spec("", "calibration file, relative to the pipeline file")
+    separation: SeparationConfig = spec(
+        "", "wave separation (two or more microphones)", default=SeparationConfig()
+    )
+    translation: TranslationConfig = spec(
+        "", "translation to the mouthpiece and low-pass", default=TranslationConfig()
+    )
+    validation: ValidationConfig = spec(
+        "", "impedance validation against theory", default=ValidationConfig()
+    )
+    conditioning: ConditioningConfig = spec(
+        "", "steady-window selection", default=ConditioningConfig()
+    )
+    inversion: InversionConfig = spec("", "step 1, step 2 and tracking", default=InversionConfig())
+    resynthesis: ResynthesisConfig = spec("", "resynthesis outputs", default=ResynthesisConfig())
+    executor: ExecutorConfig = spec("", "parallel execution", default=ExecutorConfig())
+    source: str = spec("", "file the pipeline was read from (set by the loader)", default="")
+
+    @property
+    def calibration_path(self) -> Path:
+        """Absolute path of the calibration file."""
+        return (Path(self.source).parent / self.calibration).resolve()
+
+
+PIPELINE_HEADER = """\
+# mpipe pipeline: how to run every stage (Chatziioannou & van Walstijn 2012, sections 3-4).
+# SI units throughout (temperatures in degC); each key's unit is in [brackets] before it.
+# Every key is optional except `calibration`; a missing key takes the value shown by
+# `mpipe config` (which printed this file).
+"""
+
+
+def pipeline_yaml(cfg: PipelineConfig | None = None, calibration: str | None = None) -> str:
+    """The pipeline as commented YAML: every key of every stage, with unit and meaning.
+
+    Parameters
+    ----------
+    cfg : PipelineConfig, optional
+        The pipeline to write (default: every default, and ``calibration`` as given).
+    calibration : str, optional
+        Calibration path to write (default: the one of ``cfg``, or a placeholder).
+
+    Returns
+    -------
+    str
+        YAML that :func:`load_pipeline` reads back into an equal configuration.
+    """
+    if cfg is None:
+        cfg = PipelineConfig(calibration=calibration or "CALIBRATION.yaml")
+    elif calibration is not None:
+        cfg = replace(cfg, calibration=calibration)
+    return PIPELINE_HEADER + to_commented_yaml(cfg, skip=("source",))
+
+
+def load_pipeline(path: str | Path) -> PipelineConfig:
+    """Read and validate a pipeline file.
+
+    Parameters
+    ----------
+    path : str or Path
+        YAML file.
+
+    Returns
+    -------
+    PipelineConfig
+
+    Raises
+    ------
+    ConfigError
+        Naming the file, the key path and what was expected; also when the calibration
+        file it refers to does not exist.
+    """
+    data = dict(load_yaml(path))
+    if "source" in data:
+        raise ConfigError(f"{path}: source: this key is set by the loader, remove it")
+    data["source"] = str(Path(path).resolve())
+    cfg = build(PipelineConfig, data, Where(str(path)))
+    if not cfg.calibration_path.is_file():
+        raise ConfigError(f"{path}: calibration: no such file {cfg.calibration_path}")
+    return cfg
+
+
+__all__ = [
+    "PARAMETER_NAMES",
+    "ExecutorConfig",
+    "InversionConfig",
+    "ParameterBounds",
+    "PipelineConfig",
+    "load_pipeline",
+    "pipeline_yaml",
+]

@@ -1,0 +1,63 @@
+import pandas as pd
+import pytest
+
+from mpipe.cli.main import main
+
+
+def test_impedance_command_writes_table_csv_and_plot(tmp_path, capsys):
+    from pathlib import Path
+
+    cal = Path(__file__).resolve().parents[2] / "calibration" / "simplified_clarinet.yaml"
+    csv, png = tmp_path / "z.csv", tmp_path / "z.png"
+    assert (
+        main(["impedance", str(cal), "--csv", str(csv), "--plot", str(png), "--fmax", "2000"]) == 0
+    )
+    out = capsys.readouterr().out
+    assert "|Z|/Zc [dB]" in out and "104.99" in out
+    table = pd.read_csv(csv)
+    assert list(table.columns) == ["frequency_hz", "z_real", "z_imag", "zc"]
+    assert (table.z_real >= 0).all()
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    # never overwrite without --force
+    assert main(["impedance", str(cal), "--csv", str(csv)]) == 2
+    assert "use --force" in capsys.readouterr().err
+    assert (
+        main(["impedance", str(cal), "--csv", str(csv), "--force", "--radiation", "unflanged"]) == 0
+    )
+
+
+def test_impedance_command_reports_bad_input(tmp_path, capsys):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\n")
+    assert main(["impedance", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "bad.yaml" in err and "missing required key" in err
+    with pytest.raises(SystemExit):
+        main(["impedance"])
+
+
+def test_python_api_names_resolve():
+    import mpipe
+
+    for name in mpipe.__all__:
+        assert getattr(mpipe, name) is not None
+    with pytest.raises(AttributeError):
+        mpipe.nonexistent  # noqa: B018
+
+
+def test_swapped_or_wrong_files_give_one_line_errors(tmp_path, capsys):
+    # a binary file where the pipeline belongs, and an audio file where the npz belongs
+    from pathlib import Path
+
+    import numpy as np
+    import soundfile as sf
+
+    audio = tmp_path / "take.flac"
+    sf.write(audio, np.zeros((4000, 3)), 100000)
+    pipe = Path(__file__).resolve().parents[2] / "pipelines" / "simplified_clarinet.yaml"
+    assert main(["run", str(audio), str(pipe), "-o", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "expected a YAML text file here" in err and "Traceback" not in err
+    assert main(["invert", str(audio), "--pipeline", str(pipe), "-o", str(tmp_path / "i")]) == 2
+    err = capsys.readouterr().err
+    assert "not an npz file" in err and "pickle" not in err

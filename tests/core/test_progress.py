@@ -1,0 +1,57 @@
+"""Progress bars: silent off a terminal, and log lines printed above them, never inside."""
+
+import io
+import subprocess
+import sys
+import textwrap
+
+from mpipe.core.progress import ProgressBar, stage_timer
+
+SCRIPT = textwrap.dedent(
+    """
+    import logging, sys
+    from mpipe.core.progress import ProgressBar, logging_redirect
+    logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stderr)
+    REDIRECT = {redirect}
+    bar = ProgressBar(4, stream=sys.stderr, force=True)
+    bar.update()
+    if REDIRECT:
+        with logging_redirect():
+            logging.getLogger("mpipe.test").info("a log line")
+    else:
+        logging.getLogger("mpipe.test").info("a log line")
+    bar.update()
+    bar.close()
+    """
+)
+
+
+def _stderr_lines(redirect: bool) -> list[str]:
+    code = SCRIPT.format(redirect=redirect)
+    err = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60
+    ).stderr
+    # what a terminal shows on each line: the text after the last carriage return
+    return [line.rsplit("\r", 1)[-1].strip() for line in err.split("\n")]
+
+
+def test_log_lines_land_above_the_bar_not_inside_it():
+    lines = _stderr_lines(redirect=True)
+    assert "a log line" in lines
+    assert not any("a log line" in x and "1/4" in x for x in lines)
+    # the control: without the redirect the record is glued to the bar
+    assert "a log line" not in _stderr_lines(redirect=False)
+
+
+def test_bars_are_silent_when_not_on_a_terminal():
+    quiet = io.StringIO()
+    bar = ProgressBar(3, stream=quiet)
+    bar.update(3)
+    bar.close()
+    with stage_timer("separation", stream=quiet):
+        pass
+    assert quiet.getvalue() == ""
+    shown = io.StringIO()
+    with stage_timer("separation", stream=shown, force=True):
+        pass
+    assert "separation" in shown.getvalue()

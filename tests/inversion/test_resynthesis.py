@@ -1,0 +1,131 @@
+"""Resynthesis, plots, WAV output and the ``mpipe invert`` command."""
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import soundfile
+
+from mpipe.acoustics.reflection import reflection_function
+from mpipe.cli.main import main
+from mpipe.inversion import resynthesis as rs
+from mpipe.inversion.settings import InversionConfig
+from mpipe.inversion.step1 import step1
+from mpipe.inversion.tracking import COLUMNS
+from mpipe.measurement.calibration import load_calibration
+from mpipe.reed.model import prepare_bore, simulate
+from mpipe.reed.parameters import ReedParameters
+
+FS = 100_000.0
+ROOT = Path(__file__).resolve().parents[2]
+TABLE1 = ReedParameters(
+    k=8.66e6, S=7.62e-5, y_m=4e-4, p_m=1800.0, lam=0.013, m=0.05, g=3000.0, k_c=8.23e10
+)
+
+
+@pytest.fixture(scope="module")
+def setup():
+    cal = load_calibration(ROOT / "calibration" / "simplified_clarinet.yaml")
+    air = cal.air_properties()
+    kernel = prepare_bore(reflection_function(cal.bore, air, fs=FS), air)
+    return kernel, air.rho, simulate(TABLE1, kernel, 34000)
+
+
+def table_of(reed, starts):
+    rows = []
+    for i, s in enumerate(starts):
+        row = {c: np.nan for c in COLUMNS}
+        row.update(
+            {
+                f: getattr(reed, f)
+                for f in ("k", "S", "y_m", "p_m", "m", "g", "lam", "k_c", "y_c", "alpha")
+            }
+        )
+        row.update(window=i, t_start_s=s / FS, t_end_s=(s + 2000) / FS, error="")
+        rows.append(row)
+    return pd.DataFrame(rows, columns=list(COLUMNS))
+
+
+def test_resynthesis_with_true_parameters_matches(setup):
+    kernel, _, sim = setup
+    res = rs.resynthesise(
+        table_of(TABLE1, [30000, 32000]),
+        sim.p,
+        sim.u,
+        FS,
+        kernel,
+        InversionConfig(),
+        zero_mean=False,
+    )
+    sl = slice(30000, 34000)
+    np.testing.assert_allclose(res.p[sl], sim.p[sl], atol=1e-3)
+    np.testing.assert_allclose(res.u[sl], sim.u[sl], rtol=1e-6, atol=1e-12)
+    assert np.all(np.isnan(res.p[:30000]))
+
+
+def test_plots_and_wav(setup, tmp_path):
+    _, rho, sim = setup
+    sl = slice(30000, 32000)
+    t = np.arange(sim.p.size) / FS
+    s1 = step1(sim.p[sl], sim.u[sl], FS, rho=rho, lam=0.013)
+    paths = [
+        rs.plot_signals(t[sl], sim.p[sl], sim.u[sl], sim.p[sl], sim.u[sl], tmp_path / "s.png"),
+        rs.plot_flow_pressure(sim.p[sl], sim.u[sl], FS, s1, tmp_path / "f.png"),
+        rs.plot_history(np.geomspace(100, 1, 50), tmp_path / "h.png"),
+        rs.plot_tracks(table_of(TABLE1, [30000, 32000]), tmp_path / "t.png"),
+    ]
+    for p in paths:
+        assert p.read_bytes()[:4] == b"\x89PNG"
+    wav = rs.write_wav(tmp_path / "p.wav", sim.p[sl], FS)
+    data, rate = soundfile.read(wav)
+    assert rate == 100000 and np.max(np.abs(data)) == pytest.approx(1.0)
+    assert soundfile.info(wav).subtype == "FLOAT"
+
+
+def test_invert_command(setup, tmp_path, capsys):
+    _, _, sim = setup
+    npz = tmp_path / "sim.npz"
+    np.savez(npz, t=sim.t, p=sim.p, u=sim.u, fs=FS)
+    pipe = tmp_path / "pipe.yaml"
+    pipe.write_text(
+        f"calibration: {ROOT / 'calibration' / 'simplified_clarinet.yaml'}\n"
+        "inversion: {free: [p_m], max_evaluations: 40, warm_max_evaluations: 20}\n"
+        "executor: {workers: 1}\n"
+    )
+    out = tmp_path / "out"
+    args = [
+        "invert",
+        str(npz),
+        "--pipeline",
+        str(pipe),
+        "-o",
+        str(out),
+        "--start",
+        "0.3",
+        "--end",
+        "0.34",
+    ]
+    assert main(args) == 0
+    assert "2 windows: 2 ok" in capsys.readouterr().out
+    for name in (
+        "windows.csv",
+        "signals.png",
+        "flow_pressure.png",
+        "history.png",
+        "tracks.png",
+        "resynthesis.wav",
+        "run.json",
+    ):
+        assert (out / name).is_file()
+    assert main(args) == 2  # outputs exist, no --force
+    assert "--force" in capsys.readouterr().err
+    assert main([*args, "--force"]) == 0
+
+
+def test_invert_command_bad_npz(tmp_path, capsys):
+    npz = tmp_path / "bad.npz"
+    np.savez(npz, p=np.zeros(10), fs=FS)
+    pipe = ROOT / "pipelines" / "simplified_clarinet.yaml"
+    assert main(["invert", str(npz), "--pipeline", str(pipe), "-o", str(tmp_path / "o")]) == 2
+    assert "missing key 'u'" in capsys.readouterr().err

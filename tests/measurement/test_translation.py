@@ -1,0 +1,83 @@
+"""Tests of the translation from the reference plane to the mouthpiece entry (physics.md F.1)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mpipe.acoustics import ducts
+from mpipe.acoustics.bore import input_impedance
+from mpipe.core.filters import apply_lowpass, design_lowpass
+from mpipe.measurement.calibration import load_calibration
+from mpipe.measurement.translation import TranslationConfig, translate
+
+CAL = load_calibration(Path(__file__).parents[2] / "calibration" / "simplified_clarinet.yaml")
+FS = 25_000.0
+
+
+def _mouthpiece_field(n, seed=0, temperature_c=20.0):
+    """Periodic broadband U at the mouthpiece, P = Z_in U, and the field at x_ref.
+
+    The reference-plane field is obtained segment by segment with the inverse cylinder and
+    cone matrices of mpipe.acoustics.ducts, independently of mpipe.acoustics.bore.transfer_matrix.
+    """
+    rng = np.random.default_rng(seed)
+    freqs = np.fft.rfftfreq(n, 1 / FS)
+    omega = 2 * np.pi * np.maximum(freqs, 1e-3)
+    air = CAL.air_properties(temperature_c)
+    U = (
+        1e-6
+        * ((freqs > 20) & (freqs < 7000))
+        * (rng.normal(size=freqs.size) + 1j * rng.normal(size=freqs.size))
+    )
+    P = input_impedance(CAL.bore, omega, air) * U
+    state = np.stack([P, U], axis=-1)[..., None]
+    for seg in CAL.bore.between(0.0, CAL.reference_plane):
+        t = ducts.cone_matrix(omega, seg.r_in, seg.r_out, seg.length, air)
+        state = ducts.invert(t) @ state
+    P0, U0 = state[:, 0, 0], state[:, 1, 0]
+    return (np.fft.irfft(s, n) for s in (P, U, P0, U0))
+
+
+def test_translation_reproduces_mouthpiece_field():
+    p, u, p0, u0 = _mouthpiece_field(int(0.5 * FS))
+    # the circular reference field is periodic; translate three periods, compare the middle
+    n = p.size
+    res = translate(np.tile(p0, 3), np.tile(u0, 3), FS, CAL, TranslationConfig())
+    lp = design_lowpass(FS)
+    ref_p = apply_lowpass(np.tile(p, 3), lp)[n : 2 * n]
+    ref_u = apply_lowpass(np.tile(u, 3), lp)[n : 2 * n]
+    err_p = np.sqrt(np.mean((res.p[n : 2 * n] - ref_p) ** 2) / np.mean(ref_p**2))
+    err_u = np.sqrt(np.mean((res.u[n : 2 * n] - ref_u) ** 2) / np.mean(ref_u**2))
+    assert err_p < 1e-4
+    assert err_u < 1e-4
+
+
+def test_drifting_temperature_interpolates_between_nodes():
+    p, u, p0, u0 = _mouthpiece_field(int(0.3 * FS), temperature_c=22.0)
+    n = p.size
+    const = translate(np.tile(p0, 3), np.tile(u0, 3), FS, CAL, TranslationConfig(), 22.0)
+    ramp = translate(
+        np.tile(p0, 3),
+        np.tile(u0, 3),
+        FS,
+        CAL,
+        TranslationConfig(temperature_step_c=0.5),
+        np.full(3 * n, 22.0) + np.linspace(-1e-9, 1e-9, 3 * n),
+    )
+    np.testing.assert_allclose(ramp.p, const.p, atol=1e-6 * np.max(np.abs(const.p)))
+
+
+def test_translation_is_identity_at_reference_plane_length_zero_limit():
+    # With the mouthpiece signals low-passed, p0 and u0 come out low-passed as well.
+    x = np.random.default_rng(1).normal(size=4000)
+    res = translate(x, 1e-6 * x, FS, CAL, TranslationConfig())
+    lp = design_lowpass(FS)
+    np.testing.assert_allclose(res.p0, apply_lowpass(x, lp))
+
+
+def test_bad_shapes():
+    with pytest.raises(ValueError, match="equal length"):
+        translate(np.zeros(10), np.zeros(11), FS, CAL, TranslationConfig())

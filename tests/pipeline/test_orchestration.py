@@ -1,0 +1,259 @@
+"""``mpipe run`` end to end on a short virtual take: accuracy, resuming, errors."""
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from mpipe.cli.commands.synth_take import SynthOptions, make_take
+from mpipe.cli.main import main
+from mpipe.core.errors import OutputExistsError
+from mpipe.pipeline.orchestration import STAGES, run_take
+from mpipe.pipeline.settings import load_pipeline
+
+ROOT = Path(__file__).resolve().parents[2]
+# true value and tolerance of the median over the windows: the front end's errors (the
+# flow within a few per cent, the DC of u lost) reach the parameters; the contact stiffness
+# is the least sensitive of them (F2 changes little with it), so its bound is wider
+TRUTH = {
+    "k": (8.66e6, 0.05),
+    "S": (7.62e-5, 0.05),
+    "y_m": (4e-4, 0.05),
+    "p_m": (1800.0, 0.05),
+    "lam": (0.013, 0.05),
+    "k_c": (8.23e10, 0.2),
+}
+
+
+@pytest.fixture(scope="module")
+def take(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("take")
+    options = SynthOptions(duration_s=0.62, snr_db=70.0, seed=7)
+    return make_take(
+        ROOT / "calibration" / "simplified_clarinet.yaml",
+        ROOT / "calibration" / "reed_table1.yaml",
+        folder / "short.flac",
+        options,
+    )
+
+
+@pytest.fixture(scope="module")
+def pipeline(tmp_path_factory, take):
+    data = yaml.safe_load((ROOT / "pipelines" / "simplified_clarinet.yaml").read_text())
+    data["calibration"] = str(take.calibration)
+    data["executor"] = {"kind": "local", "workers": 1}
+    data["inversion"]["hop_s"] = 0.04  # three windows between 0.25 s and 0.37 s
+    data["conditioning"] = {"edge_s": 0.25}
+    path = tmp_path_factory.mktemp("pipe") / "pipeline.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return load_pipeline(path)
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory, take, pipeline):
+    out = tmp_path_factory.mktemp("run")
+    lines = []
+    run = run_take(pipeline, take.calibration, [take.audio], out, say=lines.append)
+    return out, run, lines
+
+
+def test_full_pipeline_recovers_the_truth(finished):
+    out, run, lines = finished
+    assert [r.status for r in run.records.values()] == ["done"] * len(STAGES)
+    assert len(lines) > len(STAGES)  # a line per stage, plus verdicts
+    assert run.records["validation"].summary["passed"]
+    windows = pd.read_csv(run.folder / "inversion" / "windows.csv", keep_default_na=False)
+    assert len(windows) >= 2 and (windows["error"] == "").all()
+    # measured (zero-mean) path through the front end: within a few per cent
+    for name, (true, tolerance) in TRUTH.items():
+        got = windows[name].median()
+        assert abs(got / true - 1) < tolerance, (name, got, true)
+    assert windows["relative_residual"].max() < 0.02
+    # every searched parameter carries a standard error, the correlations a side file
+    ok = windows[windows["status"] == "ok"]
+    for name in ("k", "y_m", "p_m", "p_M", "gamma", "zeta"):
+        assert (pd.to_numeric(ok[f"{name}_se"]) > 0).all(), name
+    corr = pd.read_csv(run.folder / "inversion" / "correlations.csv")
+    assert corr["correlation"].abs().max() <= 1 + 1e-9 and len(corr) >= len(windows)
+    report = (run.folder / "report.html").read_text()
+    assert "PASS" in report and "Reed parameters per window" in report and "overlay 1" in report
+    # self-contained: every figure embedded, none linked
+    assert report.count('src="data:image/png;base64,') >= 6 and 'src="' not in report.replace(
+        'src="data:', ""
+    )
+    assert "uncertainty" in report.lower()
+    for stage in STAGES:
+        assert (run.folder / stage / "manifest.json").exists()
+
+
+def test_interrupted_run_resumes_and_redoes_nothing_done(finished, take, pipeline, monkeypatch):
+    import mpipe.inversion.tracking as tracking
+
+    out, run, _ = finished
+    before = pd.read_csv(run.folder / "inversion" / "windows.csv", keep_default_na=False)
+    # interrupt the inversion after its first window: no manifest, one checkpoint left
+    (run.folder / "inversion" / "manifest.json").unlink()
+    checkpoints = sorted((run.folder / "inversion" / "partial" / "windows").glob("w*.json"))
+    for c in checkpoints[1:]:
+        c.unlink()
+    calls = []
+    real = tracking.invert_window
+    monkeypatch.setattr(
+        tracking, "invert_window", lambda *a, **k: calls.append(a[3]) or real(*a, **k)
+    )
+    again = run_take(pipeline, take.calibration, [take.audio], out, say=lambda s: None)
+    status = {k: r.status for k, r in again.records.items()}
+    assert status["separation"] == status["translation"] == status["validation"] == "skipped"
+    assert status["inversion"] == "done"
+    assert len(calls) == len(checkpoints) - 1  # only the lost windows were redone
+    after = pd.read_csv(run.folder / "inversion" / "windows.csv", keep_default_na=False)
+    np.testing.assert_allclose(after["k"], before["k"], rtol=1e-9)
+    # a finished run is skipped whole, and other settings never overwrite it silently
+    third = run_take(pipeline, take.calibration, [take.audio], out, say=lambda s: None)
+    assert {r.status for r in third.records.values()} == {"skipped"}
+    from dataclasses import replace
+
+    changed = replace(pipeline, inversion=replace(pipeline.inversion, warm_max_evaluations=99))
+    with pytest.raises(OutputExistsError, match="--force"):
+        run_take(changed, take.calibration, [take.audio], out, say=lambda s: None)
+
+
+def test_malformed_pipeline_and_take_give_clear_errors(tmp_path, take, capsys):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("calibration: nowhere.yaml\ninversion:\n  window: 0.02\n")
+    assert main(["run", str(bad), str(take.audio), "-o", str(tmp_path / "o")]) == 2
+    assert "inversion.window: unknown key" in capsys.readouterr().err
+    good = tmp_path / "good.yaml"
+    good.write_text(f"calibration: {take.calibration}\n")
+    stereo = tmp_path / "stereo.wav"
+    import soundfile as sf
+
+    sf.write(stereo, np.zeros((20000, 2)), 100000)
+    assert main(["run", str(good), str(stereo), "-o", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "stereo.wav: has 2 channels" in err
+    # with several takes, a bad one is reported and the others go on
+    assert main(["run", str(good), str(stereo), str(stereo), "-o", str(tmp_path / "o")]) == 1
+    assert "2 of 2 takes failed" in capsys.readouterr().out
+    assert main(["run", str(good), str(tmp_path / "missing.flac"), "-o", str(tmp_path)]) == 2
+    assert "no such take file" in capsys.readouterr().err
+
+
+def test_every_door_gives_the_same_table(finished, take, pipeline, tmp_path):
+    # `mpipe run`, `mpipe separate` + `mpipe invert` and the Python API build the same bore
+    # kernel (one temperature) and invert the same windows: the same numbers to 0.1 %.
+    from mpipe.inversion.conditioning import plan_inversion
+    from mpipe.inversion.kernel import bore_kernel, take_temperature
+    from mpipe.inversion.settings import PARAMETER_NAMES
+    from mpipe.inversion.tracking import track
+    from mpipe.measurement.calibration import load_calibration
+    from mpipe.measurement.separation import separate
+    from mpipe.measurement.takes import read_take
+    from mpipe.measurement.translation import translate
+
+    _, run, _ = finished
+    via_run = pd.read_csv(run.folder / "inversion" / "windows.csv", keep_default_na=False)
+    sep_dir, inv_dir = tmp_path / "sep", tmp_path / "inv"
+    argv = ["separate", str(take.audio), str(take.calibration), "--pipeline", pipeline.source]
+    assert main([*argv, "-o", str(sep_dir)]) == 0
+    argv = ["invert", str(sep_dir / "mouthpiece.npz"), "--pipeline", pipeline.source]
+    assert main([*argv, "-o", str(inv_dir)]) == 0
+    via_cli = pd.read_csv(inv_dir / "windows.csv", keep_default_na=False)
+
+    cal = load_calibration(take.calibration)
+    t = read_take(take.audio, cal)
+    sep = separate(t.pressures, t.fs, cal, pipeline.separation)
+    tr = translate(sep.p0, sep.u0, t.fs, cal, pipeline.translation, sep.temperature_track())
+    inv = pipeline.inversion
+    plan = plan_inversion(tr.p, t.fs, pipeline.conditioning, inv.window_s, inv.hop_s)
+    kernel, air = bore_kernel(cal, t.fs, take_temperature(tr.temperature_c, cal))
+    starts = plan.loc[plan["invert"], "start"].tolist()
+    via_api = track(tr.p, tr.u, t.fs, kernel, air.rho, inv, pipeline.executor, starts=starts).table
+
+    for other in (via_cli, via_api):
+        np.testing.assert_array_equal(other["t_start_s"], via_run["t_start_s"])
+        assert list(other["status"]) == list(via_run["status"])
+        for name in PARAMETER_NAMES:
+            np.testing.assert_allclose(other[name], via_run[name], rtol=1e-3, err_msg=name)
+
+
+def _is_number(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def test_load_run_gives_tables_and_signals_with_units(finished):
+    import mpipe
+
+    out, run, _ = finished
+    data = mpipe.load_run(out)
+    assert data.folder == run.folder and data.fs == 100_000.0
+    assert data.verdict == "pass"
+    assert set(data.tables) == {"blocks", "impedance", "resonances", "plan", "windows"}
+    assert data.unit("windows.k") == "Pa/m" and data.unit("windows.t_start_s") == "s"
+    assert data.unit("mouthpiece.p") == "Pa" and data.unit("mouthpiece.u") == "m³/s"
+    assert data.unit("blocks.temperature_c") == "°C" and data.unit("plan.f0_hz") == "Hz"
+    p = data.signals["mouthpiece.p"]
+    assert p.ndim == 1 and p.size == data.signals["mouthpiece.u"].size
+    # the table is read from Parquet at full precision; the CSV carries 10 digits
+    csv = pd.read_csv(run.folder / "inversion" / "windows.csv", keep_default_na=False)
+    np.testing.assert_allclose(csv["k"], data.tables["windows"]["k"], rtol=1e-9)
+    import csv as csv_module
+
+    with open(run.folder / "inversion" / "windows.csv", newline="") as f:
+        rows = list(csv_module.reader(f))[1:]
+    numeric = [tok for row in rows for tok in row if _is_number(tok)]
+    assert numeric and not any(len(tok) > 17 for tok in numeric)
+    with pytest.raises(TypeError):
+        data.tables["windows"] = None
+
+
+@pytest.fixture(scope="module")
+def wrong_bore(tmp_path_factory, take):
+    """The take's calibration with a main bore 3 % longer: the validation must FAIL."""
+    data = yaml.safe_load(Path(take.calibration).read_text())
+    data["bore"]["segments"][-1]["x_end"] *= 1.03
+    for mic in data["microphones"]:
+        if mic.get("calibration"):
+            mic["calibration"] = str(Path(take.calibration).parent / mic["calibration"])
+    path = tmp_path_factory.mktemp("wrong") / "long.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_failed_validation_stops_the_run_and_separate_exits_non_zero(
+    tmp_path, take, pipeline, wrong_bore, capsys, monkeypatch
+):
+    import mpipe.pipeline.orchestration as orch
+
+    assert main(["separate", str(take.audio), str(wrong_bore), "-o", str(tmp_path / "s")]) == 1
+    out = capsys.readouterr().out
+    assert "impedance validation: FAIL" in out and "validation FAILED" in out
+    assert (tmp_path / "s" / "mouthpiece.npz").exists()
+    with np.load(tmp_path / "s" / "mouthpiece.npz") as mp:
+        assert {"u_noise_freq_hz", "u_noise_psd", "p_noise_psd"} <= set(mp.files)
+        assert mp["u_noise_psd"].shape == mp["u_noise_freq_hz"].shape
+    # mpipe run stops before the inversion, and says how to go on
+    pipe = tmp_path / "pipe.yaml"
+    pipe.write_text(f"calibration: {wrong_bore}\nexecutor: {{kind: local, workers: 1}}\n")
+    code = main(["run", str(pipe), str(take.audio), "-o", str(tmp_path / "r")])
+    err = capsys.readouterr().err
+    assert code == 2 and "stopped before the inversion" in err
+    assert "--accept-failed-validation" in err
+    assert not (tmp_path / "r" / take.audio.stem / "inversion").exists()
+    # with --accept-failed-validation it goes on to the inversion (stopped here by a probe)
+    reached = []
+
+    def probe(*args, **kwargs):
+        reached.append(True)
+        raise ValueError("probe: inversion reached")
+
+    monkeypatch.setattr(orch, "_stage_inversion", probe)
+    code = main(["run", str(pipe), str(take.audio), "-o", str(tmp_path / "r"),
+                 "--accept-failed-validation"])  # fmt: skip
+    assert reached and "inverting despite the FAILED validation" in capsys.readouterr().out

@@ -1,0 +1,77 @@
+"""The package's layers: every import points downward, and old module paths still work."""
+
+import ast
+import importlib
+import warnings
+from pathlib import Path
+
+import pytest
+
+import mpipe
+from mpipe._moved import MOVED
+
+PACKAGE = Path(mpipe.__file__).parent
+#: Subpackages from the bottom up: a module may import its own layer and the ones below.
+LAYERS = ("core", "acoustics", "measurement", "reed", "inversion", "pipeline", "cli")
+
+
+def _imports(path: Path):
+    """(line, imported module) of every import in a file, including those inside functions."""
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield node.lineno, alias.name
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            if node.module == "mpipe":  # from mpipe import x: x is a module or the version
+                for alias in node.names:
+                    if alias.name != "__version__":
+                        yield node.lineno, f"mpipe.{alias.name}"
+            else:
+                yield node.lineno, node.module
+
+
+def _modules():
+    for path in sorted(PACKAGE.rglob("*.py")):
+        parts = path.relative_to(PACKAGE).parts
+        if len(parts) > 1:  # the facade (mpipe/__init__.py, mpipe/_moved.py) is exempt
+            yield parts[0], path
+
+
+def test_every_module_lives_in_a_layer():
+    assert {layer for layer, _ in _modules()} <= set(LAYERS)
+
+
+def test_imports_point_downward_and_name_real_modules():
+    wrong = []
+    for layer, path in _modules():
+        for line, name in _imports(path):
+            if not name.startswith("mpipe.") and name != "mpipe":
+                continue
+            where = f"{path.relative_to(PACKAGE.parent)}:{line} imports {name}"
+            target = name.split(".")[1] if "." in name else None
+            if name in MOVED or target not in LAYERS:
+                wrong.append(f"{where}: not a module of the layered package")
+            elif LAYERS.index(target) > LAYERS.index(layer):
+                wrong.append(f"{where}: {layer} may not import the higher layer {target}")
+    assert not wrong, "\n".join(wrong)
+
+
+def test_the_check_catches_an_upward_import(tmp_path):
+    bad = tmp_path / "bad.py"
+    bad.write_text("def f():\n    from mpipe.pipeline.report import write_take_report\n")
+    assert list(_imports(bad)) == [(2, "mpipe.pipeline.report")]
+
+
+@pytest.mark.parametrize("old", ["mpipe.separation", "mpipe.model", "mpipe.commands.run"])
+def test_old_module_paths_warn_and_give_the_moved_module(old):
+    new = MOVED.get(old) or old.replace("mpipe.commands.", "mpipe.cli.commands.")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        module = importlib.import_module(old)
+    assert module is importlib.import_module(new)
+    assert any(issubclass(w.category, DeprecationWarning) and new in str(w.message) for w in caught)
+
+
+def test_public_api_names_resolve():
+    for name in mpipe.__all__:
+        assert getattr(mpipe, name) is not None
