@@ -14,6 +14,7 @@ from pathlib import Path
 from unittest import mock
 
 import numpy as np
+from headline import record
 from scipy import special
 
 from mpipe.acoustics import ducts
@@ -47,6 +48,8 @@ def main() -> None:
         t_base = median_time(lambda: input_impedance(cal.bore, omega, air), 30)
     t_rf = median_time(lambda: reflection_function(cal.bore, air, 100_000.0), 5)
     rf = reflection_function(cal.bore, air, 100_000.0)
+    record("input impedance, 5000 frequencies", t_z * 1e3, "ms", t_base * 1e3, "< 20 ms")
+    record("reflection function at 100 kHz", t_rf * 1e3, "ms")
     print(f"input impedance, 5000 frequencies : {t_z * 1e3:7.2f} ms (target < 20 ms)")
     print(f"  baseline (jve everywhere)       : {t_base * 1e3:7.2f} ms  ratio {t_base / t_z:.2f}x")
     print(

@@ -29,6 +29,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 import soundfile as sf  # noqa: E402
 import yaml  # noqa: E402
+from headline import record as headline  # noqa: E402
 from scipy import signal  # noqa: E402
 
 from mpipe.acoustics.reflection import reflection_function  # noqa: E402
@@ -135,6 +136,9 @@ def main() -> None:
                 eu, eh = u_error(tr, u_true), u_error(tr_h, u_true)
                 ok_t = abs(t - 20.0) <= 0.3 and abs(eta - 1.0) <= 0.05
                 ok_u = eu <= 0.02 if snr >= 70 else eu <= 1.5 * eh
+                case = f"{fs_out / 1e3:g} kHz, {snr:.0f} dB"
+                headline(f"u NRMSE, {case} (baseline: held at truth)", 100 * eu, "%", 100 * eh)
+                headline(f"temperature error, {case}", abs(t - 20.0), "degC", target="<= 0.3")
                 print(
                     f"{fs_out / 1e3:9.1f} {snr:4.0f}  {t:6.2f} +- {t_se:4.2f}  {eta:5.3f} +- "
                     f"{eta_se:5.3f}  {100 * eu:6.2f} % | {100 * eh:5.2f} %  {eu / eh:5.2f}"
@@ -227,11 +231,17 @@ def main() -> None:
             t1 = time.perf_counter()
             chain(read, c)
             times[name] = time.perf_counter() - t1
-        print(
-            f"\nspeed, {args.duration:g} s at 100 kHz, separation + translation: fixed "
-            f"{times['fixed (c, eta, M)']:.2f} s, adaptive {times['adaptive']:.2f} s, "
-            f"ratio {times['adaptive'] / times['fixed (c, eta, M)']:.2f}"
+        headline(
+            "separation + translation (baseline: fixed c, eta, M)",
+            times["adaptive"],
+            "s",
+            times["fixed (c, eta, M)"],
         )
+    print(
+        f"\nspeed, {args.duration:g} s at 100 kHz, separation + translation: fixed "
+        f"{times['fixed (c, eta, M)']:.2f} s, adaptive {times['adaptive']:.2f} s, "
+        f"ratio {times['adaptive'] / times['fixed (c, eta, M)']:.2f}"
+    )
 
 
 if __name__ == "__main__":

@@ -28,6 +28,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import yaml  # noqa: E402
+from headline import record  # noqa: E402
 from scipy import signal  # noqa: E402
 
 from mpipe.cli.commands.synth_take import SynthOptions, make_take  # noqa: E402
@@ -115,6 +116,7 @@ def main() -> None:
                     f"{t_est:5.2f} s / {t_held:4.2f} s = {t_est / t_held:4.1f}"
                     + ("" if b.theta.iloc[0] == "estimated" else f"  ({b.theta.iloc[0]})")
                 )
+            record(f"{n} microphones: worst u NRMSE", 100 * worst[1], "%", target="<= 1 %")
             print(
                 f"     {n} microphones: worst p {100 * worst[0]:.2f} %, worst u "
                 f"{100 * worst[1]:.2f} % ({'ok' if max(worst) <= 0.01 else 'above 1 %'})"

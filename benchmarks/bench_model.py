@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from headline import record
 
 from mpipe.acoustics.reflection import reflection_function
 from mpipe.measurement.calibration import load_calibration
@@ -55,6 +56,7 @@ def main() -> None:
     fast, p_fast = rate(reed, kernel, n, "fast", args.repeats)
     direct, p_direct = rate(reed, kernel, n, "direct", max(1, args.repeats // 2))
     diff = np.max(np.abs(p_fast - p_direct)) / np.max(np.abs(p_direct))
+    record("model, fast kernel (baseline: direct)", fast / 1e6, "M samples/s", direct / 1e6)
     print(f"fast:   {fast / 1e6:7.2f} M samples/s (median of {args.repeats} runs of {n})")
     print(f"direct: {direct / 1e6:7.2f} M samples/s (median of {max(1, args.repeats // 2)} runs)")
     print(f"ratio fast/direct: {fast / direct:.1f}; max |p_fast - p_direct| / max |p|: {diff:.1e}")

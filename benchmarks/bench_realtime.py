@@ -37,6 +37,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from headline import record
 from threadpoolctl import threadpool_limits
 
 from mpipe.acoustics.reflection import reflection_function
@@ -125,6 +126,8 @@ def stage_figures(label, runs, duration):
         f"{1e3 * np.median(per_eval):.2f} ms per evaluation; status ok "
         f"{int((table['status'] == 'ok').sum())}/{len(table)}"
     )
+    record(f"inversion real-time factor, {label}", duration / wall, "", target=">= 1")
+    record(f"warm window, {label}", 1e3 * np.median(warm["wall_time_s"]), "ms", target="<= 20")
     return wall, cold, table
 
 
@@ -228,6 +231,8 @@ def kernel_rates(seconds: float, repeats: int) -> None:
             f"(x{statistics.median(cpu) / base:.2f} against today's, same run)"
         )
     print(f"  max |p difference| {diff:.1e} Pa ({n} samples, B = {kernel.head_taps})")
+    lean = statistics.median(rates["simulate_pressure (lean)"][1]) / 1e6
+    record("lean model kernel, CPU (baseline: full)", lean, "M samples/s", base / 1e6, ">= 20")
 
 
 def main() -> None:

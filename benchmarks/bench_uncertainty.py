@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import yaml
+from headline import record
 
 from mpipe.cli.examples import EXAMPLE_CALIBRATION, EXAMPLE_OPTIONS, EXAMPLE_REED, example_take
 from mpipe.cli.main import main as cli_main
@@ -114,6 +115,9 @@ def report(label: str, windows: pd.DataFrame, truth: dict, z_c: float, rho: floa
     print(table[cols].to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     need = ("k", "y_m", "p_m", "lam", "p_M", "gamma", "zeta")
     cov = dict(zip(table["name"], table["coverage_2se"], strict=True))
+    for name in need:
+        if name in cov:
+            record(f"[{label}] coverage of {name} within 2 SE", cov[name], "", target=">= 0.80")
     bad = [n for n in need if n in cov and cov[n] < 0.8]
     undetermined = [n for n in need if n in cov and not np.isfinite(cov[n])]
     print(

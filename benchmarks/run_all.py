@@ -1,0 +1,108 @@
+"""Every benchmark, one after the other, and their headline figures in one table.
+
+Usage: ``.venv/bin/python benchmarks/run_all.py [--full] [--only NAME[,NAME]]`` (``make bench``).
+
+Each ``bench_*.py`` runs in its own process with the arguments below (short runs by default,
+the benchmark's own defaults with ``--full``); its report goes to the console as it runs, and
+the figures it records (:mod:`headline`) are gathered into one table at the end: value,
+baseline measured in the same run, their ratio, and the target where an issue sets one.
+Exit status 1 when a benchmark fails.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+from headline import TABLE_ENV  # noqa: E402
+
+#: Arguments of each benchmark in the default (short) run; ``--full`` drops them.
+QUICK_ARGS = {
+    "bench_bore": [],
+    "bench_model": ["--seconds", "1", "--repeats", "3"],
+    "bench_inversion": [],
+    "bench_frontend": ["--duration", "1"],
+    "bench_microphones": ["--seeds", "2"],
+    "bench_realtime": ["--duration", "2", "--repeats", "1", "--skip-before"],
+    "bench_uncertainty": ["--paths", "adaptive"],
+}
+
+#: Units where a smaller value is better (the ratio shown is then baseline / value).
+TIME_UNITS = {"s", "ms", "µs", "s/window", "ms/window"}
+
+
+def ratio(row: dict) -> str:
+    base, value = row["baseline"], row["value"]
+    if base is None or value == 0:
+        return ""
+    r = base / value if row["unit"] in TIME_UNITS else value / base
+    return f"x{r:.2f}"
+
+
+def table(rows: list[dict]) -> str:
+    head = ("benchmark", "figure", "value", "unit", "baseline", "ratio", "target")
+    cells = [
+        (
+            r["benchmark"].removeprefix("bench_"),
+            r["figure"],
+            f"{r['value']:.4g}",
+            r["unit"],
+            "" if r["baseline"] is None else f"{r['baseline']:.4g}",
+            ratio(r),
+            r["target"],
+        )
+        for r in rows
+    ]
+    widths = [max(len(str(c)) for c in col) for col in zip(head, *cells, strict=True)]
+    line = "  ".join(f"{{:<{w}}}" for w in widths)
+    out = [line.format(*head), line.format(*("-" * w for w in widths))]
+    out += [line.format(*c) for c in cells]
+    return "\n".join(r.rstrip() for r in out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--full", action="store_true", help="each benchmark's own (long) defaults")
+    ap.add_argument("--only", default="", help="comma-separated benchmark names")
+    args = ap.parse_args(argv)
+    names = sorted(p.stem for p in HERE.glob("bench_*.py"))
+    if args.only:
+        wanted = {n if n.startswith("bench_") else f"bench_{n}" for n in args.only.split(",")}
+        unknown = wanted - set(names)
+        if unknown:
+            ap.error(f"no such benchmark: {', '.join(sorted(unknown))} (have {', '.join(names)})")
+        names = [n for n in names if n in wanted]
+    failed, rows, walls = [], [], {}
+    with tempfile.TemporaryDirectory() as tmp:
+        env = {**os.environ, TABLE_ENV: str(Path(tmp) / "table.jsonl")}
+        for name in names:
+            cmd = [sys.executable, str(HERE / f"{name}.py")]
+            cmd += [] if args.full else QUICK_ARGS.get(name, [])
+            print(f"\n=== {name} {' '.join(cmd[2:])}".rstrip(), flush=True)
+            t0 = time.perf_counter()
+            code = subprocess.run(cmd, env=env, cwd=tmp).returncode
+            walls[name] = time.perf_counter() - t0
+            if code != 0:
+                failed.append(f"{name} (exit {code})")
+        path = Path(env[TABLE_ENV])
+        if path.exists():
+            rows = [json.loads(line) for line in path.read_text().splitlines() if line]
+    print("\n=== headline figures (baseline measured in the same run)")
+    print(table(rows))
+    print("\nwall time per benchmark: " + ", ".join(f"{n} {t:.0f} s" for n, t in walls.items()))
+    if failed:
+        print("FAILED: " + ", ".join(failed))
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,42 @@
+"""``make bench``: the table of headline figures gathered from every benchmark."""
+
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def _run_all():
+    spec = importlib.util.spec_from_file_location("run_all", BENCH / "run_all.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_every_benchmark_has_short_arguments_and_records_figures():
+    run_all = _run_all()
+    names = {p.stem for p in BENCH.glob("bench_*.py")}
+    assert names == set(run_all.QUICK_ARGS)
+    for name in names:
+        assert "record" in (BENCH / f"{name}.py").read_text(), f"{name} records no figure"
+
+
+def test_ratio_is_a_speed_up_for_times_and_a_gain_otherwise():
+    run_all = _run_all()
+    row = {"benchmark": "bench_x", "figure": "f", "unit": "ms", "target": ""}
+    assert run_all.ratio({**row, "value": 2.0, "baseline": 8.0}) == "x4.00"
+    assert run_all.ratio({**row, "unit": "M samples/s", "value": 2.0, "baseline": 8.0}) == "x0.25"
+    assert run_all.ratio({**row, "value": 2.0, "baseline": None}) == ""
+    text = run_all.table([{**row, "value": 2.0, "baseline": 8.0}])
+    assert text.splitlines()[2].split() == ["x", "f", "2", "ms", "8", "x4.00"]
+
+
+def test_unknown_benchmark_is_refused_in_one_line():
+    out = subprocess.run(
+        [sys.executable, str(BENCH / "run_all.py"), "--only", "nonsense"],
+        capture_output=True,
+        text=True,
+    )
+    assert out.returncode == 2 and "no such benchmark: bench_nonsense" in out.stderr
