@@ -14,7 +14,10 @@ from mpipe.core.errors import UserError
 from mpipe.core.io import check_output_folder, folder_lock
 
 # A parent that runs a pool of two workers and a manager (as the inversion does), prints
-# their process ids and waits to be killed.
+# their process ids and waits to be killed. It waits in 0.1 s slices, as the inversion's
+# dispatch loop does: a signal sent to a process may be delivered to any of its threads,
+# and Python runs the handler only when the main thread wakes; a single long sleep would
+# then outlast the test (CI saw that once).
 PARENT = textwrap.dedent(
     """
     import os, sys, time
@@ -35,7 +38,8 @@ PARENT = textwrap.dedent(
                 pids |= set(pool.map(pid, range(8)))
             futures = [pool.submit(nap, i) for i in range(2)]
             print(" ".join(map(str, [*pids, m._process.pid])), flush=True)
-            time.sleep(60)
+            for _ in range(600):
+                time.sleep(0.1)
     """
 )
 
