@@ -22,7 +22,7 @@ import pandas as pd
 
 from mpipe.cli.main import main as cli_main
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CALIBRATION = ROOT / "calibration" / "simplified_clarinet.yaml"
 PIPELINE = ROOT / "pipelines" / "simplified_clarinet.yaml"
 PARAMETERS = (

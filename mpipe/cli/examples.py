@@ -23,7 +23,7 @@ from mpipe.reed.recording import TakeFiles, take_file_paths
 log = logging.getLogger(__name__)
 
 #: The repository's calibration folder (the package is installed in editable mode).
-CALIBRATION_DIR = Path(__file__).resolve().parents[1] / "calibration"
+CALIBRATION_DIR = Path(__file__).resolve().parents[2] / "calibration"
 #: Instrument and reed of the example.
 EXAMPLE_CALIBRATION = CALIBRATION_DIR / "simplified_clarinet.yaml"
 EXAMPLE_REED = CALIBRATION_DIR / "reed_table1.yaml"
