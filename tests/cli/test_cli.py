@@ -61,3 +61,10 @@ def test_swapped_or_wrong_files_give_one_line_errors(tmp_path, capsys):
     assert main(["invert", str(audio), "--pipeline", str(pipe), "-o", str(tmp_path / "i")]) == 2
     err = capsys.readouterr().err
     assert "not an npz file" in err and "pickle" not in err
+
+
+def test_demo_and_example_find_the_shipped_files():
+    from mpipe.cli import demo, examples
+
+    assert (examples.CALIBRATION_DIR / "simplified_clarinet.yaml").is_file()
+    assert (demo.ROOT / "pipelines" / "simplified_clarinet.yaml").is_file()
