@@ -214,7 +214,8 @@ def measured_path(take_files, pipe, inversion, fixed_front_end: bool):
     from mpipe.inversion.conditioning import plan_inversion
     from mpipe.inversion.kernel import bore_kernel, take_temperature
     from mpipe.inversion.tracking import track
-    from mpipe.measurement.separation import fixed_config, separate
+    from mpipe.measurement.separation.settings import fixed_config
+    from mpipe.measurement.separation.stage import separate
     from mpipe.measurement.takes import read_take
     from mpipe.measurement.translation import translate
 

@@ -34,7 +34,8 @@ from scipy import signal  # noqa: E402
 from mpipe.cli.commands.synth_take import SynthOptions, make_take  # noqa: E402
 from mpipe.core.filters import apply_lowpass, design_lowpass  # noqa: E402
 from mpipe.measurement.calibration import load_calibration  # noqa: E402
-from mpipe.measurement.separation import SeparationConfig, fixed_config, separate  # noqa: E402
+from mpipe.measurement.separation.settings import SeparationConfig, fixed_config  # noqa: E402
+from mpipe.measurement.separation.stage import separate  # noqa: E402
 from mpipe.measurement.takes import read_take  # noqa: E402
 from mpipe.measurement.translation import TranslationConfig, translate  # noqa: E402
 from mpipe.reed.recording import calibration_mapping  # noqa: E402

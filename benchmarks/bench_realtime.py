@@ -48,7 +48,7 @@ from mpipe.inversion.resynthesis import reed_from_row
 from mpipe.inversion.settings import PARAMETER_NAMES, ExecutorConfig
 from mpipe.inversion.tracking import invert_window, track
 from mpipe.measurement.calibration import load_calibration
-from mpipe.measurement.separation import separate
+from mpipe.measurement.separation.stage import separate
 from mpipe.measurement.takes import read_take
 from mpipe.measurement.translation import translate
 from mpipe.pipeline.settings import load_pipeline

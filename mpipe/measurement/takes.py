@@ -390,7 +390,7 @@ def check_take(pressures: np.ndarray, fs: float, calibration: Calibration, name:
     UserError
         On the first failed check.
     """
-    from mpipe.measurement.separation import check_channel_order
+    from mpipe.measurement.separation.checks import check_channel_order
 
     mics = calibration.microphones
     rms = np.sqrt(np.mean((pressures - np.mean(pressures, axis=0)) ** 2, axis=0))

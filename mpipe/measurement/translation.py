@@ -281,7 +281,9 @@ def mouthpiece_noise(
         ``u_noise_freq_hz`` (Hz, 0 to fs/2), ``u_noise_psd`` ((m^3/s)^2/Hz, one-sided) and
         ``p_noise_psd`` (Pa^2/Hz, one-sided) at the mouthpiece entry.
     """
-    from mpipe.measurement.separation import Geometry, SeparationConfig, reference_noise
+    from mpipe.measurement.separation.reconstruction import reference_noise
+    from mpipe.measurement.separation.settings import SeparationConfig
+    from mpipe.measurement.separation.waves import Geometry
 
     sep_cfg = SeparationConfig() if separation_config is None else separation_config
     cfg = TranslationConfig() if config is None else config

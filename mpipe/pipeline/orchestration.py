@@ -101,7 +101,7 @@ def _plot_blocks(blocks: pd.DataFrame, path: Path) -> None:
 
 
 def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
-    from mpipe.measurement.separation import separate
+    from mpipe.measurement.separation.stage import separate
     from mpipe.measurement.takes import read_take
 
     def work(folder: Path):
@@ -144,7 +144,7 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
 
 
 def _stage_translation(folder_sep: Path, cal: Calibration, cfg: PipelineConfig):
-    from mpipe.measurement.separation import Theta
+    from mpipe.measurement.separation.waves import Theta
     from mpipe.measurement.translation import mouthpiece_noise, translate, write_mouthpiece_wav
 
     def work(folder: Path):

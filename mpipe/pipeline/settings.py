@@ -31,7 +31,7 @@ from mpipe.inversion.settings import (
     ParameterBounds,
     ResynthesisConfig,
 )
-from mpipe.measurement.separation import SeparationConfig
+from mpipe.measurement.separation.settings import SeparationConfig
 from mpipe.measurement.translation import TranslationConfig
 from mpipe.measurement.validation import ValidationConfig
 

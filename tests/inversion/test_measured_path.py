@@ -17,7 +17,7 @@ from mpipe.inversion.kernel import bore_kernel, take_temperature
 from mpipe.inversion.settings import ExecutorConfig
 from mpipe.inversion.tracking import track
 from mpipe.measurement.calibration import load_calibration
-from mpipe.measurement.separation import separate
+from mpipe.measurement.separation.stage import separate
 from mpipe.measurement.takes import read_take
 from mpipe.measurement.translation import translate
 from mpipe.pipeline.settings import load_pipeline

@@ -24,7 +24,8 @@ from mpipe.cli.commands.synth_take import SynthOptions, make_take
 from mpipe.core.errors import UserError
 from mpipe.core.filters import apply_lowpass, design_lowpass
 from mpipe.measurement.calibration import load_calibration
-from mpipe.measurement.separation import SeparationConfig, fixed_config, separate
+from mpipe.measurement.separation.settings import SeparationConfig, fixed_config
+from mpipe.measurement.separation.stage import separate
 from mpipe.measurement.takes import read_take
 from mpipe.measurement.translation import TranslationConfig, translate
 from mpipe.reed.recording import calibration_mapping

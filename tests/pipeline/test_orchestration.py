@@ -149,7 +149,7 @@ def test_every_door_gives_the_same_table(finished, take, pipeline, tmp_path):
     from mpipe.inversion.settings import PARAMETER_NAMES
     from mpipe.inversion.tracking import track
     from mpipe.measurement.calibration import load_calibration
-    from mpipe.measurement.separation import separate
+    from mpipe.measurement.separation.stage import separate
     from mpipe.measurement.takes import read_take
     from mpipe.measurement.translation import translate
 

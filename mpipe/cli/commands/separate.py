@@ -37,7 +37,8 @@ from mpipe.core.io import check_writable, write_atomic, write_csv, write_npz_ato
 from mpipe.inversion.kernel import take_temperature
 from mpipe.inversion.settings import InversionConfig
 from mpipe.measurement.calibration import load_calibration
-from mpipe.measurement.separation import SeparationConfig, separate
+from mpipe.measurement.separation.settings import SeparationConfig
+from mpipe.measurement.separation.stage import separate
 from mpipe.measurement.translation import (
     TranslationConfig,
     mouthpiece_noise,

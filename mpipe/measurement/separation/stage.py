@@ -1,0 +1,329 @@
+"""The separation stage: :func:`separate`, from wall pressures to p0 and u0 (physics.md E).
+
+:func:`separate` turns the calibrated wall pressures (Pa) of N >= 2 microphones into the
+pressure p0 (Pa) and volume flow u0 (m^3/s) at the reference plane, with the per-block
+table of theta.
+
+Its steps, in order: check the input and plan the blocks (:func:`_plan`), measure the
+sensor noise and prepare every block's spectra (:func:`_prepare_blocks`), estimate theta
+per block (:func:`mpipe.measurement.separation.tracking.estimate_blocks`), choose the
+trusted blocks and smooth theta over them (:func:`_smoothed_track`), rebuild p0 and u0 by
+overlap-add (:func:`mpipe.measurement.separation.reconstruction.overlap_add`) and tabulate
+the blocks (:func:`mpipe.measurement.separation.result.block_table`).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from mpipe.measurement.calibration import Calibration
+from mpipe.measurement.separation.blocks import (
+    _FILTER_MARGIN_S,
+    BlockSpectra,
+    _block,
+    _block_layout,
+    cross_spectra,
+)
+from mpipe.measurement.separation.checks import check_band
+from mpipe.measurement.separation.noise import _NOISE_FLOOR, noise_levels
+from mpipe.measurement.separation.propagation import Prior, _fixed_mach, _fixed_mach_t
+from mpipe.measurement.separation.reconstruction import overlap_add
+from mpipe.measurement.separation.result import SeparationResult, block_table
+from mpipe.measurement.separation.settings import SeparationConfig
+from mpipe.measurement.separation.tracking import BlockFits, estimate_blocks, smooth_blocks
+from mpipe.measurement.separation.waves import Geometry
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """What a separation starts from.
+
+    Attributes
+    ----------
+    geometry : Geometry
+        Microphones and bore of the calibration.
+    prior : Prior
+        Prior, bounds and free parameters of theta.
+    start : ndarray
+        Start values of theta (degC, -, -, m), with the held Mach number.
+    held_mach : float or None
+        The Mach number held by the configuration (None: estimated).
+    t_start, c_start : float
+        Start temperature (degC) and its sound speed (m/s).
+    hop, length : int
+        Hop and length of the blocks, samples.
+    starts : ndarray
+        First sample of every block (the first ones start before the take).
+    can_estimate : bool
+        Whether theta is estimated (adaptive and N >= 3).
+    theta_note : str
+        Column ``theta`` of the block table.
+    """
+
+    geometry: Geometry
+    prior: Prior
+    start: np.ndarray
+    held_mach: float | None
+    t_start: float
+    c_start: float
+    hop: int
+    length: int
+    starts: np.ndarray
+    can_estimate: bool
+    theta_note: str
+
+
+def _checked_pressures(pressures: np.ndarray, calibration: Calibration) -> np.ndarray:
+    """The pressures as a float array of shape ``(n, N)``, all samples finite."""
+    x = np.asarray(pressures, dtype=float)
+    n_mics = len(calibration.microphones)
+    if x.ndim != 2 or x.shape[1] != n_mics:
+        raise ValueError(
+            f"expected pressures of shape (n, {n_mics}) for the {n_mics} microphones of the "
+            f"calibration, got {x.shape}"
+        )
+    if not np.all(np.isfinite(x)):
+        raise ValueError("pressures contain NaN or infinite samples")
+    return x
+
+
+def _theta_note(config: SeparationConfig, n_mics: int) -> str:
+    """Whether theta is estimated, or why it is held."""
+    if not config.adaptive:
+        return "held: adaptive false"
+    if n_mics < 3:
+        return "held: two microphones, no redundancy"
+    return "estimated"
+
+
+def _plan(x: np.ndarray, fs: float, calibration: Calibration, config: SeparationConfig) -> _Plan:
+    """Validate the settings against the calibration and lay out the blocks and the prior."""
+    n_mics = x.shape[1]
+    config.validate()
+    geometry = Geometry.from_calibration(calibration)
+    t_start = (
+        calibration.air.temperature_c if config.temperature_c is None else config.temperature_c
+    )
+    c_start = geometry.sound_speed(t_start)
+    check_band(config, geometry, fs, c_start)
+    hop, length, starts = _block_layout(x.shape[0], fs, config.block_s)
+    free_mach = _fixed_mach(config, geometry, c_start) is None
+    prior = Prior.from_config(config, t_start, free_mach, n_mics)
+    held_mach = _fixed_mach(config, geometry, c_start)
+    start = prior.mean.copy()
+    if held_mach is not None:
+        start[2] = held_mach
+    return _Plan(
+        geometry=geometry,
+        prior=prior,
+        start=start,
+        held_mach=held_mach,
+        t_start=t_start,
+        c_start=c_start,
+        hop=hop,
+        length=length,
+        starts=starts,
+        # Two microphones determine the two waves exactly: no residual, no estimate of theta.
+        can_estimate=config.adaptive and n_mics >= 3,
+        theta_note=_theta_note(config, n_mics),
+    )
+
+
+def _log_plan(plan: _Plan, config: SeparationConfig, n_mics: int, fs: float) -> None:
+    log.info(
+        "separation: %d microphones, %d blocks of %.0f ms, theta %s",
+        n_mics,
+        plan.starts.size,
+        1e3 * plan.length / fs,
+        "estimated per block" if plan.can_estimate else "fixed",
+    )
+    if config.adaptive and n_mics < 3:
+        log.warning(
+            "separation: two microphones leave no redundancy; (c, eta, M) are held at "
+            "T = %.2f degC, eta = %.3g, M = %.4g (configured values), not estimated",
+            plan.t_start,
+            plan.start[1],
+            plan.start[2],
+        )
+    if config.mic_position_prior_m is not None and n_mics > 3:
+        log.info("separation: %d microphones: positions held at the calibration's", n_mics)
+
+
+def _prepare_blocks(
+    x: np.ndarray, fs: float, plan: _Plan, noise_raw: np.ndarray, config: SeparationConfig
+) -> tuple[list[BlockSpectra], np.ndarray, list[np.ndarray], np.ndarray]:
+    """Every block's spectra, the floored noise levels, the bins used and the fitted blocks.
+
+    Returns
+    -------
+    spectra : list of BlockSpectra
+        One per block.
+    noise : ndarray
+        ``noise_raw`` floored at ``_NOISE_FLOOR`` of the strongest bin, Pa^2/Hz.
+    uses : list of ndarray
+        Per block, the bins entering the estimate (bool).
+    fitted : ndarray
+        Per block, whether it is fitted (bool).
+    """
+    n, length, starts = x.shape[0], plan.length, plan.starts
+    margin = int(np.ceil(_FILTER_MARGIN_S * fs))
+    f1 = plan.c_start / (2 * plan.geometry.spacing)
+    spectra_list = [
+        cross_spectra(
+            _block(x, s - margin, length + 2 * margin), fs, config.fmin_hz, config.fmax_hz,
+            margin, f1,
+        )
+        for s in starts
+    ]  # fmt: skip
+    level = np.array([float(np.sum(sp.mic_power)) for sp in spectra_list])
+    floor = np.median(level) * 10 ** (-config.min_level_db / 10)
+    inside = (starts >= 0) & (starts + length <= n)
+    if not np.any(inside):
+        inside[:] = True  # take shorter than one block: use what there is
+    peak = max(
+        (float(np.max(sp.mic_power, initial=0.0)) for sp in spectra_list),
+        default=0.0,
+    )
+    noise = np.maximum(noise_raw, _NOISE_FLOOR * peak + 1e-300)
+    uses = [sp.use(noise, config.min_snr_db) for sp in spectra_list]
+    # Blocks hanging over either end hold half silence and an abrupt edge: not fitted.
+    fitted = inside & (level > max(floor, 0.0)) & np.array([np.sum(u) >= 3 for u in uses])
+    return spectra_list, noise, uses, fitted
+
+
+def _trusted_blocks(
+    fitted: np.ndarray, residual: np.ndarray, adaptive: bool, config: SeparationConfig
+) -> tuple[np.ndarray, float]:
+    """The blocks entering the smoother, and the median chi^2 per term of the fitted ones."""
+    if not np.any(fitted) and adaptive:
+        raise ValueError(
+            "no block has enough signal in the estimation band "
+            f"{config.fmin_hz:g}-{config.fmax_hz:g} Hz to estimate the propagation parameters"
+        )
+    median_j = float(np.median(residual[fitted])) if np.any(fitted) else float("nan")
+    trust = fitted & (residual <= config.max_residual_ratio * median_j)
+    if not np.any(trust):
+        trust = fitted.copy()
+    return trust, median_j
+
+
+def _smoothed_track(
+    plan: _Plan,
+    centres: np.ndarray,
+    fits: BlockFits,
+    trust: np.ndarray,
+    adaptive: bool,
+    config: SeparationConfig,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Theta per block for the reconstruction: values, standard errors, sound speed (m/s)."""
+    nb = centres.size
+    if adaptive:
+        kept = [e if trust[j] else None for j, e in enumerate(fits.estimates)]
+        smooth, smooth_se = smooth_blocks(centres, kept, plan.prior, config.smooth_s)
+    else:
+        smooth = np.tile(plan.start, (nb, 1))
+        smooth_se = np.zeros((nb, plan.prior.mean.size))
+    geometry = plan.geometry
+    if plan.held_mach is not None:
+        smooth[:, 2] = [_fixed_mach_t(config, geometry, t) for t in smooth[:, 0]]
+    c_track = np.array([geometry.sound_speed(float(t)) for t in smooth[:, 0]])
+    return smooth, smooth_se, c_track
+
+
+def _log_outcome(result: SeparationResult, median_j: float) -> None:
+    for line in result.bound_warnings():
+        log.warning("separation: %s", line)
+    table = result.blocks
+    log.info(
+        "separation: T %.2f..%.2f degC, eta %.3f..%.3f, M %.4f..%.4f, median chi2/term %.2f",
+        table.temperature_c.min(),
+        table.temperature_c.max(),
+        table.loss_scale.min(),
+        table.loss_scale.max(),
+        table.mach.min(),
+        table.mach.max(),
+        median_j,
+    )
+
+
+def separate(
+    pressures: np.ndarray,
+    fs: float,
+    calibration: Calibration,
+    config: SeparationConfig,
+    band_limit_hz: float | None = None,
+) -> SeparationResult:
+    """Separate the waves of a take of N >= 2 microphones and rebuild p0, u0 at the reference plane.
+
+    With N >= 3 theta is estimated per block (``config.adaptive``); with N = 2 it is held
+    at the configured values (two microphones leave no residual to estimate it from).
+
+    Parameters
+    ----------
+    pressures : ndarray
+        Calibrated microphone pressures in Pa, shape ``(n, N)``, upstream microphone first
+        (the order of ``calibration.microphones``).
+    fs : float
+        Sample rate in Hz.
+    calibration : Calibration
+        Geometry, air and microphone positions.
+    config : SeparationConfig
+        Settings.
+    band_limit_hz : float, optional
+        Highest frequency the recording holds (the file's Nyquist frequency when the take
+        was resampled to ``fs``), Hz; the sensor noise is measured below it.
+
+    Returns
+    -------
+    SeparationResult
+        ``p0`` in Pa and ``u0`` in m^3/s at the reference plane, and the block table.
+
+    Raises
+    ------
+    ValueError
+        For a wrong shape, a non-finite sample or a band reaching the singular frequency.
+
+    References
+    ----------
+    physics.md E.1-E.5; Jang & Ih 1998; Chatziioannou & van Walstijn 2012, section 4.
+    """
+    x = _checked_pressures(pressures, calibration)
+    n_mics = x.shape[1]
+    plan = _plan(x, fs, calibration, config)
+    _log_plan(plan, config, n_mics, fs)
+
+    # 1. Estimate theta per block.
+    noise_raw = noise_levels(x, fs, config, band_limit_hz)
+    log.info(
+        "separation: noise PSD per channel %s Pa^2/Hz (one-sided)",
+        np.array2string(2 * noise_raw, precision=3),
+    )
+    spectra_list, noise, uses, fitted = _prepare_blocks(x, fs, plan, noise_raw, config)
+    fits = estimate_blocks(
+        spectra_list, uses, fitted, noise, plan.geometry, plan.start, plan.prior, config,
+        plan.can_estimate, plan.c_start,
+    )  # fmt: skip
+    adaptive = plan.can_estimate and int(np.sum(plan.prior.free)) > 0
+    trust, median_j = _trusted_blocks(fitted, fits.residual, adaptive, config)
+    centres = (plan.starts + plan.hop) / fs
+    smooth, smooth_se, c_track = _smoothed_track(plan, centres, fits, trust, adaptive, config)
+
+    # 2. Separate every windowed block with its smoothed theta, overlap-add.
+    p0, u0 = overlap_add(x, fs, plan.starts, plan.length, smooth, c_track, plan.geometry, config)
+    table = block_table(centres, smooth, smooth_se, c_track, fits, fitted, trust, plan.theta_note)
+    result = SeparationResult(
+        fs=float(fs),
+        p0=p0,
+        u0=u0,
+        blocks=table,
+        config=config,
+        noise_psd=2 * noise_raw,
+        geometry=plan.geometry.corrected(float(np.median(smooth[:, 3]))),
+    )
+    _log_outcome(result, median_j)
+    return result
