@@ -171,9 +171,9 @@ def estimate_blocks(
             fits.residual[b] = residual_cost(th, spectra, geometry, noise, use)
             fits.raw[b] = start
             fits.raw_se[b] = 0.0
-        log.debug(
-            "block %d: T %.3f degC, eta %.3f, M %.5f, chi2 %.2f", b, *fits.raw[b], fits.residual[b]
-        )
+        if log.isEnabledFor(logging.DEBUG):  # T degC, eta, M and, when fitted, the mic shift m
+            values = ", ".join(f"{v:.5g}" for v in fits.raw[b])
+            log.debug("block %d: theta (%s), chi2 %.2f", b, values, fits.residual[b])
     return fits
 
 
