@@ -131,6 +131,29 @@ class InversionConfig:
         "rotating-coordinate search), powell, nelder-mead",
         default="trust-region",
     )
+    temperature: Literal["fit", "front-end"] = spec(
+        "",
+        "air temperature of the bore model. fit: the one that makes the model play the take "
+        "best (the step-2 residual profiled over a few windows; its standard error widens "
+        "every <name>_se); front-end: the median of the temperature the mouthpiece signals "
+        "carry (the wave separation's estimate), or the calibration's when they carry none",
+        default="fit",
+    )
+    temperature_windows: int = spec(
+        "",
+        "windows, spread over the take, that the temperature is fitted on",
+        between(1, 64),
+        default=6,
+    )
+    temperature_range_c: float = spec(
+        "degC",
+        "the fit searches this far on either side of the front end's temperature",
+        between(1.0, 30.0),
+        default=8.0,
+    )
+    temperature_evaluations: int = spec(
+        "", "temperatures tried by the fit before its standard error", between(3, 50), default=8
+    )
     cold_start: Literal["global", "step1"] = spec(
         "",
         "how the first window of a take is started. global: a Sobol design over the whole "

@@ -1,0 +1,353 @@
+"""The temperature of the bore model, fitted to the playing, and its share of the error bars.
+
+The model's reflection function is built at one air temperature (:mod:`mpipe.inversion.kernel`).
+The reed parameters are very sensitive to it: on the demo's take, a kernel 1.1 degC too cold
+(the wave separation's estimate, 18.9 +- 1.3 degC for a true 20 degC) gave S -21 % and lam
+-14 %, against +1.5 % and -1.9 % at the true temperature, because the search bends the reed
+to make the model's too-slow bore play the measured period. The same fit is also the
+sharpest thermometer available: the total residual of step 2 over a few windows has a
+clear minimum in the kernel temperature (0.1 degC wide on that take), where the front end's
+estimate from 2 cm of microphone spacing is a degree wide.
+
+:func:`fit_temperature` therefore profiles the step-2 residual over the kernel temperature:
+``R(T) = sum over K windows of F2^2`` with each window's reed re-fitted at every T (warm
+started from its solution at the nearest temperature already tried), minimised by
+successive parabolas from the front end's estimate. Its standard error comes from the
+curvature of ``R`` with the residual's noise level and colour (as in
+:mod:`mpipe.inversion.uncertainty`: ``Delta chi^2 = Delta R / (sigma^2 n / n_eff) = 1``),
+and :func:`widen_standard_errors` adds the temperature's share to every ``<name>_se``:
+``se^2 + (x * dlnx/dT * se_T)^2`` with the sensitivity measured at ``T +- h``.
+
+The fitted temperature is an effective one: it also absorbs small errors of the bore model
+(geometry, radiation), which is what keeps them out of the reed parameters. A fit far from
+the front end's estimate is reported (``note``), as it points at the calibration.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from mpipe.inversion.kernel import bore_kernel
+from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
+from mpipe.inversion.tracking import invert_window
+from mpipe.inversion.uncertainty import COMBINATION_NAMES, combination_values
+from mpipe.measurement.calibration import Calibration
+from mpipe.reed.parameters import ReedParameters
+
+log = logging.getLogger(__name__)
+
+#: Spacing of the coarse and the fine triples of :func:`_settle`, degC.
+COARSE_C = 1.0
+FINE_C = 0.25
+#: Quantities whose standard error the temperature widens.
+WIDENED = (*PARAMETER_NAMES, *COMBINATION_NAMES)
+
+
+@dataclass(frozen=True)
+class TemperatureFit:
+    """The kernel temperature of a take's inversion.
+
+    Attributes
+    ----------
+    temperature_c : float
+        Temperature the bore kernel is built at, degC.
+    se_c : float
+        Its standard error, degC (NaN when not fitted: then the temperature's share of the
+        error bars is unknown and not added).
+    source : str
+        ``"fit"`` (profiled on the playing), ``"front end"`` (the wave separation's
+        estimate, carried with the signals) or ``"calibration"``.
+    front_end_c : float
+        The temperature the signals carried (or the calibration's), degC.
+    sensitivity : dict
+        ``d ln x / dT`` (1/degC) of every parameter and combination, median over the
+        fitted windows; empty when not fitted.
+    windows : int
+        Windows used by the fit.
+    evaluations : tuple
+        ``(T degC, R Pa^2)`` of every temperature tried, in order.
+    note : str
+        Why the fit was not used, or a warning about it; "" when there is nothing to say.
+    anchor : ReedParameters or None
+        The first fitted window's reed at the fitted temperature: the take's start for
+        every window (it replaces the tracking's own cold start).
+    """
+
+    temperature_c: float
+    se_c: float
+    source: str
+    front_end_c: float
+    sensitivity: Mapping[str, float] = dataclasses.field(default_factory=dict)
+    windows: int = 0
+    evaluations: tuple[tuple[float, float], ...] = ()
+    note: str = ""
+    anchor: ReedParameters | None = None
+
+    def summary(self) -> dict:
+        """JSON-ready record for manifests and the report."""
+        return {
+            "temperature_c": self.temperature_c,
+            "temperature_se_c": None if math.isnan(self.se_c) else self.se_c,
+            "source": self.source,
+            "front_end_c": self.front_end_c,
+            "windows": self.windows,
+            "evaluations": [list(e) for e in self.evaluations],
+            "note": self.note,
+        }
+
+    def line(self) -> str:
+        """One console line."""
+        if self.source != "fit":
+            return f"kernel temperature {self.temperature_c:.2f} degC ({self.source})" + (
+                f"; {self.note}" if self.note else ""
+            )
+        return (
+            f"kernel temperature {self.temperature_c:.2f} +- {self.se_c:.2f} degC, fitted on "
+            f"{self.windows} windows (front end {self.front_end_c:.2f} degC)"
+            + (f"; {self.note}" if self.note else "")
+        )
+
+
+def pick_windows(starts: Sequence[int], count: int) -> list[int]:
+    """``count`` window starts spread evenly over ``starts`` (all of them when fewer)."""
+    starts = list(starts)
+    if len(starts) <= count:
+        return starts
+    idx = np.unique(np.round(np.linspace(0, len(starts) - 1, count)).astype(int))
+    return [starts[i] for i in idx]
+
+
+@dataclass
+class _Profile:
+    """Memo of ``R(T)``: the windows' solutions at every temperature tried."""
+
+    solve: Callable[[float, Sequence[ReedParameters]], tuple[float, list, list]]
+    anchor: list[ReedParameters]
+    tried: dict = dataclasses.field(default_factory=dict)  # T -> (R, reeds, rows)
+
+    def __call__(self, t: float) -> float:
+        t = round(float(t), 4)
+        if t not in self.tried:
+            near = min(self.tried, key=lambda s: abs(s - t)) if self.tried else None
+            warm = self.anchor if near is None else self.tried[near][1]
+            self.tried[t] = self.solve(t, warm)
+        return self.tried[t][0]
+
+
+def _parabola_vertex(x: Sequence[float], y: Sequence[float]) -> tuple[float, float]:
+    """Vertex abscissa and curvature ``a`` of the parabola ``a (x - x0)^2 + c`` through 3 points."""
+    a, b, _ = np.polyfit(np.asarray(x) - x[1], y, 2)
+    if a <= 0:
+        return math.nan, a
+    return x[1] - b / (2 * a), a
+
+
+def _settle(profile: _Profile, t0: float, lo: float, hi: float, max_evaluations: int):
+    """Minimum of ``profile`` by parabolas through three points.
+
+    R(T) is close to a parabola near its minimum (a sum of squares of residuals nearly
+    linear in T there). A coarse triple ``t0 + (-1, 0, 1) degC`` is walked downhill until it
+    brackets the minimum; a fine triple of half-spacing ``FINE_C`` around the coarse
+    parabola's vertex then gives the vertex, the curvature and the sensitivities, and is
+    re-centred while the vertex moves by more than ``FINE_C / 2``.
+
+    Returns
+    -------
+    (vertex degC, curvature Pa^2/degC^2, centre of the fine triple degC) or None
+    """
+    mid = t0
+    while True:  # coarse: bracket the minimum
+        triple = (max(mid - COARSE_C, lo), mid, min(mid + COARSE_C, hi))
+        values = [profile(t) for t in triple]
+        best = triple[int(np.argmin(values))]
+        if best == mid or best in (lo, hi) or len(profile.tried) >= max_evaluations:
+            break
+        mid = best
+    vertex, _ = _parabola_vertex(triple, values)
+    centre = mid if not math.isfinite(vertex) else min(max(vertex, triple[0]), triple[2])
+    for _ in range(3):  # fine: settle the vertex
+        triple = (centre - FINE_C, centre, centre + FINE_C)
+        values = [profile(t) for t in triple]
+        vertex, curvature = _parabola_vertex(triple, values)
+        if not all(math.isfinite(v) for v in values) or not math.isfinite(vertex):
+            return None
+        if abs(vertex - centre) <= FINE_C / 2 or len(profile.tried) >= max_evaluations:
+            return vertex, curvature, centre
+        centre = min(max(vertex, centre - 2 * FINE_C), centre + 2 * FINE_C)
+    return vertex, curvature, centre
+
+
+def fit_temperature(
+    p: np.ndarray,
+    u: np.ndarray,
+    fs: float,
+    calibration: Calibration,
+    starts: Sequence[int],
+    config: InversionConfig,
+    *,
+    zero_mean: bool,
+    front_end_c: float,
+    source: str = "front end",
+) -> TemperatureFit:
+    """The kernel temperature that makes the model play the take best, with its SE.
+
+    Parameters
+    ----------
+    p, u : ndarray
+        Mouthpiece pressure (Pa) and flow (m^3/s) of the take.
+    fs : float
+        Sample rate, Hz.
+    calibration : Calibration
+        Bore and air model.
+    starts : sequence of int
+        First samples of the windows planned for inversion.
+    config : InversionConfig
+        Inversion settings (``temperature``, ``temperature_windows``, ...).
+    zero_mean : bool
+        The flow is zero-mean (measured).
+    front_end_c : float
+        The temperature carried with the signals (or the calibration's), degC: the start
+        of the search, and the kernel temperature when the fit is off or fails.
+    source : str
+        Where ``front_end_c`` comes from, for the report.
+
+    Returns
+    -------
+    TemperatureFit
+    """
+    fallback = TemperatureFit(front_end_c, math.nan, source, front_end_c)
+    if config.temperature != "fit":
+        return fallback
+    chosen = pick_windows(starts, config.temperature_windows)
+    if not chosen:
+        return dataclasses.replace(fallback, note="no window to fit the temperature on")
+    n = int(round(config.window_s * fs))
+
+    def solve(t: float, warm: Sequence[ReedParameters]):
+        kernel, air = bore_kernel(calibration, fs, t)
+        reeds, rows, total = [], [], 0.0
+        for start, w in zip(chosen, warm, strict=True):
+            out = invert_window(p, u, fs, start, kernel, air.rho, config, zero_mean=zero_mean,
+                                warm=w)  # fmt: skip
+            if out.reed is None or not math.isfinite(out.row["f2"]):
+                return math.inf, list(warm), rows
+            reeds.append(out.reed)
+            rows.append({**out.row, **_combinations(out.reed, kernel.z0, air.rho)})
+            total += float(out.row["f2"]) ** 2
+        return total, reeds, rows
+
+    kernel, air = bore_kernel(calibration, fs, front_end_c)
+    first = invert_window(p, u, fs, chosen[0], kernel, air.rho, config, zero_mean=zero_mean)
+    if first.reed is None:
+        return dataclasses.replace(
+            fallback, note="the fit's cold start failed: " + first.row["error"]
+        )
+    profile = _Profile(solve, [first.reed] * len(chosen))
+    lo, hi = front_end_c - config.temperature_range_c, front_end_c + config.temperature_range_c
+    settled = _settle(profile, front_end_c, lo, hi, config.temperature_evaluations)
+    evaluations = tuple(sorted((t, v[0]) for t, v in profile.tried.items()))
+    base = dataclasses.replace(fallback, windows=len(chosen), evaluations=evaluations)
+    if settled is None or settled[1] <= 0:
+        return dataclasses.replace(
+            base, note="the residual has no minimum in the kernel temperature here: not fitted"
+        )
+    best, curvature, centre = settled
+    if not lo + COARSE_C <= best <= hi - COARSE_C:
+        return dataclasses.replace(
+            base, note=f"the fit ran to the edge of its range ({lo:.1f}..{hi:.1f} degC): not used"
+        )
+    rows = profile.tried[round(centre, 4)][2]
+    colour = np.nanmedian([n / r["n_eff"] if r.get("n_eff", 0) > 0 else 1.0 for r in rows])
+    sigma2 = profile(centre) / (n * len(chosen))
+    # R(T) = R0 + a (T - T0)^2 and Delta chi^2 = Delta R / (sigma^2 n / n_eff) = 1 at 1 SE
+    se = math.sqrt(sigma2 * max(colour, 1.0) / curvature)
+    lower, upper = (
+        profile.tried[round(centre - FINE_C, 4)][2],
+        profile.tried[round(centre + FINE_C, 4)][2],
+    )
+    note = ""
+    if abs(best - front_end_c) > 3.0:
+        note = (
+            f"{best - front_end_c:+.1f} degC from the temperature the signals carry: check "
+            "the calibration's bore geometry"
+        )
+    log.info("kernel temperature fitted: %.3f +- %.3f degC (%d evaluations on %d windows)",
+             best, se, len(evaluations), len(chosen))  # fmt: skip
+    anchor = profile.tried[round(centre, 4)][1][0]
+    return TemperatureFit(
+        best, se, "fit", front_end_c, _sensitivity(lower, upper, FINE_C), len(chosen),
+        evaluations, note, anchor,
+    )  # fmt: skip
+
+
+def _combinations(reed: ReedParameters, z_c: float, rho: float) -> dict[str, float]:
+    values = {name: float(getattr(reed, name)) for name in (*PARAMETER_NAMES, "y_c")}
+    return {**values, **combination_values(values, z_c, rho)}
+
+
+def _sensitivity(rows_lo: Sequence[Mapping], rows_hi: Sequence[Mapping], h: float) -> dict:
+    """Median over windows of ``d ln x / dT`` from solutions at ``T - h`` and ``T + h``."""
+    out = {}
+    for name in WIDENED:
+        d = [
+            (math.log(hi[name]) - math.log(lo[name])) / (2 * h)
+            for lo, hi in zip(rows_lo, rows_hi, strict=True)
+            if lo.get(name, 0) > 0 and hi.get(name, 0) > 0
+        ]
+        out[name] = float(np.median(d)) if d else math.nan
+    return out
+
+
+def widen_standard_errors(table: pd.DataFrame, fit: TemperatureFit, limit: float) -> pd.DataFrame:
+    """Add the kernel temperature's share to every ``<name>_se`` of a windows table.
+
+    Parameters
+    ----------
+    table : DataFrame
+        Windows table of :func:`mpipe.inversion.tracking.track`.
+    fit : TemperatureFit
+        The take's kernel temperature.
+    limit : float
+        Relative SE under which a quantity is determined (``inversion.determined_limit``).
+
+    Returns
+    -------
+    DataFrame
+        A copy with ``kernel_temperature_c`` and ``kernel_temperature_se_c`` (degC), and
+        ``<name>_se`` = sqrt(se^2 + (x dlnx/dT se_T)^2) with ``determined_<name>``
+        re-evaluated; the SEs are unchanged when the temperature was not fitted.
+    """
+    out = table.copy()
+    out["kernel_temperature_c"] = fit.temperature_c
+    out["kernel_temperature_se_c"] = fit.se_c
+    if fit.source != "fit" or not math.isfinite(fit.se_c):
+        return out
+    for name in WIDENED:
+        col = f"{name}_se"
+        if (
+            col not in out
+            or name not in out
+            or not math.isfinite(fit.sensitivity.get(name, math.nan))
+        ):
+            continue
+        x = pd.to_numeric(out[name], errors="coerce").to_numpy(dtype=float)
+        se = pd.to_numeric(out[col], errors="coerce").to_numpy(dtype=float)
+        share = np.abs(x) * abs(fit.sensitivity[name]) * fit.se_c
+        widened = np.where(np.isfinite(se), np.hypot(se, share), se)  # inf and NaN stay
+        out[col] = widened
+        det = f"determined_{name}"
+        if det in out:
+            was = out[det].astype(str).str.lower().isin(("true", "1")).to_numpy()
+            with np.errstate(invalid="ignore", divide="ignore"):
+                out[det] = was & np.isfinite(widened) & (widened / np.abs(x) < limit)
+    return out
+
+
+__all__ = ["TemperatureFit", "fit_temperature", "pick_windows", "widen_standard_errors"]

@@ -1,0 +1,100 @@
+"""The kernel temperature fitted to the playing: the search, the SE and its share of the errors."""
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from mpipe.inversion.temperature import (
+    COARSE_C,
+    FINE_C,
+    TemperatureFit,
+    _parabola_vertex,
+    _Profile,
+    _settle,
+    pick_windows,
+    widen_standard_errors,
+)
+
+
+def test_parabola_vertex_and_curvature_are_exact_on_a_parabola():
+    x = (19.0, 19.5, 20.5)
+    y = [3.0 * (t - 19.8) ** 2 + 7.0 for t in x]
+    vertex, a = _parabola_vertex(x, y)
+    assert vertex == pytest.approx(19.8, abs=1e-9) and a == pytest.approx(3.0, rel=1e-9)
+    vertex, a = _parabola_vertex(x, [-v for v in y])  # a maximum is not a minimum
+    assert math.isnan(vertex) and a < 0
+
+
+def test_pick_windows_spreads_over_the_take():
+    assert pick_windows(range(0, 110, 10), 3) == [0, 50, 100]
+    assert pick_windows([5, 7], 6) == [5, 7]
+
+
+def _quadratic_profile(t_true: float, noise: float = 0.0, seed: int = 0):
+    rng = np.random.default_rng(seed)
+
+    def solve(t, warm):
+        r = 1e6 * (t - t_true) ** 2 + 5e5 + noise * rng.standard_normal()
+        return r, list(warm), []
+
+    return _Profile(solve, [None])
+
+
+@pytest.mark.parametrize("t0", [14.0, 18.5, 20.0, 23.0])
+def test_settle_finds_the_minimum_from_either_side(t0):
+    profile = _quadratic_profile(20.3)
+    vertex, curvature, centre = _settle(profile, t0, t0 - 8, t0 + 8, 30)
+    assert vertex == pytest.approx(20.3, abs=1e-6) and curvature == pytest.approx(1e6)
+    assert abs(centre - vertex) <= FINE_C / 2
+    # coarse steps of COARSE_C, then one or two fine triples
+    assert len(profile.tried) <= 3 + int(abs(t0 - 20.3) / COARSE_C) + 6
+
+
+def test_settle_tolerates_a_noisy_profile_and_reports_no_minimum_on_a_ramp():
+    # noise of 1 % of the rise over one fine step moves the vertex by a few hundredths
+    noisy = _quadratic_profile(20.3, noise=0.01 * 1e6 * FINE_C**2, seed=1)
+    vertex, _, _ = _settle(noisy, 19.0, 11.0, 27.0, 30)
+    assert vertex == pytest.approx(20.3, abs=0.05)
+
+    def ramp(t, warm):
+        return 1e5 * t + 1e6, list(warm), []
+
+    # falling towards low T: the search walks to the edge, where fit_temperature refuses it
+    settled = _settle(_Profile(ramp, [None]), 20.0, 12.0, 28.0, 30)
+    assert settled is None or not 12.0 + COARSE_C <= settled[0] <= 28.0 - COARSE_C
+
+
+def _table():
+    return pd.DataFrame(
+        {
+            "k": [8e6, 9e6],
+            "k_se": [0.4e6, 0.45e6],
+            "determined_k": [True, True],
+            "S": [7e-5, 7e-5],
+            "S_se": [1e-6, math.inf],
+            "determined_S": [True, False],
+        }
+    )
+
+
+def test_widened_se_adds_the_temperature_share_in_quadrature():
+    fit = TemperatureFit(20.0, 0.1, "fit", 19.0, {"k": 0.03, "S": 0.2}, 6)
+    out = widen_standard_errors(_table(), fit, limit=0.10)
+    # k: 0.4e6 and 8e6 * 0.03 * 0.1 = 0.024e6 in quadrature
+    assert out["k_se"][0] == pytest.approx(math.hypot(0.4e6, 8e6 * 0.03 * 0.1))
+    assert out["S_se"][0] == pytest.approx(math.hypot(1e-6, 7e-5 * 0.2 * 0.1))
+    assert math.isinf(out["S_se"][1]) and not out["determined_S"][1]
+    assert (out["kernel_temperature_c"] == 20.0).all()
+    assert (out["kernel_temperature_se_c"] == 0.1).all()
+    # a wide enough temperature SE makes k undetermined (relative SE over 10 %)
+    wide = widen_standard_errors(_table(), TemperatureFit(20.0, 3.0, "fit", 19.0, {"k": 0.03}), 0.1)
+    assert not wide["determined_k"].any()
+
+
+def test_nothing_is_widened_when_the_temperature_was_not_fitted():
+    fit = TemperatureFit(19.0, math.nan, "front end", 19.0)
+    out = widen_standard_errors(_table(), fit, limit=0.10)
+    pd.testing.assert_series_equal(out["k_se"], _table()["k_se"])
+    assert math.isnan(out["kernel_temperature_se_c"][0])
