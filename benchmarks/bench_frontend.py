@@ -39,7 +39,8 @@ from mpipe.measurement.calibration import load_calibration  # noqa: E402
 from mpipe.measurement.separation import SeparationConfig, fixed_config, separate  # noqa: E402
 from mpipe.measurement.takes import read_take  # noqa: E402
 from mpipe.measurement.translation import TranslationConfig, translate  # noqa: E402
-from mpipe.reed.model import prepare_bore, simulate  # noqa: E402
+from mpipe.reed.bore_kernel import prepare_bore  # noqa: E402
+from mpipe.reed.model import simulate  # noqa: E402
 from mpipe.reed.parameters import load_reed  # noqa: E402
 from mpipe.reed.recording import virtual_recording, write_virtual_take  # noqa: E402
 

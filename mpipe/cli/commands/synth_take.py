@@ -111,7 +111,8 @@ def synthesize(calibration: Calibration, reed, options: SynthOptions):
     Chatziioannou & van Walstijn 2012, Appendix A (model) and section 4 (measurement).
     """
     from mpipe.acoustics.reflection import reflection_function
-    from mpipe.reed.model import prepare_bore, simulate
+    from mpipe.reed.bore_kernel import prepare_bore
+    from mpipe.reed.model import simulate
 
     if not options.duration_s > 0:
         raise ValueError(f"duration must be positive, got {options.duration_s} s")
