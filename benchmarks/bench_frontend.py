@@ -42,7 +42,8 @@ from mpipe.measurement.translation import TranslationConfig, translate  # noqa: 
 from mpipe.reed.bore_kernel import prepare_bore  # noqa: E402
 from mpipe.reed.model import simulate  # noqa: E402
 from mpipe.reed.parameters import load_reed  # noqa: E402
-from mpipe.reed.recording import virtual_recording, write_virtual_take  # noqa: E402
+from mpipe.reed.recording import virtual_recording  # noqa: E402
+from mpipe.reed.take_files import write_virtual_take  # noqa: E402
 
 ROOT = Path(__file__).parents[1]
 CAL = load_calibration(ROOT / "calibration" / "simplified_clarinet.yaml")

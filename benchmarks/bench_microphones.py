@@ -36,7 +36,7 @@ from mpipe.measurement.calibration import load_calibration  # noqa: E402
 from mpipe.measurement.separation import SeparationConfig, fixed_config, separate  # noqa: E402
 from mpipe.measurement.takes import read_take  # noqa: E402
 from mpipe.measurement.translation import TranslationConfig, translate  # noqa: E402
-from mpipe.reed.recording import calibration_mapping  # noqa: E402
+from mpipe.reed.take_files import calibration_mapping  # noqa: E402
 
 ROOT = Path(__file__).parents[1]
 SHIPPED = ROOT / "calibration" / "simplified_clarinet.yaml"

@@ -27,7 +27,7 @@ from mpipe.measurement.calibration import load_calibration
 from mpipe.measurement.separation import SeparationConfig, fixed_config, separate
 from mpipe.measurement.takes import read_take
 from mpipe.measurement.translation import TranslationConfig, translate
-from mpipe.reed.recording import calibration_mapping
+from mpipe.reed.take_files import calibration_mapping
 
 ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ROOT / "calibration" / "simplified_clarinet.yaml"

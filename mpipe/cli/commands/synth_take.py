@@ -20,8 +20,9 @@ from mpipe.core.config import ConfigError
 from mpipe.core.errors import UserError
 from mpipe.core.io import check_writable
 from mpipe.measurement.calibration import Calibration, load_calibration
-from mpipe.reed.recording import TakeFiles, VirtualTake, take_file_paths, virtual_recording
-from mpipe.reed.recording import write_virtual_take as _write
+from mpipe.reed.recording import VirtualTake, virtual_recording
+from mpipe.reed.take_files import TakeFiles, take_file_paths
+from mpipe.reed.take_files import write_virtual_take as _write
 
 log = logging.getLogger(__name__)
 
