@@ -42,8 +42,8 @@ REASONS = {DIVERGED: "diverged", SILENT: "silent"}
 
 
 # numba's on-disk cache of this function is keyed on this file only: after editing the
-# kernels it calls in mpipe/reed/kernels.py, delete mpipe/inversion/__pycache__/fastpath*.nb* (a
-# stale cache keeps the old kernel compiled in).
+# kernels it calls in mpipe/reed/kernels.py or block_fft.py, delete
+# mpipe/inversion/__pycache__/fastpath*.nb* (a stale cache keeps the old kernel compiled in).
 @njit(cache=True)
 def _evaluate(
     out_r, target_p, target_std, p_lead, u_lead, filt, rho, fs, ph, uh, x, n0, z0,
