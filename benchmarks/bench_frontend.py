@@ -41,9 +41,11 @@ from mpipe.measurement.separation.settings import SeparationConfig, fixed_config
 from mpipe.measurement.separation.stage import separate  # noqa: E402
 from mpipe.measurement.takes import read_take  # noqa: E402
 from mpipe.measurement.translation import TranslationConfig, translate  # noqa: E402
-from mpipe.reed.model import prepare_bore, simulate  # noqa: E402
+from mpipe.reed.bore_kernel import prepare_bore  # noqa: E402
+from mpipe.reed.model import simulate  # noqa: E402
 from mpipe.reed.parameters import load_reed  # noqa: E402
-from mpipe.reed.recording import virtual_recording, write_virtual_take  # noqa: E402
+from mpipe.reed.recording import virtual_recording  # noqa: E402
+from mpipe.reed.take_files import write_virtual_take  # noqa: E402
 
 ROOT = Path(__file__).parents[1]
 CAL = load_calibration(ROOT / "calibration" / "simplified_clarinet.yaml")

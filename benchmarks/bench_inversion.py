@@ -38,7 +38,8 @@ from mpipe.inversion.settings import PARAMETER_NAMES, ExecutorConfig, InversionC
 from mpipe.inversion.step1 import step1
 from mpipe.inversion.tracking import invert_window, start_point
 from mpipe.measurement.calibration import load_calibration
-from mpipe.reed.model import prepare_bore, simulate
+from mpipe.reed.bore_kernel import prepare_bore
+from mpipe.reed.model import simulate
 from mpipe.reed.parameters import ReedParameters
 
 ROOT = Path(__file__).resolve().parents[1]

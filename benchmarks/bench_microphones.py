@@ -38,7 +38,7 @@ from mpipe.measurement.separation.settings import SeparationConfig, fixed_config
 from mpipe.measurement.separation.stage import separate  # noqa: E402
 from mpipe.measurement.takes import read_take  # noqa: E402
 from mpipe.measurement.translation import TranslationConfig, translate  # noqa: E402
-from mpipe.reed.recording import calibration_mapping  # noqa: E402
+from mpipe.reed.take_files import calibration_mapping  # noqa: E402
 
 ROOT = Path(__file__).parents[1]
 SHIPPED = ROOT / "calibration" / "simplified_clarinet.yaml"

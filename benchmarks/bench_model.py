@@ -20,7 +20,8 @@ from headline import record
 
 from mpipe.acoustics.reflection import reflection_function
 from mpipe.measurement.calibration import load_calibration
-from mpipe.reed.model import prepare_bore, simulate
+from mpipe.reed.bore_kernel import prepare_bore
+from mpipe.reed.model import simulate
 from mpipe.reed.parameters import load_reed
 
 ROOT = Path(__file__).resolve().parents[1]

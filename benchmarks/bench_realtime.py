@@ -52,7 +52,8 @@ from mpipe.measurement.separation.stage import separate
 from mpipe.measurement.takes import read_take
 from mpipe.measurement.translation import translate
 from mpipe.pipeline.settings import load_pipeline
-from mpipe.reed.model import prepare_bore, simulate, simulate_pressure
+from mpipe.reed.bore_kernel import prepare_bore
+from mpipe.reed.model import simulate, simulate_pressure
 from mpipe.reed.parameters import load_reed
 
 ROOT = Path(__file__).resolve().parents[1]

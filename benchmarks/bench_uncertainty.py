@@ -161,7 +161,7 @@ def main(argv=None) -> int:
         if not files.exists():
             c_take = make_take(EXAMPLE_CALIBRATION, reed_path, files, EXAMPLE_OPTIONS)
         else:
-            from mpipe.reed.recording import take_file_paths
+            from mpipe.reed.take_files import take_file_paths
 
             c_take = take_file_paths(files, EXAMPLE_OPTIONS.mic_calibration)
         with np.load(c_take.truth) as d:

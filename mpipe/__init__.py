@@ -24,7 +24,7 @@ _API = {
     "ReedParameters": "mpipe.reed.parameters",
     "input_impedance": "mpipe.acoustics.bore",
     "reflection_function": "mpipe.acoustics.reflection",
-    "prepare_bore": "mpipe.reed.model",
+    "prepare_bore": "mpipe.reed.bore_kernel",
     "simulate": "mpipe.reed.model",
     "virtual_recording": "mpipe.reed.recording",
     "read_take": "mpipe.measurement.takes",

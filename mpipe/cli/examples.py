@@ -18,7 +18,7 @@ import yaml
 
 from mpipe import __version__
 from mpipe.cli.commands.synth_take import SynthOptions, make_take
-from mpipe.reed.recording import TakeFiles, take_file_paths
+from mpipe.reed.take_files import TakeFiles, take_file_paths
 
 log = logging.getLogger(__name__)
 

@@ -12,7 +12,7 @@ recomputes for every candidate is the same for every candidate of a window. A
   are affine in the one candidate-dependent number ``c`` (the mean flow the measurement
   lost), so they are computed once per window as ``F0 + c F1`` instead of 50-odd FFTs per
   run (FFT linearity);
-* runs the lean kernel :func:`mpipe.reed.model._run_pressure` (pressure only, no allocation);
+* runs the lean kernel :func:`mpipe.reed.kernels._run_pressure` (pressure only, no allocation);
 * low-passes the pressure only (the flow does not enter F2) with the measurement's
   linear-phase FIR, by overlap-save FFT convolution over exactly the samples the
   reference's edge-padded filter reads for the window (the padding never reaches them);
@@ -30,15 +30,11 @@ import numpy as np
 from numba import njit
 
 from mpipe.inversion.objective import ObjectiveSettings, TargetWindow, _pad_history
-from mpipe.reed.model import (
-    BoreKernel,
-    _fft_tables,
-    _irfft_last_half,
-    _rfft_lean,
-    _run_pressure,
-    reed_coefficients,
-)
+from mpipe.reed.block_fft import _fft_tables, _irfft_last_half, _rfft_lean
+from mpipe.reed.bore_kernel import BoreKernel
+from mpipe.reed.kernels import _run_pressure
 from mpipe.reed.parameters import ReedParameters, check_stability
+from mpipe.reed.scheme import reed_coefficients
 
 #: Status codes of :func:`_evaluate`.
 OK, DIVERGED, SILENT = 0, 1, 2
@@ -46,8 +42,8 @@ REASONS = {DIVERGED: "diverged", SILENT: "silent"}
 
 
 # numba's on-disk cache of this function is keyed on this file only: after editing the
-# kernels it calls in mpipe/reed/model.py, delete mpipe/inversion/__pycache__/fastpath*.nb* (a
-# stale cache keeps the old kernel compiled in).
+# kernels it calls in mpipe/reed/kernels.py or block_fft.py, delete
+# mpipe/inversion/__pycache__/fastpath*.nb* (a stale cache keeps the old kernel compiled in).
 @njit(cache=True)
 def _evaluate(
     out_r, target_p, target_std, p_lead, u_lead, filt, rho, fs, ph, uh, x, n0, z0,

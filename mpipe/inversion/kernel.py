@@ -20,7 +20,7 @@ import numpy as np
 from mpipe.acoustics.air import Air
 from mpipe.acoustics.reflection import reflection_function
 from mpipe.measurement.calibration import Calibration
-from mpipe.reed.model import BoreKernel, prepare_bore
+from mpipe.reed.bore_kernel import BoreKernel, prepare_bore
 
 
 def take_temperature(temperature_c: np.ndarray | float | None, calibration: Calibration) -> float:

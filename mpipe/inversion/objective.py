@@ -49,8 +49,10 @@ from mpipe.inversion.conditioning import (
     steady_state,
     synchronise,
 )
-from mpipe.reed.model import BoreKernel, ModelState, reed_coefficients, simulate
+from mpipe.reed.bore_kernel import BoreKernel
+from mpipe.reed.model import ModelState, simulate
 from mpipe.reed.parameters import ReedParameters, check_stability
+from mpipe.reed.scheme import reed_coefficients
 
 StartMethod = Literal["history", "rest"]
 

@@ -35,7 +35,7 @@ from mpipe.inversion.objective import (  # noqa: E402
 )
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig  # noqa: E402
 from mpipe.inversion.step1 import Step1Result, flow_signals  # noqa: E402
-from mpipe.reed.model import BoreKernel  # noqa: E402
+from mpipe.reed.bore_kernel import BoreKernel  # noqa: E402
 from mpipe.reed.parameters import ReedParameters  # noqa: E402
 
 log = logging.getLogger(__name__)

@@ -50,7 +50,7 @@ from mpipe.inversion.uncertainty import (
     uncertainty_columns,
     window_uncertainty,
 )
-from mpipe.reed.model import BoreKernel
+from mpipe.reed.bore_kernel import BoreKernel
 from mpipe.reed.parameters import ReedParameters
 
 log = logging.getLogger(__name__)

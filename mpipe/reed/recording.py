@@ -19,7 +19,8 @@ reed model produces them, this module computes what the N >= 2 wall microphones 
    frequency (the DC and Nyquist bins, which must stay real, get the modulus only).
 4. **Recorder**: resampling to the output rate (``scipy.signal.resample_poly``), additive
    white noise at a given SNR per channel (seeded), and quantisation to ``bits`` with the
-   peak at ``-headroom_db`` dBFS.
+   peak at ``-headroom_db`` dBFS. Steps 3 and 4 are in :mod:`mpipe.reed.recorder`; writing
+   the take to disk is :mod:`mpipe.reed.take_files`.
 
 A temperature that drifts linearly over the take is rendered by overlapping blocks with
 cross-fades: the take is cut into K triangular (hat-weighted) blocks whose centres are
@@ -38,8 +39,9 @@ Units (recorded signal)
 ``signals`` are in *recorded units*: Pa divided by the microphone's calibration
 ``sensitivity`` (Pa per unit), with the microphone errors applied. A file stores
 ``signals / full_scale``, so the sensitivity of the written file is
-``sensitivity x full_scale`` Pa per digital full-scale unit; :func:`write_virtual_take`
-writes a calibration copy holding exactly these sensitivities.
+``sensitivity x full_scale`` Pa per digital full-scale unit;
+:func:`mpipe.reed.take_files.write_virtual_take` writes a calibration copy holding exactly
+these sensitivities.
 
 References
 ----------
@@ -50,30 +52,30 @@ microphone calibration, after Chung & Blaser 1980, JASA 68(3):907-913), F.1 (tra
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
-from fractions import Fraction
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 import scipy.fft
-import soundfile as sf
-import yaml
-from scipy import signal
 
-from mpipe import __version__
 from mpipe.acoustics.air import Air
-from mpipe.core.io import check_writable, write_atomic, write_npz_atomic, write_text_atomic
 from mpipe.measurement.calibration import Calibration
 from mpipe.measurement.field import (
     _check_mach,
     complex_gain,
     microphone_spectra,
     mouthpiece_to_reference,
+)
+from mpipe.reed.recorder import (
+    SUPPORTED_BITS,
+    _add_noise,
+    _apply_gains,
+    _per_mic,
+    _rate_ratio,
+    _resample,
+    quantise,
 )
 
 log = logging.getLogger(__name__)
@@ -88,10 +90,6 @@ PAD_S = 0.25
 # 0.5 degC keeps the interpolation error below 1e-4 in magnitude up to 7.25 kHz over the
 # mouthpiece-to-microphone path (see _render_drift).
 DRIFT_STEP_C = 0.5
-SUPPORTED_BITS = (16, 24, 32)
-# Anti-aliasing window of resample_poly. scipy's default (Kaiser beta 5) ripples by ~1e-3 in
-# the pass band; beta 10 keeps the gain within 1e-5 up to 12 kHz at 100 -> 48 kHz.
-_RESAMPLE_WINDOW = ("kaiser", 10.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -264,14 +262,7 @@ def virtual_recording(
     ----------
     physics.md E.1, F.1; Chatziioannou & van Walstijn 2012, section 4.
     """
-    p = np.asarray(p, dtype=float)
-    u = np.asarray(u, dtype=float)
-    if p.ndim != 1 or p.shape != u.shape or p.size < 2:
-        raise ValueError(f"p and u must be 1-D of equal length >= 2, got {p.shape} and {u.shape}")
-    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(u))):
-        raise ValueError("p and u must be finite")
-    if not fs > 0:
-        raise ValueError(f"sample rate must be positive, got {fs} Hz")
+    p, u = _checked_signals(p, u, fs)
     _check_mach(mach)
     n_mics = len(calibration.microphones)
     gains = _per_mic(gain_error_db, n_mics, "gain_error_db")
@@ -282,43 +273,16 @@ def virtual_recording(
     up, down = _rate_ratio(fs, fs_out)
     temps = _temperatures(temperature_c, calibration)
     sens = tuple(float(m.sensitivity) for m in calibration.microphones)
-
-    airs = [calibration.air_properties(t) for t in temps]
-    x_max = max([m.position for m in calibration.microphones] + [calibration.reference_plane])
-    c_min = min(a.c for a in airs)
-    pad = max(
-        int(math.ceil(2.0 * calibration.bore.length / c_min * fs)) + _PAD_MARGIN, int(PAD_S * fs)
+    mics, p0, u0, pad, c_min = _render(p, u, fs, calibration, temps, mach, drift_step_c)
+    recorded = _apply_gains(mics / np.asarray(sens), complex_gain(gains, phases), pad)
+    recorded, mics, p_out, u_out, p0, u0 = (
+        _resample(x, up, down) for x in (recorded, mics, p, u, p0, u0)
     )
-
-    if len(temps) == 1 or temps[0] == temps[1]:
-        mics, p0, u0 = _render_span(p, u, fs, 0, p.size, pad, calibration, airs[0], mach)
-    else:
-        mics, p0, u0 = _render_drift(p, u, fs, pad, calibration, temps, mach, drift_step_c)
-
-    g = complex_gain(gains, phases)
-    recorded = _apply_gains(mics / np.asarray(sens), g, pad)
-
-    def resample(x):
-        if up == down:
-            return x
-        return signal.resample_poly(x, up, down, axis=0, window=_RESAMPLE_WINDOW)
-
-    recorded, mics = resample(recorded), resample(mics)
-    p_out, u_out, p0, u0 = (resample(x) for x in (p, u, p0, u0))
-
-    noise_rms = (0.0,) * n_mics
-    if snr_db is not None:
-        rms = np.sqrt(np.mean(recorded**2, axis=0))
-        std = rms * 10.0 ** (-snr_db / 20.0)
-        noise = np.random.default_rng(seed).standard_normal(recorded.shape) * std
-        recorded = recorded + noise
-        noise_rms = tuple(float(s) for s in std)
-
+    recorded, noise_rms = _add_noise(recorded, snr_db, seed)
     peak = float(np.max(np.abs(recorded)))
     full_scale = (peak if peak > 0 else 1.0) * 10.0 ** (headroom_db / 20.0)
     if bits is not None:
         recorded = quantise(recorded, full_scale, bits)
-
     temp_out: float | tuple[float, float] = (
         float(temps[0]) if len(temps) == 1 else (float(temps[0]), float(temps[1]))
     )
@@ -330,6 +294,7 @@ def virtual_recording(
         mach,
         full_scale,
     )
+    x_max = max([m.position for m in calibration.microphones] + [calibration.reference_plane])
     return VirtualTake(
         signals=recorded,
         fs=fs_out,
@@ -353,328 +318,43 @@ def virtual_recording(
     )
 
 
-def quantise(x: np.ndarray, full_scale: float, bits: int) -> np.ndarray:
-    """Round to the grid of a ``bits``-bit two's-complement converter.
-
-    Parameters
-    ----------
-    x : ndarray
-        Signal in any unit.
-    full_scale : float
-        Value (same unit) at digital full scale.
-    bits : int
-        Word length.
-
-    Returns
-    -------
-    ndarray
-        ``x`` rounded to multiples of ``full_scale / 2^(bits - 1)`` and clipped to the
-        converter's range; the error is at most half a step inside the range.
-    """
-    steps = 2.0 ** (bits - 1)
-    q = np.clip(np.round(x / full_scale * steps), -steps, steps - 1)
-    return q / steps * full_scale
+def _checked_signals(p, u, fs: float) -> tuple[np.ndarray, np.ndarray]:
+    """``p`` and ``u`` as float arrays, checked: 1-D, one length >= 2, finite; fs > 0."""
+    p = np.asarray(p, dtype=float)
+    u = np.asarray(u, dtype=float)
+    if p.ndim != 1 or p.shape != u.shape or p.size < 2:
+        raise ValueError(f"p and u must be 1-D of equal length >= 2, got {p.shape} and {u.shape}")
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(u))):
+        raise ValueError("p and u must be finite")
+    if not fs > 0:
+        raise ValueError(f"sample rate must be positive, got {fs} Hz")
+    return p, u
 
 
-def write_mic_calibration(path: str | Path, freqs: np.ndarray, H: np.ndarray) -> Path:
-    """Write a relative microphone calibration table (physics.md E.6) atomically.
-
-    The CSV has the header ``frequency_hz,magnitude,phase_deg`` and one row per frequency;
-    the phase is unwrapped. It is the format that a calibration's ``microphones[].calibration``
-    points to: the corrected spectrum of microphone m is ``P_m = recorded P_m / H_c``.
-
-    Parameters
-    ----------
-    path : str or Path
-        Output file.
-    freqs : array_like
-        Strictly increasing frequencies in Hz, >= 0.
-    H : array_like
-        Complex H_c of the microphone against microphone 1 (dimensionless), one per
-        frequency; a scalar is broadcast.
-
-    Returns
-    -------
-    Path
-        The file written.
-
-    References
-    ----------
-    Chung & Blaser 1980, JASA 68(3):907-913; physics.md E.6.
-    """
-    freqs = np.asarray(freqs, dtype=float)
-    h = np.broadcast_to(np.asarray(H, dtype=complex), freqs.shape)
-    if freqs.ndim != 1 or freqs.size < 2:
-        raise ValueError("need at least two frequencies")
-    if np.any(np.diff(freqs) <= 0) or freqs[0] < 0:
-        raise ValueError("frequencies must be >= 0 Hz and strictly increasing")
-    if not np.all(np.isfinite(h)) or np.any(h == 0):
-        raise ValueError("calibration values must be finite and non-zero")
-    phase = np.rad2deg(np.unwrap(np.angle(h)))
-    lines = ["frequency_hz,magnitude,phase_deg"]
-    lines += [
-        f"{f:.10g},{m:.17g},{ph:.17g}" for f, m, ph in zip(freqs, np.abs(h), phase, strict=True)
-    ]
-    return write_text_atomic(path, "\n".join(lines) + "\n")
-
-
-@dataclass(frozen=True)
-class TakeFiles:
-    """Paths of the files that make up a written virtual take.
-
-    Attributes
-    ----------
-    audio : Path
-        The multichannel audio file.
-    sidecar : Path
-        YAML with everything needed to reproduce the take.
-    truth : Path
-        ``.npz`` with the true signals and parameters.
-    calibration : Path
-        Calibration copy whose sensitivities (Pa per digital full-scale unit) and relative
-        microphone calibration tables fit the audio file.
-    mic_calibrations : tuple of Path
-        Relative calibration CSVs written (may be empty).
-    """
-
-    audio: Path
-    sidecar: Path
-    truth: Path
-    calibration: Path
-    mic_calibrations: tuple[Path, ...] = ()
-
-
-def take_file_paths(
-    audio: str | Path, with_mic_calibration: bool = True, n_mics: int = 3
-) -> TakeFiles:
-    """The file names that :func:`write_virtual_take` uses beside ``audio``.
-
-    ``n_mics`` is the calibration's microphone count (tables for microphones 2 to N).
-    """
-    audio = Path(audio)
-    stem = audio.with_suffix("")
-    mics = (
-        tuple(Path(f"{stem}.mic{m}_calibration.csv") for m in range(2, n_mics + 1))
-        if with_mic_calibration
-        else ()
-    )
-    return TakeFiles(
-        audio=audio,
-        sidecar=Path(f"{stem}.yaml"),
-        truth=Path(f"{stem}.truth.npz"),
-        calibration=Path(f"{stem}.calibration.yaml"),
-        mic_calibrations=mics,
-    )
-
-
-def write_virtual_take(
-    audio_path: str | Path,
-    take: VirtualTake,
+def _render(
+    p: np.ndarray,
+    u: np.ndarray,
+    fs: float,
     calibration: Calibration,
-    *,
-    recipe: Mapping[str, Any] | None = None,
-    truth_extra: Mapping[str, Any] | None = None,
-    mic_calibration: bool = True,
-    subtype: str | None = None,
-    force: bool = False,
-) -> TakeFiles:
-    """Write a virtual take: audio, sidecar, truth and a matching calibration copy.
+    temps: tuple[float, ...],
+    mach: float,
+    step_c: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, float]:
+    """True microphone pressures (Pa) and p0, u0 at one temperature or over a drift.
 
-    Files (for ``audio_path = TAKE.flac``): ``TAKE.flac`` (channels as the calibration maps
-    them; unused channels are silent), ``TAKE.yaml`` (recipe, package version, scale and
-    errors), ``TAKE.truth.npz`` (true p, u at the mouthpiece and p0, u0 at the reference
-    plane, true microphone pressures, temperature, Mach number, microphone errors, plus
-    ``truth_extra``), ``TAKE.calibration.yaml`` (the calibration with the sensitivities of
-    the file, in Pa per full-scale unit) and, when microphones 2 to N have errors relative
-    to microphone 1 and ``mic_calibration`` is set, ``TAKE.mic2_calibration.csv`` to
-    ``TAKE.micN_calibration.csv`` holding the exact H_c = G_m / G_1 (physics.md E.6).
-    Microphone 1's gain error goes into its sensitivity (as a pistonphone would find it); its
-    phase error is not calibratable and stays in the data. The original calibration's own
-    tables are not carried over: the virtual microphones have exactly the errors requested.
-
-    Parameters
-    ----------
-    audio_path : str or Path
-        Audio file; the format follows the extension (FLAC, WAV, AIFF).
-    take : VirtualTake
-        The recording.
-    calibration : Calibration
-        The calibration the take was made with.
-    recipe : mapping, optional
-        Options that reproduce the take (stored in the sidecar under ``recipe``).
-    truth_extra : mapping, optional
-        More arrays or numbers for the truth file (for example the reed parameters).
-    mic_calibration : bool
-        Write the relative calibration tables of microphones 2 to N.
-    subtype : str, optional
-        soundfile subtype; default ``PCM_24`` (``PCM_16`` / ``PCM_32`` for those ``bits``).
-    force : bool
-        Overwrite existing files.
-
-    Returns
-    -------
-    TakeFiles
-
-    Raises
-    ------
-    OutputExistsError
-        When a file exists and ``force`` is not set.
+    Also returns the zero padding of the long FFT (samples) and the lowest speed of sound
+    over the take (m/s).
     """
-    g = take.mic_gains
-    relative = g / g[0]
-    need_tables = mic_calibration and bool(np.any(np.abs(relative[1:] - 1.0) > 1e-12))
-    files = take_file_paths(audio_path, need_tables, len(calibration.microphones))
-    check_writable(
-        [files.audio, files.sidecar, files.truth, files.calibration, *files.mic_calibrations], force
+    airs = [calibration.air_properties(t) for t in temps]
+    c_min = min(a.c for a in airs)
+    pad = max(
+        int(math.ceil(2.0 * calibration.bore.length / c_min * fs)) + _PAD_MARGIN, int(PAD_S * fs)
     )
-    subtype = subtype or {16: "PCM_16", 32: "PCM_32"}.get(take.bits, "PCM_24")
-
-    n_channels = max(m.channel for m in calibration.microphones)
-    data = np.zeros((take.n_samples, n_channels))
-    for i, mic in enumerate(calibration.microphones):
-        data[:, mic.channel - 1] = take.file_samples[:, i]
-    fmt = {".flac": "FLAC", ".wav": "WAV", ".aiff": "AIFF", ".aif": "AIFF"}.get(
-        files.audio.suffix.lower()
-    )
-    if fmt is None:
-        raise ValueError(f"{files.audio}: unsupported extension; use .flac, .wav or .aiff")
-    write_atomic(
-        files.audio,
-        lambda tmp: sf.write(tmp, data, int(round(take.fs)), subtype=subtype, format=fmt),
-    )
-
-    grid = np.linspace(0.0, take.fs / 2.0, 65)
-    for path, h in zip(files.mic_calibrations, relative[1:], strict=False):
-        write_mic_calibration(path, grid, np.full(grid.shape, h))
-
-    # Sensitivity of the file: Pa per full-scale unit, with mic 1's gain error removed.
-    sens = np.asarray(take.file_sensitivity) / abs(g[0])
-    mics = []
-    for i, mic in enumerate(calibration.microphones):
-        table = None
-        if files.mic_calibrations and i > 0:
-            table = files.mic_calibrations[i - 1].name
-        mics.append(dataclasses.replace(mic, sensitivity=float(sens[i]), calibration=table))
-    cal_copy = dataclasses.replace(calibration, microphones=tuple(mics))
-    header = (
-        f"# Calibration for {files.audio.name}, written by mpipe {__version__} (synth-take).\n"
-        f"# Copy of {calibration.source or calibration.name} with the sensitivities of the "
-        "audio file (Pa per full-scale unit).\n"
-    )
-    write_text_atomic(
-        files.calibration, header + yaml.safe_dump(calibration_mapping(cal_copy), sort_keys=False)
-    )
-
-    truth = {
-        "fs": take.fs,
-        "fs_model": take.fs_model,
-        "p": take.p,
-        "u": take.u,
-        "p0": take.p0,
-        "u0": take.u0,
-        "mic_pressures": take.pressures,
-        "temperature_c": np.atleast_1d(np.asarray(take.temperature_c, dtype=float)),
-        "mach": take.mach,
-        "gain_error_db": np.asarray(take.gain_error_db),
-        "phase_error_deg": np.asarray(take.phase_error_deg),
-        "seed": take.seed,
-        "reference_plane": calibration.reference_plane,
-        "mic_positions": np.asarray([m.position for m in calibration.microphones]),
-    }
-    truth.update(truth_extra or {})
-    write_npz_atomic(files.truth, compressed=True, **truth)
-
-    sidecar = {
-        "mpipe_version": __version__,
-        "audio": files.audio.name,
-        "truth": files.truth.name,
-        "calibration": files.calibration.name,
-        "mic_calibrations": [p.name for p in files.mic_calibrations],
-        "source_calibration": calibration.source,
-        "recipe": _plain(dict(recipe or {})),
-        "noise_seed": take.seed,
-        "fs_hz": take.fs,
-        "fs_model_hz": take.fs_model,
-        "n_samples": take.n_samples,
-        "duration_s": take.duration,
-        "subtype": subtype,
-        "full_scale": take.full_scale,
-        "channels": [m.channel for m in calibration.microphones],
-        "file_sensitivity_pa": [float(s) for s in sens],
-        "temperature_c": _plain(take.temperature_c),
-        "mach": take.mach,
-        "gain_error_db": list(take.gain_error_db),
-        "phase_error_deg": list(take.phase_error_deg),
-        "snr_db": take.snr_db,
-        "bits": take.bits,
-        "noise_rms_recorded_units": list(take.noise_rms),
-        "edge_s": take.edge_s,
-        "notes": (
-            "Pa = file sample x file_sensitivity_pa (TAKE.calibration.yaml holds the same "
-            "values); microphone 1's phase error is not corrected by the calibration copy."
-        ),
-    }
-    write_text_atomic(files.sidecar, yaml.safe_dump(sidecar, sort_keys=False))
-    log.info("wrote %s (+ sidecar, truth, calibration)", files.audio)
-    return files
-
-
-def calibration_mapping(calibration: Calibration) -> dict[str, Any]:
-    """A YAML-ready mapping of a calibration, accepted by ``load_calibration``.
-
-    ``source`` is left out (the loader sets it) and so are keys whose value is None.
-    """
-
-    def convert(obj):
-        if dataclasses.is_dataclass(obj):
-            out = {}
-            for f in dataclasses.fields(obj):
-                value = getattr(obj, f.name)
-                if value is None or f.name == "source":
-                    continue
-                out[f.name] = convert(value)
-            return out
-        if isinstance(obj, list | tuple):
-            return [convert(v) for v in obj]
-        return obj
-
-    return convert(calibration)
-
-
-def _plain(obj):
-    """Convert tuples and numpy scalars to plain YAML-safe types."""
-    if isinstance(obj, Mapping):
-        return {str(k): _plain(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
-
-
-def _per_mic(values: Sequence[float] | None, n_mics: int, name: str) -> tuple[float, ...]:
-    if values is None:
-        return (0.0,) * n_mics
-    vals = tuple(float(v) for v in values)
-    if len(vals) != n_mics or not all(math.isfinite(v) for v in vals):
-        raise ValueError(
-            f"{name} needs {n_mics} finite numbers, one per microphone of the calibration, "
-            f"got {values!r}"
-        )
-    return vals
-
-
-def _rate_ratio(fs: float, fs_out: float) -> tuple[int, int]:
-    if not fs_out > 0:
-        raise ValueError(f"output sample rate must be positive, got {fs_out} Hz")
-    ratio = Fraction(fs_out / fs).limit_denominator(10_000)
-    if abs(float(ratio) * fs - fs_out) > 1e-9 * fs_out:
-        raise ValueError(
-            f"output rate {fs_out:g} Hz is not a simple rational multiple of {fs:g} Hz"
-        )
-    return ratio.numerator, ratio.denominator
+    if len(temps) == 1 or temps[0] == temps[1]:
+        mics, p0, u0 = _render_span(p, u, fs, 0, p.size, pad, calibration, airs[0], mach)
+    else:
+        mics, p0, u0 = _render_drift(p, u, fs, pad, calibration, temps, mach, step_c)
+    return mics, p0, u0, pad, c_min
 
 
 def _temperatures(temperature_c, calibration: Calibration) -> tuple[float, ...]:
@@ -766,20 +446,3 @@ def _render_drift(
         p0[lo:hi] += w * p_k
         u0[lo:hi] += w * u_k
     return mics, p0, u0
-
-
-def _apply_gains(x: np.ndarray, g: np.ndarray, pad: int) -> np.ndarray:
-    """Apply complex gains ``g`` (one per column) in the frequency domain.
-
-    DC and Nyquist bins must stay real for a real signal; they get ``|g|``.
-    """
-    if np.allclose(g, 1.0, rtol=0, atol=0):
-        return x.copy()
-    n = x.shape[0]
-    n_fft = scipy.fft.next_fast_len(n + 2 * pad, real=True)
-    spec = scipy.fft.rfft(x, n_fft, axis=0)
-    gains = np.broadcast_to(g, spec.shape).copy()
-    gains[0] = np.abs(g)
-    if n_fft % 2 == 0:
-        gains[-1] = np.abs(g)
-    return scipy.fft.irfft(spec * gains, n_fft, axis=0)[:n]

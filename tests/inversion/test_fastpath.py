@@ -12,7 +12,8 @@ from mpipe.inversion.fastpath import WindowEvaluator
 from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWindow
 from mpipe.inversion.settings import PARAMETER_NAMES
 from mpipe.measurement.calibration import load_calibration
-from mpipe.reed.model import ModelState, prepare_bore, simulate, simulate_pressure
+from mpipe.reed.bore_kernel import prepare_bore
+from mpipe.reed.model import ModelState, simulate, simulate_pressure
 from mpipe.reed.parameters import ReedParameters
 
 FS = 100_000.0

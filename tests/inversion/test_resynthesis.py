@@ -14,7 +14,8 @@ from mpipe.inversion.settings import InversionConfig
 from mpipe.inversion.step1 import step1
 from mpipe.inversion.tracking import COLUMNS
 from mpipe.measurement.calibration import load_calibration
-from mpipe.reed.model import prepare_bore, simulate
+from mpipe.reed.bore_kernel import prepare_bore
+from mpipe.reed.model import simulate
 from mpipe.reed.parameters import ReedParameters
 
 FS = 100_000.0

@@ -150,7 +150,7 @@ def test_bad_branch_and_short_input():
 def bore():
     from mpipe.acoustics.reflection import reflection_function
     from mpipe.measurement.calibration import load_calibration
-    from mpipe.reed.model import prepare_bore
+    from mpipe.reed.bore_kernel import prepare_bore
 
     cal = load_calibration(ROOT / "calibration" / "simplified_clarinet.yaml")
     air = cal.air_properties()

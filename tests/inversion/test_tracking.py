@@ -18,7 +18,8 @@ from mpipe.inversion.tracking import (
     write_table,
 )
 from mpipe.measurement.calibration import load_calibration
-from mpipe.reed.model import prepare_bore, simulate
+from mpipe.reed.bore_kernel import prepare_bore
+from mpipe.reed.model import simulate
 from mpipe.reed.parameters import ReedParameters
 
 FS = 100_000.0

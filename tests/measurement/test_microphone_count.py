@@ -28,7 +28,7 @@ from mpipe.measurement.separation.settings import SeparationConfig, fixed_config
 from mpipe.measurement.separation.stage import separate
 from mpipe.measurement.takes import read_take
 from mpipe.measurement.translation import TranslationConfig, translate
-from mpipe.reed.recording import calibration_mapping
+from mpipe.reed.take_files import calibration_mapping
 
 ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ROOT / "calibration" / "simplified_clarinet.yaml"

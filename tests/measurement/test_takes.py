@@ -11,12 +11,8 @@ import yaml
 from mpipe.core.errors import OutputExistsError, UserError
 from mpipe.measurement.calibration import load_calibration
 from mpipe.measurement.takes import read_mic_calibration, read_take
-from mpipe.reed.recording import (
-    calibration_mapping,
-    virtual_recording,
-    write_mic_calibration,
-    write_virtual_take,
-)
+from mpipe.reed.recording import virtual_recording
+from mpipe.reed.take_files import calibration_mapping, write_mic_calibration, write_virtual_take
 
 FS = 100_000.0
 ROOT = Path(__file__).resolve().parents[2]

@@ -12,10 +12,7 @@ import pytest
 
 from mpipe.acoustics.bore import transfer_matrix
 from mpipe.acoustics.ducts import propagation
-from mpipe.reed.recording import (
-    quantise,
-    virtual_recording,
-)
+from mpipe.reed.recording import virtual_recording
 
 FS = 100_000.0
 
@@ -170,12 +167,6 @@ def test_quantisation_error_below_half_an_lsb(shipped_calibration, bits):
     # peak at -6 dBFS
     peak_db = 20 * np.log10(np.max(np.abs(q.file_samples)))
     assert peak_db == pytest.approx(-6.0, abs=0.01)
-
-
-def test_quantise_clips_to_the_converter_range():
-    x = np.array([-2.0, -1.0, 0.3, 0.99999, 2.0])
-    q = quantise(x, 1.0, 8)
-    np.testing.assert_allclose(q, [-1.0, -1.0, 38 / 128, 127 / 128, 127 / 128])
 
 
 def test_resampling_keeps_amplitude_and_truth_aligned(shipped_calibration):

@@ -22,8 +22,10 @@ from mpipe.acoustics.reflection import reflection_function
 from mpipe.core.errors import UserError
 from mpipe.core.io import check_writable, write_atomic
 from mpipe.measurement.calibration import load_calibration
-from mpipe.reed.model import METHODS, Simulation, playing_frequency, prepare_bore, simulate
+from mpipe.reed.bore_kernel import prepare_bore
+from mpipe.reed.model import METHODS, Simulation, simulate
 from mpipe.reed.parameters import check_stability, load_reed
+from mpipe.reed.playing import playing_frequency
 
 log = logging.getLogger(__name__)
 

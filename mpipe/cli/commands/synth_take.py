@@ -20,8 +20,9 @@ from mpipe.core.config import ConfigError
 from mpipe.core.errors import UserError
 from mpipe.core.io import check_writable
 from mpipe.measurement.calibration import Calibration, load_calibration
-from mpipe.reed.recording import TakeFiles, VirtualTake, take_file_paths, virtual_recording
-from mpipe.reed.recording import write_virtual_take as _write
+from mpipe.reed.recording import VirtualTake, virtual_recording
+from mpipe.reed.take_files import TakeFiles, take_file_paths
+from mpipe.reed.take_files import write_virtual_take as _write
 
 log = logging.getLogger(__name__)
 
@@ -111,7 +112,8 @@ def synthesize(calibration: Calibration, reed, options: SynthOptions):
     Chatziioannou & van Walstijn 2012, Appendix A (model) and section 4 (measurement).
     """
     from mpipe.acoustics.reflection import reflection_function
-    from mpipe.reed.model import prepare_bore, simulate
+    from mpipe.reed.bore_kernel import prepare_bore
+    from mpipe.reed.model import simulate
 
     if not options.duration_s > 0:
         raise ValueError(f"duration must be positive, got {options.duration_s} s")
