@@ -1,8 +1,11 @@
 """Old module paths of mpipe 0.1 (before the subpackages), kept importable with a warning.
 
 ``import mpipe.separation`` still works and gives :mod:`mpipe.measurement.separation`, with a
-``DeprecationWarning`` naming the new path. The names of the public API (``mpipe.separate``,
-``mpipe.track``, ...) did not move; see ``mpipe/__init__.py``.
+``DeprecationWarning`` naming the new path. A module whose names went to several new
+modules (``mpipe.model``: the driver, the compiled kernels, the bore kernel, ...) is given
+as a stand-in module that finds each name in the first of them that has it. The names of
+the public API (``mpipe.separate``, ``mpipe.track``, ...) did not move; see
+``mpipe/__init__.py``.
 """
 
 from __future__ import annotations
@@ -11,6 +14,7 @@ import importlib
 import importlib.abc
 import importlib.util
 import sys
+import types
 import warnings
 
 #: Old module -> new module.
@@ -47,6 +51,19 @@ MOVED = {
     "mpipe.commands": "mpipe.cli.commands",
 }
 
+#: Old module -> further modules that received some of its names.
+ALSO = {
+    "mpipe.model": (
+        "mpipe.reed.bore_kernel",
+        "mpipe.reed.kernels",
+        "mpipe.reed.playing",
+        "mpipe.reed.scheme",
+        "mpipe.reed.block_fft",
+    ),
+    "mpipe.recording": ("mpipe.reed.recorder", "mpipe.reed.take_files", "mpipe.measurement.field"),
+    "mpipe.results": ("mpipe.core.units",),
+}
+
 
 class _Alias(importlib.abc.MetaPathFinder, importlib.abc.Loader):
     """Finds an old module name and loads it as the module it moved to."""
@@ -61,10 +78,29 @@ class _Alias(importlib.abc.MetaPathFinder, importlib.abc.Loader):
         warnings.warn(
             f"{spec.name} moved to {new}; import it from there", DeprecationWarning, stacklevel=2
         )
-        return importlib.import_module(new)
+        if spec.name not in ALSO:
+            return importlib.import_module(new)
+        return _StandIn(spec.name, (new, *ALSO[spec.name]))
 
     def exec_module(self, module):
         pass  # the module it moved to is already executed
+
+
+class _StandIn(types.ModuleType):
+    """An old module whose names now live in several modules."""
+
+    def __init__(self, name: str, targets: tuple[str, ...]):
+        super().__init__(name, f"moved to {', '.join(targets)}")
+        self._targets = targets
+
+    def __getattr__(self, attr: str):
+        if attr.startswith("__"):
+            raise AttributeError(attr)
+        for target in self._targets:
+            module = importlib.import_module(target)
+            if hasattr(module, attr):
+                return getattr(module, attr)
+        raise AttributeError(f"module {self.__name__!r} has no attribute {attr!r}")
 
 
 def install() -> None:

@@ -62,7 +62,7 @@ def test_the_check_catches_an_upward_import(tmp_path):
     assert list(_imports(bad)) == [(2, "mpipe.pipeline.report")]
 
 
-@pytest.mark.parametrize("old", ["mpipe.separation", "mpipe.model", "mpipe.commands.run"])
+@pytest.mark.parametrize("old", ["mpipe.separation", "mpipe.takes", "mpipe.commands.run"])
 def test_old_module_paths_warn_and_give_the_moved_module(old):
     new = MOVED.get(old) or old.replace("mpipe.commands.", "mpipe.cli.commands.")
     with warnings.catch_warnings(record=True) as caught:
@@ -75,3 +75,29 @@ def test_old_module_paths_warn_and_give_the_moved_module(old):
 def test_public_api_names_resolve():
     for name in mpipe.__all__:
         assert getattr(mpipe, name) is not None
+
+
+def test_names_of_a_module_split_in_several_are_found_under_its_old_path():
+    from mpipe.reed.bore_kernel import prepare_bore
+    from mpipe.reed.take_files import write_virtual_take
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        old_model = importlib.import_module("mpipe.model")
+        old_recording = importlib.import_module("mpipe.recording")
+        from mpipe.pipeline import InversionConfig, load_pipeline  # the 0.1 module's names
+    assert old_model.prepare_bore is prepare_bore
+    assert old_model.simulate is importlib.import_module("mpipe.reed.model").simulate
+    assert old_recording.write_virtual_take is write_virtual_take
+    assert InversionConfig.__module__ == "mpipe.inversion.settings" and callable(load_pipeline)
+    with pytest.raises(AttributeError, match="no attribute 'nonsense'"):
+        old_model.nonsense  # noqa: B018
+
+
+def test_submodules_of_pipeline_import_in_a_fresh_interpreter():
+    import subprocess
+    import sys
+
+    code = "from mpipe.pipeline import settings, report; print(settings.load_pipeline.__name__)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0 and out.stdout.strip() == "load_pipeline", out.stderr[-500:]

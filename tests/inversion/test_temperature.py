@@ -82,7 +82,7 @@ def _table():
 def test_widened_se_adds_the_temperature_share_in_quadrature():
     fit = TemperatureFit(20.0, 0.1, "fit", 19.0, {"k": 0.03, "S": 0.2}, 6)
     out = widen_standard_errors(_table(), fit, limit=0.10)
-    # k: 0.4e6 and 8e6 * 0.03 * 0.1 = 0.024e6 in quadrature
+    # k: its fit SE and x * dlnx/dT * se_T, in quadrature
     assert out["k_se"][0] == pytest.approx(math.hypot(0.4e6, 8e6 * 0.03 * 0.1))
     assert out["S_se"][0] == pytest.approx(math.hypot(1e-6, 7e-5 * 0.2 * 0.1))
     assert math.isinf(out["S_se"][1]) and not out["determined_S"][1]
