@@ -44,7 +44,8 @@ from mpipe.measurement.translation import (
     translate,
     write_mouthpiece_wav,
 )
-from mpipe.measurement.validation import ValidationConfig, plot_impedance, validate
+from mpipe.measurement.validation import ValidationConfig, validate
+from mpipe.measurement.validation_result import plot_impedance
 from mpipe.pipeline.settings import load_pipeline
 
 log = logging.getLogger(__name__)
