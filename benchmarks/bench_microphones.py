@@ -30,7 +30,7 @@ import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 from scipy import signal  # noqa: E402
 
-from mpipe.cli.commands.synth_take import SynthOptions, make_take  # noqa: E402
+from mpipe.cli.virtual_takes import SynthOptions, make_take  # noqa: E402
 from mpipe.core.filters import apply_lowpass, design_lowpass  # noqa: E402
 from mpipe.measurement.calibration import load_calibration  # noqa: E402
 from mpipe.measurement.separation import SeparationConfig, fixed_config, separate  # noqa: E402

@@ -1,7 +1,6 @@
 """Shared by the take tests: a played note's signals and calibration files with changes."""
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 import yaml
@@ -10,15 +9,6 @@ from mpipe.measurement.calibration import load_calibration
 from mpipe.reed.recording import calibration_mapping, virtual_recording
 
 FS = 100_000.0
-
-
-ROOT = Path(__file__).resolve().parents[2]
-
-
-SHIPPED = ROOT / "calibration" / "simplified_clarinet.yaml"
-
-
-REED = ROOT / "calibration" / "reed_table1.yaml"
 
 
 def signals(n=40_000, fs=FS):

@@ -35,7 +35,7 @@ def test_sensitivity_command_prints_the_value(capsys):
 
 
 def test_implausible_take_level_is_warned(tmp_path, caplog):
-    from mpipe.cli.commands.synth_take import SynthOptions, make_take
+    from mpipe.cli.virtual_takes import SynthOptions, make_take
     from mpipe.measurement.calibration import load_calibration
 
     assert level_warning(np.array([1500.0, -2000.0])) is None
