@@ -237,7 +237,7 @@ def basins(seeds: list[int], snrs: list[float]) -> None:
     """Measured-path basin counts over noise seeds, before and after the global cold start."""
     import tempfile
 
-    from mpipe.cli.commands.synth_take import SynthOptions, make_take
+    from mpipe.cli.virtual_takes import SynthOptions, make_take
     from mpipe.pipeline.settings import load_pipeline
 
     pipe = load_pipeline(ROOT / "pipelines" / "simplified_clarinet.yaml")

@@ -31,7 +31,7 @@ import yaml  # noqa: E402
 from headline import record  # noqa: E402
 from scipy import signal  # noqa: E402
 
-from mpipe.cli.commands.synth_take import SynthOptions, make_take  # noqa: E402
+from mpipe.cli.virtual_takes import SynthOptions, make_take  # noqa: E402
 from mpipe.core.filters import apply_lowpass, design_lowpass  # noqa: E402
 from mpipe.measurement.calibration import load_calibration  # noqa: E402
 from mpipe.measurement.separation.settings import SeparationConfig, fixed_config  # noqa: E402

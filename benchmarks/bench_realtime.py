@@ -41,7 +41,7 @@ from headline import record
 from threadpoolctl import threadpool_limits
 
 from mpipe.acoustics.reflection import reflection_function
-from mpipe.cli.commands.synth_take import SynthOptions, make_take
+from mpipe.cli.virtual_takes import SynthOptions, make_take
 from mpipe.inversion.conditioning import plan_inversion
 from mpipe.inversion.kernel import bore_kernel, take_temperature
 from mpipe.inversion.resynthesis import reed_from_row

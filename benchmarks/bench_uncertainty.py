@@ -155,7 +155,7 @@ def main(argv=None) -> int:
         reed_path = out / "closure" / "reed_closure.yaml"
         reed_path.parent.mkdir(parents=True, exist_ok=True)
         reed_path.write_text(yaml.safe_dump(reed))
-        from mpipe.cli.commands.synth_take import make_take
+        from mpipe.cli.virtual_takes import make_take
 
         files = out / "closure" / "take" / "closure_take.flac"
         if not files.exists():

@@ -8,6 +8,8 @@ commands
     One module per subcommand, each exposing ``add_parser(subparsers)``.
 demo
     ``make demo``: the whole pipeline on the shipped example, beside the truth.
+virtual_takes
+    Virtual takes with known truth (what ``mpipe synth-take`` writes).
 
 Examples
 --------

@@ -17,7 +17,7 @@ from pathlib import Path
 import yaml
 
 from mpipe import __version__
-from mpipe.cli.commands.synth_take import SynthOptions, make_take
+from mpipe.cli.virtual_takes import SynthOptions, make_take
 from mpipe.reed.take_files import TakeFiles, take_file_paths
 
 log = logging.getLogger(__name__)

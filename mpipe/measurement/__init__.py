@@ -7,9 +7,17 @@ Modules
 calibration
     The calibration file: instrument geometry, air, microphones, reference plane.
 microphones
-    Microphone calibration from recordings (sensitivity, switching, known load).
+    Microphone sensitivity from the measuring chain, and the plausible level of a take.
+relative_calibration
+    Relative calibration of the microphones from recordings (switching, known load).
+calibration_recordings
+    The recordings of a microphone calibration, read in Pa or simulated.
+calibration_tables
+    Relative calibration tables (CSV): read, and divided out of a take.
 takes
-    Reading and checking a take (two or more wall microphones, in Pa).
+    Reading a take (two or more wall microphones, in Pa) at the pipeline's rate.
+take_checks
+    Sanity checks of a take: clipping, DC, level, channel order, rate and length.
 separation
     Adaptive wave separation in the main bore (paper section 2.2, physics.md E).
 translation
@@ -18,6 +26,12 @@ impedance
     Theoretical input impedance of a configured instrument: table, CSV, plot.
 validation
     The measured P/U against the theoretical input impedance (physics.md F.3).
+validation_metrics
+    Its metrics: resonances matched, errors at the note's harmonics.
+validation_result
+    Its result: verdict, curves, summary and plot.
 measured_impedance
-    Impedance-head files read and compared with theory.
+    Impedance-head files: declared layouts, read and written.
+impedance_comparison
+    Impedance curves compared: peaks of |Z|, resonances in cents, levels in dB.
 """

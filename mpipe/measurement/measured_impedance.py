@@ -1,4 +1,4 @@
-"""Measured input impedance: reading impedance-head files, and comparing with theory.
+"""Measured input impedance: the layouts of impedance-head files, read and written.
 
 Impedance files are a known trap: the same three columns may hold Z/Zc or Z in Pa s/m^3,
 the imaginary part under e^{+jwt} or e^{-jwt} (or stored as -Im Z), and "magnitude, phase"
@@ -29,6 +29,9 @@ Re Z >= 0, and under e^{+jwt} the phase of an input impedance falls through each
 |Z| (mass-like below, spring-like above). A file whose phase rises through its peaks holds
 -Im Z or uses e^{-jwt}; reading it as declared would be silently wrong, so it is an error.
 
+The comparison of a measured curve with theory is in
+:mod:`mpipe.measurement.impedance_comparison`.
+
 References
 ----------
 physics.md D.1 and F.3 (normalised impedance, resonance metrics).
@@ -38,19 +41,17 @@ from __future__ import annotations
 
 import io
 import logging
-import math
 import re
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
-import pandas as pd
-import scipy.signal
 import yaml
 
 from mpipe.core.config import ConfigError, Where, build, positive, spec
 from mpipe.core.errors import UserError
+from mpipe.measurement.impedance_comparison import resonances
 
 log = logging.getLogger(__name__)
 
@@ -222,6 +223,24 @@ def read_measured_impedance(
     except (OSError, UnicodeDecodeError) as exc:
         raise UserError(f"{path}: cannot read impedance file: {exc}") from None
     lines = text.splitlines()
+    layout = _layout_in_file(path, lines)
+    names, data = _data_rows(path, lines)
+    n_cols = data.shape[1]
+    if names is not None and "columns" not in layout:
+        _layout_from_names(path, names, layout)
+    if names is None and "columns" not in layout and n_cols == 3:
+        layout["columns"] = ["frequency_hz", "re", "im"]  # OpenWInD's write_impedance
+    layout.update(declared or {})
+    lay = _complete_layout(path, layout, data)
+    freqs, z = _impedance(path, data, lay)
+    out = MeasuredImpedance(freqs, z, lay, str(path))
+    if check_physics:
+        _check_physics(out)
+    return out
+
+
+def _layout_in_file(path: Path, lines: list[str]) -> dict:
+    """Layout keys of the sidecar ``FILE.yaml``, then of the YAML header (which wins)."""
     header_lines = []
     for line in lines:
         if line.strip().startswith(("#", "%")):
@@ -242,6 +261,11 @@ def read_measured_impedance(
             parsed = None
         if isinstance(parsed, dict) and set(parsed) & {"columns", "normalisation"}:
             layout.update(parsed)
+    return layout
+
+
+def _data_rows(path: Path, lines: list[str]) -> tuple[list[str] | None, np.ndarray]:
+    """The header row's names (None without one) and the numbers ``(rows, columns)``."""
     body = [ln for ln in lines if ln.strip() and not ln.strip().startswith(("#", "%"))]
     if not body:
         raise UserError(f"{path}: no data rows")
@@ -255,27 +279,32 @@ def read_measured_impedance(
                           delimiter=",", ndmin=2)  # fmt: skip
     except ValueError as exc:
         raise UserError(f"{path}: expected numbers in every data row ({exc})") from None
+    return names, data
+
+
+def _layout_from_names(path: Path, names: list[str], layout: dict) -> None:
+    """Column kinds (and the normalisation, when a name tells it) from the header row."""
+    kinds = [_column_kind(n) for n in names]
+    unknown = [n for n, k in zip(names, kinds, strict=True) if k is None]
+    if unknown:
+        hint = (
+            " (is it degrees or radians? name it phase_deg or phase_rad)"
+            if any("phase" in u.lower() or "arg" in u.lower() for u in unknown)
+            else ""
+        )
+        raise UserError(
+            f"{path}: cannot tell what the column {unknown[0]!r} holds{hint}; declare "
+            "columns: in a header or --columns"
+        )
+    layout["columns"] = kinds
+    guess = _normalisation_from_names(names)
+    if guess and "normalisation" not in layout:
+        layout["normalisation"] = guess
+
+
+def _complete_layout(path: Path, layout: dict, data: np.ndarray) -> ImpedanceFileLayout:
+    """The layout checked: columns and normalisation declared, one kind per column."""
     n_cols = data.shape[1]
-    if names is not None and "columns" not in layout:
-        kinds = [_column_kind(n) for n in names]
-        unknown = [n for n, k in zip(names, kinds, strict=True) if k is None]
-        if unknown:
-            hint = (
-                " (is it degrees or radians? name it phase_deg or phase_rad)"
-                if any("phase" in u.lower() or "arg" in u.lower() for u in unknown)
-                else ""
-            )
-            raise UserError(
-                f"{path}: cannot tell what the column {unknown[0]!r} holds{hint}; declare "
-                "columns: in a header or --columns"
-            )
-        layout["columns"] = kinds
-        guess = _normalisation_from_names(names)
-        if guess and "normalisation" not in layout:
-            layout["normalisation"] = guess
-    if names is None and "columns" not in layout and n_cols == 3:
-        layout["columns"] = ["frequency_hz", "re", "im"]  # OpenWInD's write_impedance
-    layout.update(declared or {})
     if "columns" not in layout:
         raise UserError(
             f"{path}: {n_cols} columns without a header; declare columns: (e.g. "
@@ -287,7 +316,7 @@ def read_measured_impedance(
         raise UserError(
             f"{path}: the normalisation is not declared (Z/Zc or Pa s/m^3; the second column's "
             f"median magnitude {median:.3g} looks like {looks}); declare normalisation: in a "
-            f"header, a sidecar {sidecar.name} or --normalisation"
+            f"header, a sidecar {path.with_suffix('.yaml').name} or --normalisation"
         )
     layout["columns"] = list(layout["columns"])
     try:
@@ -298,6 +327,13 @@ def read_measured_impedance(
         raise UserError(
             f"{path}: columns declares {len(lay.columns)} columns, the data rows have {n_cols}"
         )
+    return lay
+
+
+def _impedance(
+    path: Path, data: np.ndarray, lay: ImpedanceFileLayout
+) -> tuple[np.ndarray, np.ndarray]:
+    """Frequencies (Hz, increasing) and complex Z under e^{+jwt}, from the declared columns."""
     col = {k: data[:, i] for i, k in enumerate(lay.columns) if k != "ignore"}
     freqs = col["frequency_hz"]
     if "re" in col:
@@ -315,10 +351,7 @@ def read_measured_impedance(
     freqs, z = freqs[order], z[order]
     if np.any(np.diff(freqs) <= 0) or freqs[0] < 0:
         raise UserError(f"{path}: frequencies must be >= 0 Hz and distinct")
-    out = MeasuredImpedance(freqs, z, lay, str(path))
-    if check_physics:
-        _check_physics(out)
-    return out
+    return freqs, z
 
 
 def _check_physics(m: MeasuredImpedance) -> None:
@@ -358,136 +391,6 @@ def phase_direction(freqs: np.ndarray, z: np.ndarray, count: int = 5) -> float:
     return float(np.mean(changes)) if changes else 0.0
 
 
-def resonances(freqs: np.ndarray, z: np.ndarray, z0: float, count: int = 8,
-               min_prominence_db: float = 3.0) -> pd.DataFrame:  # fmt: skip
-    """Peaks of |Z| on any (possibly non-uniform) grid: frequency, level and bandwidth.
-
-    Parameters
-    ----------
-    freqs : ndarray
-        Frequencies, Hz.
-    z : ndarray
-        Impedance (any unit).
-    z0 : float
-        Normalising impedance, same unit as ``z``; levels are ``20 log10 |z / z0|``.
-    count : int
-        At most this many, lowest first.
-    min_prominence_db : float
-        Peaks must stand out of the curve by this much (measurement noise makes small ones).
-
-    Returns
-    -------
-    pandas.DataFrame
-        ``frequency_hz``, ``level_db`` (parabolic interpolation of the dB curve through the
-        grid maximum and its neighbours) and ``bandwidth_hz`` (-3 dB, NaN when not found).
-    """
-    level = 20 * np.log10(np.maximum(np.abs(z) / z0, 1e-300))
-    idx, _ = scipy.signal.find_peaks(level, prominence=min_prominence_db)
-    rows = []
-    for i in idx[:count]:
-        if i == 0 or i == level.size - 1:
-            continue
-        x, y = freqs[i - 1 : i + 2], level[i - 1 : i + 2]
-        coef = np.polyfit(x - x[1], y, 2)
-        if coef[0] < 0:
-            # vertex of the parabola through the grid maximum and its neighbours
-            dx = float(np.clip(-coef[1] / (2 * coef[0]), x[0] - x[1], x[2] - x[1]))
-            f, lvl = float(x[1] + dx), float(np.polyval(coef, dx))
-        else:
-            f, lvl = float(x[1]), float(y[1])
-        above = level >= lvl - 3.0
-        lo = i
-        while lo > 0 and above[lo - 1]:
-            lo -= 1
-        hi = i
-        while hi < level.size - 1 and above[hi + 1]:
-            hi += 1
-        bw = float(freqs[hi] - freqs[lo]) if 0 < lo and hi < level.size - 1 else math.nan
-        rows.append({"frequency_hz": f, "level_db": lvl, "bandwidth_hz": bw})
-    return pd.DataFrame(rows, columns=["frequency_hz", "level_db", "bandwidth_hz"])
-
-
-@dataclass(frozen=True)
-class ImpedanceComparison:
-    """A measured impedance against a reference (theory, or a take's own impedance).
-
-    Attributes
-    ----------
-    table : pandas.DataFrame
-        Per reference resonance: ``frequency_reference_hz``, ``frequency_measured_hz``,
-        ``error_cents``, ``level_reference_db``, ``level_measured_db``, ``error_db``
-        (NaN when no measured peak lies within ``match_cents``).
-    band_error_db : float
-        Mean |20 log10 |z_measured / z_reference|| over the compared band, dB.
-    band_hz : (float, float)
-        The compared band, Hz.
-    """
-
-    table: pd.DataFrame
-    band_error_db: float
-    band_hz: tuple[float, float]
-
-
-def compare(
-    freqs: np.ndarray,
-    z_measured: np.ndarray,
-    ref_freqs: np.ndarray,
-    z_reference: np.ndarray,
-    band: tuple[float, float] = (50.0, 2000.0),
-    count: int = 6,
-    match_cents: float = 50.0,
-) -> ImpedanceComparison:
-    """Resonance frequencies (cents), peak levels (dB) and band error of two Z/Zc curves.
-
-    Parameters
-    ----------
-    freqs, z_measured : ndarray
-        Measured Z/Zc (dimensionless) on its grid, Hz.
-    ref_freqs, z_reference : ndarray
-        Reference Z/Zc on its grid, Hz.
-    band : (float, float)
-        Band of the resonances and of the band error, Hz.
-    count : int
-        Reference resonances compared.
-    match_cents : float
-        Largest distance of a matched measured peak, cents.
-
-    Returns
-    -------
-    ImpedanceComparison
-    """
-    sel_m = (freqs >= band[0]) & (freqs <= band[1])
-    sel_r = (ref_freqs >= band[0]) & (ref_freqs <= band[1])
-    ref = resonances(ref_freqs[sel_r], z_reference[sel_r], 1.0, count)
-    mea = resonances(freqs[sel_m], z_measured[sel_m], 1.0, 4 * count)
-    rows = []
-    for _, r in ref.iterrows():
-        row = {
-            "frequency_reference_hz": r.frequency_hz,
-            "frequency_measured_hz": math.nan,
-            "error_cents": math.nan,
-            "level_reference_db": r.level_db,
-            "level_measured_db": math.nan,
-            "error_db": math.nan,
-        }
-        if len(mea):
-            cents = 1200 * np.log2(mea["frequency_hz"].to_numpy() / r.frequency_hz)
-            j = int(np.argmin(np.abs(cents)))
-            if abs(cents[j]) <= match_cents:
-                row.update(
-                    frequency_measured_hz=float(mea["frequency_hz"].iloc[j]),
-                    error_cents=float(cents[j]),
-                    level_measured_db=float(mea["level_db"].iloc[j]),
-                    error_db=float(mea["level_db"].iloc[j] - r.level_db),
-                )
-        rows.append(row)
-    zr = np.interp(freqs[sel_m], ref_freqs, z_reference.real) + 1j * np.interp(
-        freqs[sel_m], ref_freqs, z_reference.imag
-    )
-    err = np.abs(20 * np.log10(np.abs(z_measured[sel_m]) / np.maximum(np.abs(zr), 1e-300)))
-    return ImpedanceComparison(pd.DataFrame(rows), float(np.mean(err)), band)
-
-
 def write_impedance_file(
     path: str | Path, freqs: np.ndarray, z: np.ndarray, layout: ImpedanceFileLayout
 ) -> Path:
@@ -513,40 +416,10 @@ def write_impedance_file(
     return write_text_atomic(path, "\n".join(lines) + "\n")
 
 
-def plot_comparison(path: str | Path, curves: list[tuple[str, np.ndarray, np.ndarray]],
-                    band: tuple[float, float]) -> None:  # fmt: skip
-    """Plot |Z/Zc| (dB) and phase (deg) of several curves: ``(label, freqs_hz, z/zc)``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (ax1, ax2) = plt.subplots(2, 1, sharex=True, figsize=(9, 6),
-                                   gridspec_kw={"height_ratios": [3, 2]})  # fmt: skip
-    for (label, f, z), style in zip(curves, ("k-", "r--", "b:", "g-."), strict=False):
-        sel = (f >= band[0]) & (f <= band[1])
-        ax1.plot(f[sel], 20 * np.log10(np.abs(z[sel])), style, lw=1, label=label)
-        ax2.plot(f[sel], np.rad2deg(np.angle(z[sel])), style, lw=1)
-    ax1.set_ylabel("|Z/Zc| [dB]")
-    ax2.set_ylabel("phase [deg]")
-    ax2.set_xlabel("frequency [Hz]")
-    ax1.legend()
-    for ax in (ax1, ax2):
-        ax.grid(alpha=0.3)
-    ax1.set_title("Input impedance: measured against theory")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110, format="png")
-    plt.close(fig)
-
-
 __all__ = [
-    "ImpedanceComparison",
     "ImpedanceFileLayout",
     "MeasuredImpedance",
-    "compare",
     "phase_direction",
-    "plot_comparison",
     "read_measured_impedance",
-    "resonances",
     "write_impedance_file",
 ]

@@ -7,14 +7,9 @@ signal, where a file's digital full scale is 1.0) and, optionally, a table of th
 calibration H_c of the microphone against microphone 1 (physics.md E.6). The corrected
 spectrum is ``P_m = sensitivity x recorded P_m / H_c``.
 
-Relative calibration tables
----------------------------
-CSV with the header ``frequency_hz,magnitude,phase_deg`` (lines starting with ``#`` are
-comments), strictly increasing frequencies in Hz, magnitude > 0 (dimensionless), phase in
-degrees. Magnitude and unwrapped phase are interpolated linearly in frequency; outside the
-table the end values are held, but the table must cover the analysis band. The correction
-is applied to the whole take with one zero-padded FFT; the DC and Nyquist bins, which must
-stay real, are divided by the magnitude only.
+The format of the relative calibration tables and their application are in
+:mod:`mpipe.measurement.calibration_tables`; the sanity checks of a take and their limits in
+:mod:`mpipe.measurement.take_checks`.
 
 References
 ----------
@@ -24,51 +19,31 @@ Chatziioannou & van Walstijn 2012, section 4.
 
 from __future__ import annotations
 
-import csv
 import logging
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import scipy.fft
 import soundfile as sf
 
 from mpipe.core.errors import UserError
 from mpipe.measurement.calibration import Calibration
+from mpipe.measurement.calibration_tables import divide_response, read_mic_calibration
+from mpipe.measurement.take_checks import (
+    BAND_HZ,
+    BAND_LOW_HZ,
+    FS_FACTOR,
+    MAX_CLIP_FRACTION,
+    MIN_DURATION_S,
+    check_channel,
+    check_finite,
+    check_rate_and_duration,
+    check_take,
+    clip_fraction,
+)
 
 log = logging.getLogger(__name__)
-
-#: Upper band edge of the analysis, Hz (the paper's 7.25 kHz low-pass, physics.md E.4, F.2).
-BAND_HZ = 7250.0
-#: Lowest frequency a relative calibration table must reach, Hz (bins below ~20 Hz are
-#: unreliable anyway, physics.md E.4).
-BAND_LOW_HZ = 20.0
-#: The sample rate must be at least this multiple of the band edge.
-FS_FACTOR = 2.2
-#: Largest tolerated fraction of samples at full scale, per channel.
-MAX_CLIP_FRACTION = 1e-4
-#: A channel's mean (DC offset) is refused above this fraction of its standard deviation
-#: (and above ``DC_MIN_FULL_SCALE`` of full scale): microphones in a bore record acoustic
-#: pressure, whose mean is a few Pa at most, and the separation keeps the pressure's DC.
-DC_MAX_RATIO = 0.05
-DC_MIN_FULL_SCALE = 1e-3
-#: Flat tops: runs of at least this many equal samples at a channel's own maximum or
-#: minimum (clipping below full scale, e.g. in a preamplifier), refused above
-#: ``MAX_CLIP_FRACTION`` of the samples.
-FLAT_RUN = 5
-#: Plausible RMS pressure in a played wind instrument, Pa (60 to 180 dB SPL).
-LEVEL_RANGE_PA = (0.02, 2.0e4)
-#: Largest plausible RMS ratio between two microphones a few cm apart in one bore.
-MAX_LEVEL_RATIO = 10.0
-#: Shortest take, s: one 100 ms adaptive-estimation block (physics.md E.5) plus the 10 ms
-#: discarded at each end after translation (physics.md F.1), with margin.
-MIN_DURATION_S = 0.2
-# Zero padding of the calibration FFT at each end, s.
-_PAD_S = 0.05
-
-_CSV_COLUMNS = ("frequency_hz", "magnitude", "phase_deg")
 
 
 @dataclass(frozen=True, eq=False)
@@ -158,7 +133,7 @@ def read_take(
         it (:func:`resample`, after the checks and the calibration), so that every command
         works at one rate whatever the interface recorded. None keeps the file's rate.
     check : bool
-        Run the input sanity checks (:func:`check_take`).
+        Run the input sanity checks (:func:`mpipe.measurement.take_checks.check_take`).
 
     Returns
     -------
@@ -179,106 +154,16 @@ def read_take(
         files = [Path(paths)]
     else:
         files = [Path(p) for p in paths]
+    data, fs, name, names, subtypes = _read_files(files, calibration)
+    check_rate_and_duration(name, fs, data.shape[0], band_hz, fs_factor, min_duration_s)
+    raw, clip = _to_pascal(data, fs, calibration, names, subtypes, max_clip_fraction)
+    _apply_relative_calibration(raw, fs, calibration, (band_low_hz, band_hz))
     mics = calibration.microphones
-    n_mics = len(mics)
-    if len(files) not in (1, n_mics):
-        raise UserError(
-            f"a take is one multichannel file or {n_mics} mono files (one per microphone of "
-            f"{calibration.source or 'the calibration'}), got {len(files)} files"
-        )
     channels = tuple(m.channel for m in mics)
-
-    if len(files) == 1:
-        data, fs, subtype = _read_audio(files[0])
-        name = str(files[0])
-        if data.shape[1] < max(channels):
-            raise UserError(
-                f"{name}: has {data.shape[1]} channel{'s' if data.shape[1] != 1 else ''}, "
-                f"calibration maps microphones to channels {_list(channels)}"
-            )
-        if data.shape[1] > max(channels):
-            log.info("%s: channels beyond %d are not used", name, max(channels))
-        fs_file = fs
-        names = {c: name for c in channels}
-        subtypes = {c: subtype for c in channels}
-    else:
-        if sorted(channels) != list(range(1, n_mics + 1)):
-            raise UserError(
-                f"{n_mics} mono files are read as channels 1 to {n_mics}, but the calibration maps "
-                f"microphones to channels {_list(channels)}"
-            )
-        columns, rates, names, subtypes = [], [], {}, {}
-        for c, f in enumerate(files, start=1):
-            d, fs_c, subtype = _read_audio(f)
-            if d.shape[1] != 1:
-                raise UserError(
-                    f"{f}: has {d.shape[1]} channels; expected a mono file when {n_mics} files "
-                    "are given"
-                )
-            columns.append(d[:, 0])
-            rates.append(fs_c)
-            names[c], subtypes[c] = str(f), subtype
-        for c in range(2, n_mics + 1):
-            if rates[c - 1] != rates[0]:
-                raise UserError(
-                    f"{files[c - 1]}: sample rate {rates[c - 1]:g} Hz differs from "
-                    f"{files[0]} ({rates[0]:g} Hz)"
-                )
-            if columns[c - 1].size != columns[0].size:
-                raise UserError(
-                    f"{files[c - 1]}: {columns[c - 1].size} samples differ from "
-                    f"{files[0]} ({columns[0].size} samples)"
-                )
-        data, fs_file = np.column_stack(columns), rates[0]
-        name = " + ".join(str(f) for f in files)
-
-    fs = fs_file
-    if fs < fs_factor * band_hz:
-        raise UserError(
-            f"{name}: sample rate {fs:g} Hz is too low for the {band_hz:g} Hz band "
-            f"(need at least {fs_factor:g} x {band_hz:g} = {fs_factor * band_hz:g} Hz)"
-        )
-    duration = data.shape[0] / fs
-    if duration < min_duration_s:
-        raise UserError(
-            f"{name}: take is {duration:.3g} s long, shorter than one analysis block "
-            f"(minimum {min_duration_s:g} s)"
-        )
-
-    raw = np.empty((data.shape[0], n_mics))
-    clip = []
-    for i, (mic, c) in enumerate(zip(mics, channels, strict=True)):
-        x = data[:, c - 1]
-        where = f"{names[c]}: channel {c} ({mic.name})"
-        bad = np.flatnonzero(~np.isfinite(x))
-        if bad.size:
-            raise UserError(
-                f"{where}: {bad.size} non-finite samples (first at sample {bad[0]}, "
-                f"t = {bad[0] / fs:.6g} s)"
-            )
-        frac = float(np.mean(np.abs(x) >= _full_scale_threshold(subtypes[c])))
-        if frac > max_clip_fraction:
-            raise UserError(
-                f"{where}: {100 * frac:.3g} % of samples at full scale (limit "
-                f"{100 * max_clip_fraction:.3g} %); the take is clipped"
-            )
-        if frac > 0:
-            log.warning("%s: %.3g %% of samples at full scale", where, 100 * frac)
-        clip.append(frac)
-        raw[:, i] = x * mic.sensitivity
-
-    for i, mic in enumerate(mics):
-        table = calibration.calibration_path(mic)
-        if table is None:
-            continue
-        freqs, h = read_mic_calibration(table, band=(band_low_hz, band_hz))
-        raw[:, i] = _divide_response(raw[:, i], fs, freqs, h)
-        log.debug("%s: applied relative calibration %s", mic.name, table)
-
     if check:
         # after every file-format and calibration-table error: these are about the signal
         for mic, c in zip(mics, channels, strict=True):
-            _check_channel(
+            check_channel(
                 data[:, c - 1], f"{names[c]}: channel {c} ({mic.name})", max_clip_fraction
             )
         check_take(raw, fs, calibration, name)
@@ -301,6 +186,121 @@ def read_take(
         clip_fraction=tuple(clip),  # type: ignore[arg-type]
         fs_file=float(fs),
     )
+
+
+def _read_files(
+    files: list[Path], calibration: Calibration
+) -> tuple[np.ndarray, float, str, dict[int, str], dict[int, str]]:
+    """Samples ``(n, channels)`` of one multichannel file or N mono files, full scale 1.0.
+
+    Returns the samples, the rate in Hz, the take's name, and the file name and soundfile
+    subtype of each mapped channel.
+    """
+    n_mics = len(calibration.microphones)
+    if len(files) not in (1, n_mics):
+        raise UserError(
+            f"a take is one multichannel file or {n_mics} mono files (one per microphone of "
+            f"{calibration.source or 'the calibration'}), got {len(files)} files"
+        )
+    channels = tuple(m.channel for m in calibration.microphones)
+    if len(files) == 1:
+        return _read_multichannel(files[0], channels)
+    return _read_mono_files(files, channels)
+
+
+def _read_multichannel(
+    path: Path, channels: tuple[int, ...]
+) -> tuple[np.ndarray, float, str, dict[int, str], dict[int, str]]:
+    """One file holding (at least) every mapped channel."""
+    data, fs, subtype = _read_audio(path)
+    name = str(path)
+    if data.shape[1] < max(channels):
+        raise UserError(
+            f"{name}: has {data.shape[1]} channel{'s' if data.shape[1] != 1 else ''}, "
+            f"calibration maps microphones to channels {_list(channels)}"
+        )
+    if data.shape[1] > max(channels):
+        log.info("%s: channels beyond %d are not used", name, max(channels))
+    names = {c: name for c in channels}
+    subtypes = {c: subtype for c in channels}
+    return data, fs, name, names, subtypes
+
+
+def _read_mono_files(
+    files: list[Path], channels: tuple[int, ...]
+) -> tuple[np.ndarray, float, str, dict[int, str], dict[int, str]]:
+    """N mono files of one rate and length, read as channels 1 to N."""
+    n_mics = len(files)
+    if sorted(channels) != list(range(1, n_mics + 1)):
+        raise UserError(
+            f"{n_mics} mono files are read as channels 1 to {n_mics}, but the calibration maps "
+            f"microphones to channels {_list(channels)}"
+        )
+    columns, rates, names, subtypes = [], [], {}, {}
+    for c, f in enumerate(files, start=1):
+        d, fs_c, subtype = _read_audio(f)
+        if d.shape[1] != 1:
+            raise UserError(
+                f"{f}: has {d.shape[1]} channels; expected a mono file when {n_mics} files "
+                "are given"
+            )
+        columns.append(d[:, 0])
+        rates.append(fs_c)
+        names[c], subtypes[c] = str(f), subtype
+    for c in range(2, n_mics + 1):
+        if rates[c - 1] != rates[0]:
+            raise UserError(
+                f"{files[c - 1]}: sample rate {rates[c - 1]:g} Hz differs from "
+                f"{files[0]} ({rates[0]:g} Hz)"
+            )
+        if columns[c - 1].size != columns[0].size:
+            raise UserError(
+                f"{files[c - 1]}: {columns[c - 1].size} samples differ from "
+                f"{files[0]} ({columns[0].size} samples)"
+            )
+    name = " + ".join(str(f) for f in files)
+    return np.column_stack(columns), rates[0], name, names, subtypes
+
+
+def _to_pascal(
+    data: np.ndarray,
+    fs: float,
+    calibration: Calibration,
+    names: dict[int, str],
+    subtypes: dict[int, str],
+    max_clip_fraction: float,
+) -> tuple[np.ndarray, list[float]]:
+    """Each microphone's channel checked (finite, not clipped) and scaled by its sensitivity.
+
+    Returns the pressures ``(n, N)`` in Pa and each microphone's fraction at full scale.
+    """
+    mics = calibration.microphones
+    raw = np.empty((data.shape[0], len(mics)))
+    clip = []
+    for i, mic in enumerate(mics):
+        c = mic.channel
+        x = data[:, c - 1]
+        where = f"{names[c]}: channel {c} ({mic.name})"
+        check_finite(x, where, fs)
+        frac = clip_fraction(x, subtypes[c], where, max_clip_fraction)
+        if frac > 0:
+            log.warning("%s: %.3g %% of samples at full scale", where, 100 * frac)
+        clip.append(frac)
+        raw[:, i] = x * mic.sensitivity
+    return raw, clip
+
+
+def _apply_relative_calibration(
+    raw: np.ndarray, fs: float, calibration: Calibration, band: tuple[float, float]
+) -> None:
+    """Divide each microphone's pressure (in place) by its relative calibration table."""
+    for i, mic in enumerate(calibration.microphones):
+        table = calibration.calibration_path(mic)
+        if table is None:
+            continue
+        freqs, h = read_mic_calibration(table, band=band)
+        raw[:, i] = divide_response(raw[:, i], fs, freqs, h)
+        log.debug("%s: applied relative calibration %s", mic.name, table)
 
 
 # Anti-aliasing window of resample_poly: scipy's default (Kaiser beta 5) ripples by ~1e-3 in
@@ -348,170 +348,6 @@ def resample(x: np.ndarray, fs_from: float, fs_to: float) -> np.ndarray:
     )
 
 
-def _check_channel(x: np.ndarray, where: str, max_fraction: float) -> None:
-    """DC offset and flat tops of one channel (recorded units, full scale 1)."""
-    mean = float(np.mean(x))
-    std = float(np.std(x))
-    if abs(mean) > DC_MIN_FULL_SCALE and abs(mean) > DC_MAX_RATIO * std:
-        raise UserError(
-            f"{where}: DC offset of {mean:+.3g} of full scale ({abs(mean) / max(std, 1e-300):.2g}"
-            " x its RMS about the mean); expected an AC-coupled pressure signal near 0 "
-            "(remove the offset or high-pass the take)"
-        )
-    hi, lo = float(np.max(x)), float(np.min(x))
-    if hi == lo:
-        raise UserError(f"{where}: constant signal ({hi:g}); expected a recorded pressure")
-    flat = 0
-    for value in (hi, lo):
-        at = np.concatenate([[False], x == value, [False]])
-        edges = np.flatnonzero(np.diff(at.astype(np.int8)))
-        runs = edges[1::2] - edges[::2]
-        flat += int(np.sum(runs[runs >= FLAT_RUN]))
-    if flat > max_fraction * x.size:
-        raise UserError(
-            f"{where}: {100 * flat / x.size:.3g} % of samples in flat tops at {hi:+.3g} / "
-            f"{lo:+.3g} of full scale; the take is clipped below full scale (preamplifier "
-            "or converter input)"
-        )
-
-
-def check_take(pressures: np.ndarray, fs: float, calibration: Calibration, name: str) -> None:
-    """Input sanity of a calibrated take, each failure one line naming what is wrong.
-
-    Checks (cheap, before any long work): every channel's RMS pressure lies in
-    ``LEVEL_RANGE_PA`` and no two differ by more than ``MAX_LEVEL_RATIO`` (a sensitivity
-    off by orders of magnitude); and the channels are in the calibration's order
-    (:func:`mpipe.measurement.separation.check_channel_order`: the middle microphone lies between
-    the others in a smooth low-frequency field, and acoustic power flows towards the
-    bell).
-
-    Raises
-    ------
-    UserError
-        On the first failed check.
-    """
-    from mpipe.measurement.separation.checks import check_channel_order
-
-    mics = calibration.microphones
-    rms = np.sqrt(np.mean((pressures - np.mean(pressures, axis=0)) ** 2, axis=0))
-    lo, hi = LEVEL_RANGE_PA
-    for i, mic in enumerate(mics):
-        if not lo <= rms[i] <= hi:
-            spl = 20 * np.log10(max(rms[i], 1e-300) / 2e-5)
-            raise UserError(
-                f"{name}: channel {mic.channel} ({mic.name}): RMS pressure {rms[i]:.3g} Pa "
-                f"({spl:.0f} dB SPL) is implausible in a played instrument (expected "
-                f"{lo:g}-{hi:g} Pa); check microphones[{i}].sensitivity "
-                f"({mic.sensitivity:g} Pa per full-scale unit)"
-            )
-    j, k = int(np.argmax(rms)), int(np.argmin(rms))
-    if rms[j] > MAX_LEVEL_RATIO * rms[k]:
-        raise UserError(
-            f"{name}: channel {mics[j].channel} ({mics[j].name}) is "
-            f"{20 * np.log10(rms[j] / rms[k]):.0f} dB louder than channel {mics[k].channel} "
-            f"({mics[k].name}), a few cm apart in one bore; check the sensitivities "
-            f"microphones[{j}] and [{k}]"
-        )
-    problem = check_channel_order(pressures, fs, calibration)
-    if problem:
-        raise UserError(f"{name}: {problem}")
-
-
-def read_mic_calibration(
-    path: str | Path, band: tuple[float, float] | None = (BAND_LOW_HZ, BAND_HZ)
-) -> tuple[np.ndarray, np.ndarray]:
-    """Read a relative microphone calibration table (physics.md E.6).
-
-    Parameters
-    ----------
-    path : str or Path
-        CSV with the header ``frequency_hz,magnitude,phase_deg``.
-    band : (float, float), optional
-        Frequencies in Hz the table must cover; None skips the check.
-
-    Returns
-    -------
-    freqs : ndarray
-        Frequencies, Hz, strictly increasing.
-    H : ndarray
-        Complex H_c (dimensionless), with the phase unwrapped along frequency.
-
-    Raises
-    ------
-    UserError
-        Naming the file and line for a missing file, a wrong header, a non-numeric or
-        non-finite value, non-increasing frequencies, a magnitude <= 0, or a table that does
-        not cover ``band``.
-    """
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise UserError(f"{path}: cannot read microphone calibration: {exc.strerror}") from None
-    rows = []
-    header = None
-    for lineno, row in enumerate(csv.reader(text.splitlines()), start=1):
-        if not row or not "".join(row).strip() or row[0].lstrip().startswith("#"):
-            continue
-        if header is None:
-            header = tuple(c.strip().lower() for c in row)
-            if header != _CSV_COLUMNS:
-                raise UserError(
-                    f"{path}: line {lineno}: expected the header {','.join(_CSV_COLUMNS)}, "
-                    f"got {','.join(row)}"
-                )
-            continue
-        if len(row) != 3:
-            raise UserError(f"{path}: line {lineno}: expected 3 values, got {len(row)}")
-        try:
-            values = [float(v) for v in row]
-        except ValueError:
-            raise UserError(
-                f"{path}: line {lineno}: expected numbers, got {','.join(row)}"
-            ) from None
-        if not all(math.isfinite(v) for v in values):
-            raise UserError(f"{path}: line {lineno}: non-finite value")
-        if values[1] <= 0:
-            raise UserError(f"{path}: line {lineno}: magnitude must be > 0, got {values[1]:g}")
-        rows.append(values)
-    if header is None:
-        raise UserError(f"{path}: empty; expected the header {','.join(_CSV_COLUMNS)}")
-    if len(rows) < 2:
-        raise UserError(f"{path}: expected at least two rows of data, got {len(rows)}")
-    table = np.asarray(rows)
-    freqs = table[:, 0]
-    if np.any(np.diff(freqs) <= 0):
-        i = int(np.flatnonzero(np.diff(freqs) <= 0)[0])
-        raise UserError(
-            f"{path}: frequencies must increase strictly ({freqs[i + 1]:g} Hz follows "
-            f"{freqs[i]:g} Hz)"
-        )
-    if band is not None and (freqs[0] > band[0] or freqs[-1] < band[1]):
-        raise UserError(
-            f"{path}: covers {freqs[0]:g}-{freqs[-1]:g} Hz, which does not include the band "
-            f"{band[0]:g}-{band[1]:g} Hz"
-        )
-    phase = np.unwrap(np.deg2rad(table[:, 2]))
-    return freqs, table[:, 1] * np.exp(1j * phase)
-
-
-def _divide_response(x: np.ndarray, fs: float, freqs: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """Divide the spectrum of ``x`` by the interpolated H (magnitude, unwrapped phase)."""
-    n = x.size
-    pad = int(_PAD_S * fs)
-    n_fft = scipy.fft.next_fast_len(n + 2 * pad, real=True)
-    spec = scipy.fft.rfft(x, n_fft)
-    f = np.arange(spec.size) * fs / n_fft
-    mag = np.interp(f, freqs, np.abs(h))
-    phase = np.interp(f, freqs, np.unwrap(np.angle(h)))
-    resp = mag * np.exp(1j * phase)
-    # DC and Nyquist of a real signal are real: divide them by the magnitude only
-    resp[0] = mag[0]
-    if n_fft % 2 == 0:
-        resp[-1] = mag[-1]
-    return scipy.fft.irfft(spec / resp, n_fft)[:n]
-
-
 def _read_audio(path: Path) -> tuple[np.ndarray, float, str]:
     """Samples (n, channels) scaled to full scale 1.0, the rate in Hz and the subtype."""
     if not path.exists():
@@ -525,18 +361,6 @@ def _read_audio(path: Path) -> tuple[np.ndarray, float, str]:
         # soundfile raises LibsndfileError (a RuntimeError) for unknown or damaged files
         raise UserError(f"{path}: cannot read audio: {exc}") from None
     return data, float(fs), info.subtype
-
-
-def _full_scale_threshold(subtype: str) -> float:
-    """Smallest |sample| counted as digital full scale for a soundfile subtype.
-
-    For an N-bit integer format the largest positive code reads as 1 - 2^(1-N) and the
-    most negative as -1; half a step below the former counts. Float formats use 1.0.
-    """
-    bits = {"PCM_S8": 8, "PCM_U8": 8, "PCM_16": 16, "PCM_24": 24, "PCM_32": 32}.get(subtype)
-    if bits is None:
-        return 1.0
-    return 1.0 - 1.5 * 2.0 ** (1 - bits)
 
 
 def _list(channels: Sequence[int]) -> str:

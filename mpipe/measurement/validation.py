@@ -26,16 +26,17 @@ Chatziioannou & van Walstijn 2012, section 4 and Fig. 10; physics.md D.1 and F.3
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 from scipy import ndimage, signal
 
-from mpipe.acoustics.bore import find_resonances, input_impedance
+from mpipe.acoustics.bore import input_impedance
 from mpipe.core.config import between, positive, spec
 from mpipe.measurement.calibration import Calibration
+from mpipe.measurement.validation_metrics import harmonic_errors, resonance_errors
+from mpipe.measurement.validation_result import ValidationResult, db
 
 log = logging.getLogger(__name__)
 
@@ -111,122 +112,6 @@ class ValidationConfig:
         between(1, 100),
         default=3,
     )
-
-
-@dataclass(frozen=True)
-class ValidationResult:
-    """Measured and theoretical impedance, metrics and verdict.
-
-    Attributes
-    ----------
-    freqs : ndarray
-        Frequencies in Hz (the Welch grid, DC excluded).
-    z_measured, z_theory : ndarray
-        Normalised impedances ``Z / Z0`` (complex, dimensionless).
-    coherence : ndarray
-        Squared coherence of U and P.
-    z0 : float
-        Real characteristic impedance of the entry, Pa s/m^3.
-    temperature_c : float
-        Air temperature of the theory, degC.
-    resonances : pandas.DataFrame
-        Per resonance: ``frequency_theory_hz``, ``frequency_measured_hz`` (zero crossings
-        of the phase at the peaks of |z|), ``error_cents``,
-        ``level_theory_db``, ``level_measured_db``, ``error_db``, ``coherence``.
-    harmonics : pandas.DataFrame
-        Per harmonic of the note: ``harmonic``, ``frequency_hz``, ``error_db``,
-        ``error_deg``, ``coherence``.
-    f0_hz : float
-        Playing frequency (NaN for a non-tonal signal).
-    band_error_db, band_error_deg : float
-        Mean |magnitude error| (dB) and |phase error| (degrees) over coherent bins.
-    coherent_fraction : float
-        Fraction of the bins in the band with coherence >= ``min_coherence``.
-    failures : tuple of str
-        Why the verdict is fail (empty when it passes).
-    checks : int
-        Number of quantities compared (measured resonances and coherent harmonics).
-    min_checks : int
-        Fewest compared quantities for a PASS.
-    """
-
-    freqs: np.ndarray
-    z_measured: np.ndarray
-    z_theory: np.ndarray
-    coherence: np.ndarray
-    z0: float
-    temperature_c: float
-    resonances: pd.DataFrame
-    harmonics: pd.DataFrame
-    f0_hz: float
-    band_error_db: float
-    band_error_deg: float
-    coherent_fraction: float
-    failures: tuple[str, ...] = field(default_factory=tuple)
-    checks: int = 0
-    min_checks: int = 1
-
-    @property
-    def passed(self) -> bool:
-        """True when enough quantities were compared and all are within tolerance."""
-        return self.verdict == "pass"
-
-    @property
-    def verdict(self) -> str:
-        """``"pass"``, ``"fail"`` or ``"cannot-verify"`` (too little was measurable)."""
-        if self.failures:
-            return "fail"
-        return "pass" if self.checks >= self.min_checks else "cannot-verify"
-
-    @property
-    def reason(self) -> str:
-        """One line saying why the verdict is what it is."""
-        if self.failures:
-            return "; ".join(self.failures)
-        what = f"{self.checks} quantit{'y' if self.checks == 1 else 'ies'} compared"
-        if self.verdict == "pass":
-            return f"{what}, all within tolerance"
-        return (
-            f"only {what} (need {self.min_checks}): no resonance was measurable and too few "
-            f"harmonics were coherent ({100 * self.coherent_fraction:.2g} % of the bins in the "
-            "band reach the coherence threshold)"
-        )
-
-    def table(self) -> pd.DataFrame:
-        """The curves: frequency (Hz), z measured and theoretical (re, im, dB), coherence."""
-        return pd.DataFrame(
-            {
-                "frequency_hz": self.freqs,
-                "z_measured_re": self.z_measured.real,
-                "z_measured_im": self.z_measured.imag,
-                "z_measured_db": _db(self.z_measured),
-                "z_theory_re": self.z_theory.real,
-                "z_theory_im": self.z_theory.imag,
-                "z_theory_db": _db(self.z_theory),
-                "coherence": self.coherence,
-            }
-        )
-
-    def summary(self) -> str:
-        """A few lines for the terminal: verdict, resonances and band errors."""
-        lines = [f"impedance validation: {self.verdict.upper()} ({self.reason})"]
-        lines.append("  resonance  f_th (Hz)  f_meas (Hz)  cents   L_th (dB)  dL (dB)")
-        for i, r in self.resonances.iterrows():
-            lines.append(
-                f"  {i + 1:9d}  {r.frequency_theory_hz:9.2f}  {r.frequency_measured_hz:11.2f}"
-                f"  {r.error_cents:6.2f}  {r.level_theory_db:9.2f}  {r.error_db:7.2f}"
-            )
-        lines.append(
-            f"  band {self.band_error_db:.2f} dB, {self.band_error_deg:.1f} deg over "
-            f"{100 * self.coherent_fraction:.0f} % coherent bins"
-            + (f"; note f0 {self.f0_hz:.2f} Hz" if np.isfinite(self.f0_hz) else "")
-        )
-        lines.extend(f"  fail: {f}" for f in self.failures)
-        return "\n".join(lines)
-
-
-def _db(z: np.ndarray) -> np.ndarray:
-    return 20 * np.log10(np.maximum(np.abs(z), 1e-300))
 
 
 def measured_impedance(
@@ -325,6 +210,59 @@ def validate(
     ----------
     physics.md D.1, F.3; Chatziioannou & van Walstijn 2012, Fig. 10.
     """
+    p, u, nperseg = _trimmed(p, u, fs, config)
+    t = calibration.air.temperature_c if temperature_c is None else float(temperature_c)
+    air = calibration.air_properties(t)
+    z0 = calibration.bore.entry_impedance(air)
+    freqs, z_me, coh, s_pp, s_uu = _measured(p, u, fs, nperseg, z0)
+    z_th = input_impedance(calibration.bore, 2 * np.pi * freqs, air) / z0
+    band = (freqs >= config.fmin_hz) & (freqs <= config.fmax_hz)
+    err_db = db(z_me) - db(z_th)
+    err_deg = np.rad2deg(np.angle(z_me / z_th))
+    # The excitation (U) shows whether a note is played; P carries the resonances too.
+    f0 = config.note_f0_hz if config.note_f0_hz is not None else _f0(freqs, s_uu)
+    tonal = f0 is not None and np.isfinite(f0)
+    good = band & (coh >= config.min_coherence)
+    if tonal:
+        at_harmonic, k = _harmonic_bins(freqs, s_uu, f0)
+        good &= at_harmonic
+        # The leaked ratio at the nearest bin is Z at the harmonic itself, so the theory is
+        # taken there too: near a sharp resonance half a bin matters.
+        z_h = input_impedance(calibration.bore, 2 * np.pi * k[good] * f0, air) / z0
+        err_db[good] = db(z_me[good]) - db(z_h)
+        err_deg[good] = np.rad2deg(np.angle(z_me[good] / z_h))
+    band_db = float(np.mean(np.abs(err_db[good]))) if np.any(good) else float("nan")
+    band_deg = float(np.mean(np.abs(err_deg[good]))) if np.any(good) else float("nan")
+    coherent_fraction = float(np.mean(good[band])) if np.any(band) else 0.0
+
+    resonances = resonance_errors(freqs, z_me, z_th, coh, band, config, measurable=not tonal)
+    harmonics = harmonic_errors(freqs, err_db, err_deg, coh, s_pp, s_uu, f0, config)
+    result = ValidationResult(
+        freqs=freqs,
+        z_measured=z_me,
+        z_theory=z_th,
+        coherence=coh,
+        z0=float(z0),
+        temperature_c=t,
+        resonances=resonances,
+        harmonics=harmonics,
+        f0_hz=float(f0) if f0 is not None else float("nan"),
+        band_error_db=band_db,
+        band_error_deg=band_deg,
+        coherent_fraction=coherent_fraction,
+        failures=_failures(band_db, bool(np.any(good)), resonances, harmonics, config),
+        checks=int(np.sum(np.isfinite(resonances.error_cents)) if resonances.size else 0)
+        + int(harmonics.compared.sum() if len(harmonics) else 0),
+        min_checks=config.min_checks,
+    )
+    log.info("validation: %s (%s)", result.verdict, result.reason)
+    return result
+
+
+def _trimmed(
+    p: np.ndarray, u: np.ndarray, fs: float, config: ValidationConfig
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """The signals without ``trim_s`` at each end, and the Welch segment length."""
     p = np.asarray(p, dtype=float)
     u = np.asarray(u, dtype=float)
     if p.ndim != 1 or p.shape != u.shape:
@@ -338,50 +276,48 @@ def validate(
     # At least _MIN_AVERAGES half-overlapping segments: with one segment the coherence is
     # identically 1 and every bin would count as measured.
     nperseg = min(nperseg, int(2 ** np.floor(np.log2(2 * p.size / (_MIN_AVERAGES + 1)))))
+    return p, u, nperseg
+
+
+def _measured(
+    p: np.ndarray, u: np.ndarray, fs: float, nperseg: int, z0: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Frequencies (DC excluded), ``z = Z / z0``, coherence and the spectra of P and U."""
     freqs, z_abs, coh = measured_impedance(p, u, fs, nperseg)
     _, s_pp = signal.welch(p, fs=fs, nperseg=nperseg)
     _, s_uu = signal.welch(u, fs=fs, nperseg=nperseg)
-    t = calibration.air.temperature_c if temperature_c is None else float(temperature_c)
-    air = calibration.air_properties(t)
-    z0 = calibration.bore.entry_impedance(air)
     keep = freqs > 0
     freqs, z_abs, coh, s_pp, s_uu = freqs[keep], z_abs[keep], coh[keep], s_pp[keep], s_uu[keep]
-    z_th = input_impedance(calibration.bore, 2 * np.pi * freqs, air) / z0
-    z_me = z_abs / z0
-    band = (freqs >= config.fmin_hz) & (freqs <= config.fmax_hz)
-    err_db = _db(z_me) - _db(z_th)
-    err_deg = np.rad2deg(np.angle(z_me / z_th))
-    # The excitation (U) shows whether a note is played; P carries the resonances too.
-    f0 = config.note_f0_hz if config.note_f0_hz is not None else _f0(freqs, s_uu)
-    tonal = f0 is not None and np.isfinite(f0)
-    good = band & (coh >= config.min_coherence)
-    if tonal:
-        # A played note excites only its harmonics; between them the H1 ratio is window
-        # leakage of the harmonics (coherent, yet not Z at that bin), so only bins at the
-        # harmonics count.
-        df = freqs[1] - freqs[0]
-        k = np.round(freqs / f0)
-        good &= (k >= 1) & (np.abs(freqs - k * f0) <= 0.5 * df)
-        # and only harmonics that carry energy: a line 20 dB above its surroundings
-        width = max(int(f0 / df), 3)
-        local = ndimage.median_filter(s_uu, size=width, mode="nearest")
-        good &= s_uu > 100 * local
-        # The leaked ratio at the nearest bin is Z at the harmonic itself, so the theory is
-        # taken there too: near a sharp resonance half a bin matters.
-        z_h = input_impedance(calibration.bore, 2 * np.pi * k[good] * f0, air) / z0
-        err_db[good] = _db(z_me[good]) - _db(z_h)
-        err_deg[good] = np.rad2deg(np.angle(z_me[good] / z_h))
-    band_db = float(np.mean(np.abs(err_db[good]))) if np.any(good) else float("nan")
-    band_deg = float(np.mean(np.abs(err_deg[good]))) if np.any(good) else float("nan")
-    coherent_fraction = float(np.mean(good[band])) if np.any(band) else 0.0
+    return freqs, z_abs / z0, coh, s_pp, s_uu
 
-    resonances = _resonances(freqs, z_me, z_th, coh, band, config, measurable=not tonal)
-    harmonics = _harmonics(freqs, err_db, err_deg, coh, s_pp, s_uu, f0, config)
 
+def _harmonic_bins(freqs: np.ndarray, s_uu: np.ndarray, f0: float) -> tuple[np.ndarray, np.ndarray]:
+    """Bins at the harmonics of a played note whose flow carries energy, and each bin's order.
+
+    A played note excites only its harmonics; between them the H1 ratio is window leakage of
+    the harmonics (coherent, yet not Z at that bin), so only bins at the harmonics count.
+    """
+    df = freqs[1] - freqs[0]
+    k = np.round(freqs / f0)
+    at = (k >= 1) & (np.abs(freqs - k * f0) <= 0.5 * df)
+    # and only harmonics that carry energy: a line 20 dB above its surroundings
+    width = max(int(f0 / df), 3)
+    local = ndimage.median_filter(s_uu, size=width, mode="nearest")
+    return at & (s_uu > 100 * local), k
+
+
+def _failures(
+    band_db: float,
+    any_coherent: bool,
+    resonances: pd.DataFrame,
+    harmonics: pd.DataFrame,
+    config: ValidationConfig,
+) -> tuple[str, ...]:
+    """Why the verdict is FAIL: the band error, resonances and harmonics out of tolerance."""
     failures = []
     # No coherent bin is not a failure of the measurement but nothing to compare: the
     # verdict is then CANNOT-VERIFY (see ValidationResult.reason).
-    if np.any(good) and band_db > config.max_band_db:
+    if any_coherent and band_db > config.max_band_db:
         failures.append(f"band error {band_db:.2f} dB > {config.max_band_db:g} dB")
     for i, r in resonances.iterrows():
         if not np.isfinite(r.error_cents):
@@ -403,143 +339,4 @@ def validate(
                 f"harmonic {int(h.harmonic)} at {h.frequency_hz:.1f} Hz off by "
                 f"{h.error_db:.2f} dB, {h.error_deg:.1f} deg"
             )
-    result = ValidationResult(
-        freqs=freqs,
-        z_measured=z_me,
-        z_theory=z_th,
-        coherence=coh,
-        z0=float(z0),
-        temperature_c=t,
-        resonances=resonances,
-        harmonics=harmonics,
-        f0_hz=float(f0) if f0 is not None else float("nan"),
-        band_error_db=band_db,
-        band_error_deg=band_deg,
-        coherent_fraction=coherent_fraction,
-        failures=tuple(failures),
-        checks=int(np.sum(np.isfinite(resonances.error_cents)) if resonances.size else 0)
-        + int(harmonics.compared.sum() if len(harmonics) else 0),
-        min_checks=config.min_checks,
-    )
-    log.info("validation: %s (%s)", result.verdict, result.reason)
-    return result
-
-
-def _resonances(
-    freqs, z_me, z_th, coh, band, config: ValidationConfig, measurable: bool = True
-) -> pd.DataFrame:
-    f_b = freqs[band]
-    th = find_resonances(f_b, z_th[band], 1.0, count=config.n_resonances)
-    mag = np.abs(z_me[band])
-    if config.smoothing_bins > 1:
-        mag = np.convolve(mag, np.ones(config.smoothing_bins) / config.smoothing_bins, "same")
-    me = find_resonances(f_b, mag, 1.0, count=10**6)
-    z_b_th, z_b_me = z_th[band], z_me[band]
-    rows = []
-    for r in th:
-        i = int(np.argmin(np.abs(f_b - r.frequency_hz)))
-        f_th = _phase_zero(f_b, z_b_th, r.frequency_hz)
-        c = float(coh[band][i])
-        row = {
-            "frequency_theory_hz": f_th,
-            "frequency_measured_hz": np.nan,
-            "error_cents": np.nan,
-            "level_theory_db": r.level_db,
-            "level_measured_db": np.nan,
-            "error_db": np.nan,
-            "coherence": c,
-        }
-        if measurable and me and c >= config.min_coherence:
-            cents = np.array([1200 * np.log2(m.frequency_hz / r.frequency_hz) for m in me])
-            j = int(np.argmin(np.abs(cents)))
-            if abs(cents[j]) <= config.match_cents:
-                f_me = _phase_zero(f_b, z_b_me, me[j].frequency_hz)
-                row.update(
-                    frequency_measured_hz=f_me,
-                    error_cents=float(1200 * np.log2(f_me / f_th)),
-                    level_measured_db=me[j].level_db,
-                    error_db=me[j].level_db - r.level_db,
-                )
-        rows.append(row)
-    return pd.DataFrame(rows, columns=list(rows[0]) if rows else None)
-
-
-def _phase_zero(freqs: np.ndarray, z: np.ndarray, f_peak: float) -> float:
-    """Resonance frequency as the +/- zero crossing of arg z nearest a |z| peak (Hz).
-
-    The phase crosses zero steeply at a resonance, so linear interpolation between two
-    bins locates it far better than the top of a peak that window smoothing flattens.
-    Falls back to ``f_peak`` when there is no crossing within three bins.
-    """
-    i = int(np.argmin(np.abs(freqs - f_peak)))
-    ph = np.angle(z)
-    best = None
-    for j in range(max(i - 3, 0), min(i + 3, freqs.size - 1)):
-        if ph[j] >= 0 > ph[j + 1]:
-            f = freqs[j] + (freqs[j + 1] - freqs[j]) * ph[j] / (ph[j] - ph[j + 1])
-            if best is None or abs(f - f_peak) < abs(best - f_peak):
-                best = float(f)
-    return best if best is not None else float(f_peak)
-
-
-def _harmonics(
-    freqs, err_db, err_deg, coh, s_pp, s_uu, f0, config: ValidationConfig
-) -> pd.DataFrame:
-    """Errors at the note's harmonics.
-
-    ``compared`` marks the coherent harmonics whose flow is a line at least 20 dB above its
-    surroundings (a harmonic the note does not play has only window leakage there, coherent
-    but not the impedance at that bin).
-    """
-    columns = ["harmonic", "frequency_hz", "error_db", "error_deg", "coherence", "compared"]
-    if f0 is None or not np.isfinite(f0) or config.n_harmonics == 0:
-        return pd.DataFrame(columns=columns)
-    rows = []
-    df = freqs[1] - freqs[0]
-    local = ndimage.median_filter(s_uu, size=max(int(f0 / df), 3), mode="nearest")
-    for h in range(1, config.n_harmonics + 1):
-        f = h * f0
-        if f > config.fmax_hz:
-            break
-        # strongest bin within +-2 bins of the nominal harmonic
-        near = np.flatnonzero(np.abs(freqs - f) <= 2 * df)
-        if near.size == 0:
-            continue
-        i = int(near[np.argmax(s_pp[near])])
-        line = bool(s_uu[i] > 100 * local[i])
-        rows.append(
-            [h, float(freqs[i]), float(err_db[i]), float(err_deg[i]), float(coh[i]),
-             line and coh[i] >= config.min_coherence]
-        )  # fmt: skip
-    return pd.DataFrame(rows, columns=columns)
-
-
-def plot_impedance(
-    result: ValidationResult, path: str | Path, fmax_hz: float | None = None
-) -> None:
-    """Draw the paper's Fig. 10: |z| in dB, theory and measurement, coherence below (PNG).
-
-    Uses the Agg canvas directly, so no global pyplot state is touched.
-    """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fmax = fmax_hz if fmax_hz is not None else float(result.freqs[-1])
-    sel = result.freqs <= fmax
-    f = result.freqs[sel]
-    fig = Figure(figsize=(8, 6))
-    FigureCanvasAgg(fig)
-    ax1, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
-    ax1.plot(f, _db(result.z_theory[sel]), "k-", lw=1.2, label="theory")
-    ax1.plot(f, _db(result.z_measured[sel]), "r--", lw=1.0, label="measured (H1)")
-    ax1.set_ylabel("|Z / Z0| (dB)")
-    ax1.set_title(f"Input impedance ({result.verdict}, T = {result.temperature_c:.2f} degC)")
-    ax1.legend(loc="upper right")
-    ax1.grid(alpha=0.3)
-    ax2.plot(f, result.coherence[sel], "b-", lw=0.8)
-    ax2.set_ylim(0, 1.05)
-    ax2.set_ylabel("coherence")
-    ax2.set_xlabel("frequency (Hz)")
-    ax2.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, format="png", dpi=100)
+    return tuple(failures)

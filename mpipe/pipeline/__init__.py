@@ -13,6 +13,8 @@ manifest
     What a finished stage used and produced (input hashes), so a run can resume.
 report
     The self-contained HTML report of a take.
+html_report
+    The self-contained HTML page: sections, numbered figures and tables.
 results
     A finished run read back (:func:`mpipe.load_run`).
 """

@@ -167,7 +167,8 @@ def _stage_translation(folder_sep: Path, cal: Calibration, cfg: PipelineConfig):
 
 
 def _stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg: PipelineConfig):
-    from mpipe.measurement.validation import plot_impedance, validate
+    from mpipe.measurement.validation import validate
+    from mpipe.measurement.validation_result import plot_impedance
 
     def work(folder: Path):
         mp = _load_npz(mouthpiece)

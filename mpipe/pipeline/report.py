@@ -1,202 +1,21 @@
 """The HTML report of a take: one self-contained file a scientist can send.
 
-Everything is inside the file: images are embedded as base64 ``data:`` URIs, the style sheet
-is inline, there are no scripts and no links to other files. The report opens with a summary
-(verdict, parameter medians with their spread, failed and flagged windows); figures and
-tables are numbered and captioned, every table header carries its unit (from
-:func:`mpipe.core.units.unit_of`) and numbers are rounded to a few significant digits.
+The report opens with a summary (verdict, parameter medians with their spread, failed and
+flagged windows), then the measurement (impedance validation), the reed parameters over
+time, the resynthesis and the run. Units come from :func:`mpipe.core.units.unit_of`; the
+page itself (embedded figures, numbered tables, rounding) is
+:mod:`mpipe.pipeline.html_report`.
 """
 
 from __future__ import annotations
 
-import base64
-import html
-import math
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from mpipe.core.io import write_text_atomic
-from mpipe.core.units import label, unit_of
-
-#: Significant digits of the numbers shown in the report.
-DIGITS = 4
-
-_STYLE = """
-body { font-family: system-ui, sans-serif; max-width: 1100px; margin: 2em auto; color: #222;
-       line-height: 1.45; padding: 0 1em; }
-h1 { font-size: 1.6em; margin-bottom: 0.2em; }
-h2 { border-bottom: 1px solid #ccc; padding-bottom: 0.2em; margin-top: 2em; }
-.meta { color: #666; font-size: 0.9em; }
-.verdict { display: inline-block; padding: 0.15em 0.6em; border-radius: 0.3em; font-weight: 600; }
-.pass { background: #d9f2d9; color: #145214; }
-.fail { background: #f8d7d7; color: #7a1414; }
-.check { background: #fbecc6; color: #6b4a00; }
-.info { background: #e6eef8; color: #1c3d66; }
-.summary { border: 1px solid #ccc; border-radius: 0.4em; padding: 0.5em 1.2em;
-           background: #fafafa; }
-figure { margin: 1.2em 0; }
-figure img { max-width: 100%; border: 1px solid #eee; }
-figcaption, caption { font-size: 0.9em; color: #333; text-align: left; padding: 0.3em 0; }
-table { border-collapse: collapse; font-size: 0.85em; margin: 0.5em 0; }
-th, td { border: 1px solid #ddd; padding: 0.2em 0.5em; text-align: right; }
-th { background: #f4f4f4; }
-td.text { text-align: left; }
-.scroll { max-height: 28em; overflow: auto; }
-"""
-
-
-@dataclass(frozen=True)
-class Figure:
-    """A figure of the report.
-
-    Attributes
-    ----------
-    path : Path
-        PNG file, embedded into the report.
-    caption : str
-        What the figure shows, with units (plain text; escaped).
-    """
-
-    path: Path
-    caption: str = ""
-
-
-@dataclass(frozen=True)
-class Section:
-    """One section of the report.
-
-    Attributes
-    ----------
-    title : str
-        Heading.
-    text : str
-        Paragraph text (plain; escaped); paragraphs are separated by blank lines.
-    badge : tuple of (str, str), optional
-        ``(label, kind)`` shown after the heading; kind is ``pass``, ``fail``, ``check``
-        or ``info``.
-    images : tuple of Figure or Path
-        Figures, in order; a bare path gets its file name as caption.
-    tables : tuple of (str, DataFrame)
-        Captioned tables; headers get their units from the column names.
-    """
-
-    title: str
-    text: str = ""
-    badge: tuple[str, str] | None = None
-    images: tuple[Figure | Path, ...] = ()
-    tables: tuple[tuple[str, pd.DataFrame], ...] = field(default=())
-
-
-def fmt(value, digits: int = DIGITS) -> str:
-    """A number rounded to ``digits`` significant digits; "–" for a missing value."""
-    if value is None:
-        return "–"
-    if isinstance(value, bool | np.bool_):
-        return "yes" if value else "no"
-    if isinstance(value, int | np.integer):
-        return str(int(value))
-    if isinstance(value, float | np.floating):
-        v = float(value)
-        if not math.isfinite(v):
-            return "–"
-        if v == int(v) and abs(v) < 10**digits:
-            return str(int(v))
-        return f"{v:.{digits}g}"
-    return str(value)
-
-
-def html_table(table: pd.DataFrame, caption: str = "", digits: int = DIGITS) -> str:
-    """A DataFrame as an HTML table: unit in every header, rounded numbers, escaped text."""
-    head = "".join(f"<th>{html.escape(label(str(c)))}</th>" for c in table.columns)
-    rows = []
-    for values in table.itertuples(index=False):
-        cells = []
-        for v in values:
-            text_cell = isinstance(v, str)
-            cls = ' class="text"' if text_cell else ""
-            cells.append(f"<td{cls}>{html.escape(fmt(v, digits))}</td>")
-        rows.append("<tr>" + "".join(cells) + "</tr>")
-    cap = f"<caption>{html.escape(caption)}</caption>" if caption else ""
-    return f"<table>{cap}<thead><tr>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>"
-
-
-def data_uri(path: str | Path) -> str:
-    """The file as a ``data:image/png;base64,...`` URI."""
-    payload = base64.b64encode(Path(path).read_bytes()).decode("ascii")
-    return f"data:image/png;base64,{payload}"
-
-
-def render(title: str, meta: str, sections: list[Section], summary: Section | None = None) -> str:
-    """Render the report as one self-contained HTML string.
-
-    Parameters
-    ----------
-    title : str
-        Page title and heading.
-    meta : str
-        Line under the title (date, version).
-    sections : list of Section
-        Body, in order.
-    summary : Section, optional
-        Shown first, in a box.
-
-    Returns
-    -------
-    str
-    """
-    parts = [
-        "<!DOCTYPE html>",
-        '<html lang="en"><head><meta charset="utf-8">',
-        f"<title>{html.escape(title)}</title><style>{_STYLE}</style></head><body>",
-        f"<h1>{html.escape(title)}</h1>",
-        f'<p class="meta">{html.escape(meta)}</p>',
-    ]
-    counters = {"figure": 0, "table": 0}
-    for i, s in enumerate(([summary] if summary else []) + list(sections)):
-        boxed = summary is not None and i == 0
-        if boxed:
-            parts.append('<div class="summary">')
-        badge = ""
-        if s.badge:
-            text, kind = s.badge
-            badge = f' <span class="verdict {html.escape(kind)}">{html.escape(text)}</span>'
-        parts.append(f"<h2>{html.escape(s.title)}{badge}</h2>")
-        for para in s.text.split("\n\n") if s.text else ():
-            parts.append(f"<p>{html.escape(para)}</p>")
-        for caption, table in s.tables:
-            counters["table"] += 1
-            parts.append('<div class="scroll">')
-            parts.append(html_table(table, f"Table {counters['table']}. {caption}"))
-            parts.append("</div>")
-        for fig in s.images:
-            fig = fig if isinstance(fig, Figure) else Figure(Path(fig), Path(fig).stem)
-            counters["figure"] += 1
-            cap = f"Figure {counters['figure']}. {fig.caption}"
-            parts.append(
-                f'<figure><img src="{data_uri(fig.path)}" alt="{html.escape(cap)}">'
-                f"<figcaption>{html.escape(cap)}</figcaption></figure>"
-            )
-        if boxed:
-            parts.append("</div>")
-    parts.append("</body></html>")
-    return "\n".join(parts)
-
-
-def write_report(
-    path: str | Path,
-    title: str,
-    meta: str,
-    sections: list[Section],
-    summary: Section | None = None,
-) -> Path:
-    """Write the report atomically to ``path`` (an ``.html`` file) and return the path."""
-    path = Path(path)
-    write_text_atomic(path, render(title, meta, sections, summary))
-    return path
-
+from mpipe.core.units import unit_of
+from mpipe.pipeline.html_report import Figure, Section, fmt, write_report
 
 #: Reed parameters summarised at the top of a take's report, in this order.
 SUMMARY_PARAMETERS = ("k", "S", "y_m", "p_m", "lam", "m", "g", "k_c")
@@ -320,13 +139,23 @@ def write_take_report(
     -------
     Path
     """
-    val = records["validation"].summary
-    inv = records["inversion"].summary
-    res = records["resynthesis"].summary
-    sep = records["separation"].summary
     windows = _read_csv(root / "inversion" / "windows.csv")
     resonances = _read_csv(root / "validation" / "validation.csv")
     plan = _read_csv(root / "conditioning" / "plan.csv")
+    summary = _summary_section(records, windows)
+    sections = [
+        _measurement_section(root, records, resonances),
+        _parameters_section(root, records, windows),
+        _resynthesis_section(root, records),
+        _run_section(records, take_paths, cal_path, version, plan),
+    ]
+    return write_report(root / "report.html", f"mpipe report: {name}", when, sections, summary)
+
+
+def _summary_section(records: dict, windows: pd.DataFrame) -> Section:
+    """Verdict, validation and residual in words, parameters, uncertainty, flagged windows."""
+    val = records["validation"].summary
+    inv = records["inversion"].summary
     flags = flag_windows(windows)
     verdict = overall_verdict(str(val["verdict"]), windows)
     params = parameter_summary(windows)
@@ -361,8 +190,58 @@ def write_take_report(
     ]
     if len(flags):
         summary_tables.append(("Windows that are not ok, with the reason.", flags))
-    summary = Section("Summary", summary_text, verdict, (), tuple(summary_tables))
+    return Section("Summary", summary_text, verdict, (), tuple(summary_tables))
 
+
+def _measurement_section(root: Path, records: dict, resonances: pd.DataFrame) -> Section:
+    """The impedance validation: verdict, propagation parameters, figures, resonances."""
+    val = records["validation"].summary
+    sep = records["separation"].summary
+    t_lo, t_hi = sep["temperature_c_range"]
+    return Section(
+        "Measurement: impedance validation",
+        f"The measured input impedance P/(Z0 U) at the mouthpiece is compared with the "
+        f"theory of the calibration's bore. Effective temperature from the wave separation "
+        f"{fmt(val['temperature_c'])} °C (blocks span {fmt(t_lo)}–{fmt(t_hi)} °C), loss "
+        f"scale {fmt(sep['loss_scale_median'], 3)}, Mach number {fmt(sep['mach_median'], 2)}"
+        f"{'' if sep.get('theta', 'estimated') == 'estimated' else ' (' + sep['theta'] + ')'}. "
+        f"Verdict: {val['verdict'].upper()}"
+        + (f" ({val['reason']})" if val.get("reason") else "")
+        + "."
+        + "".join(f"\nWarning: {w}." for w in sep.get("warnings", []))
+        + (
+            "\nThe validation FAILED; the inversion was run anyway (--accept-failed-validation)."
+            if val["verdict"] == "fail"
+            else ""
+        ),
+        (val["verdict"].upper(), "pass" if val["passed"] else "fail"),
+        (
+            Figure(
+                root / "validation" / "impedance.png",
+                "Measured (H1 estimate) and "
+                "theoretical normalised input impedance |Z/Z0| (dB) against frequency (Hz), "
+                "with the squared coherence of p and u (–; paper Fig. 10).",
+            ),
+            Figure(
+                root / "separation" / "blocks.png",
+                "Propagation parameters tracked "
+                "by the wave separation per block: effective temperature (°C), loss "
+                "scale η (–) and Mach number of the mean flow (–), against time (s).",
+            ),
+        ),  # fmt: skip
+        (
+            (
+                "Resonances: theory against measurement (empty cells: no measured peak "
+                "within the matching distance).",
+                resonances,
+            ),
+        ),  # fmt: skip
+    )
+
+
+def _parameters_section(root: Path, records: dict, windows: pd.DataFrame) -> Section:
+    """The reed parameters over time: the inversion's figures and the per-window table."""
+    inv = records["inversion"].summary
     inv_root = root / "inversion"
     captions = {
         "tracks.png": "Reed parameters per window from step 2 against time (s); each panel "
@@ -376,94 +255,47 @@ def write_take_report(
     inv_figs = tuple(
         Figure(inv_root / f, c) for f, c in captions.items() if (inv_root / f).exists()
     )
+    show = [c for c in WINDOW_COLUMNS if c in windows.columns]
+    return Section(
+        "Reed parameters over time",
+        f"Flow treated as "
+        f"{'zero-mean (measured)' if inv['zero_mean_flow'] else 'carrying its mean (model)'}.",
+        None,
+        inv_figs,
+        (("Per-window results.", windows[show]),),
+    )
+
+
+def _resynthesis_section(root: Path, records: dict) -> Section:
+    """The resynthesis: its residual and the overlays of target and resynthesised signals."""
+    res = records["resynthesis"].summary
     overlays = tuple(
         Figure(p, "Target (measured) and resynthesised mouthpiece pressure (Pa) and flow "
                f"(m³/s) over one window ({p.stem.replace('_', ' ')}; paper Figs. 9, 11).")
         for p in sorted((root / "resynthesis").glob("overlay_*.png"))
     )  # fmt: skip
-    show = [c for c in WINDOW_COLUMNS if c in windows.columns]
+    return Section(
+        "Resynthesis",
+        "Relative residual of the resynthesised pressure over the inverted windows: "
+        f"{fmt(res['relative_residual_p'], 3)}. The resynthesised pressure is in "
+        "resynthesis/resynthesis.wav.",
+        None,
+        overlays,
+    )
+
+
+def _run_section(records: dict, take_paths, cal_path, version: str, plan) -> Section:
+    """The run: input files, mpipe version, stage timings and the window plan."""
     timings = pd.DataFrame(
         [{"stage": k, "status": r.status, "wall_s": r.wall_s} for k, r in records.items()]
     )
-    t_lo, t_hi = sep["temperature_c_range"]
-    sections = [
-        Section(
-            "Measurement: impedance validation",
-            f"The measured input impedance P/(Z0 U) at the mouthpiece is compared with the "
-            f"theory of the calibration's bore. Effective temperature from the wave separation "
-            f"{fmt(val['temperature_c'])} °C (blocks span {fmt(t_lo)}–{fmt(t_hi)} °C), loss "
-            f"scale {fmt(sep['loss_scale_median'], 3)}, Mach number {fmt(sep['mach_median'], 2)}"
-            f"{'' if sep.get('theta', 'estimated') == 'estimated' else ' (' + sep['theta'] + ')'}. "
-            f"Verdict: {val['verdict'].upper()}"
-            + (f" ({val['reason']})" if val.get("reason") else "")
-            + "."
-            + "".join(f"\nWarning: {w}." for w in sep.get("warnings", []))
-            + (
-                "\nThe validation FAILED; the inversion was run anyway "
-                "(--accept-failed-validation)."
-                if val["verdict"] == "fail"
-                else ""
-            ),
-            (val["verdict"].upper(), "pass" if val["passed"] else "fail"),
-            (
-                Figure(
-                    root / "validation" / "impedance.png",
-                    "Measured (H1 estimate) and "
-                    "theoretical normalised input impedance |Z/Z0| (dB) against frequency (Hz), "
-                    "with the squared coherence of p and u (–; paper Fig. 10).",
-                ),
-                Figure(
-                    root / "separation" / "blocks.png",
-                    "Propagation parameters tracked "
-                    "by the wave separation per block: effective temperature (°C), loss "
-                    "scale η (–) and Mach number of the mean flow (–), against time (s).",
-                ),
-            ),  # fmt: skip
-            (
-                (
-                    "Resonances: theory against measurement (empty cells: no measured peak "
-                    "within the matching distance).",
-                    resonances,
-                ),
-            ),  # fmt: skip
-        ),
-        Section(
-            "Reed parameters over time",
-            f"Flow treated as "
-            f"{'zero-mean (measured)' if inv['zero_mean_flow'] else 'carrying its mean (model)'}.",
-            None,
-            inv_figs,
-            (("Per-window results.", windows[show]),),
-        ),
-        Section(
-            "Resynthesis",
-            "Relative residual of the resynthesised pressure over the inverted windows: "
-            f"{fmt(res['relative_residual_p'], 3)}. The resynthesised pressure is in "
-            "resynthesis/resynthesis.wav.",
-            None,
-            overlays,
-        ),
-        Section(
-            "Run",
-            f"Take: {', '.join(str(p) for p in take_paths)}. Calibration: {cal_path}.",
-            ("mpipe " + version, "info"),
-            (),
-            (("Stage timings.", timings), ("Window plan (conditioning).", plan)),
-        ),
-    ]
-    return write_report(root / "report.html", f"mpipe report: {name}", when, sections, summary)
+    return Section(
+        "Run",
+        f"Take: {', '.join(str(p) for p in take_paths)}. Calibration: {cal_path}.",
+        ("mpipe " + version, "info"),
+        (),
+        (("Stage timings.", timings), ("Window plan (conditioning).", plan)),
+    )
 
 
-__all__ = [
-    "Figure",
-    "Section",
-    "data_uri",
-    "flag_windows",
-    "fmt",
-    "html_table",
-    "overall_verdict",
-    "parameter_summary",
-    "render",
-    "write_report",
-    "write_take_report",
-]
+__all__ = ["flag_windows", "overall_verdict", "parameter_summary", "write_take_report"]

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mpipe.cli.commands.synth_take import SynthOptions, make_take
+from mpipe.cli.virtual_takes import SynthOptions, make_take
 from mpipe.inversion.conditioning import plan_inversion
 from mpipe.inversion.kernel import bore_kernel, take_temperature
 from mpipe.inversion.settings import ExecutorConfig

@@ -8,9 +8,9 @@ import pytest
 from mpipe.cli.main import main
 from mpipe.core.errors import UserError
 from mpipe.measurement.impedance import impedance_curve
+from mpipe.measurement.impedance_comparison import compare
 from mpipe.measurement.measured_impedance import (
     ImpedanceFileLayout,
-    compare,
     phase_direction,
     read_measured_impedance,
     write_impedance_file,

@@ -20,7 +20,7 @@ import soundfile as sf
 import yaml
 from scipy import signal
 
-from mpipe.cli.commands.synth_take import SynthOptions, make_take
+from mpipe.cli.virtual_takes import SynthOptions, make_take
 from mpipe.core.errors import UserError
 from mpipe.core.filters import apply_lowpass, design_lowpass
 from mpipe.measurement.calibration import load_calibration

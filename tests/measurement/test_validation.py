@@ -10,7 +10,8 @@ import pytest
 
 from mpipe.acoustics.bore import input_impedance
 from mpipe.measurement.calibration import load_calibration
-from mpipe.measurement.validation import ValidationConfig, plot_impedance, validate
+from mpipe.measurement.validation import ValidationConfig, validate
+from mpipe.measurement.validation_result import plot_impedance
 
 CAL = load_calibration(Path(__file__).parents[2] / "calibration" / "simplified_clarinet.yaml")
 FS = 20_000.0

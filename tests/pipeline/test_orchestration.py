@@ -7,8 +7,8 @@ import pandas as pd
 import pytest
 import yaml
 
-from mpipe.cli.commands.synth_take import SynthOptions, make_take
 from mpipe.cli.main import main
+from mpipe.cli.virtual_takes import SynthOptions, make_take
 from mpipe.core.errors import OutputExistsError
 from mpipe.pipeline.orchestration import STAGES, run_take
 from mpipe.pipeline.settings import load_pipeline

@@ -121,7 +121,7 @@ def _setup(args):
 
 
 def _finish(args, result) -> int:
-    from mpipe.measurement.takes import read_mic_calibration
+    from mpipe.measurement.calibration_tables import read_mic_calibration
 
     write_csv(args.output, result.table())
     read_mic_calibration(args.output, band=None)  # what the take reader will accept
@@ -137,7 +137,8 @@ def _finish(args, result) -> int:
 
 def run_switch(args: argparse.Namespace) -> int:
     """Execute ``mpipe calibrate switch``."""
-    from mpipe.measurement.microphones import read_channels, switching_calibration
+    from mpipe.measurement.calibration_recordings import read_channels
+    from mpipe.measurement.relative_calibration import switching_calibration
 
     cal, ref = _setup(args)
     first, fs1 = read_channels(args.first, cal, (ref, args.mic))
@@ -155,10 +156,10 @@ def run_closed(args: argparse.Namespace) -> int:
     """Execute ``mpipe calibrate closed``."""
     import numpy as np
 
-    from mpipe.measurement.microphones import (
+    from mpipe.measurement.calibration_recordings import read_channels
+    from mpipe.measurement.relative_calibration import (
         closed_tube_calibration,
         closed_tube_ratio,
-        read_channels,
     )
 
     cal, ref = _setup(args)

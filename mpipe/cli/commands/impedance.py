@@ -114,11 +114,8 @@ def run_measured(args: argparse.Namespace, cal) -> int:
     import numpy as np
     import pandas as pd
 
-    from mpipe.measurement.measured_impedance import (
-        compare,
-        plot_comparison,
-        read_measured_impedance,
-    )
+    from mpipe.measurement.impedance_comparison import compare, plot_comparison
+    from mpipe.measurement.measured_impedance import read_measured_impedance
 
     declared = {
         key: value

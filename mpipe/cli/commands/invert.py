@@ -104,34 +104,56 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from mpipe.inversion import resynthesis as rs
-    from mpipe.inversion.conditioning import plan_inversion
-    from mpipe.inversion.kernel import bore_kernel, take_temperature
-    from mpipe.inversion.status import summary_line
-    from mpipe.inversion.tracking import ProgressBar, track, write_correlations, write_table
-
     out = Path(args.output)
     check_writable([out / name for name in (*OUTPUTS, "windows.parquet")], args.force)
     cfg = load_pipeline(args.pipeline)
     inv = cfg.inversion
     fs, p, u, temperature = load_mouthpiece(args.mouthpiece)
-    if abs(fs - inv.sample_rate) > 1e-6 * fs:
+    fs, p, u = _at_inversion_rate(args.mouthpiece, fs, p, u, inv.sample_rate)
+    cal = load_calibration(cfg.calibration_path)
+    plan, result, kernel, air, t_eff = _track(args, cfg, cal, fs, p, u, temperature)
+    table = result.table
+    out.mkdir(parents=True, exist_ok=True)
+    _write_results(out, plan, result, p, u, fs, kernel, air, inv)
+    run_info = {
+        "mpipe_version": __version__,
+        "mouthpiece": str(Path(args.mouthpiece).resolve()),
+        "pipeline": cfg.source,
+        "calibration": str(cfg.calibration_path),
+        "temperature_c": t_eff,
+        "zero_mean_flow": result.zero_mean,
+        "start_s": args.start,
+        "end_s": args.end,
+    }
+    write_text_atomic(out / "run.json", json.dumps(run_info, indent=2) + "\n")
+    return _print_windows(table, out)
+
+
+def _at_inversion_rate(
+    path: str, fs: float, p: np.ndarray, u: np.ndarray, rate: float
+) -> tuple[float, np.ndarray, np.ndarray]:
+    """The signals resampled to ``inversion.sample_rate`` (Hz) when they differ."""
+    if abs(fs - rate) > 1e-6 * fs:
         # One rate for the pipeline, as in `mpipe run` (which resamples the take when read).
         from mpipe.measurement.takes import resample
 
-        log.info(
-            "%s: resampling %g Hz -> %g Hz (inversion.sample_rate)",
-            args.mouthpiece,
-            fs,
-            inv.sample_rate,
-        )
+        log.info("%s: resampling %g Hz -> %g Hz (inversion.sample_rate)", path, fs, rate)
         try:
-            pu = resample(np.column_stack([p, u]), fs, inv.sample_rate)
+            pu = resample(np.column_stack([p, u]), fs, rate)
         except ValueError as exc:
-            raise UserError(f"{args.mouthpiece}: {exc}") from None
+            raise UserError(f"{path}: {exc}") from None
         p, u = np.ascontiguousarray(pu[:, 0]), np.ascontiguousarray(pu[:, 1])
-        fs = inv.sample_rate
-    cal = load_calibration(cfg.calibration_path)
+        fs = rate
+    return fs, p, u
+
+
+def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
+    """The window plan, the tracked windows, the bore kernel, the air and its temperature."""
+    from mpipe.inversion.conditioning import plan_inversion
+    from mpipe.inversion.kernel import bore_kernel, take_temperature
+    from mpipe.inversion.tracking import ProgressBar, track
+
+    inv = cfg.inversion
     # The same windows and the same bore kernel as `mpipe run` (one answer per take).
     plan = plan_inversion(p, fs, cfg.conditioning, inv.window_s, inv.hop_s, args.start, args.end)
     starts = plan.loc[plan["invert"], "start"].astype(int).tolist()
@@ -149,8 +171,15 @@ def _run(args: argparse.Namespace) -> int:
         raise UserError(f"{args.mouthpiece}: {exc}") from None
     finally:
         bar.close()
+    return plan, result, kernel, air, t_eff
+
+
+def _write_results(out: Path, plan, result, p, u, fs: float, kernel, air, inv) -> None:
+    """Tables, the resynthesis (plots and WAV) and the parameter tracks into ``out``."""
+    from mpipe.inversion import resynthesis as rs
+    from mpipe.inversion.tracking import write_correlations, write_table
+
     table = result.table
-    out.mkdir(parents=True, exist_ok=True)
     write_atomic(out / "plan.csv", lambda tmp: plan.to_csv(tmp, index=False))
     write_table(table, out)
     write_correlations(result.correlations, out)
@@ -172,17 +201,12 @@ def _run(args: argparse.Namespace) -> int:
     rs.plot_first_window(table, result.histories, p, u, fs, air.rho, inv, result.zero_mean, out)
     rs.plot_tracks(table, out / "tracks.png")
     rs.write_wav(out / "resynthesis.wav", res.p, fs)
-    run_info = {
-        "mpipe_version": __version__,
-        "mouthpiece": str(Path(args.mouthpiece).resolve()),
-        "pipeline": cfg.source,
-        "calibration": str(cfg.calibration_path),
-        "temperature_c": t_eff,
-        "zero_mean_flow": result.zero_mean,
-        "start_s": args.start,
-        "end_s": args.end,
-    }
-    write_text_atomic(out / "run.json", json.dumps(run_info, indent=2) + "\n")
+
+
+def _print_windows(table, out: Path) -> int:
+    """The per-window table and the windows not ok on stdout; 1 when none is ok."""
+    from mpipe.inversion.status import summary_line
+
     cols = ["t_start_s", "status", "k", "S", "y_m", "p_m", "m", "g", "lam", "k_c",
             "relative_residual", "n_evaluations"]  # fmt: skip
     sys.stdout.write(table[cols].to_string(index=False, float_format=lambda v: f"{v:.4g}"))

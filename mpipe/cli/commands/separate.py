@@ -45,7 +45,8 @@ from mpipe.measurement.translation import (
     translate,
     write_mouthpiece_wav,
 )
-from mpipe.measurement.validation import ValidationConfig, plot_impedance, validate
+from mpipe.measurement.validation import ValidationConfig, validate
+from mpipe.measurement.validation_result import plot_impedance
 from mpipe.pipeline.settings import load_pipeline
 
 log = logging.getLogger(__name__)
@@ -115,31 +116,11 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     from mpipe.measurement.takes import read_take
 
-    if len(args.inputs) < 2:
-        raise UserError(
-            f"expected TAKE CALIBRATION.yaml or TAKE1 ... TAKEN CALIBRATION.yaml, got "
-            f"{len(args.inputs)} file(s)"
-        )
-    *takes, cal_path = args.inputs
-    if not cal_path.lower().endswith((".yaml", ".yml")):
-        raise UserError(f"{cal_path}: the last argument must be the calibration YAML file")
-    out = Path(args.output)
-    paths = [out / name for name in OUTPUTS]
-    check_writable(paths, args.force)
-
+    takes, cal_path, out, paths = _inputs(args)
     log.info("reading calibration %s", cal_path)
     cal = load_calibration(cal_path)
     log.info("reading take %s", ", ".join(takes))
-    if args.pipeline:
-        pipe = load_pipeline(args.pipeline)
-        sep_cfg, tr_cfg, val_cfg = pipe.separation, pipe.translation, pipe.validation
-        rate = pipe.inversion.sample_rate
-    else:
-        sep_cfg, tr_cfg, val_cfg = SeparationConfig(), TranslationConfig(), ValidationConfig()
-        rate = DEFAULT_RATE
-    rate = args.sample_rate if args.sample_rate is not None else rate
-    if not 1000.0 <= rate <= 1e6:
-        raise UserError(f"--sample-rate: expected a rate in Hz (1e3-1e6), got {rate:g}")
+    sep_cfg, tr_cfg, val_cfg, rate = _settings(args)
     take = read_take(takes if len(takes) > 1 else takes[0], cal, fs=rate)
     if args.fixed_mach is not None:
         if not -0.05 <= args.fixed_mach <= 0.1:
@@ -158,10 +139,46 @@ def _run(args: argparse.Namespace) -> int:
         noise = mouthpiece_noise(take.fs, cal, sep.noise_psd, sep.median_theta(), t_eff, sep_cfg)
     except ValueError as exc:
         raise UserError(f"{takes[0]}: {exc}") from None
+    _write_outputs(out, take.fs, sep, tr, val, noise)
+    return _print_summary(sep, val, paths)
 
+
+def _inputs(args: argparse.Namespace) -> tuple[list[str], str, Path, list[Path]]:
+    """The take files, the calibration file, the output folder and the files written there."""
+    if len(args.inputs) < 2:
+        raise UserError(
+            f"expected TAKE CALIBRATION.yaml or TAKE1 ... TAKEN CALIBRATION.yaml, got "
+            f"{len(args.inputs)} file(s)"
+        )
+    *takes, cal_path = args.inputs
+    if not cal_path.lower().endswith((".yaml", ".yml")):
+        raise UserError(f"{cal_path}: the last argument must be the calibration YAML file")
+    out = Path(args.output)
+    paths = [out / name for name in OUTPUTS]
+    check_writable(paths, args.force)
+    return takes, cal_path, out, paths
+
+
+def _settings(args: argparse.Namespace):
+    """Separation, translation and validation settings, and the sample rate (Hz)."""
+    if args.pipeline:
+        pipe = load_pipeline(args.pipeline)
+        sep_cfg, tr_cfg, val_cfg = pipe.separation, pipe.translation, pipe.validation
+        rate = pipe.inversion.sample_rate
+    else:
+        sep_cfg, tr_cfg, val_cfg = SeparationConfig(), TranslationConfig(), ValidationConfig()
+        rate = DEFAULT_RATE
+    rate = args.sample_rate if args.sample_rate is not None else rate
+    if not 1000.0 <= rate <= 1e6:
+        raise UserError(f"--sample-rate: expected a rate in Hz (1e3-1e6), got {rate:g}")
+    return sep_cfg, tr_cfg, val_cfg, rate
+
+
+def _write_outputs(out: Path, fs: float, sep, tr, val, noise: dict) -> None:
+    """Mouthpiece signals (npz, WAV), block and impedance tables and the impedance plot."""
     out.mkdir(parents=True, exist_ok=True)
     arrays = {
-        "fs": np.float64(take.fs),
+        "fs": np.float64(fs),
         "p": tr.p,
         "u": tr.u,
         "p0": tr.p0,
@@ -170,12 +187,15 @@ def _run(args: argparse.Namespace) -> int:
         **noise,
     }
     write_npz_atomic(out / "mouthpiece.npz", **arrays)
-    write_atomic(out / "mouthpiece.wav", lambda tmp: write_mouthpiece_wav(tmp, tr.p, tr.u, take.fs))
+    write_atomic(out / "mouthpiece.wav", lambda tmp: write_mouthpiece_wav(tmp, tr.p, tr.u, fs))
     write_csv(out / "blocks.csv", sep.blocks)
     write_csv(out / "impedance.csv", val.table())
     write_csv(out / "validation.csv", val.resonances)
     write_atomic(out / "impedance.png", lambda tmp: plot_impedance(val, tmp, 2000.0))
 
+
+def _print_summary(sep, val, paths: list[Path]) -> int:
+    """Propagation parameters over the blocks and the validation; 1 when it failed."""
     b = sep.blocks
     fit = (
         f"median chi2/term {np.nanmedian(b.residual):.2f}"

@@ -79,6 +79,36 @@ def _sha256(path: str | Path) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe simulate``."""
+    outputs, n = _checked_arguments(args)
+    cal = load_calibration(args.calibration)
+    reed = load_reed(args.reed)
+    air = cal.air_properties()
+    sim, kernel = _simulate(args, cal, reed, air, n)
+
+    freqs = np.arange(20.0, 2000.0, 0.1)
+    resonances = find_resonances(
+        freqs, input_impedance(cal.bore, 2 * np.pi * freqs, air), kernel.z0, 1
+    )
+    f1 = resonances[0].frequency_hz if resonances else float("nan")
+    steady = slice(n // 2, None)
+    p_steady = sim.p[steady]
+    f_play = playing_frequency(p_steady, args.fs) if np.ptp(p_steady) > 1e-3 else math.nan
+    rms = float(np.std(p_steady))
+
+    meta = _metadata(args, reed, kernel, f_play, f1, rms)
+    _write_signals(args.output, sim, reed, kernel, args.fs, meta)
+    if args.wav:
+        _write_wav(sim, args.wav)
+    if args.plot:
+        write_atomic(args.plot, lambda tmp: plot_simulation(sim, tmp, title=cal.name))
+    _print_summary(args, n, sim, steady, f_play, f1, rms)
+    for path in outputs:
+        log.info("wrote %s", path)
+    return 0
+
+
+def _checked_arguments(args: argparse.Namespace) -> tuple[list, int]:
+    """The output files (writable, distinct) and the number of samples, or a UserError."""
     outputs = [p for p in (args.output, args.wav, args.plot) if p]
     if len({Path(p).resolve() for p in outputs}) < len(outputs):
         raise UserError("-o, --wav and --plot must name different files")
@@ -97,10 +127,11 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.wav and args.fs != round(args.fs):
         raise UserError(f"--wav needs an integer sample rate, got --fs {args.fs}")
+    return outputs, n
 
-    cal = load_calibration(args.calibration)
-    reed = load_reed(args.reed)
-    air = cal.air_properties()
+
+def _simulate(args: argparse.Namespace, cal, reed, air, n: int):
+    """The model run from rest (and its bore kernel); a UserError when it diverges."""
     try:
         check_stability(reed, args.fs)
         rf = reflection_function(cal.bore, air, fs=args.fs)
@@ -119,18 +150,12 @@ def run(args: argparse.Namespace) -> int:
             f"{args.reed}: the simulation diverged; the contact stiffness k_c may be too high "
             f"for fs = {args.fs:g} Hz (try a higher --fs)"
         )
+    return sim, kernel
 
-    freqs = np.arange(20.0, 2000.0, 0.1)
-    resonances = find_resonances(
-        freqs, input_impedance(cal.bore, 2 * np.pi * freqs, air), kernel.z0, 1
-    )
-    f1 = resonances[0].frequency_hz if resonances else float("nan")
-    steady = slice(n // 2, None)
-    p_steady = sim.p[steady]
-    f_play = playing_frequency(p_steady, args.fs) if np.ptp(p_steady) > 1e-3 else math.nan
-    rms = float(np.std(p_steady))
 
-    meta = {
+def _metadata(args: argparse.Namespace, reed, kernel, f_play: float, f1: float, rms: float):
+    """The npz file's metadata: inputs (with their hashes), settings and the run's summary."""
+    return {
         "mpipe_version": __version__,
         "calibration": str(Path(args.calibration).resolve()),
         "calibration_sha256": _sha256(args.calibration),
@@ -150,6 +175,10 @@ def run(args: argparse.Namespace) -> int:
         "first_resonance_hz": f1,
         "p_rms_pa": rms,
     }
+
+
+def _write_signals(path, sim: Simulation, reed, kernel, fs: float, meta: dict) -> None:
+    """The signals, the reed parameters and the metadata (JSON) as one npz file."""
     arrays = {
         "t": sim.t,
         "p": sim.p,
@@ -161,7 +190,7 @@ def run(args: argparse.Namespace) -> int:
         "p_plus": sim.p_plus,
         "p_minus": sim.p_minus,
         "mouth_pressure": sim.mouth_pressure,
-        "fs": np.float64(args.fs),
+        "fs": np.float64(fs),
         "z0": np.float64(kernel.z0),
         "rho": np.float64(kernel.rho),
         **{f"reed_{k}": np.float64(v) for k, v in reed.to_mapping().items()},
@@ -173,12 +202,11 @@ def run(args: argparse.Namespace) -> int:
         with open(tmp, "wb") as fh:
             np.savez(fh, **arrays)
 
-    write_atomic(args.output, write_npz)
-    if args.wav:
-        _write_wav(sim, args.wav)
-    if args.plot:
-        write_atomic(args.plot, lambda tmp: plot_simulation(sim, tmp, title=cal.name))
+    write_atomic(path, write_npz)
 
+
+def _print_summary(args, n: int, sim: Simulation, steady: slice, f_play, f1, rms) -> None:
+    """One line: the playing frequency against the first resonance, or no oscillation."""
     if math.isfinite(f_play):
         cents = 1200 * math.log2(f_play / f1) if math.isfinite(f1) else math.nan
         print(
@@ -191,9 +219,6 @@ def run(args: argparse.Namespace) -> int:
             f"{n} samples at {args.fs:g} Hz: no oscillation; p settles at "
             f"{sim.p[-1]:.2f} Pa, y at {sim.y[-1]:.3e} m"
         )
-    for path in outputs:
-        log.info("wrote %s", path)
-    return 0
 
 
 def _write_wav(sim: Simulation, path: str | Path) -> None:

@@ -1,0 +1,282 @@
+"""Virtual takes with known truth: the reed model played on a bore, recorded by wall microphones.
+
+Runs the reed model (:mod:`mpipe.reed.model`) on the calibration's bore, records the mouthpiece
+signals with the virtual microphones (:mod:`mpipe.reed.recording`) and writes the audio file,
+its sidecar, the truth and a calibration copy that fits the file (:func:`make_take`, what
+``mpipe synth-take`` runs).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mpipe.core.errors import UserError
+from mpipe.core.io import check_writable
+from mpipe.measurement.calibration import Calibration, load_calibration
+from mpipe.reed.recording import VirtualTake, virtual_recording
+from mpipe.reed.take_files import TakeFiles, take_file_paths
+from mpipe.reed.take_files import write_virtual_take as _write
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SynthOptions:
+    """How to synthesise a take.
+
+    Attributes
+    ----------
+    duration_s : float
+        Length of the take, s.
+    fs_model : float
+        Sample rate of the model and of the virtual field, Hz.
+    fs_out : float or None
+        Sample rate of the file, Hz (None: ``fs_model``).
+    temperature_c : float, (float, float) or None
+        Air temperature in degC, or a linear drift (start, end); None: the calibration's.
+        The reed model's reflection function uses the mean temperature.
+    mach : float or "auto"
+        Mean-flow Mach number at the microphones; "auto" takes it from the simulated mean
+        flow, ``M = mean(u) / (S_main c)`` (physics.md E.1).
+    snr_db : float or None
+        Signal-to-noise ratio of the microphone noise per channel, dB.
+    gain_error_db, phase_error_deg : tuple of float or None
+        Microphone errors, dB and degrees, one per microphone of the calibration, upstream
+        microphone first (None: no error).
+    swell : float
+        Relative rise of the mouth pressure over the take (0.1: p_m rises linearly to 1.1 p_m).
+    breath_noise_pa : float
+        Standard deviation of white noise on the mouth pressure, Pa.
+    onset_s : float
+        Raised-cosine rise time of the mouth pressure, s.
+    seed : int
+        Master seed; the breath noise and the microphone noise use independent child seeds.
+    bits : int
+        Word length of the file (16 or 24 for FLAC).
+    mic_calibration : bool
+        Write the exact relative calibration tables of microphones 2 to N.
+    """
+
+    duration_s: float
+    fs_model: float = 100_000.0
+    fs_out: float | None = None
+    temperature_c: float | tuple[float, float] | None = None
+    mach: float | str = 0.0
+    snr_db: float | None = None
+    gain_error_db: tuple[float, ...] | None = None
+    phase_error_deg: tuple[float, ...] | None = None
+    swell: float = 0.0
+    breath_noise_pa: float = 0.0
+    onset_s: float = 0.01
+    seed: int = 0
+    bits: int = 24
+    mic_calibration: bool = True
+
+
+def child_seeds(seed: int) -> tuple[int, int]:
+    """Independent seeds for the breath noise and the microphone noise, from one seed."""
+    children = np.random.SeedSequence(seed).spawn(2)
+    return tuple(int(c.generate_state(1)[0]) for c in children)  # type: ignore[return-value]
+
+
+def synthesize(calibration: Calibration, reed, options: SynthOptions):
+    """Simulate the instrument and record it with the virtual microphones.
+
+    Parameters
+    ----------
+    calibration : Calibration
+        Instrument, microphones and air.
+    reed : mpipe.reed.parameters.ReedParameters
+        Reed parameters (SI units); ``reed.p_m`` is the mouth pressure at the start.
+    options : SynthOptions
+        Duration, rates, air, errors, noise and seed.
+
+    Returns
+    -------
+    take : VirtualTake
+        The recording and its truth.
+    sim : mpipe.reed.model.Simulation
+        The model run at ``options.fs_model``.
+    mach : float
+        The Mach number used.
+
+    References
+    ----------
+    Chatziioannou & van Walstijn 2012, Appendix A (model) and section 4 (measurement).
+    """
+    from mpipe.acoustics.reflection import reflection_function
+    from mpipe.reed.bore_kernel import prepare_bore
+    from mpipe.reed.model import simulate
+
+    if not options.duration_s > 0:
+        raise ValueError(f"duration must be positive, got {options.duration_s} s")
+    if options.swell <= -1.0:
+        raise ValueError(f"swell must be > -1, got {options.swell}")
+    temp = options.temperature_c
+    if isinstance(temp, tuple):
+        t_model = 0.5 * (temp[0] + temp[1])
+    else:
+        t_model = calibration.air.temperature_c if temp is None else float(temp)
+    air = calibration.air_properties(t_model)
+    fs = options.fs_model
+    rf = reflection_function(calibration.bore, air, fs)
+    kernel = prepare_bore(rf, air)
+    n = int(round(options.duration_s * fs))
+    t = np.arange(1, n + 1) / fs
+    mouth = reed.p_m * (1.0 + options.swell * t / options.duration_s)
+    breath_seed, noise_seed = child_seeds(options.seed)
+    log.info("simulating %.3g s at %g Hz (air at %g degC)", options.duration_s, fs, t_model)
+    sim = simulate(
+        reed,
+        kernel,
+        n,
+        mouth_pressure=mouth,
+        onset_s=options.onset_s,
+        noise_std_pa=options.breath_noise_pa,
+        seed=breath_seed,
+    )
+    if not np.all(np.isfinite(sim.p)):
+        raise ValueError("the simulation diverged; check the reed parameters")
+    if options.mach == "auto":
+        area = np.pi * calibration.main_radius**2
+        mach = float(np.mean(sim.u[n // 2 :]) / (area * air.c))
+    else:
+        mach = float(options.mach)
+    take = virtual_recording(
+        sim.p,
+        sim.u,
+        fs,
+        calibration,
+        temperature_c=temp,
+        mach=mach,
+        gain_error_db=options.gain_error_db,
+        phase_error_deg=options.phase_error_deg,
+        snr_db=options.snr_db,
+        bits=options.bits,
+        fs_out=options.fs_out,
+        seed=noise_seed,
+    )
+    return take, sim, mach
+
+
+def make_take(
+    calibration_path: str | Path,
+    reed_path: str | Path,
+    out: str | Path,
+    options: SynthOptions,
+    *,
+    force: bool = False,
+    command: str | None = None,
+) -> TakeFiles:
+    """Synthesise a take and write it with its sidecar, truth and calibration copy.
+
+    Parameters
+    ----------
+    calibration_path : str or Path
+        Calibration YAML.
+    reed_path : str or Path
+        Reed parameter YAML.
+    out : str or Path
+        Audio file to write (``.flac``, ``.wav`` or ``.aiff``).
+    options : SynthOptions
+        See :class:`SynthOptions`.
+    force : bool
+        Overwrite existing outputs.
+    command : str, optional
+        The command line, recorded in the sidecar.
+
+    Returns
+    -------
+    TakeFiles
+        Paths of everything written.
+
+    Raises
+    ------
+    OutputExistsError
+        Before any work, when an output exists and ``force`` is not set.
+    """
+    from mpipe.reed.parameters import load_reed
+
+    out = Path(out)
+    check_file_rate(out, options.fs_out if options.fs_out is not None else options.fs_model)
+    planned = take_file_paths(out, options.mic_calibration)
+    check_writable([planned.audio, planned.sidecar, planned.truth, planned.calibration], force)
+    calibration = load_calibration(calibration_path)
+    n_mics = len(calibration.microphones)
+    for name, values in (
+        ("gain_error_db", options.gain_error_db),
+        ("phase_error_deg", options.phase_error_deg),
+    ):
+        if values is not None and len(values) != n_mics:
+            raise UserError(
+                f"--{name.replace('_', '-')}: {len(values)} values given, but "
+                f"{calibration_path} has {n_mics} microphones (one value per microphone)"
+            )
+    reed = load_reed(reed_path)
+    take, sim, mach = synthesize(calibration, reed, options)
+    breath_seed, noise_seed = child_seeds(options.seed)
+    recipe = {
+        "command": command,
+        "seed": options.seed,
+        "calibration": str(Path(calibration_path).resolve()),
+        "calibration_sha256": _sha256(calibration_path),
+        "reed": str(Path(reed_path).resolve()),
+        "reed_sha256": _sha256(reed_path),
+        "reed_parameters": reed.to_mapping(),
+        "options": asdict(options),
+        "mach_applied": mach,
+        "breath_noise_seed": breath_seed,
+        "microphone_noise_seed": noise_seed,
+    }
+    truth = {f"reed_{k}": v for k, v in reed.to_mapping().items()}
+    truth["mouth_pressure_model"] = sim.mouth_pressure
+    truth["swell"] = options.swell
+    truth["breath_noise_pa"] = options.breath_noise_pa
+    return _write(
+        out,
+        take,
+        calibration,
+        recipe=recipe,
+        truth_extra=truth,
+        mic_calibration=options.mic_calibration,
+        force=force,
+    )
+
+
+#: Highest sample rate a FLAC stream can declare in its header (20-bit field in units of
+#: 10 Hz for the streamable subset libsndfile writes), Hz.
+FLAC_MAX_RATE_HZ = 655_350
+
+
+def check_file_rate(path: str | Path, fs: float) -> None:
+    """Refuse, before any work, a sample rate the audio file cannot store.
+
+    Every audio container stores an integer rate in Hz; FLAC (as written by libsndfile)
+    at most ``FLAC_MAX_RATE_HZ``.
+
+    Raises
+    ------
+    ValueError
+        Naming the rate and what the format allows.
+    """
+    if not fs > 0 or abs(fs - round(fs)) > 1e-9 * fs:
+        raise ValueError(
+            f"sample rate {fs:g} Hz cannot be stored: audio files hold an integer rate in Hz"
+        )
+    if Path(path).suffix.lower() == ".flac" and round(fs) > FLAC_MAX_RATE_HZ:
+        raise ValueError(
+            f"sample rate {fs:g} Hz cannot be stored in FLAC (at most {FLAC_MAX_RATE_HZ} Hz); "
+            "use --fs-out for a lower file rate or write .wav"
+        )
+
+
+def _sha256(path: str | Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+__all__ = ["SynthOptions", "VirtualTake", "check_file_rate", "make_take", "synthesize"]

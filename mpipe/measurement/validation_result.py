@@ -1,0 +1,169 @@
+"""The outcome of the impedance validation: its verdict, curves, terminal summary and plot.
+
+:class:`ValidationResult` holds the measured and theoretical normalised impedances, the
+metrics per resonance and per harmonic, and the verdict (PASS, FAIL or CANNOT-VERIFY, see
+:mod:`mpipe.measurement.validation`); :func:`plot_impedance` draws the paper's Fig. 10.
+
+References
+----------
+Chatziioannou & van Walstijn 2012, section 4 and Fig. 10; physics.md F.3.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+
+@dataclass(frozen=True)
+class ValidationResult:
+    """Measured and theoretical impedance, metrics and verdict.
+
+    Attributes
+    ----------
+    freqs : ndarray
+        Frequencies in Hz (the Welch grid, DC excluded).
+    z_measured, z_theory : ndarray
+        Normalised impedances ``Z / Z0`` (complex, dimensionless).
+    coherence : ndarray
+        Squared coherence of U and P.
+    z0 : float
+        Real characteristic impedance of the entry, Pa s/m^3.
+    temperature_c : float
+        Air temperature of the theory, degC.
+    resonances : pandas.DataFrame
+        Per resonance: ``frequency_theory_hz``, ``frequency_measured_hz`` (zero crossings
+        of the phase at the peaks of |z|), ``error_cents``,
+        ``level_theory_db``, ``level_measured_db``, ``error_db``, ``coherence``.
+    harmonics : pandas.DataFrame
+        Per harmonic of the note: ``harmonic``, ``frequency_hz``, ``error_db``,
+        ``error_deg``, ``coherence``.
+    f0_hz : float
+        Playing frequency (NaN for a non-tonal signal).
+    band_error_db, band_error_deg : float
+        Mean |magnitude error| (dB) and |phase error| (degrees) over coherent bins.
+    coherent_fraction : float
+        Fraction of the bins in the band with coherence >= ``min_coherence``.
+    failures : tuple of str
+        Why the verdict is fail (empty when it passes).
+    checks : int
+        Number of quantities compared (measured resonances and coherent harmonics).
+    min_checks : int
+        Fewest compared quantities for a PASS.
+    """
+
+    freqs: np.ndarray
+    z_measured: np.ndarray
+    z_theory: np.ndarray
+    coherence: np.ndarray
+    z0: float
+    temperature_c: float
+    resonances: pd.DataFrame
+    harmonics: pd.DataFrame
+    f0_hz: float
+    band_error_db: float
+    band_error_deg: float
+    coherent_fraction: float
+    failures: tuple[str, ...] = field(default_factory=tuple)
+    checks: int = 0
+    min_checks: int = 1
+
+    @property
+    def passed(self) -> bool:
+        """True when enough quantities were compared and all are within tolerance."""
+        return self.verdict == "pass"
+
+    @property
+    def verdict(self) -> str:
+        """``"pass"``, ``"fail"`` or ``"cannot-verify"`` (too little was measurable)."""
+        if self.failures:
+            return "fail"
+        return "pass" if self.checks >= self.min_checks else "cannot-verify"
+
+    @property
+    def reason(self) -> str:
+        """One line saying why the verdict is what it is."""
+        if self.failures:
+            return "; ".join(self.failures)
+        what = f"{self.checks} quantit{'y' if self.checks == 1 else 'ies'} compared"
+        if self.verdict == "pass":
+            return f"{what}, all within tolerance"
+        return (
+            f"only {what} (need {self.min_checks}): no resonance was measurable and too few "
+            f"harmonics were coherent ({100 * self.coherent_fraction:.2g} % of the bins in the "
+            "band reach the coherence threshold)"
+        )
+
+    def table(self) -> pd.DataFrame:
+        """The curves: frequency (Hz), z measured and theoretical (re, im, dB), coherence."""
+        return pd.DataFrame(
+            {
+                "frequency_hz": self.freqs,
+                "z_measured_re": self.z_measured.real,
+                "z_measured_im": self.z_measured.imag,
+                "z_measured_db": db(self.z_measured),
+                "z_theory_re": self.z_theory.real,
+                "z_theory_im": self.z_theory.imag,
+                "z_theory_db": db(self.z_theory),
+                "coherence": self.coherence,
+            }
+        )
+
+    def summary(self) -> str:
+        """A few lines for the terminal: verdict, resonances and band errors."""
+        lines = [f"impedance validation: {self.verdict.upper()} ({self.reason})"]
+        lines.append("  resonance  f_th (Hz)  f_meas (Hz)  cents   L_th (dB)  dL (dB)")
+        for i, r in self.resonances.iterrows():
+            lines.append(
+                f"  {i + 1:9d}  {r.frequency_theory_hz:9.2f}  {r.frequency_measured_hz:11.2f}"
+                f"  {r.error_cents:6.2f}  {r.level_theory_db:9.2f}  {r.error_db:7.2f}"
+            )
+        lines.append(
+            f"  band {self.band_error_db:.2f} dB, {self.band_error_deg:.1f} deg over "
+            f"{100 * self.coherent_fraction:.0f} % coherent bins"
+            + (f"; note f0 {self.f0_hz:.2f} Hz" if np.isfinite(self.f0_hz) else "")
+        )
+        lines.extend(f"  fail: {f}" for f in self.failures)
+        return "\n".join(lines)
+
+
+def db(z: np.ndarray) -> np.ndarray:
+    """Level of a complex quantity in dB (20 log10 |z|, floored at 1e-300)."""
+    return 20 * np.log10(np.maximum(np.abs(z), 1e-300))
+
+
+def plot_impedance(
+    result: ValidationResult, path: str | Path, fmax_hz: float | None = None
+) -> None:
+    """Draw the paper's Fig. 10: |z| in dB, theory and measurement, coherence below (PNG).
+
+    Uses the Agg canvas directly, so no global pyplot state is touched.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fmax = fmax_hz if fmax_hz is not None else float(result.freqs[-1])
+    sel = result.freqs <= fmax
+    f = result.freqs[sel]
+    fig = Figure(figsize=(8, 6))
+    FigureCanvasAgg(fig)
+    ax1, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
+    ax1.plot(f, db(result.z_theory[sel]), "k-", lw=1.2, label="theory")
+    ax1.plot(f, db(result.z_measured[sel]), "r--", lw=1.0, label="measured (H1)")
+    ax1.set_ylabel("|Z / Z0| (dB)")
+    ax1.set_title(f"Input impedance ({result.verdict}, T = {result.temperature_c:.2f} degC)")
+    ax1.legend(loc="upper right")
+    ax1.grid(alpha=0.3)
+    ax2.plot(f, result.coherence[sel], "b-", lw=0.8)
+    ax2.set_ylim(0, 1.05)
+    ax2.set_ylabel("coherence")
+    ax2.set_xlabel("frequency (Hz)")
+    ax2.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, format="png", dpi=100)
+
+
+__all__ = ["ValidationResult", "db", "plot_impedance"]
