@@ -35,7 +35,7 @@ from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWind
 from mpipe.inversion.rosenbrock import rosenbrock
 from mpipe.inversion.settings import PARAMETER_NAMES, ExecutorConfig, InversionConfig
 from mpipe.inversion.step1 import step1
-from mpipe.inversion.tracking import invert_window, start_point
+from mpipe.inversion.window import invert_window, start_point
 from mpipe.measurement.calibration import load_calibration
 from mpipe.reed.model import prepare_bore, simulate
 from mpipe.reed.parameters import ReedParameters

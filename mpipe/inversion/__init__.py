@@ -18,7 +18,13 @@ rosenbrock
 objective
     The step-2 objective F2 and the two ways of starting the model.
 tracking
-    Per-window inversion over a take, in parallel.
+    Per-window inversion over a take: one shared cold start, warm windows, cold retries.
+window
+    One window's inversion: step 1, the cold or warm start, step 2, its errors.
+execution
+    Where windows run: in process, a local process pool or a Dask cluster.
+tables
+    The per-window table, its checkpoints and the files written.
 least_squares, coldstart
     Trust-region search on F2's residual vector; the global cold start.
 fastpath
@@ -26,8 +32,13 @@ fastpath
 status
     ok, or why a window's numbers should not be trusted.
 uncertainty
-    Standard errors (coloured residual), undetermined directions, identifiable
-    combinations (p_M, gamma, zeta, f_r, Q_r) and their coverage.
+    Covariance of the estimates (coloured residual) and undetermined directions.
+combinations
+    Identifiable combinations (p_M, gamma, zeta, f_r, Q_r) and their standard errors.
+window_errors
+    The uncertainty columns of a window's row (standard errors, determined, notes).
+coverage
+    Summary of a take's uncertainty: spread, median SE, determined, 2-SE coverage.
 resynthesis
     The model driven by each window's estimates, and its figures.
 

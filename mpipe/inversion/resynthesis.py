@@ -269,7 +269,7 @@ def plot_tracks(table: pd.DataFrame, path: str | Path) -> Path:
     Path
     """
     from mpipe.core.units import unit_of
-    from mpipe.inversion.uncertainty import COMBINATIONS
+    from mpipe.inversion.combinations import COMBINATIONS
 
     t = (0.5 * (table["t_start_s"] + table["t_end_s"])).to_numpy(dtype=float)
     names = [*PARAMETER_NAMES, "y_c", *(c.name for c in COMBINATIONS), "relative_residual"]

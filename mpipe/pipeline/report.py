@@ -342,7 +342,7 @@ def write_take_report(
     )
     if val.get("failures"):
         summary_text += "\n\nValidation failures: " + "; ".join(val["failures"]) + "."
-    from mpipe.inversion.uncertainty import summary as uncertainty_summary
+    from mpipe.inversion.coverage import summary as uncertainty_summary
 
     uncertainty = uncertainty_summary(windows)
     if len(uncertainty):

@@ -108,7 +108,8 @@ def _run(args: argparse.Namespace) -> int:
     from mpipe.inversion.conditioning import plan_inversion
     from mpipe.inversion.kernel import bore_kernel, take_temperature
     from mpipe.inversion.status import summary_line
-    from mpipe.inversion.tracking import ProgressBar, track, write_correlations, write_table
+    from mpipe.inversion.tables import write_correlations, write_table
+    from mpipe.inversion.tracking import ProgressBar, track
 
     out = Path(args.output)
     check_writable([out / name for name in (*OUTPUTS, "windows.parquet")], args.force)
