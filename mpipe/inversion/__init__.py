@@ -12,7 +12,11 @@ conditioning
 kernel
     The bore kernel of a take, at one documented temperature.
 step1
-    Closed-form quasi-static flow fit (paper section 3.1).
+    Closed-form quasi-static flow fit (paper section 3.1): both branches and p_m.
+flow_fit
+    Step 1's fit of one branch: regressors, exact least squares, sample refinement.
+mouth_pressure
+    Step 1's p_m: the minimiser of the profiled flow misfit.
 rosenbrock
     Rosenbrock's rotating-coordinate search and scipy comparisons (paper section 3.2).
 objective

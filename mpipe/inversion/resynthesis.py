@@ -28,13 +28,14 @@ import pandas as pd  # noqa: E402
 
 from mpipe.core.filters import design_lowpass  # noqa: E402
 from mpipe.core.io import write_atomic  # noqa: E402
+from mpipe.inversion.flow_fit import flow_signals  # noqa: E402
 from mpipe.inversion.objective import (  # noqa: E402
     ObjectiveSettings,
     TargetWindow,
     run_model,
 )
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig  # noqa: E402
-from mpipe.inversion.step1 import Step1Result, flow_signals  # noqa: E402
+from mpipe.inversion.step1 import Step1Result  # noqa: E402
 from mpipe.reed.model import BoreKernel  # noqa: E402
 from mpipe.reed.parameters import ReedParameters  # noqa: E402
 
