@@ -18,7 +18,9 @@ flow_fit
 mouth_pressure
     Step 1's p_m: the minimiser of the profiled flow misfit.
 rosenbrock
-    Rosenbrock's rotating-coordinate search and scipy comparisons (paper section 3.2).
+    Rosenbrock's rotating-coordinate search (paper section 3.2).
+scipy_searches
+    scipy's Powell and Nelder-Mead on the same problem, and the choice by name.
 objective
     The step-2 objective F2 and the two ways of starting the model.
 tracking

@@ -25,7 +25,8 @@ from mpipe.core.filters import design_lowpass
 from mpipe.inversion.coldstart import global_search
 from mpipe.inversion.least_squares import trust_region
 from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWindow
-from mpipe.inversion.rosenbrock import SearchResult, minimise
+from mpipe.inversion.rosenbrock import SearchResult
+from mpipe.inversion.scipy_searches import minimise
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
 from mpipe.inversion.status import on_bounds, search_bounds, window_status
 from mpipe.inversion.step1 import Step1Result, step1
