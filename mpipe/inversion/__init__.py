@@ -23,6 +23,8 @@ scipy_searches
     scipy's Powell and Nelder-Mead on the same problem, and the choice by name.
 objective
     The step-2 objective F2 and the two ways of starting the model.
+history_start
+    The model started from the target's past: the reed's lead-in, the missing mean flow.
 tracking
     Per-window inversion over a take: one shared cold start, warm windows, cold retries.
 window
