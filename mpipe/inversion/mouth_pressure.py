@@ -54,7 +54,7 @@ def estimate_p_m(
     the two F1 instead lets the worse-fitting closing branch pull p_m away (+1.6 % against
     +0.7 % on the Table 1 case). The samples of each branch are fixed during a search and
     re-selected (shut reed, contact) at the new p_m; search and selection alternate until
-    the selection settles (at most :data:`MAX_REFITS` rounds).
+    the selection settles (at most :data:`mpipe.inversion.flow_fit.MAX_REFITS` rounds).
 
     Parameters
     ----------
@@ -69,7 +69,7 @@ def estimate_p_m(
     lam : float
         Reed width, m.
     zero_mean, refine, y_c
-        As in :func:`fit_branch`.
+        As in :func:`mpipe.inversion.flow_fit.fit_branch`.
     bounds : tuple of float
         Search interval as factors of max p over the window (dimensionless).
     xtol : float

@@ -40,7 +40,7 @@ def scipy_search(
     Parameters
     ----------
     fun : callable
-        ``fun(x) -> float`` as for :func:`rosenbrock`.
+        ``fun(x) -> float`` as for :func:`mpipe.inversion.rosenbrock.rosenbrock`.
     x0 : ndarray
         Start point inside the bounds.
     method : {"powell", "nelder-mead"}
@@ -130,7 +130,9 @@ def scipy_search(
 def minimise(
     fun: Callable[[np.ndarray], float], x0: np.ndarray, *, method: str = "rosenbrock", **kwargs
 ) -> SearchResult:
-    """Dispatch to :func:`rosenbrock` or :func:`scipy_search` by ``method`` name.
+    """Run the search named ``method``: Rosenbrock's or :func:`scipy_search`.
+
+    Rosenbrock's search is :func:`mpipe.inversion.rosenbrock.rosenbrock`.
 
     Parameters
     ----------

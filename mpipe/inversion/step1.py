@@ -54,7 +54,7 @@ class Step1Result:
         The two branch fits.
     p_m_method : str
         How ``p_m`` was obtained: ``"given"``, ``"max"`` (max p over the window) or
-        ``"estimate"`` (profile of F1, :func:`estimate_p_m`).
+        ``"estimate"`` (profile of F1, :func:`mpipe.inversion.mouth_pressure.estimate_p_m`).
     max_p : float
         Largest pressure over the window, Pa (the reference of the step-2 p_m bounds).
     """
@@ -106,13 +106,15 @@ def step1(
         paper's choice); ``"estimate"``, the minimiser of the profiled F1 over
         [max p, 2 max p] (:func:`mpipe.inversion.mouth_pressure.estimate_p_m`).
     solver : {"lstsq", "nelder-mead"}
-        See :func:`fit_branch`.
+        See :func:`mpipe.inversion.flow_fit.fit_branch`.
     zero_mean : bool
-        The flow is zero-mean (measured data); see :func:`fit_branch`.
+        The flow is zero-mean (measured data); see
+        :func:`mpipe.inversion.flow_fit.fit_branch`.
     refine : bool
         Drop shut-reed (and, with ``y_c``, contact) samples and refit.
     y_c : float, optional
-        Displacement where reed-lay contact begins, m; see :func:`fit_branch`.
+        Displacement where reed-lay contact begins, m; see
+        :func:`mpipe.inversion.flow_fit.fit_branch`.
 
     Returns
     -------

@@ -104,7 +104,7 @@ class Tracking:
     Attributes
     ----------
     table : pandas.DataFrame
-        One row per window (columns :data:`COLUMNS`).
+        One row per window (columns :data:`mpipe.inversion.tables.COLUMNS`).
     histories : dict
         Window index -> step-2 objective history (best F2 after each evaluation, Pa).
     zero_mean : bool
@@ -140,12 +140,12 @@ def track(
 ) -> Tracking:
     """Invert every window of a take.
 
-    The first window is cold-started (see :func:`invert_window`); every other window is
-    started from its result, so each window's answer depends only on its own data and on
-    that one shared start: 1 or N workers, local processes or Dask give the same table.
-    Windows whose status is not ``ok`` after their warm start are then given a cold start
-    of their own (``config.retry_cold``), and every window gets its final status from
-    :func:`mpipe.inversion.status.classify`.
+    The first window is cold-started (see :func:`mpipe.inversion.window.invert_window`);
+    every other window is started from its result, so each window's answer depends only on
+    its own data and on that one shared start: 1 or N workers, local processes or Dask give
+    the same table. Windows whose status is not ``ok`` after their warm start are then given
+    a cold start of their own (``config.retry_cold``), and every window gets its final
+    status from :func:`mpipe.inversion.status.classify`.
 
     Parameters
     ----------

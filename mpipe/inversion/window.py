@@ -46,7 +46,7 @@ class WindowOutcome:
     Attributes
     ----------
     row : dict
-        One row of the table (keys of :data:`COLUMNS`).
+        One row of the table (keys of :data:`mpipe.inversion.tables.COLUMNS`).
     step1 : Step1Result or None
         Step-1 fits (None when step 1 was not run or failed).
     search : SearchResult or None

@@ -40,7 +40,7 @@ def window_uncertainty(
     cov : Covariance or None
         Covariance of the free parameters (None: no estimate, every SE is NaN).
     values : mapping
-        Every parameter of :data:`SE_PARAMETERS` (SI units).
+        Every parameter of :data:`mpipe.inversion.uncertainty.SE_PARAMETERS` (SI units).
     z_c : float
         Characteristic impedance of the mouthpiece entry, Pa s/m^3.
     rho : float
@@ -49,7 +49,8 @@ def window_uncertainty(
         A parameter or combination is determined when its relative SE is below this.
     scale_gauge : str, optional
         The fixed parameter that sets the scale when the model is scale invariant (the
-        contact point moves with y_m, see :func:`scale_direction`). Every parameter
+        contact point moves with y_m, see
+        :func:`mpipe.inversion.uncertainty.scale_direction`). Every parameter
         along the invariance then gets an infinite SE and is undetermined; the
         combinations, which are invariant, keep their SE.
     invalid : mapping, optional
