@@ -36,7 +36,7 @@ from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWind
 from mpipe.inversion.rosenbrock import rosenbrock
 from mpipe.inversion.settings import PARAMETER_NAMES, ExecutorConfig, InversionConfig
 from mpipe.inversion.step1 import step1
-from mpipe.inversion.tracking import invert_window, start_point
+from mpipe.inversion.window import invert_window, start_point
 from mpipe.measurement.calibration import load_calibration
 from mpipe.reed.bore_kernel import prepare_bore
 from mpipe.reed.model import simulate

@@ -46,7 +46,8 @@ from mpipe.inversion.conditioning import plan_inversion
 from mpipe.inversion.kernel import bore_kernel, take_temperature
 from mpipe.inversion.resynthesis import reed_from_row
 from mpipe.inversion.settings import PARAMETER_NAMES, ExecutorConfig
-from mpipe.inversion.tracking import invert_window, track
+from mpipe.inversion.tracking import track
+from mpipe.inversion.window import invert_window
 from mpipe.measurement.calibration import load_calibration
 from mpipe.measurement.separation.stage import separate
 from mpipe.measurement.takes import read_take

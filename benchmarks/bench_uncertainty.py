@@ -42,8 +42,9 @@ from headline import record
 
 from mpipe.cli.examples import EXAMPLE_CALIBRATION, EXAMPLE_OPTIONS, EXAMPLE_REED, example_take
 from mpipe.cli.main import main as cli_main
+from mpipe.inversion.combinations import COMBINATION_NAMES, combination_values
+from mpipe.inversion.coverage import summary
 from mpipe.inversion.kernel import bore_kernel
-from mpipe.inversion.uncertainty import COMBINATION_NAMES, combination_values, summary
 from mpipe.measurement.calibration import load_calibration
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -12,13 +12,27 @@ conditioning
 kernel
     The bore kernel of a take, at one documented temperature.
 step1
-    Closed-form quasi-static flow fit (paper section 3.1).
+    Closed-form quasi-static flow fit (paper section 3.1): both branches and p_m.
+flow_fit
+    Step 1's fit of one branch: regressors, exact least squares, sample refinement.
+mouth_pressure
+    Step 1's p_m: the minimiser of the profiled flow misfit.
 rosenbrock
-    Rosenbrock's rotating-coordinate search and scipy comparisons (paper section 3.2).
+    Rosenbrock's rotating-coordinate search (paper section 3.2).
+scipy_searches
+    scipy's Powell and Nelder-Mead on the same problem, and the choice by name.
 objective
     The step-2 objective F2 and the two ways of starting the model.
+history_start
+    The model started from the target's past: the reed's lead-in, the missing mean flow.
 tracking
-    Per-window inversion over a take, in parallel.
+    Per-window inversion over a take: one shared cold start, warm windows, cold retries.
+window
+    One window's inversion: step 1, the cold or warm start, step 2, its errors.
+execution
+    Where windows run: in process, a local process pool or a Dask cluster.
+tables
+    The per-window table, its checkpoints and the files written.
 least_squares, coldstart
     Trust-region search on F2's residual vector; the global cold start.
 fastpath
@@ -26,8 +40,13 @@ fastpath
 status
     ok, or why a window's numbers should not be trusted.
 uncertainty
-    Standard errors (coloured residual), undetermined directions, identifiable
-    combinations (p_M, gamma, zeta, f_r, Q_r) and their coverage.
+    Covariance of the estimates (coloured residual) and undetermined directions.
+combinations
+    Identifiable combinations (p_M, gamma, zeta, f_r, Q_r) and their standard errors.
+window_errors
+    The uncertainty columns of a window's row (standard errors, determined, notes).
+coverage
+    Summary of a take's uncertainty: spread, median SE, determined, 2-SE coverage.
 resynthesis
     The model driven by each window's estimates, and its figures.
 

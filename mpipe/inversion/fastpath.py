@@ -29,7 +29,8 @@ import math
 import numpy as np
 from numba import njit
 
-from mpipe.inversion.objective import ObjectiveSettings, TargetWindow, _pad_history
+from mpipe.inversion.history_start import pad_history
+from mpipe.inversion.objective import ObjectiveSettings, TargetWindow
 from mpipe.reed.block_fft import _fft_tables, _irfft_last_half, _rfft_lean
 from mpipe.reed.bore_kernel import BoreKernel
 from mpipe.reed.kernels import _run_pressure
@@ -44,6 +45,7 @@ REASONS = {DIVERGED: "diverged", SILENT: "silent"}
 # numba's on-disk cache of this function is keyed on this file only: after editing the
 # kernels it calls in mpipe/reed/kernels.py or block_fft.py, delete
 # mpipe/inversion/__pycache__/fastpath*.nb* (a stale cache keeps the old kernel compiled in).
+# Long on purpose: the compiled hot loop of every F2 evaluation, kept in one numba frame.
 @njit(cache=True)
 def _evaluate(
     out_r, target_p, target_std, p_lead, u_lead, filt, rho, fs, ph, uh, x, n0, z0,
@@ -57,7 +59,7 @@ def _evaluate(
     spectra with no mean-flow shift, of the shift's indicator, and the ones to fill.
     """
     n_lead = p_lead.size
-    # reed lead-in driven by the measured pressure (objective.reed_trajectory)
+    # reed lead-in driven by the measured pressure (history_start.reed_trajectory)
     ylead = work[0, :n_lead]
     y0 = (p_m - p_lead[0]) / k
     ylead[0] = y0
@@ -68,7 +70,7 @@ def _evaluate(
         ylead[i + 1] = a1 * ylead[i] + a2 * ylead[i - 1] + b1 * (p_m - p_lead[i]) + a3 * contact
     missing = 0.0
     if filt:
-        # objective._missing_mean_flow: candidate flow minus measured flow over the second
+        # history_start.missing_mean_flow: candidate flow minus measured flow over the second
         # half of the lead-in
         half = n_lead // 2
         acc = 0.0
@@ -195,8 +197,8 @@ class WindowEvaluator:
         if n_lead < 3:
             raise ValueError("lead_s: the compiled evaluator needs a lead-in of >= 3 samples")
         length = max(n_taps, n_lead)
-        p_hist = _pad_history(target.p_history, length)
-        u_hist = _pad_history(target.u_history, length)
+        p_hist = pad_history(target.p_history, length)
+        u_hist = pad_history(target.u_history, length)
         self.kernel = kernel
         self.fs = float(fs)
         self.filt = bool(target.zero_mean)

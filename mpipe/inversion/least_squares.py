@@ -121,43 +121,20 @@ def secant_levenberg_marquardt(
     Equations, SIAM 1996, ch. 8 and 10.
     """
     n = z0.size
-    evals = [0]
-
-    def f(z):
-        evals[0] += 1
-        return fun(z)
-
-    def fd_jacobian(z, r):
-        jac = np.empty((r.size, n))
-        for j in range(n):
-            h = DIFF_STEP * max(1.0, abs(z[j]))
-            if z[j] + h > z_hi[j]:
-                h = -h
-            zj = z.copy()
-            zj[j] += h
-            jac[:, j] = (f(zj) - r) / (zj[j] - z[j])
-        return jac
-
+    f = _Counted(fun)
     z = z0.copy()
     r = f(z)
     cost = float(r @ r)
-    jac = fd_jacobian(z, r)
+    jac = _difference_jacobian(f, z, r, z_hi)
     fresh = True
-    mu = None
+    mu = 1e-3
     nu = 2.0
     failures = 0
     f_tol = f_tolerance if f_tolerance else 0.0
     status, message = 0, "evaluation budget spent"
-    while evals[0] + 1 <= max_evaluations:
-        a, g = _normal_equations(jac, r)
-        diag = np.maximum(np.diag(a), 1e-12 * max(float(np.max(np.diag(a))), 1e-300))
-        if mu is None:
-            mu = 1e-3
-        step = np.linalg.solve(a + mu * np.diag(diag), -g)
-        z_new = np.clip(z + step, z_lo, z_hi)
-        dz = z_new - z
+    while f.n + 1 <= max_evaluations:
+        z_new, dz, predicted = _damped_step(jac, r, z, mu, z_lo, z_hi)
         small = float(np.linalg.norm(dz)) <= x_tolerance * (1.0 + float(np.linalg.norm(z)))
-        predicted = -(2.0 * float(g @ dz) + float(dz @ a @ dz))
         if small or (f_tol and 0 <= predicted <= f_tol * cost):
             if fresh:
                 status = 3 if small else 2
@@ -167,9 +144,9 @@ def secant_levenberg_marquardt(
                     else "predicted fall of the sum of squares below tolerance"
                 )
                 break
-            if evals[0] + n > max_evaluations:
+            if f.n + n > max_evaluations:
                 break
-            jac = fd_jacobian(z, r)
+            jac = _difference_jacobian(f, z, r, z_hi)
             fresh = True
             continue
         r_new = f(z_new)
@@ -188,14 +165,55 @@ def secant_levenberg_marquardt(
             mu *= nu
             nu *= 2.0
             failures += 1
-            if failures >= 2 and evals[0] + n <= max_evaluations:
+            if failures >= 2 and f.n + n <= max_evaluations:
                 # the updated Jacobian has stopped predicting: take a true one
-                jac = fd_jacobian(z, r)
+                jac = _difference_jacobian(f, z, r, z_hi)
                 fresh = True
                 failures = 0
-    if not fresh and evals[0] + n <= max_evaluations:
-        jac = fd_jacobian(z, r)
+    if not fresh and f.n + n <= max_evaluations:
+        jac = _difference_jacobian(f, z, r, z_hi)
     return z, r, jac, status, message
+
+
+class _Counted:
+    """``fun`` with a count of its calls (``n``)."""
+
+    def __init__(self, fun: Callable[[np.ndarray], np.ndarray]):
+        self.fun = fun
+        self.n = 0
+
+    def __call__(self, z: np.ndarray) -> np.ndarray:
+        self.n += 1
+        return self.fun(z)
+
+
+def _difference_jacobian(f, z: np.ndarray, r: np.ndarray, z_hi: np.ndarray) -> np.ndarray:
+    """Forward-difference Jacobian of ``f`` at ``z`` (``r = f(z)``), backwards at a bound."""
+    n = z.size
+    jac = np.empty((r.size, n))
+    for j in range(n):
+        h = DIFF_STEP * max(1.0, abs(z[j]))
+        if z[j] + h > z_hi[j]:
+            h = -h
+        zj = z.copy()
+        zj[j] += h
+        jac[:, j] = (f(zj) - r) / (zj[j] - z[j])
+    return jac
+
+
+def _damped_step(jac, r, z, mu, z_lo, z_hi) -> tuple[np.ndarray, np.ndarray, float]:
+    """The damped Gauss-Newton step from ``z``, clipped into the box.
+
+    Returns the new point, the step taken and the fall of the sum of squares that the
+    linear model predicts for it.
+    """
+    a, g = _normal_equations(jac, r)
+    diag = np.maximum(np.diag(a), 1e-12 * max(float(np.max(np.diag(a))), 1e-300))
+    step = np.linalg.solve(a + mu * np.diag(diag), -g)
+    z_new = np.clip(z + step, z_lo, z_hi)
+    dz = z_new - z
+    predicted = -(2.0 * float(g @ dz) + float(dz @ a @ dz))
+    return z_new, dz, predicted
 
 
 def trust_region(
@@ -252,21 +270,7 @@ def trust_region(
     z0 = np.clip(
         np.log(np.asarray(x0, dtype=float) / x_ref), z_lo + 1e-9 * span, z_hi - 1e-9 * span
     )
-    n = z0.size
-    history: list[float] = []
-    best = [math.inf, z0.copy()]
-
-    def fun(z: np.ndarray) -> np.ndarray:
-        r = np.asarray(residuals(x_ref * np.exp(np.clip(z, z_lo, z_hi))), dtype=float)
-        norm = float(np.linalg.norm(r))
-        if not math.isfinite(norm):
-            r = np.full(r.size, infeasible_norm / math.sqrt(max(r.size, 1)))
-            norm = infeasible_norm
-        if norm < best[0] and norm < infeasible_norm:
-            best[0], best[1] = norm, z.copy()
-        history.append(min(best[0], norm))
-        return r
-
+    fun = _LogResiduals(residuals, x_ref, z_lo, z_hi, infeasible_norm, z0)
     if secant:
         z, r, jac, status, message = secant_levenberg_marquardt(
             fun, z0, z_lo, z_hi, x_tolerance=x_tolerance, f_tolerance=f_tolerance,
@@ -276,23 +280,72 @@ def trust_region(
         return SearchResult(
             x=x_ref * np.exp(z),
             f=f,
-            n_iterations=len(history),
-            n_evaluations=len(history),
+            n_iterations=len(fun.history),
+            n_evaluations=len(fun.history),
             n_stages=0,
             converged=status > 0 and f < infeasible_norm,
             message=message,
-            history=np.asarray(history),
+            history=np.asarray(fun.history),
             method="trust-region",
             jacobian=jac,
             residuals=r,
         )
+    return _reflective(fun, z0, x_tolerance, f_tolerance, max_evaluations)
+
+
+class _LogResiduals:
+    """The residuals over ``z = ln(x / x_ref)`` (clipped into the box), with their history.
+
+    A non-finite residual vector becomes one of norm ``infeasible_norm``; the best feasible
+    point seen is kept (``best_norm``, ``best_z``), and the history holds the best norm
+    after each call.
+    """
+
+    def __init__(self, residuals, x_ref, z_lo, z_hi, infeasible_norm: float, z0: np.ndarray):
+        self.residuals, self.x_ref, self.z_lo, self.z_hi = residuals, x_ref, z_lo, z_hi
+        self.infeasible_norm = infeasible_norm
+        self.history: list[float] = []
+        self.best_norm, self.best_z = math.inf, z0.copy()
+
+    def __call__(self, z: np.ndarray) -> np.ndarray:
+        x = self.x_ref * np.exp(np.clip(z, self.z_lo, self.z_hi))
+        r = np.asarray(self.residuals(x), dtype=float)
+        norm = float(np.linalg.norm(r))
+        if not math.isfinite(norm):
+            r = np.full(r.size, self.infeasible_norm / math.sqrt(max(r.size, 1)))
+            norm = self.infeasible_norm
+        if norm < self.best_norm and norm < self.infeasible_norm:
+            self.best_norm, self.best_z = norm, z.copy()
+        self.history.append(min(self.best_norm, norm))
+        return r
+
+
+#: scipy's termination status -> message.
+_MESSAGES = {
+    0: "evaluation budget spent",
+    1: "gradient below tolerance",
+    2: "relative fall of the sum of squares below tolerance",
+    3: "step below tolerance",
+    4: "sum of squares and step below tolerance",
+}
+
+
+def _reflective(
+    fun: _LogResiduals,
+    z0: np.ndarray,
+    x_tolerance: float,
+    f_tolerance: float | None,
+    max_evaluations: int,
+) -> SearchResult:
+    """The trust-region reflective method of scipy, with a forward-difference Jacobian."""
+    n = z0.size
     # scipy counts only the evaluations of the residuals themselves, not the n more that
     # each forward-difference Jacobian costs: translate the model-run budget.
     max_nfev = max(int(max_evaluations // (n + 1)), 2)
     res = optimize.least_squares(
         fun,
         z0,
-        bounds=(z_lo, z_hi),
+        bounds=(fun.z_lo, fun.z_hi),
         method="trf",
         jac="2-point",
         diff_step=DIFF_STEP,
@@ -304,32 +357,24 @@ def trust_region(
     )
     z = np.asarray(res.x)
     f = float(np.linalg.norm(res.fun))
-    jac, fun = np.asarray(res.jac), np.asarray(res.fun)
-    if best[0] < f:
+    jac, r = np.asarray(res.jac), np.asarray(res.fun)
+    if fun.best_norm < f:
         # The reflective steps keep the accepted point, but a Jacobian column can land lower.
         # scipy's Jacobian belongs to its own end point: none is returned for this one.
-        z, f = best[1], best[0]
-        jac = fun = None
-    converged = bool(res.status > 0) and f < infeasible_norm
-    messages = {
-        0: "evaluation budget spent",
-        1: "gradient below tolerance",
-        2: "relative fall of the sum of squares below tolerance",
-        3: "step below tolerance",
-        4: "sum of squares and step below tolerance",
-    }
+        z, f = fun.best_z, fun.best_norm
+        jac = r = None
     return SearchResult(
-        x=x_ref * np.exp(z),
+        x=fun.x_ref * np.exp(z),
         f=f,
         n_iterations=int(res.nfev),
-        n_evaluations=len(history),
+        n_evaluations=len(fun.history),
         n_stages=0,
-        converged=converged,
-        message=messages.get(int(res.status), str(res.message)),
-        history=np.asarray(history),
+        converged=bool(res.status > 0) and f < fun.infeasible_norm,
+        message=_MESSAGES.get(int(res.status), str(res.message)),
+        history=np.asarray(fun.history),
         method="trust-region",
         jacobian=jac,
-        residuals=fun,
+        residuals=r,
     )
 
 

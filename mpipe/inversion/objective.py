@@ -39,7 +39,6 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from numba import njit
 
 from mpipe.core.filters import LowPass, apply_lowpass
 from mpipe.inversion.conditioning import (
@@ -49,10 +48,10 @@ from mpipe.inversion.conditioning import (
     steady_state,
     synchronise,
 )
+from mpipe.inversion.history_start import missing_mean_flow, pad_history, reed_trajectory
 from mpipe.reed.bore_kernel import BoreKernel
 from mpipe.reed.model import ModelState, simulate
 from mpipe.reed.parameters import ReedParameters, check_stability
-from mpipe.reed.scheme import reed_coefficients
 
 StartMethod = Literal["history", "rest"]
 
@@ -139,70 +138,6 @@ class ModelWindow:
     steady: bool = True
 
 
-@njit(cache=True)
-def _reed_lead_in(dp, a1, a2, a3, b1, y_c, alpha, y0):  # pragma: no cover - compiled
-    n = dp.size
-    y = np.empty(n)
-    y[0] = y0
-    y[1] = y0
-    for i in range(1, n - 1):
-        c = y[i] - y_c
-        contact = c**alpha if c > 0.0 else 0.0
-        y[i + 1] = a1 * y[i] + a2 * y[i - 1] + b1 * dp[i] + a3 * contact
-    return y
-
-
-def reed_trajectory(reed: ReedParameters, dp: np.ndarray, fs: float) -> np.ndarray:
-    """Reed displacement driven by a pressure-difference history.
-
-    Starts from the quasi-static estimate ``y = dp/k`` at the first sample and drives the
-    reed update (G.2, contact included) with ``dp``; the start error decays as
-    ``exp(-g t / 2)``.
-
-    Parameters
-    ----------
-    reed : ReedParameters
-        Candidate reed.
-    dp : ndarray
-        Pressure difference p_m - p over the lead-in, Pa (at least 2 samples).
-    fs : float
-        Sample rate, Hz.
-
-    Returns
-    -------
-    ndarray
-        Displacement at every sample of ``dp``, m.
-
-    References
-    ----------
-    Chatziioannou & van Walstijn 2012, eqs. (9) and (A.1); physics.md G.2, H.
-    """
-    dp = np.ascontiguousarray(dp, dtype=float)
-    y0 = float(dp[0]) / reed.k
-    if dp.size < 3:
-        return dp / reed.k
-    a1, a2, a3, b1 = reed_coefficients(reed, fs)
-    return _reed_lead_in(dp, a1, a2, a3, b1, reed.y_c, reed.alpha, y0)
-
-
-def reed_state_from_pressure(
-    reed: ReedParameters, dp: np.ndarray, fs: float
-) -> tuple[float, float]:
-    """Reed displacement at the last two samples of a pressure-difference history, m.
-
-    See :func:`reed_trajectory`; returns ``(y, y_prev)``.
-    """
-    y = reed_trajectory(reed, dp, fs)
-    return float(y[-1]), float(y[-2])
-
-
-def _pad_history(x: np.ndarray, n: int) -> np.ndarray:
-    x = np.asarray(x, dtype=float)
-    if x.size >= n:
-        return x[-n:]
-    return np.concatenate([np.zeros(n - x.size), x])
-
-
 def _measured_pressure(p: np.ndarray, lp, ctx: int, n: int) -> np.ndarray:
     """Model pressure as the measurement chain delivers it: the FIR low-pass only.
 
@@ -222,45 +157,6 @@ def _measured_flow(u: np.ndarray, lp, ctx: int, n: int, target: TargetWindow) ->
     """
     y = apply_lowpass(u, lp)[ctx : ctx + n]
     return y - y.mean() + float(np.mean(target.u))
-
-
-def mean_flow_estimate(reed: ReedParameters, p: np.ndarray, rho: float) -> float:
-    """Mean flow of the quasi-static reed over a pressure record, m^3/s.
-
-    Used to restore the mean that a measured (zero-mean) flow history lacks.
-
-    Parameters
-    ----------
-    reed : ReedParameters
-        Candidate reed (k, y_m, p_m, lam are used).
-    p : ndarray
-        Mouthpiece pressure, Pa, ideally a whole number of periods.
-    rho : float
-        Air density, kg/m^3.
-
-    Returns
-    -------
-    float
-
-    References
-    ----------
-    Chatziioannou & van Walstijn 2012, eq. (10) (the u_f term; u_r has zero mean).
-    """
-    dp = reed.p_m - np.asarray(p, dtype=float)
-    h = np.maximum(reed.y_m - dp / reed.k, 0.0)
-    return float(np.mean(np.sign(dp) * reed.lam * h * np.sqrt(2.0 * np.abs(dp) / rho)))
-
-
-def _missing_mean_flow(reed, dp, y, u_meas, fs, rho) -> float:
-    # The candidate's flow over the lead-in (reed driven by the measured pressure) minus the
-    # measured zero-mean flow over the same samples: the mean the measurement lost. Both
-    # means are over the same span, so it need not be a whole number of periods. The first
-    # half of the lead-in carries the reed's start transient and is skipped.
-    h = np.maximum(reed.y_m - y, 0.0)
-    u_f = np.sign(dp) * reed.lam * h * np.sqrt(2.0 * np.abs(dp) / rho)
-    u_r = reed.S * np.diff(y, prepend=y[0]) * fs
-    half = dp.size // 2
-    return float(np.mean((u_f + u_r - u_meas)[half:]))
 
 
 def run_model(
@@ -307,76 +203,103 @@ def run_model(
         check_stability(reed, fs)
     except ValueError as exc:
         return infeasible(f"unstable: {exc}")
-    filt = target.zero_mean
-    lp = settings.lowpass if filt else None
     lag, steady = 0, True
-    with np.errstate(all="ignore"):
-        if settings.start == "history":
-            n_taps = kernel.h.size
-            n_lead = max(int(round(settings.lead_s * fs)), 2)
-            p_hist = _pad_history(target.p_history, max(n_taps, n_lead))
-            u_hist = _pad_history(target.u_history, max(n_taps, n_lead))
-            dp_lead = reed.p_m - p_hist[-n_lead:]
-            y_lead = reed_trajectory(reed, dp_lead, fs)
-            y, y_prev = float(y_lead[-1]), float(y_lead[-2])
-            if filt:
-                u_hist = u_hist + _missing_mean_flow(
-                    reed, dp_lead, y_lead, u_hist[-n_lead:], fs, kernel.rho
-                )
-            state = ModelState(
-                p_plus=0.5 * (p_hist[-n_taps:] + kernel.z0 * u_hist[-n_taps:]),
-                y=y,
-                y_prev=y_prev,
-                dp=float(dp_lead[-1]),
-            )
-            # Run on past the window when filtering: the linear-phase FIR needs its
-            # half-length of signal on both sides of the window.
-            n_pad = lp.delay + 1 if filt else 0
-            try:
-                sim = simulate(reed, kernel, n + n_pad, state=state)
-            except ValueError as exc:
-                return infeasible(f"model: {exc}")
-            p_mod, u_mod = sim.p, sim.u
-            if not np.all(np.isfinite(p_mod)):
-                return infeasible("diverged")
-            if filt:
-                ctx = lp.delay + 1
-                p_mod = _measured_pressure(np.concatenate([p_hist[-ctx:], p_mod]), lp, ctx, n)
-                u_mod = _measured_flow(np.concatenate([u_hist[-ctx:], u_mod]), lp, ctx, n, target)
-        else:
-            period = _target_period(target)
-            n_lags = max(int(math.ceil(period)), 1)
-            n_settle = int(round(settings.settle_s * fs))
-            n_pad = lp.delay + 1 if filt else 0
-            try:
-                sim = simulate(reed, kernel, n_settle + n + n_lags + n_pad)
-            except ValueError as exc:
-                return infeasible(f"model: {exc}")
-            p_all, u_all = sim.p, sim.u
-            if not np.all(np.isfinite(p_all)):
-                return infeasible("diverged")
-            if filt:
-                p_all = match_measurement(p_all, fs, lp, None)
-                u_all = match_measurement(u_all, fs, lp, None)
-            seg_p, seg_u = (
-                p_all[n_settle : p_all.size - n_pad],
-                u_all[n_settle : p_all.size - n_pad],
-            )
-            target_rms = float(np.std(target.p))
-            st = steady_state(p_all, period, silence_rms=0.01 * target_rms)
-            if not st.oscillating:
-                return infeasible("silent")
-            steady = st.steady
-            lag = synchronise(target.p, seg_p, n_lags)
-            p_mod, u_mod = seg_p[lag : lag + n], seg_u[lag : lag + n]
-            if filt:
-                u_mod = u_mod - u_mod.mean() + target.u.mean()
+    try:
+        with np.errstate(all="ignore"):
+            if settings.start == "history":
+                p_mod, u_mod = _run_from_history(reed, kernel, target, settings)
+            else:
+                p_mod, u_mod, lag, steady = _run_from_rest(reed, kernel, target, settings)
+    except _Infeasible as exc:
+        return infeasible(str(exc))
     if np.std(p_mod) < 0.01 * np.std(target.p):
         return infeasible("silent")
     f2 = float(np.linalg.norm(target.p - p_mod))
     if not math.isfinite(f2):
         return infeasible("diverged")
     return ModelWindow(p_mod, u_mod, f2, relative_residual(target.p, p_mod), True, "", lag, steady)
+
+
+class _Infeasible(Exception):
+    """The model cannot run the candidate, or its output is unusable (the reason)."""
+
+
+def _simulate(reed: ReedParameters, kernel: BoreKernel, n: int, state=None):
+    """Model pressure and flow over ``n`` samples; raises :class:`_Infeasible` on failure."""
+    try:
+        sim = simulate(reed, kernel, n, state=state)
+    except ValueError as exc:
+        raise _Infeasible(f"model: {exc}") from exc
+    if not np.all(np.isfinite(sim.p)):
+        raise _Infeasible("diverged")
+    return sim.p, sim.u
+
+
+def _run_from_history(
+    reed: ReedParameters, kernel: BoreKernel, target: TargetWindow, settings: ObjectiveSettings
+) -> tuple[np.ndarray, np.ndarray]:
+    """The model started from the target's history, over the window (conditioned)."""
+    n, fs = target.p.size, target.fs
+    filt = target.zero_mean
+    lp = settings.lowpass if filt else None
+    n_taps = kernel.h.size
+    n_lead = max(int(round(settings.lead_s * fs)), 2)
+    p_hist = pad_history(target.p_history, max(n_taps, n_lead))
+    u_hist = pad_history(target.u_history, max(n_taps, n_lead))
+    dp_lead = reed.p_m - p_hist[-n_lead:]
+    y_lead = reed_trajectory(reed, dp_lead, fs)
+    y, y_prev = float(y_lead[-1]), float(y_lead[-2])
+    if filt:
+        u_hist = u_hist + missing_mean_flow(reed, dp_lead, y_lead, u_hist[-n_lead:], fs, kernel.rho)
+    state = ModelState(
+        p_plus=0.5 * (p_hist[-n_taps:] + kernel.z0 * u_hist[-n_taps:]),
+        y=y,
+        y_prev=y_prev,
+        dp=float(dp_lead[-1]),
+    )
+    # Run on past the window when filtering: the linear-phase FIR needs its
+    # half-length of signal on both sides of the window.
+    n_pad = lp.delay + 1 if filt else 0
+    p_mod, u_mod = _simulate(reed, kernel, n + n_pad, state=state)
+    if filt:
+        ctx = lp.delay + 1
+        p_mod = _measured_pressure(np.concatenate([p_hist[-ctx:], p_mod]), lp, ctx, n)
+        u_mod = _measured_flow(np.concatenate([u_hist[-ctx:], u_mod]), lp, ctx, n, target)
+    return p_mod, u_mod
+
+
+def _run_from_rest(
+    reed: ReedParameters, kernel: BoreKernel, target: TargetWindow, settings: ObjectiveSettings
+) -> tuple[np.ndarray, np.ndarray, int, bool]:
+    """The model started from rest, settled, and synchronised with the target.
+
+    Returns the model's pressure and flow over the window, the lag found (samples) and
+    whether the model's oscillation was steady.
+    """
+    n, fs = target.p.size, target.fs
+    filt = target.zero_mean
+    lp = settings.lowpass if filt else None
+    period = _target_period(target)
+    n_lags = max(int(math.ceil(period)), 1)
+    n_settle = int(round(settings.settle_s * fs))
+    n_pad = lp.delay + 1 if filt else 0
+    p_all, u_all = _simulate(reed, kernel, n_settle + n + n_lags + n_pad)
+    if filt:
+        p_all = match_measurement(p_all, fs, lp, None)
+        u_all = match_measurement(u_all, fs, lp, None)
+    seg_p, seg_u = (
+        p_all[n_settle : p_all.size - n_pad],
+        u_all[n_settle : p_all.size - n_pad],
+    )
+    target_rms = float(np.std(target.p))
+    st = steady_state(p_all, period, silence_rms=0.01 * target_rms)
+    if not st.oscillating:
+        raise _Infeasible("silent")
+    lag = synchronise(target.p, seg_p, n_lags)
+    p_mod, u_mod = seg_p[lag : lag + n], seg_u[lag : lag + n]
+    if filt:
+        u_mod = u_mod - u_mod.mean() + target.u.mean()
+    return p_mod, u_mod, lag, st.steady
 
 
 def _target_period(target: TargetWindow) -> float:

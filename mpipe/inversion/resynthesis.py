@@ -28,13 +28,14 @@ import pandas as pd  # noqa: E402
 
 from mpipe.core.filters import design_lowpass  # noqa: E402
 from mpipe.core.io import write_atomic  # noqa: E402
+from mpipe.inversion.flow_fit import flow_signals  # noqa: E402
 from mpipe.inversion.objective import (  # noqa: E402
     ObjectiveSettings,
     TargetWindow,
     run_model,
 )
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig  # noqa: E402
-from mpipe.inversion.step1 import Step1Result, flow_signals  # noqa: E402
+from mpipe.inversion.step1 import Step1Result  # noqa: E402
 from mpipe.reed.bore_kernel import BoreKernel  # noqa: E402
 from mpipe.reed.parameters import ReedParameters  # noqa: E402
 
@@ -269,7 +270,7 @@ def plot_tracks(table: pd.DataFrame, path: str | Path) -> Path:
     Path
     """
     from mpipe.core.units import unit_of
-    from mpipe.inversion.uncertainty import COMBINATIONS
+    from mpipe.inversion.combinations import COMBINATIONS
 
     t = (0.5 * (table["t_start_s"] + table["t_end_s"])).to_numpy(dtype=float)
     names = [*PARAMETER_NAMES, "y_c", *(c.name for c in COMBINATIONS), "relative_residual"]

@@ -1,9 +1,9 @@
-"""Rosenbrock's rotating-coordinate search, and scipy searches for comparison.
+"""Rosenbrock's rotating-coordinate search, the paper's step-2 search.
 
-All three searches work on log-scaled parameters ``z_i = ln(theta_i / theta0_i)`` inside
-bounds, as step 2 does (physics.md I). A trial point that is out of bounds or whose value
-is not finite, or not below ``infeasible_at``, counts as a failure (Rosenbrock) or as a very
-poor value (scipy).
+It works on log-scaled parameters ``z_i = ln(theta_i / theta0_i)`` inside bounds, as step
+2 does (physics.md I), like scipy's searches kept for comparison
+(:mod:`mpipe.inversion.scipy_searches`). A trial point that is out of bounds or whose value
+is not finite, or not below ``infeasible_at``, counts as a failure.
 
 References
 ----------
@@ -25,7 +25,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import optimize
 
 log = logging.getLogger(__name__)
 
@@ -198,113 +197,177 @@ def rosenbrock(
     ----------
     Rosenbrock 1960, Computer Journal 3(3):175-184; Palmer 1969; physics.md I.
     """
-    to_x, z_lo, z_hi, x0 = _scaling(x0, lower, upper, log_scale)
+    to_x, z_lo, z_hi, x0 = scaling(x0, lower, upper, log_scale)
     n = x0.size
     steps0 = np.broadcast_to(np.asarray(initial_step, dtype=float), (n,)).copy()
     if np.any(steps0 <= 0):
         raise ValueError("initial_step must be positive")
-    history: list[float] = []
-    n_eval = 0
-    best = math.inf
-
-    def evaluate(z: np.ndarray) -> float:
-        nonlocal n_eval, best
-        n_eval += 1
-        try:
-            value = float(fun(to_x(z)))
-        except (FloatingPointError, ValueError, ZeroDivisionError, OverflowError):
-            value = math.nan
-        if not (math.isfinite(value) and value < infeasible_at):
-            value = math.inf
-        best = min(best, value)
-        history.append(best)
-        return value
-
+    evaluate = _Evaluations(fun, to_x, infeasible_at)
     z = np.zeros(n)
     f = evaluate(z)
     if not math.isfinite(f):
         # Every comparison with an infeasible start would count as a success (inf <= inf)
         # and the steps would grow without bound: report the start as infeasible instead.
         return SearchResult(
-            x=to_x(z), f=f, n_iterations=0, n_evaluations=n_eval, n_stages=0,
-            converged=False, message="infeasible start point", history=np.asarray(history),
-            method="rosenbrock",
+            x=to_x(z), f=f, n_iterations=0, n_evaluations=evaluate.n, n_stages=0,
+            converged=False, message="infeasible start point",
+            history=np.asarray(evaluate.history), method="rosenbrock",
         )  # fmt: skip
-    directions = np.eye(n)
-    steps = steps0.copy()
-    n_trials = 0
+    state = _State(z=z, f=f, directions=np.eye(n), steps=steps0.copy())
+    limits = _Limits(z_lo, z_hi, steps0, step_tolerance, f_target, max_evaluations)
     n_stages = 0
-    restart_f = math.nan
     converged = False
     message = "evaluation budget spent"
-    while n_eval < max_evaluations:
-        advances = np.zeros(n)
-        succeeded = np.zeros(n, dtype=bool)
-        done = np.zeros(n, dtype=bool)
-        f_stage = f
-        stopped = False
-        while not done.all():
-            for i in range(n):
-                if n_eval >= max_evaluations:
-                    stopped = True
-                    break
-                trial = z + steps[i] * directions[i]
-                n_trials += 1
-                inside = bool(np.all(trial >= z_lo) and np.all(trial <= z_hi))
-                f_trial = evaluate(trial) if inside else math.inf
-                if math.isfinite(f_trial) and f_trial <= f:
-                    z, f = trial, f_trial
-                    advances[i] += steps[i]
-                    succeeded[i] = True
-                    steps[i] *= EXPAND
-                else:
-                    if succeeded[i]:
-                        done[i] = True
-                    steps[i] *= CONTRACT
-            if stopped:
-                break
-            if f <= f_target:
-                converged, message = True, "objective reached its target"
-                break
-            if np.all(np.abs(steps) < step_tolerance):
-                # Rotated directions can all point into an active bound and shrink to
-                # nothing away from the constrained minimum. Restart once along the
-                # coordinate axes; converge only if that restart gains nothing.
-                if f < restart_f or math.isnan(restart_f):
-                    restart_f = f
-                    directions = np.eye(n)
-                    steps = steps0.copy()
-                    advances[:] = 0.0
-                    succeeded[:] = False
-                    done[:] = False
-                    f_stage = f
-                    continue
-                converged, message = True, "all steps below the step tolerance"
-                break
-        if stopped or converged:
+    while evaluate.n < max_evaluations:
+        advances, f_stage, outcome = _stage(state, evaluate, limits)
+        if outcome == _BUDGET_SPENT:
+            break
+        if outcome is not None:
+            converged, message = True, outcome
             break
         n_stages += 1
+        f = state.f
         drop = (f_stage - f) / f_stage if math.isfinite(f_stage) and f_stage > 0 else math.inf
         if drop < f_tolerance:
             converged, message = True, "relative fall of the objective over a stage below tolerance"
             break
-        directions = palmer_directions(directions, advances)
-        steps = steps0.copy() if reset_steps else np.abs(steps)
-    log.debug("rosenbrock: %s after %d evaluations, f=%.6g", message, n_eval, f)
+        state.directions = palmer_directions(state.directions, advances)
+        state.steps = steps0.copy() if reset_steps else np.abs(state.steps)
+    log.debug("rosenbrock: %s after %d evaluations, f=%.6g", message, evaluate.n, state.f)
     return SearchResult(
-        x=to_x(z),
-        f=f,
-        n_iterations=n_trials,
-        n_evaluations=n_eval,
+        x=to_x(state.z),
+        f=state.f,
+        n_iterations=state.n_trials,
+        n_evaluations=evaluate.n,
         n_stages=n_stages,
         converged=converged,
         message=message,
-        history=np.array(history),
+        history=np.array(evaluate.history),
         method="rosenbrock",
     )
 
 
-def _scaling(x0, lower, upper, log_scale):
+class _Evaluations:
+    """``fun`` at a point z, counted, with the best value after each call (the history).
+
+    NaN, infinite, failing (a floating-point error) and infeasible (``>= infeasible_at``)
+    values all become +inf.
+    """
+
+    def __init__(self, fun: Callable[[np.ndarray], float], to_x, infeasible_at: float):
+        self.fun, self.to_x, self.infeasible_at = fun, to_x, infeasible_at
+        self.n = 0
+        self.best = math.inf
+        self.history: list[float] = []
+
+    def __call__(self, z: np.ndarray) -> float:
+        self.n += 1
+        try:
+            value = float(self.fun(self.to_x(z)))
+        except (FloatingPointError, ValueError, ZeroDivisionError, OverflowError):
+            value = math.nan
+        if not (math.isfinite(value) and value < self.infeasible_at):
+            value = math.inf
+        self.best = min(self.best, value)
+        self.history.append(self.best)
+        return value
+
+
+@dataclass
+class _State:
+    """Where the search stands: point z, its value, the directions and their steps."""
+
+    z: np.ndarray
+    f: float
+    directions: np.ndarray
+    steps: np.ndarray
+    n_trials: int = 0
+    restart_f: float = math.nan  # f at the last restart along the axes (NaN: none yet)
+
+
+@dataclass(frozen=True)
+class _Limits:
+    """Bounds in z, initial steps and the stopping rules of a search."""
+
+    z_lo: np.ndarray
+    z_hi: np.ndarray
+    steps0: np.ndarray
+    step_tolerance: float
+    f_target: float
+    max_evaluations: int
+
+
+#: Outcome of a stage cut short by the evaluation budget.
+_BUDGET_SPENT = "budget"
+
+
+def _stage(
+    state: _State, evaluate: _Evaluations, limits: _Limits
+) -> tuple[np.ndarray, float, str | None]:
+    """One stage: sweep the directions until each has had a success then a failure.
+
+    Returns the advance along each direction, f at the start of the stage (or of its
+    restart), and None when the stage ended normally, :data:`_BUDGET_SPENT`, or the
+    message of convergence.
+    """
+    n = state.z.size
+    advances = np.zeros(n)
+    succeeded = np.zeros(n, dtype=bool)
+    done = np.zeros(n, dtype=bool)
+    f_stage = state.f
+    while not done.all():
+        if _sweep(state, evaluate, limits, advances, succeeded, done):
+            return advances, f_stage, _BUDGET_SPENT
+        if state.f <= limits.f_target:
+            return advances, f_stage, "objective reached its target"
+        if np.all(np.abs(state.steps) < limits.step_tolerance):
+            # Rotated directions can all point into an active bound and shrink to
+            # nothing away from the constrained minimum. Restart once along the
+            # coordinate axes; converge only if that restart gains nothing.
+            if state.f < state.restart_f or math.isnan(state.restart_f):
+                state.restart_f = state.f
+                state.directions = np.eye(n)
+                state.steps = limits.steps0.copy()
+                advances[:] = 0.0
+                succeeded[:] = False
+                done[:] = False
+                f_stage = state.f
+                continue
+            return advances, f_stage, "all steps below the step tolerance"
+    return advances, f_stage, None
+
+
+def _sweep(state, evaluate, limits, advances, succeeded, done) -> bool:
+    """One trial step along every direction (arrays updated in place); True: budget spent.
+
+    A success (f(trial) <= f) moves the point and expands the step; a failure contracts
+    and reverses it, and ends the direction's part of the stage once it has succeeded.
+    """
+    for i in range(state.z.size):
+        if evaluate.n >= limits.max_evaluations:
+            return True
+        trial = state.z + state.steps[i] * state.directions[i]
+        state.n_trials += 1
+        inside = bool(np.all(trial >= limits.z_lo) and np.all(trial <= limits.z_hi))
+        f_trial = evaluate(trial) if inside else math.inf
+        if math.isfinite(f_trial) and f_trial <= state.f:
+            state.z, state.f = trial, f_trial
+            advances[i] += state.steps[i]
+            succeeded[i] = True
+            state.steps[i] *= EXPAND
+        else:
+            if succeeded[i]:
+                done[i] = True
+            state.steps[i] *= CONTRACT
+    return False
+
+
+def scaling(x0, lower, upper, log_scale):
+    """Map from search coordinates z to x, the bounds in z, and x0 as a float array.
+
+    ``z = ln(x / x0)`` with ``log_scale`` (x0 positive, bounds non-negative), else
+    ``z = x - x0``; raises ValueError when x0 lies outside the bounds.
+    """
     x0 = np.asarray(x0, dtype=float).copy()
     n = x0.size
     lower = np.full(n, -np.inf) if lower is None else np.asarray(lower, dtype=float)
@@ -328,136 +391,3 @@ def _scaling(x0, lower, upper, log_scale):
             return x0 + z
 
     return to_x, z_lo, z_hi, x0
-
-
-def scipy_search(
-    fun: Callable[[np.ndarray], float],
-    x0: np.ndarray,
-    *,
-    method: str,
-    lower: np.ndarray | None = None,
-    upper: np.ndarray | None = None,
-    log_scale: bool = True,
-    initial_step: float = 0.05,
-    step_tolerance: float = 1e-4,
-    f_tolerance: float = 1e-4,
-    max_evaluations: int = 1500,
-    infeasible_at: float = math.inf,
-) -> SearchResult:
-    """Minimise ``fun`` with scipy's Powell or Nelder-Mead on the same scaled, bounded problem.
-
-    Parameters
-    ----------
-    fun : callable
-        ``fun(x) -> float`` as for :func:`rosenbrock`.
-    x0 : ndarray
-        Start point inside the bounds.
-    method : {"powell", "nelder-mead"}
-        The scipy method.
-    lower, upper : ndarray, optional
-        Bounds in the caller's coordinates.
-    log_scale : bool
-        Search over ``ln(x / x0)``.
-    initial_step : float
-        Size of the initial simplex (Nelder-Mead) or direction vectors (Powell) in z.
-    step_tolerance : float
-        ``xatol`` (Nelder-Mead) or ``xtol`` (Powell), z units.
-    f_tolerance : float
-        ``fatol`` relative to the start value (Nelder-Mead) or ``ftol`` (Powell).
-    max_evaluations : int
-        Evaluation budget (``maxfev``).
-    infeasible_at : float
-        Values at or above this, NaN or infinite are replaced by a large finite penalty.
-
-    Returns
-    -------
-    SearchResult
-    """
-    key = method.lower()
-    if key not in ("powell", "nelder-mead"):
-        raise ValueError(f"method must be 'powell' or 'nelder-mead', got {method!r}")
-    to_x, z_lo, z_hi, x0 = _scaling(x0, lower, upper, log_scale)
-    n = x0.size
-    history: list[float] = []
-    best = [math.inf, np.zeros(n)]
-    penalty = [1e300]
-
-    def wrapped(z: np.ndarray) -> float:
-        if np.any(z < z_lo) or np.any(z > z_hi):
-            return penalty[0]
-        try:
-            value = float(fun(to_x(z)))
-        except (FloatingPointError, ValueError, ZeroDivisionError, OverflowError):
-            value = math.nan
-        if not (math.isfinite(value) and value < infeasible_at):
-            value = penalty[0]
-        elif value < best[0]:
-            best[0], best[1] = value, z.copy()
-        history.append(best[0])
-        return value
-
-    f0 = wrapped(np.zeros(n))
-    if math.isfinite(f0) and f0 < 1e300:
-        penalty[0] = max(1e3 * abs(f0), 1e3)
-    bounds = list(zip(np.maximum(z_lo, -1e3), np.minimum(z_hi, 1e3), strict=True))
-    if key == "nelder-mead":
-        simplex = np.vstack([np.zeros(n), initial_step * np.eye(n)])
-        simplex = np.clip(simplex, [b[0] for b in bounds], [b[1] for b in bounds])
-        options = {
-            "initial_simplex": simplex,
-            "xatol": step_tolerance,
-            "fatol": f_tolerance * max(abs(f0), 1e-300),
-            "maxfev": max_evaluations - 1,
-        }
-        res = optimize.minimize(
-            wrapped, np.zeros(n), method="Nelder-Mead", bounds=bounds, options=options
-        )
-    else:
-        options = {
-            "direc": initial_step * np.eye(n),
-            "xtol": step_tolerance,
-            "ftol": f_tolerance,
-            "maxfev": max_evaluations - 1,
-        }
-        res = optimize.minimize(
-            wrapped, np.zeros(n), method="Powell", bounds=bounds, options=options
-        )
-    z_best = best[1] if best[0] <= float(res.fun) else np.asarray(res.x)
-    return SearchResult(
-        x=to_x(z_best),
-        f=float(min(best[0], res.fun)),
-        n_iterations=int(getattr(res, "nit", 0)),
-        n_evaluations=len(history),
-        n_stages=0,
-        converged=bool(res.success),
-        message=str(res.message),
-        history=np.array(history),
-        method=key,
-    )
-
-
-def minimise(
-    fun: Callable[[np.ndarray], float], x0: np.ndarray, *, method: str = "rosenbrock", **kwargs
-) -> SearchResult:
-    """Dispatch to :func:`rosenbrock` or :func:`scipy_search` by ``method`` name.
-
-    Parameters
-    ----------
-    fun : callable
-        Objective, ``fun(x) -> float``.
-    x0 : ndarray
-        Start point.
-    method : {"rosenbrock", "powell", "nelder-mead"}
-        Search method.
-    **kwargs
-        Keyword arguments of the chosen function (bounds, tolerances, budget).
-
-    Returns
-    -------
-    SearchResult
-    """
-    if method == "rosenbrock":
-        return rosenbrock(fun, x0, **kwargs)
-    kwargs.pop("reset_steps", None)
-    kwargs.pop("f_target", None)
-    return scipy_search(fun, x0, method=method, **kwargs)

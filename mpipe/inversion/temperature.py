@@ -34,10 +34,10 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from mpipe.inversion.combinations import COMBINATION_NAMES, combination_values
 from mpipe.inversion.kernel import bore_kernel
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
-from mpipe.inversion.tracking import invert_window
-from mpipe.inversion.uncertainty import COMBINATION_NAMES, combination_values
+from mpipe.inversion.window import invert_window
 from mpipe.measurement.calibration import Calibration
 from mpipe.reed.parameters import ReedParameters
 

@@ -223,7 +223,8 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
     from mpipe.inversion import resynthesis as rs
     from mpipe.inversion.status import count as count_status
     from mpipe.inversion.status import summary_line
-    from mpipe.inversion.tracking import ProgressBar, track, write_correlations, write_table
+    from mpipe.inversion.tables import write_correlations, write_table
+    from mpipe.inversion.tracking import ProgressBar, track
 
     inv = cfg.inversion
 

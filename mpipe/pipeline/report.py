@@ -171,7 +171,7 @@ def _summary_section(records: dict, windows: pd.DataFrame) -> Section:
     )
     if val.get("failures"):
         summary_text += "\n\nValidation failures: " + "; ".join(val["failures"]) + "."
-    from mpipe.inversion.uncertainty import summary as uncertainty_summary
+    from mpipe.inversion.coverage import summary as uncertainty_summary
 
     uncertainty = uncertainty_summary(windows)
     if len(uncertainty):

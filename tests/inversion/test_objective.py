@@ -11,7 +11,6 @@ from mpipe.inversion.objective import (
     F2Objective,
     ObjectiveSettings,
     TargetWindow,
-    reed_state_from_pressure,
 )
 from mpipe.inversion.rosenbrock import rosenbrock
 from mpipe.inversion.settings import PARAMETER_NAMES
@@ -104,14 +103,6 @@ def test_infeasible_candidates_give_penalty(setup, change, reason):
     detail = obj.evaluate(x)
     assert not detail.feasible and reason in detail.reason
     assert obj(x) == obj.penalty and np.isfinite(obj.penalty)
-
-
-def test_reed_lead_in_converges_to_the_model_reed(setup):
-    _, sim, _ = setup
-    dp = TABLE1.p_m - sim.p[W0 - 1000 : W0]
-    y, y_prev = reed_state_from_pressure(TABLE1, dp, FS)
-    assert y == pytest.approx(sim.y[W0 - 1], rel=1e-4)
-    assert y_prev == pytest.approx(sim.y[W0 - 2], rel=1e-4)
 
 
 def test_round_trip_three_parameters_near_truth(setup):

@@ -12,7 +12,7 @@ from mpipe.cli.main import main
 from mpipe.inversion import resynthesis as rs
 from mpipe.inversion.settings import InversionConfig
 from mpipe.inversion.step1 import step1
-from mpipe.inversion.tracking import COLUMNS
+from mpipe.inversion.tables import COLUMNS
 from mpipe.measurement.calibration import load_calibration
 from mpipe.reed.bore_kernel import prepare_bore
 from mpipe.reed.model import simulate

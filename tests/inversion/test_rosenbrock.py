@@ -1,9 +1,9 @@
-"""Rosenbrock's rotating-coordinate search and the scipy comparisons."""
+"""Rosenbrock's rotating-coordinate search."""
 
 import numpy as np
 import pytest
 
-from mpipe.inversion.rosenbrock import minimise, palmer_directions, rosenbrock, scipy_search
+from mpipe.inversion.rosenbrock import palmer_directions, rosenbrock
 
 
 def banana(x):
@@ -41,32 +41,6 @@ def test_log_scaled_banana_inside_bounds():
         max_evaluations=5000,
     )
     np.testing.assert_allclose(r.x, [2.0, 2.0], rtol=1e-4)
-
-
-@pytest.mark.parametrize("method", ["rosenbrock", "powell", "nelder-mead"])
-def test_bounded_quadratic_respects_bounds(method):
-    seen = []
-    target = np.log([3.0, 0.02, 5e4])
-    lower, upper = np.array([0.1, 1e-3, 1e3]), np.array([2.0, 1.0, 1e6])
-
-    def f(x):
-        seen.append(x.copy())
-        return float(np.sum((np.log(x) - target) ** 2))
-
-    r = minimise(
-        f,
-        np.array([1.0, 1e-2, 1e5]),
-        method=method,
-        lower=lower,
-        upper=upper,
-        max_evaluations=3000,
-        f_tolerance=0.0 if method == "rosenbrock" else 1e-10,
-        step_tolerance=1e-6,
-    )
-    seen = np.array(seen)
-    assert np.all(seen >= lower * (1 - 1e-12)) and np.all(seen <= upper * (1 + 1e-12))
-    # the constrained minimum sits on the upper bound of x0
-    np.testing.assert_allclose(r.x, [2.0, 0.02, 5e4], rtol=1e-3)
 
 
 def test_infeasible_points_are_failures():
@@ -130,11 +104,6 @@ def test_palmer_matches_gram_schmidt_when_all_advances_nonzero():
     q, _ = np.linalg.qr(big_a.T)
     q = q.T * np.sign(np.diag(q.T @ big_a.T))[:, None]
     np.testing.assert_allclose(palmer_directions(d, a), q, atol=1e-12)
-
-
-def test_scipy_search_rejects_unknown_method():
-    with pytest.raises(ValueError, match="method"):
-        scipy_search(banana, np.array([1.0, 1.0]), method="bfgs")
 
 
 def test_infeasible_start_returns_at_once():

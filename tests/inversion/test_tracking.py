@@ -9,14 +9,8 @@ import pytest
 
 from mpipe.acoustics.reflection import reflection_function
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
-from mpipe.inversion.tracking import (
-    COLUMNS,
-    ProgressBar,
-    plan_windows,
-    split_chains,
-    track,
-    write_table,
-)
+from mpipe.inversion.tables import COLUMNS, write_table
+from mpipe.inversion.tracking import ProgressBar, plan_windows, track
 from mpipe.measurement.calibration import load_calibration
 from mpipe.reed.bore_kernel import prepare_bore
 from mpipe.reed.model import simulate
@@ -45,13 +39,6 @@ def test_plan_windows():
     assert plan_windows(10000, FS, 0.02, 0.02) == [0, 2000, 4000, 6000, 8000]
     assert plan_windows(10000, FS, 0.02, 0.01, start_s=0.03, end_s=0.08) == [3000, 4000, 5000, 6000]
     assert plan_windows(1000, FS, 0.02, 0.02) == []
-
-
-def test_split_chains_contiguous():
-    chains = split_chains(list(range(10)), 3)
-    assert [c[0] for c in chains] == [0, 4, 7]
-    assert sum(chains, []) == list(range(10))
-    assert split_chains([1, 2], 5) == [[1], [2]]
 
 
 def test_progress_bar():
@@ -140,7 +127,7 @@ def test_sample_rate_mismatch(take):
 
 
 def test_interrupted_tracking_resumes_without_redoing_windows(take, tmp_path, monkeypatch):
-    import mpipe.inversion.tracking as tracking
+    import mpipe.inversion.execution as execution
 
     kernel, rho, sim = take
     ckpt = tmp_path / "windows.d"
@@ -152,13 +139,13 @@ def test_interrupted_tracking_resumes_without_redoing_windows(take, tmp_path, mo
     # an interruption after the first window: its file survives, the second is lost
     sorted(ckpt.glob("w*.json"))[1].unlink()
     calls = []
-    real = tracking.invert_window
+    real = execution.invert_window
 
     def counting(*args, **kwargs):
         calls.append(args[3])
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(tracking, "invert_window", counting)
+    monkeypatch.setattr(execution, "invert_window", counting)
     resumed = track(
         sim.p, sim.u, FS, kernel, rho, LIGHT, ExecutorConfig(workers=1), start_s=0.30,
         end_s=0.34, checkpoint=ckpt,

@@ -5,22 +5,18 @@ import math
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import pytest
 
 from mpipe.acoustics.reflection import reflection_function
 from mpipe.core.filters import apply_lowpass, design_lowpass
+from mpipe.inversion.combinations import combination_values
 from mpipe.inversion.least_squares import trust_region
 from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWindow
 from mpipe.inversion.uncertainty import (
-    COMBINATIONS,
-    combination_values,
     covariance,
     integrated_autocorrelation,
     log_jacobian,
     scale_direction,
-    summary,
-    window_uncertainty,
 )
 from mpipe.measurement.calibration import load_calibration
 from mpipe.reed.bore_kernel import prepare_bore
@@ -113,67 +109,6 @@ def test_null_direction_gives_infinite_se_but_invariant_combinations_stay_finite
     )
 
 
-def test_combinations_against_direct_formulas_and_delta_method():
-    values = {n: getattr(TABLE1, n) for n in ("k", "S", "y_m", "p_m", "m", "g", "lam", "k_c")}
-    values["y_c"] = TABLE1.y_c
-    z_c, rho = 5.0e6, 1.2
-    c = combination_values(values, z_c, rho)
-    assert c["p_M"] == pytest.approx(8.66e6 * 4e-4)
-    assert c["gamma"] == pytest.approx(1800 / 3464)
-    assert c["zeta"] == pytest.approx(z_c * 0.013 * 4e-4 * math.sqrt(2 / (rho * 3464)))
-    assert c["f_r"] == pytest.approx(TABLE1.resonance_hz)
-    assert c["Q_r"] == pytest.approx(2 * math.pi * TABLE1.resonance_hz / 3000)
-    # every combination's exponents reproduce its value's log-derivative (finite difference)
-    for comb in COMBINATIONS:
-        for name, e in comb.exponents.items():
-            bumped = dict(values, **{name: values[name] * math.exp(1e-6)})
-            slope = math.log(combination_values(bumped, z_c, rho)[comb.name] / c[comb.name]) / 1e-6
-            assert slope == pytest.approx(e, abs=1e-5)
-        # and every combination is invariant under the scale symmetry
-        e = np.array([comb.exponents.get(n, 0.0) for n in ("k", "S", "y_m", "m", "lam", "k_c")])
-        assert e @ scale_direction(("k", "S", "y_m", "m", "lam", "k_c")) == 0
-
-
-def test_window_uncertainty_flags_and_delta_method():
-    names = ("k", "y_m", "p_m")
-    rng = np.random.default_rng(1)
-    jac = rng.standard_normal((400, 3)) * [1.0, 1.0, 50.0]
-    cov = covariance(jac, 0.01 * rng.standard_normal(400), names)
-    values = {n: getattr(TABLE1, n) for n in ("k", "S", "y_m", "p_m", "m", "g", "lam", "k_c")}
-    values["y_c"] = TABLE1.y_c
-    row = window_uncertainty(cov, values, z_c=5e6, rho=1.2, limit=0.10)
-    # delta method: se_x = x se_lnx
-    assert row["k_se"] == pytest.approx(TABLE1.k * math.sqrt(cov.cov[0, 0]))
-    assert math.isnan(row["S_se"]) and not row["determined_S"]  # fixed
-    assert row["determined_p_m"]
-    e = np.array([1.0, 1.0, 0.0])  # p_M = k y_m
-    assert row["p_M_se"] == pytest.approx(row["p_M"] * math.sqrt(e @ cov.cov @ e))
-    gauged = window_uncertainty(cov, values, z_c=5e6, rho=1.2, scale_gauge="lam")
-    assert math.isinf(gauged["k_se"]) and not gauged["determined_k"]
-    assert gauged["p_M_se"] == pytest.approx(row["p_M_se"])
-    bound = window_uncertainty(cov, values, z_c=5e6, rho=1.2, invalid={"k": "on its bound"})
-    assert math.isnan(bound["k_se"]) and math.isnan(bound["p_M_se"])
-    assert "k: no valid SE" in bound["uncertainty_note"]
-
-
-def test_summary_coverage():
-    table = pd.DataFrame(
-        {
-            "status": ["ok", "ok", "ok", "failed"],
-            "k": [1.0, 1.1, 0.7, np.nan],
-            "k_se": [0.1, 0.1, 0.1, np.nan],
-            "determined_k": [True, True, True, False],
-        }
-    )
-    s = summary(table, {"k": 1.0}).set_index("name")
-    assert s.loc["k", "coverage_2se"] == pytest.approx(2 / 3)
-    table.loc[2, "k_se"] = np.inf  # a null direction: left out, not counted as covering
-    table.loc[1, "k_se"] = np.nan  # no valid SE: not covering
-    s = summary(table, {"k": 1.0}).set_index("name")
-    assert s.loc["k", "coverage_2se"] == pytest.approx(1 / 2)
-    assert s.loc["k", "median"] == pytest.approx(1.0)
-
-
 @pytest.fixture(scope="module")
 def kernel():
     cal = load_calibration(ROOT / "calibration" / "simplified_clarinet.yaml")
@@ -242,7 +177,7 @@ def test_closure_inversion_flags_the_scale_and_recovers_the_combinations(kernel)
     p_M, zeta, gamma and p_m within 2 %.
     """
     from mpipe.inversion.settings import InversionConfig
-    from mpipe.inversion.tracking import invert_window
+    from mpipe.inversion.window import invert_window
 
     sim = simulate(CLOSURE, kernel, 32000)
     config = InversionConfig(
@@ -273,7 +208,7 @@ def test_free_contact_point_is_searched_and_recovered(kernel):
     """
     from mpipe.inversion.settings import InversionConfig
     from mpipe.inversion.status import search_bounds
-    from mpipe.inversion.tracking import invert_window
+    from mpipe.inversion.window import invert_window
 
     config = InversionConfig(contact="free")
     assert config.search_parameters == ("k", "S", "y_m", "p_m", "m", "g", "k_c", "y_c")
@@ -299,7 +234,7 @@ def test_error_bars_of_the_reed_model_are_honest_under_lowpassed_noise(kernel):
     the noise's colour would give about 2.9, inflated SEs well below 0.4).
     """
     from mpipe.inversion.settings import InversionConfig
-    from mpipe.inversion.tracking import invert_window
+    from mpipe.inversion.window import invert_window
 
     sim = simulate(TABLE1, kernel, 32000)
     lp = design_lowpass(FS, 7250.0)

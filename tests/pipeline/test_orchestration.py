@@ -89,7 +89,7 @@ def test_full_pipeline_recovers_the_truth(finished):
 
 
 def test_interrupted_run_resumes_and_redoes_nothing_done(finished, take, pipeline, monkeypatch):
-    import mpipe.inversion.tracking as tracking
+    import mpipe.inversion.execution as tracking  # where windows call invert_window
 
     out, run, _ = finished
     before = pd.read_csv(run.folder / "inversion" / "windows.csv", keep_default_na=False)

@@ -177,7 +177,7 @@ def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
 def _write_results(out: Path, plan, result, p, u, fs: float, kernel, air, inv) -> None:
     """Tables, the resynthesis (plots and WAV) and the parameter tracks into ``out``."""
     from mpipe.inversion import resynthesis as rs
-    from mpipe.inversion.tracking import write_correlations, write_table
+    from mpipe.inversion.tables import write_correlations, write_table
 
     table = result.table
     write_atomic(out / "plan.csv", lambda tmp: plan.to_csv(tmp, index=False))

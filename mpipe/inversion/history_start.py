@@ -1,0 +1,134 @@
+"""Starting the model from the target's own past: the reed's lead-in and the mean flow.
+
+The ``"history"`` start of F2 (:mod:`mpipe.inversion.objective`) needs the reed's state at
+the window's first sample: the reed equation (G.2, contact included) is driven by the
+target's pressure difference over a short lead-in, started from the quasi-static estimate
+``y = dp/k``. A measured (zero-mean) flow history lacks its mean; it is estimated from the
+candidate's flow over the same lead-in.
+
+References
+----------
+Chatziioannou & van Walstijn 2012, eqs. (9), (10) and (A.1); physics.md G.2, H, J.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from mpipe.reed.parameters import ReedParameters
+from mpipe.reed.scheme import reed_coefficients
+
+
+@njit(cache=True)
+def _reed_lead_in(dp, a1, a2, a3, b1, y_c, alpha, y0):  # pragma: no cover - compiled
+    n = dp.size
+    y = np.empty(n)
+    y[0] = y0
+    y[1] = y0
+    for i in range(1, n - 1):
+        c = y[i] - y_c
+        contact = c**alpha if c > 0.0 else 0.0
+        y[i + 1] = a1 * y[i] + a2 * y[i - 1] + b1 * dp[i] + a3 * contact
+    return y
+
+
+def reed_trajectory(reed: ReedParameters, dp: np.ndarray, fs: float) -> np.ndarray:
+    """Reed displacement driven by a pressure-difference history.
+
+    Starts from the quasi-static estimate ``y = dp/k`` at the first sample and drives the
+    reed update (G.2, contact included) with ``dp``; the start error decays as
+    ``exp(-g t / 2)``.
+
+    Parameters
+    ----------
+    reed : ReedParameters
+        Candidate reed.
+    dp : ndarray
+        Pressure difference p_m - p over the lead-in, Pa (at least 2 samples).
+    fs : float
+        Sample rate, Hz.
+
+    Returns
+    -------
+    ndarray
+        Displacement at every sample of ``dp``, m.
+
+    References
+    ----------
+    Chatziioannou & van Walstijn 2012, eqs. (9) and (A.1); physics.md G.2, H.
+    """
+    dp = np.ascontiguousarray(dp, dtype=float)
+    y0 = float(dp[0]) / reed.k
+    if dp.size < 3:
+        return dp / reed.k
+    a1, a2, a3, b1 = reed_coefficients(reed, fs)
+    return _reed_lead_in(dp, a1, a2, a3, b1, reed.y_c, reed.alpha, y0)
+
+
+def reed_state_from_pressure(
+    reed: ReedParameters, dp: np.ndarray, fs: float
+) -> tuple[float, float]:
+    """Reed displacement at the last two samples of a pressure-difference history, m.
+
+    See :func:`reed_trajectory`; returns ``(y, y_prev)``.
+    """
+    y = reed_trajectory(reed, dp, fs)
+    return float(y[-1]), float(y[-2])
+
+
+def pad_history(x: np.ndarray, n: int) -> np.ndarray:
+    """The last ``n`` samples of a history, zeros in front when it is shorter."""
+    x = np.asarray(x, dtype=float)
+    if x.size >= n:
+        return x[-n:]
+    return np.concatenate([np.zeros(n - x.size), x])
+
+
+def mean_flow_estimate(reed: ReedParameters, p: np.ndarray, rho: float) -> float:
+    """Mean flow of the quasi-static reed over a pressure record, m^3/s.
+
+    Used to restore the mean that a measured (zero-mean) flow history lacks.
+
+    Parameters
+    ----------
+    reed : ReedParameters
+        Candidate reed (k, y_m, p_m, lam are used).
+    p : ndarray
+        Mouthpiece pressure, Pa, ideally a whole number of periods.
+    rho : float
+        Air density, kg/m^3.
+
+    Returns
+    -------
+    float
+
+    References
+    ----------
+    Chatziioannou & van Walstijn 2012, eq. (10) (the u_f term; u_r has zero mean).
+    """
+    dp = reed.p_m - np.asarray(p, dtype=float)
+    h = np.maximum(reed.y_m - dp / reed.k, 0.0)
+    return float(np.mean(np.sign(dp) * reed.lam * h * np.sqrt(2.0 * np.abs(dp) / rho)))
+
+
+def missing_mean_flow(reed, dp, y, u_meas, fs, rho) -> float:
+    """Mean flow a zero-mean measured flow lacks over a lead-in, m^3/s."""
+    # The candidate's flow over the lead-in (reed driven by the measured pressure) minus the
+    # measured zero-mean flow over the same samples: the mean the measurement lost. Both
+    # means are over the same span, so it need not be a whole number of periods. The first
+    # half of the lead-in carries the reed's start transient and is skipped.
+    h = np.maximum(reed.y_m - y, 0.0)
+    u_f = np.sign(dp) * reed.lam * h * np.sqrt(2.0 * np.abs(dp) / rho)
+    u_r = reed.S * np.diff(y, prepend=y[0]) * fs
+    half = dp.size // 2
+    return float(np.mean((u_f + u_r - u_meas)[half:]))
+
+
+__all__ = [
+    "mean_flow_estimate",
+    "missing_mean_flow",
+    "pad_history",
+    "reed_state_from_pressure",
+    "reed_trajectory",
+]
