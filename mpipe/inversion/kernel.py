@@ -8,7 +8,10 @@ way, so the same take gives the same numbers whichever is used:
   wave separation estimated (carried with the mouthpiece signals as ``temperature_c``, one
   value per sample);
 * signals that carry no such track (model output of ``mpipe simulate``) use the
-  calibration's ``air.temperature_c``.
+  calibration's ``air.temperature_c``;
+* from there, ``inversion.temperature: fit`` fits the kernel temperature to the playing
+  (:mod:`mpipe.inversion.temperature`); the table records it as ``kernel_temperature_c``
+  and the resynthesis reads it back (:func:`table_temperature`).
 
 The air model (``keefe`` or ``ernoult``) is the calibration's.
 """
@@ -69,4 +72,30 @@ def bore_kernel(
     return prepare_bore(reflection_function(calibration.bore, air, fs=fs), air), air
 
 
-__all__ = ["bore_kernel", "take_temperature"]
+def table_temperature(
+    table, temperature_c: np.ndarray | float | None, calibration: Calibration
+) -> float:
+    """The kernel temperature a windows table was inverted at, degC.
+
+    The resynthesis must drive the model on the same kernel as the inversion: the table's
+    ``kernel_temperature_c`` (the fitted temperature) when it has one, else
+    :func:`take_temperature` of the signals (a table written before the fit existed).
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        Windows table of the inversion.
+    temperature_c : ndarray, float or None
+        The temperature the signals carry, degC.
+    calibration : Calibration
+        Supplies the temperature when neither has one.
+    """
+    if "kernel_temperature_c" in table:
+        values = np.asarray(table["kernel_temperature_c"], dtype=float)
+        values = values[np.isfinite(values)]
+        if values.size:
+            return float(values[0])
+    return take_temperature(temperature_c, calibration)
+
+
+__all__ = ["bore_kernel", "table_temperature", "take_temperature"]

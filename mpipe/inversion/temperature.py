@@ -78,6 +78,9 @@ class TemperatureFit:
     anchor : ReedParameters or None
         The first fitted window's reed at the fitted temperature: the take's start for
         every window (it replaces the tracking's own cold start).
+    cold_starts_agreeing : int or None
+        How many of the cold start's short searches reached its minimum (see
+        :mod:`mpipe.inversion.coldstart`).
     """
 
     temperature_c: float
@@ -89,6 +92,7 @@ class TemperatureFit:
     evaluations: tuple[tuple[float, float], ...] = ()
     note: str = ""
     anchor: ReedParameters | None = None
+    cold_starts_agreeing: int | None = None
 
     def summary(self) -> dict:
         """JSON-ready record for manifests and the report."""
@@ -100,6 +104,7 @@ class TemperatureFit:
             "windows": self.windows,
             "evaluations": [list(e) for e in self.evaluations],
             "note": self.note,
+            "cold_starts_agreeing": self.cold_starts_agreeing,
         }
 
     def line(self) -> str:
@@ -283,8 +288,13 @@ def fit_temperature(
     anchor = profile.tried[round(centre, 4)][1][0]
     return TemperatureFit(
         best, se, "fit", front_end_c, _sensitivity(lower, upper, FINE_C), len(chosen),
-        evaluations, note, anchor,
+        evaluations, note, anchor, _agreeing(first.row),
     )  # fmt: skip
+
+
+def _agreeing(row: Mapping) -> int | None:
+    value = row.get("cold_starts_agreeing")
+    return int(value) if value is not None and np.isfinite(value) else None
 
 
 def _combinations(reed: ReedParameters, z_c: float, rho: float) -> dict[str, float]:

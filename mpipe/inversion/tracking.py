@@ -36,6 +36,7 @@ from mpipe.inversion.status import classify
 from mpipe.inversion.tables import histories_and_correlations, window_table
 from mpipe.inversion.window_errors import CORRELATION_COLUMNS
 from mpipe.reed.bore_kernel import BoreKernel
+from mpipe.reed.parameters import ReedParameters
 
 log = logging.getLogger(__name__)
 
@@ -137,6 +138,7 @@ def track(
     client=None,
     starts: Sequence[int] | None = None,
     checkpoint: str | Path | None = None,
+    anchor: ReedParameters | None = None,
 ) -> Tracking:
     """Invert every window of a take.
 
@@ -174,6 +176,10 @@ def track(
         conditioning stage passes the steady windows only.
     checkpoint : str or Path, optional
         Folder where each finished window is saved; windows found there are not redone.
+    anchor : ReedParameters, optional
+        Start every window here instead of cold-starting the first one (the temperature
+        fit of :func:`mpipe.inversion.take.invert_take` has already made the take's cold
+        start).
 
     Returns
     -------
@@ -212,7 +218,12 @@ def track(
         "zero-mean" if zero_mean else "full",
     )
     run = dict(executor=executor, workers=workers, client=client)
-    results = _cold_then_warm(job, starts, update, **run)
+    if anchor is None:
+        results = _cold_then_warm(job, starts, update, **run)
+    else:
+        results = dispatch(job, [(s, None) for s in starts], anchor, executor, workers, client,
+                           update)  # fmt: skip
+        results.sort(key=lambda r: r[0]["t_start_s"])
     table = classify(window_table(results), config)
     if config.retry_cold:
         table = _retry_not_ok(job, results, table, **run)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +22,7 @@ from mpipe import __version__
 from mpipe.core.errors import UserError
 from mpipe.core.io import write_atomic, write_csv, write_npz_atomic
 from mpipe.core.progress import stage_timer
-from mpipe.inversion.kernel import bore_kernel, take_temperature
+from mpipe.inversion.kernel import bore_kernel, table_temperature, take_temperature
 from mpipe.inversion.settings import PARAMETER_NAMES
 from mpipe.measurement.calibration import Calibration, load_calibration
 from mpipe.pipeline.manifest import PARTIAL, StageRecord, run_stage
@@ -224,7 +224,8 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
     from mpipe.inversion.status import count as count_status
     from mpipe.inversion.status import summary_line
     from mpipe.inversion.tables import write_correlations, write_table
-    from mpipe.inversion.tracking import ProgressBar, track
+    from mpipe.inversion.take import invert_take
+    from mpipe.inversion.tracking import ProgressBar
 
     inv = cfg.inversion
 
@@ -248,16 +249,16 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
                 f"no steady window to invert ({len(table_plan)} windows: {why}{hint}; "
                 "see conditioning/plan.csv)"
             )
-        t_eff = take_temperature(mp.get("temperature_c"), cal)
-        kernel, air = bore_kernel(cal, fs, t_eff)
         bar = ProgressBar(len(starts))
         try:
-            result = track(
-                p, u, fs, kernel, air.rho, replace(inv, sample_rate=fs), cfg.executor,
-                progress=bar, client=client, starts=starts, checkpoint=checkpoint,
+            take = invert_take(
+                p, u, fs, cal, inv, cfg.executor, starts=starts,
+                temperature_c=mp.get("temperature_c"), progress=bar, client=client,
+                checkpoint=checkpoint,
             )  # fmt: skip
         finally:
             bar.close()
+        result, air = take.tracking, take.air
         table = result.table
         written = write_table(table, folder)
         write_correlations(result.correlations, folder)
@@ -287,7 +288,9 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
             "wall_per_window_s_median": float(table["wall_time_s"].median())
             if len(table)
             else None,
-            "temperature_c": t_eff,
+            "temperature_c": take.temperature.temperature_c,
+            "temperature": take.temperature.summary(),
+            "temperature_line": take.temperature.line(),
         }
         return outputs, summary
 
@@ -304,7 +307,7 @@ def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
         p, u = mp["p"], mp["u"]
         table = pd.read_csv(windows, keep_default_na=False, na_values=[""], dtype={"error": str})
         table["error"] = table["error"].fillna("")
-        kernel, _ = bore_kernel(cal, fs, take_temperature(mp.get("temperature_c"), cal))
+        kernel, _ = bore_kernel(cal, fs, table_temperature(table, mp.get("temperature_c"), cal))
         bar = ProgressBar(len(table), desc="resynthesis")
         try:
             res = rs.resynthesise(table, p, u, fs, kernel, cfg.inversion, zero_mean, bar)
@@ -457,6 +460,7 @@ def _run_take(
     inv_inputs = {"mouthpiece": mouthpiece, "plan": plan, "blocks": blocks, **cal_inputs}
     inv = stage(5, "inversion", inv_inputs, cfg.inversion,
                 _stage_inversion(mouthpiece, plan, cal, cfg, client))  # fmt: skip
+    say(f"[{name}]     {inv.summary['temperature_line']}")
     say(f"[{name}]     {inv.summary['status_line']}")
     if not inv.summary["status_counts"]["ok"]:
         say(f"[{name}]     no window has status ok: see inversion/windows.csv, status_reason")

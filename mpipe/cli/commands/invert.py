@@ -111,8 +111,10 @@ def _run(args: argparse.Namespace) -> int:
     fs, p, u, temperature = load_mouthpiece(args.mouthpiece)
     fs, p, u = _at_inversion_rate(args.mouthpiece, fs, p, u, inv.sample_rate)
     cal = load_calibration(cfg.calibration_path)
-    plan, result, kernel, air, t_eff = _track(args, cfg, cal, fs, p, u, temperature)
+    plan, take = _track(args, cfg, cal, fs, p, u, temperature)
+    result, kernel, air = take.tracking, take.kernel, take.air
     table = result.table
+    log.info("%s", take.temperature.line())
     out.mkdir(parents=True, exist_ok=True)
     _write_results(out, plan, result, p, u, fs, kernel, air, inv)
     run_info = {
@@ -120,7 +122,8 @@ def _run(args: argparse.Namespace) -> int:
         "mouthpiece": str(Path(args.mouthpiece).resolve()),
         "pipeline": cfg.source,
         "calibration": str(cfg.calibration_path),
-        "temperature_c": t_eff,
+        "temperature_c": take.temperature.temperature_c,
+        "temperature": take.temperature.summary(),
         "zero_mean_flow": result.zero_mean,
         "start_s": args.start,
         "end_s": args.end,
@@ -148,10 +151,10 @@ def _at_inversion_rate(
 
 
 def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
-    """The window plan, the tracked windows, the bore kernel, the air and its temperature."""
+    """The window plan and the take's inversion (kernel temperature, windows, kernel, air)."""
     from mpipe.inversion.conditioning import plan_inversion
-    from mpipe.inversion.kernel import bore_kernel, take_temperature
-    from mpipe.inversion.tracking import ProgressBar, track
+    from mpipe.inversion.take import invert_take
+    from mpipe.inversion.tracking import ProgressBar
 
     inv = cfg.inversion
     # The same windows and the same bore kernel as `mpipe run` (one answer per take).
@@ -162,16 +165,15 @@ def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
             f"{args.mouthpiece}: no steady window to invert ({len(plan)} windows in the span, "
             f"none steady; see conditioning in {args.pipeline})"
         )
-    t_eff = take_temperature(temperature, cal)
-    kernel, air = bore_kernel(cal, fs, t_eff)
     bar = ProgressBar(len(starts))
     try:
-        result = track(p, u, fs, kernel, air.rho, inv, cfg.executor, progress=bar, starts=starts)
+        take = invert_take(p, u, fs, cal, inv, cfg.executor, starts=starts,
+                           temperature_c=temperature, progress=bar)  # fmt: skip
     except ValueError as exc:
         raise UserError(f"{args.mouthpiece}: {exc}") from None
     finally:
         bar.close()
-    return plan, result, kernel, air, t_eff
+    return plan, take
 
 
 def _write_results(out: Path, plan, result, p, u, fs: float, kernel, air, inv) -> None:

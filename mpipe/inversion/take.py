@@ -1,0 +1,116 @@
+"""A whole take's inversion: the kernel temperature, every window, the widened error bars.
+
+The one function every door into the inversion calls (``mpipe run``, ``mpipe invert`` and
+the Python API ``mpipe.invert_take``), so that the same mouthpiece signals give the same
+table whichever is used:
+
+1. the temperature the signals carry (the wave separation's estimate, else the
+   calibration's; :func:`mpipe.inversion.kernel.take_temperature`);
+2. the kernel temperature fitted to the playing from there, with the take's cold start
+   (:func:`mpipe.inversion.temperature.fit_temperature`; ``inversion.temperature``);
+3. every window started from that cold start on the kernel at the fitted temperature
+   (:func:`mpipe.inversion.tracking.track`);
+4. the temperature's share added to every standard error
+   (:func:`mpipe.inversion.temperature.widen_standard_errors`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mpipe.acoustics.air import Air
+from mpipe.core.progress import ProgressBar
+from mpipe.inversion.kernel import bore_kernel, take_temperature
+from mpipe.inversion.settings import ExecutorConfig, InversionConfig
+from mpipe.inversion.temperature import TemperatureFit, fit_temperature, widen_standard_errors
+from mpipe.inversion.tracking import Tracking, detect_zero_mean, track
+from mpipe.measurement.calibration import Calibration
+from mpipe.reed.bore_kernel import BoreKernel
+
+
+@dataclass(frozen=True)
+class TakeInversion:
+    """Result of :func:`invert_take`.
+
+    Attributes
+    ----------
+    tracking : Tracking
+        Every window (its table carries ``kernel_temperature_c``, ``kernel_temperature_se_c``
+        and the widened ``<name>_se``).
+    temperature : TemperatureFit
+        The kernel temperature and how it was found.
+    kernel : BoreKernel
+        The bore kernel at that temperature (for the resynthesis).
+    air : Air
+        The air at that temperature.
+    """
+
+    tracking: Tracking
+    temperature: TemperatureFit
+    kernel: BoreKernel
+    air: Air
+
+
+def invert_take(
+    p: np.ndarray,
+    u: np.ndarray,
+    fs: float,
+    calibration: Calibration,
+    config: InversionConfig,
+    executor: ExecutorConfig | None = None,
+    *,
+    starts: Sequence[int],
+    temperature_c: np.ndarray | float | None = None,
+    progress: ProgressBar | None = None,
+    client=None,
+    checkpoint: str | Path | None = None,
+) -> TakeInversion:
+    """Invert the planned windows of a take (see the module docstring for the steps).
+
+    Parameters
+    ----------
+    p, u : ndarray
+        Mouthpiece pressure (Pa) and volume flow (m^3/s).
+    fs : float
+        Sample rate, Hz.
+    calibration : Calibration
+        The instrument (bore, air model).
+    config : InversionConfig
+        Inversion settings; its ``sample_rate`` is set to ``fs``.
+    executor : ExecutorConfig, optional
+        Local processes (default) or Dask.
+    starts : sequence of int
+        First samples of the windows to invert (the conditioning stage's plan).
+    temperature_c : ndarray, float or None
+        The temperature the signals carry, degC (the separation's, per sample); None: the
+        calibration's.
+    progress, client, checkpoint
+        As in :func:`mpipe.inversion.tracking.track`.
+
+    Returns
+    -------
+    TakeInversion
+    """
+    config = dataclasses.replace(config, sample_rate=fs)
+    carried = temperature_c is not None and np.isfinite(np.asarray(temperature_c, float)).any()
+    front = take_temperature(temperature_c, calibration)
+    zero_mean = detect_zero_mean(np.asarray(u, float), config.signal, config.zero_mean_ratio)
+    fit = fit_temperature(
+        p, u, fs, calibration, list(starts), config, zero_mean=zero_mean, front_end_c=front,
+        source="front end" if carried else "calibration",
+    )  # fmt: skip
+    kernel, air = bore_kernel(calibration, fs, fit.temperature_c)
+    result = track(
+        p, u, fs, kernel, air.rho, config, executor, progress=progress, client=client,
+        starts=starts, checkpoint=checkpoint, anchor=fit.anchor,
+    )  # fmt: skip
+    table = widen_standard_errors(result.table, fit, config.determined_limit)
+    return TakeInversion(dataclasses.replace(result, table=table), fit, kernel, air)
+
+
+__all__ = ["TakeInversion", "invert_take"]
