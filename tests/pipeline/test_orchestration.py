@@ -142,12 +142,11 @@ def test_malformed_pipeline_and_take_give_clear_errors(tmp_path, take, capsys):
 
 
 def test_every_door_gives_the_same_table(finished, take, pipeline, tmp_path):
-    # `mpipe run`, `mpipe separate` + `mpipe invert` and the Python API build the same bore
-    # kernel (one temperature) and invert the same windows: the same numbers to 0.1 %.
+    # `mpipe run`, `mpipe separate` + `mpipe invert` and the Python API fit the same kernel
+    # temperature and invert the same windows: the same numbers to 0.1 %.
+    import mpipe
     from mpipe.inversion.conditioning import plan_inversion
-    from mpipe.inversion.kernel import bore_kernel, take_temperature
     from mpipe.inversion.settings import PARAMETER_NAMES
-    from mpipe.inversion.tracking import track
     from mpipe.measurement.calibration import load_calibration
     from mpipe.measurement.separation.stage import separate
     from mpipe.measurement.takes import read_take
@@ -168,12 +167,15 @@ def test_every_door_gives_the_same_table(finished, take, pipeline, tmp_path):
     tr = translate(sep.p0, sep.u0, t.fs, cal, pipeline.translation, sep.temperature_track())
     inv = pipeline.inversion
     plan = plan_inversion(tr.p, t.fs, pipeline.conditioning, inv.window_s, inv.hop_s)
-    kernel, air = bore_kernel(cal, t.fs, take_temperature(tr.temperature_c, cal))
     starts = plan.loc[plan["invert"], "start"].tolist()
-    via_api = track(tr.p, tr.u, t.fs, kernel, air.rho, inv, pipeline.executor, starts=starts).table
+    via_api = mpipe.invert_take(
+        tr.p, tr.u, t.fs, cal, inv, pipeline.executor, starts=starts, temperature_c=tr.temperature_c
+    ).tracking.table
 
+    assert np.isfinite(via_run["kernel_temperature_se_c"]).all()  # fitted, with its SE
     for other in (via_cli, via_api):
         np.testing.assert_array_equal(other["t_start_s"], via_run["t_start_s"])
+        np.testing.assert_allclose(other["kernel_temperature_c"], via_run["kernel_temperature_c"])
         assert list(other["status"]) == list(via_run["status"])
         for name in PARAMETER_NAMES:
             np.testing.assert_allclose(other[name], via_run[name], rtol=1e-3, err_msg=name)
