@@ -15,9 +15,11 @@ start measured in the same run; and the two start methods of the objective compa
 ``--basins``: the path users take. Virtual 0.62 s takes (Table 1 reed, one per noise seed)
 go through the adaptive wave separation and the translation (zero-mean flow) and three
 steady windows are inverted; a take lands in the right basin when the medians of k, y_m,
-p_m and lam are all within 5 % of the truth. Three ways, on the same takes: "before" (the
-paper's single start from step 1 with Rosenbrock, the previous default), "after" (the
-global cold start and the trust-region search, the default now), and "after" with the
+p_m and lam are all within 5 % of the truth. Four ways, on the same takes, each through
+``mpipe.invert_take``: "before" (the paper's single start from step 1 with Rosenbrock, on a
+kernel at the front end's temperature), "front-end T" (the global cold start and the
+trust-region search on a kernel at the front end's temperature), "after" (the same with
+the kernel temperature fitted to the playing, the default now), and "after" with the
 separation's propagation parameters held at the calibration's values (which are the
 truth of these takes), which isolates the inversion from the front end's estimate.
 """
@@ -213,8 +215,7 @@ BASIN = ("k", "y_m", "p_m", "lam")
 def measured_path(take_files, pipe, inversion, fixed_front_end: bool):
     """Invert three steady windows of a take through separation and translation."""
     from mpipe.inversion.conditioning import plan_inversion
-    from mpipe.inversion.kernel import bore_kernel, take_temperature
-    from mpipe.inversion.tracking import track
+    from mpipe.inversion.take import invert_take
     from mpipe.measurement.separation.settings import fixed_config
     from mpipe.measurement.separation.stage import separate
     from mpipe.measurement.takes import read_take
@@ -228,9 +229,10 @@ def measured_path(take_files, pipe, inversion, fixed_front_end: bool):
     conditioning = dataclasses.replace(pipe.conditioning, edge_s=0.25)
     plan = plan_inversion(tr.p, take.fs, conditioning, 0.02, 0.04)
     starts = plan.loc[plan["invert"], "start"].tolist()
-    kernel, air = bore_kernel(cal, take.fs, take_temperature(tr.temperature_c, cal))
-    return track(tr.p, tr.u, take.fs, kernel, air.rho, inversion, ExecutorConfig(workers=1),
-                 starts=starts).table  # fmt: skip
+    return invert_take(
+        tr.p, tr.u, take.fs, cal, inversion, ExecutorConfig(workers=1), starts=starts,
+        temperature_c=tr.temperature_c,
+    ).tracking.table  # fmt: skip
 
 
 def basins(seeds: list[int], snrs: list[float]) -> None:
@@ -244,9 +246,15 @@ def basins(seeds: list[int], snrs: list[float]) -> None:
     after = pipe.inversion
     before = dataclasses.replace(
         after, cold_start="step1", optimiser="rosenbrock", warm_max_evaluations=150,
-        retry_cold=False,
+        retry_cold=False, temperature="front-end",
     )  # fmt: skip
-    ways = {"before": (before, False), "after": (after, False), "after, fixed θ": (after, True)}
+    front_t = dataclasses.replace(after, temperature="front-end")
+    ways = {
+        "before": (before, False),
+        "front-end T": (front_t, False),
+        "after": (after, False),
+        "after, fixed θ": (after, True),
+    }
     truth = {n: getattr(TABLE1, n) for n in PARAMETER_NAMES}
     print("\nMeasured path: basin counts (k, y_m, p_m, lam within 5 %)")
     with tempfile.TemporaryDirectory() as tmp:
