@@ -101,3 +101,18 @@ def test_submodules_of_pipeline_import_in_a_fresh_interpreter():
     code = "from mpipe.pipeline import settings, report; print(settings.load_pipeline.__name__)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0 and out.stdout.strip() == "load_pipeline", out.stderr[-500:]
+
+
+def test_readme_architecture_lists_every_module():
+    readme = (PACKAGE.parent / "README.md").read_text()
+    start = readme.index("```\nmpipe/\n")
+    block = readme[start : readme.index("```\n", start + 4)]
+    for sep in ",()/":
+        block = block.replace(sep, " ")
+    words = set(block.split())
+    missing = [
+        f"{layer}/{path.stem}"
+        for layer, path in _modules()
+        if path.stem != "__init__" and path.parent.name != "commands" and path.stem not in words
+    ]
+    assert not missing, f"README architecture section does not name: {missing}"
