@@ -116,3 +116,31 @@ def test_readme_architecture_lists_every_module():
         if path.stem != "__init__" and path.parent.name != "commands" and path.stem not in words
     ]
     assert not missing, f"README architecture section does not name: {missing}"
+
+
+#: A module a reader can hold: lines per module, code lines per function (docstring excluded).
+MAX_MODULE_LINES = 500
+MAX_FUNCTION_LINES = 80
+
+
+def test_modules_and_functions_stay_readable():
+    long_modules, long_functions = [], []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        text = path.read_text()
+        if text.count("\n") > MAX_MODULE_LINES:
+            long_modules.append(f"{path.relative_to(PACKAGE)} ({text.count(chr(10))} lines)")
+        lines = text.splitlines()
+        for node in ast.walk(ast.parse(text)):
+            if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            first = node.body[0]
+            has_doc = isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant)
+            start = first.end_lineno + 1 if has_doc else first.lineno
+            # a function may be long on purpose when the comment just above it says so
+            above = lines[max(node.lineno - 4, 0) : node.lineno - 1]
+            if node.end_lineno - start + 1 > MAX_FUNCTION_LINES and not any(
+                "Long on purpose" in line for line in above
+            ):
+                long_functions.append(f"{path.relative_to(PACKAGE)}:{node.lineno} {node.name}")
+    assert not long_modules, long_modules
+    assert not long_functions, long_functions
