@@ -13,9 +13,8 @@ import pytest
 
 from mpipe.cli.virtual_takes import SynthOptions, make_take
 from mpipe.inversion.conditioning import plan_inversion
-from mpipe.inversion.kernel import bore_kernel, take_temperature
 from mpipe.inversion.settings import ExecutorConfig
-from mpipe.inversion.tracking import track
+from mpipe.inversion.take import invert_take
 from mpipe.measurement.calibration import load_calibration
 from mpipe.measurement.separation.stage import separate
 from mpipe.measurement.takes import read_take
@@ -43,10 +42,8 @@ def measured_path(seed: int, tmp: Path):
     conditioning = replace(pipe.conditioning, edge_s=0.3)
     plan = plan_inversion(tr.p, take.fs, conditioning, 0.02, 0.02, end_s=0.34)
     starts = plan.loc[plan["invert"], "start"].tolist()
-    kernel, air = bore_kernel(cal, take.fs, take_temperature(tr.temperature_c, cal))
-    result = track(tr.p, tr.u, take.fs, kernel, air.rho, pipe.inversion,
-                   ExecutorConfig(workers=1), starts=starts)  # fmt: skip
-    return result
+    return invert_take(tr.p, tr.u, take.fs, cal, pipe.inversion, ExecutorConfig(workers=1),
+                       starts=starts, temperature_c=tr.temperature_c)  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +57,8 @@ def test_the_seeds_land_in_the_right_basin(results):
     # least 4 of the 5 seeds (the front end's estimate adds a seed-dependent error of a few
     # per cent at this length; a wrong minimum is 15-45 % off)
     misses = {}
-    for seed, result in results.items():
+    for seed, done in results.items():
+        result = done.tracking
         t = result.table
         assert result.zero_mean and len(t) >= 1
         assert (t["status"] == "ok").all(), (seed, t["status_reason"].tolist())
@@ -74,14 +72,24 @@ def test_the_seeds_land_in_the_right_basin(results):
 
 def test_the_cold_start_is_not_one_lucky_search(results):
     # on every seed several of the eight short local searches reach the same minimum
-    agreeing = [int(r.table["cold_starts_agreeing"].iloc[0]) for r in results.values()]
+    agreeing = [r.temperature.cold_starts_agreeing for r in results.values()]
     assert min(agreeing) >= 2, agreeing
 
 
 def test_mass_damping_and_contact_are_off_their_bounds(results):
     # the degenerate minimum of issue 10 had m, g and k_c on their lower bounds
-    for result in results.values():
-        t = result.table
+    for done in results.values():
+        t = done.tracking.table
         assert (t["at_bound"] == "").all()
         for name in ("m", "g", "k_c"):
             assert np.all(np.abs(np.log(t[name] / TRUTH[name])) < np.log(1.5)), name
+
+
+def test_the_kernel_temperature_is_fitted_to_the_playing(results):
+    # the takes are played at 20 degC; the front end's estimate is a degree wide on 0.5 s
+    for seed, done in results.items():
+        fit = done.temperature
+        print(seed, fit.line())
+        assert fit.source == "fit", (seed, fit.note)
+        assert abs(fit.temperature_c - 20.0) < 0.3, (seed, fit.line())
+        assert abs(fit.temperature_c - 20.0) < 4 * fit.se_c + 0.05, (seed, fit.line())
