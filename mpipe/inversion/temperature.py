@@ -46,6 +46,10 @@ log = logging.getLogger(__name__)
 #: Spacing of the coarse and the fine triples of :func:`_settle`, degC.
 COARSE_C = 1.0
 FINE_C = 0.25
+#: The fit's cold start is made again at the fitted temperature when the fit ended farther
+#: than this from it, degC, at most ``RESTARTS`` times.
+RESTART_C = 0.5
+RESTARTS = 2
 #: Quantities whose standard error the temperature widens.
 WIDENED = (*PARAMETER_NAMES, *COMBINATION_NAMES)
 
@@ -248,15 +252,30 @@ def fit_temperature(
             total += float(out.row["f2"]) ** 2
         return total, reeds, rows
 
-    kernel, air = bore_kernel(calibration, fs, front_end_c)
-    first = invert_window(p, u, fs, chosen[0], kernel, air.rho, config, zero_mean=zero_mean)
-    if first.reed is None:
+    lo, hi = front_end_c - config.temperature_range_c, front_end_c + config.temperature_range_c
+    runs, t_cold = [], front_end_c
+    for _ in range(1 + RESTARTS):
+        # The cold start's basin depends on the kernel: one made at a temperature far from
+        # the fitted one may hold a wrong minimum (m and g collapsed), which warm starts then
+        # carry along the whole profile. Start again cold where the fit ended until the
+        # fit ends near its own cold start, and keep the profile that fits best.
+        kernel, air = bore_kernel(calibration, fs, t_cold)
+        first = invert_window(p, u, fs, chosen[0], kernel, air.rho, config, zero_mean=zero_mean)
+        if first.reed is None:
+            break
+        profile = _Profile(solve, [first.reed] * len(chosen))
+        settled = _settle(profile, t_cold, lo, hi, config.temperature_evaluations)
+        runs.append((profile, settled, first, t_cold))
+        if settled is None or abs(settled[0] - t_cold) <= RESTART_C:
+            break
+        t_cold = min(max(settled[0], lo), hi)
+    if not runs:
         return dataclasses.replace(
             fallback, note="the fit's cold start failed: " + first.row["error"]
         )
-    profile = _Profile(solve, [first.reed] * len(chosen))
-    lo, hi = front_end_c - config.temperature_range_c, front_end_c + config.temperature_range_c
-    settled = _settle(profile, front_end_c, lo, hi, config.temperature_evaluations)
+    profile, settled, first, t_cold = min(
+        runs, key=lambda r: min(v[0] for v in r[0].tried.values())
+    )
     evaluations = tuple(sorted((t, v[0]) for t, v in profile.tried.items()))
     base = dataclasses.replace(fallback, windows=len(chosen), evaluations=evaluations)
     if settled is None or settled[1] <= 0:
@@ -277,9 +296,9 @@ def fit_temperature(
         profile.tried[round(centre - FINE_C, 4)][2],
         profile.tried[round(centre + FINE_C, 4)][2],
     )
-    note = ""
+    note = f"cold start repeated at {t_cold:.2f} degC" if len(runs) > 1 else ""
     if abs(best - front_end_c) > 3.0:
-        note = (
+        note = (note + "; " if note else "") + (
             f"{best - front_end_c:+.1f} degC from the temperature the signals carry: check "
             "the calibration's bore geometry"
         )
