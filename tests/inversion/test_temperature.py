@@ -1,6 +1,8 @@
 """The kernel temperature fitted to the playing: the search, the SE and its share of the errors."""
 
+import dataclasses
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -98,3 +100,60 @@ def test_nothing_is_widened_when_the_temperature_was_not_fitted():
     out = widen_standard_errors(_table(), fit, limit=0.10)
     pd.testing.assert_series_equal(out["k_se"], _table()["k_se"])
     assert math.isnan(out["kernel_temperature_se_c"][0])
+
+
+class _FakeWorld:
+    """Two basins of step 2, as on a short 45 dB take.
+
+    The right one (m = 0.05) has R minimal at 20 degC; a collapsed one (m = 0.01) has a
+    higher minimum at 21.4 degC and is what a cold start finds on a kernel more than
+    1.5 degC off.
+    """
+
+    def __init__(self):
+        from mpipe.reed.parameters import ReedParameters
+
+        base = ReedParameters(
+            k=8.66e6, S=7.62e-5, y_m=4e-4, p_m=1800.0, lam=0.013, m=0.05, g=3000.0, k_c=8.23e10
+        )
+        self.right, self.wrong = base, dataclasses.replace(base, m=0.01, g=400.0)
+        self.cold_starts = []
+
+    def bore_kernel(self, calibration, fs, t):
+        return SimpleNamespace(t=t, z0=4e6), SimpleNamespace(rho=1.2)
+
+    def invert_window(self, p, u, fs, start, kernel, rho, config, *, zero_mean, warm=None):
+        if warm is None:
+            self.cold_starts.append(kernel.t)
+            warm = self.wrong if abs(kernel.t - 20.0) > 1.5 else self.right
+        if warm.m == self.right.m:
+            r = 1e5 + 1e6 * (kernel.t - 20.0) ** 2
+        else:
+            r = 3e5 + 1e6 * (kernel.t - 21.4) ** 2
+        reed = dataclasses.replace(warm, S=self.right.S * (1 + 0.2 * (kernel.t - 20.0)))
+        row = {"f2": math.sqrt(r), "n_eff": 100.0, "cold_starts_agreeing": 5.0, "error": ""}
+        return SimpleNamespace(reed=reed, row=row)
+
+
+@pytest.mark.parametrize("restarts", [0, 2])
+def test_a_cold_start_far_from_the_fitted_temperature_is_made_again(monkeypatch, restarts):
+    from mpipe.inversion import temperature
+    from mpipe.inversion.settings import InversionConfig
+
+    world = _FakeWorld()
+    monkeypatch.setattr(temperature, "invert_window", world.invert_window)
+    monkeypatch.setattr(temperature, "bore_kernel", world.bore_kernel)
+    monkeypatch.setattr(temperature, "RESTARTS", restarts)
+    fit = temperature.fit_temperature(
+        np.zeros(10_000), np.zeros(10_000), 1e5, None, [0, 2000, 4000], InversionConfig(),
+        zero_mean=True, front_end_c=22.7,
+    )  # fmt: skip
+    if restarts:  # the second cold start, at ~21.4 degC, finds the right basin
+        assert fit.temperature_c == pytest.approx(20.0, abs=0.01)
+        assert fit.anchor.m == world.right.m and "cold start repeated" in fit.note
+        assert len(world.cold_starts) >= 2
+    else:  # the first basin is kept: a wrong minimum, as without the restart
+        assert fit.temperature_c == pytest.approx(21.4, abs=0.01)
+        assert fit.anchor.m == world.wrong.m
+    slope = 0.2 / (1 + 0.2 * (fit.temperature_c - 20))  # d ln S / dT of the fake
+    assert fit.sensitivity["S"] == pytest.approx(slope, rel=0.05)
