@@ -292,6 +292,10 @@ def fit_temperature(
     sigma2 = profile(centre) / (n * len(chosen))
     # R(T) = R0 + a (T - T0)^2 and Delta chi^2 = Delta R / (sigma^2 n / n_eff) = 1 at 1 SE
     se = math.sqrt(sigma2 * max(colour, 1.0) / curvature)
+    # Errors of the signals that differ from window to window (the front end's, the model's)
+    # move each window's own minimum; their scatter bounds the SE from below when the noise
+    # alone would claim more precision than the windows agree to.
+    se = max(se, _scatter_se(profile, centre))
     lower, upper = (
         profile.tried[round(centre - FINE_C, 4)][2],
         profile.tried[round(centre + FINE_C, 4)][2],
@@ -309,6 +313,21 @@ def fit_temperature(
         best, se, "fit", front_end_c, _sensitivity(lower, upper, FINE_C), len(chosen),
         evaluations, note, anchor, _agreeing(first.row),
     )  # fmt: skip
+
+
+def _scatter_se(profile: _Profile, centre: float) -> float:
+    """Standard error of the mean of the windows' own minima in T, degC (0 for < 3 windows)."""
+    triple = [profile.tried[round(centre + d, 4)][2] for d in (-FINE_C, 0.0, FINE_C)]
+    minima = []
+    for rows in zip(*triple, strict=True):
+        vertex, _ = _parabola_vertex(
+            (centre - FINE_C, centre, centre + FINE_C), [r["f2"] ** 2 for r in rows]
+        )
+        if math.isfinite(vertex):
+            minima.append(min(max(vertex, centre - 4 * COARSE_C), centre + 4 * COARSE_C))
+    if len(minima) < 3:
+        return 0.0
+    return float(np.std(minima, ddof=1) / math.sqrt(len(minima)))
 
 
 def _agreeing(row: Mapping) -> int | None:
