@@ -110,6 +110,9 @@ def invert_take(
         starts=starts, checkpoint=checkpoint, anchor=fit.anchor,
     )  # fmt: skip
     table = widen_standard_errors(result.table, fit, config.determined_limit)
+    if fit.anchor is not None and len(table):
+        # the take's cold start was the fit's, on the first window: its agreement goes there
+        table.loc[table.index[0], "cold_starts_agreeing"] = fit.cold_starts_agreeing
     return TakeInversion(dataclasses.replace(result, table=table), fit, kernel, air)
 
 
