@@ -195,7 +195,7 @@ def write_virtual_take(
     _write_calibration_copy(files, calibration, sens)
     _write_truth(files.truth, take, calibration, truth_extra)
     _write_sidecar(files, take, calibration, recipe, subtype, sens)
-    log.info("wrote %s (+ sidecar, truth, calibration)", files.audio)
+    log.debug("wrote %s (+ sidecar, truth, calibration)", files.audio)
     return files
 
 

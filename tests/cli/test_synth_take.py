@@ -45,3 +45,14 @@ def test_synth_take_command_writes_a_readable_reproducible_take(tmp_path):
         run_synth_take(argv)
     assert run_synth_take([*argv, "--force"]) == 0
     assert (tmp_path / "take.flac").read_bytes() == first
+
+
+def test_synth_take_says_what_it_wrote_once(tmp_path, capsys):
+    from mpipe.cli.main import main
+
+    argv = ["synth-take", str(SHIPPED), "--reed", str(REED), "--duration", "0.1",
+            "-o", str(tmp_path / "t.flac")]  # fmt: skip
+    assert main(argv) == 0
+    out = capsys.readouterr()
+    assert (out.out + out.err).count("wrote") == 1, out
+    assert "t.calibration.yaml" in out.out
