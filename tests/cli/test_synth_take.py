@@ -47,12 +47,15 @@ def test_synth_take_command_writes_a_readable_reproducible_take(tmp_path):
     assert (tmp_path / "take.flac").read_bytes() == first
 
 
-def test_synth_take_says_what_it_wrote_once(tmp_path, capsys):
-    from mpipe.cli.main import main
+def test_synth_take_says_what_it_wrote_once(tmp_path):
+    # the command as a user runs it: its own logging set up, stdout and stderr together
+    import subprocess
+    import sys
 
+    code = "import sys; from mpipe.cli.main import main; sys.exit(main(sys.argv[1:]))"
     argv = ["synth-take", str(SHIPPED), "--reed", str(REED), "--duration", "0.1",
             "-o", str(tmp_path / "t.flac")]  # fmt: skip
-    assert main(argv) == 0
-    out = capsys.readouterr()
-    assert (out.out + out.err).count("wrote") == 1, out
-    assert "t.calibration.yaml" in out.out
+    out = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert (out.stdout + out.stderr).count("wrote") == 1, (out.stdout, out.stderr)
+    assert "t.calibration.yaml" in out.stdout
