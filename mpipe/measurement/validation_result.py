@@ -115,12 +115,25 @@ class ValidationResult:
     def summary(self) -> str:
         """A few lines for the terminal: verdict, resonances and band errors."""
         lines = [f"impedance validation: {self.verdict.upper()} ({self.reason})"]
-        lines.append("  resonance  f_th (Hz)  f_meas (Hz)  cents   L_th (dB)  dL (dB)")
-        for i, r in self.resonances.iterrows():
-            lines.append(
-                f"  {i + 1:9d}  {r.frequency_theory_hz:9.2f}  {r.frequency_measured_hz:11.2f}"
-                f"  {r.error_cents:6.2f}  {r.level_theory_db:9.2f}  {r.error_db:7.2f}"
-            )
+        measured = np.isfinite(self.resonances["frequency_measured_hz"].to_numpy(float))
+        if measured.any():
+            lines.append("  resonance  f_th (Hz)  f_meas (Hz)  cents   L_th (dB)  dL (dB)")
+            for i, r in self.resonances[measured].iterrows():
+                lines.append(
+                    f"  {i + 1:9d}  {r.frequency_theory_hz:9.2f}  {r.frequency_measured_hz:11.2f}"
+                    f"  {r.error_cents:6.2f}  {r.level_theory_db:9.2f}  {r.error_db:7.2f}"
+                )
+        else:
+            # a played note excites its harmonics only: no peak of |z| can be located
+            theory = ", ".join(f"{f:.0f}" for f in self.resonances["frequency_theory_hz"])
+            lines.append(f"  resonances: none measurable (theory at {theory} Hz)")
+        if len(self.harmonics):
+            lines.append("  harmonic  f (Hz)   dL (dB)  dphi (deg)  coherence")
+            for _, h in self.harmonics.iterrows():
+                lines.append(
+                    f"  {int(h.harmonic):8d}  {h.frequency_hz:7.1f}  {h.error_db:8.2f}"
+                    f"  {h.error_deg:10.1f}  {h.coherence:9.2f}"
+                )
         lines.append(
             f"  band {self.band_error_db:.2f} dB, {self.band_error_deg:.1f} deg over "
             f"{100 * self.coherent_fraction:.0f} % coherent bins"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 
 import numpy as np
@@ -70,6 +71,10 @@ def test_harmonics_only_for_a_played_note():
     assert res.passed, res.failures
     assert not res.harmonics.empty
     assert np.all(np.isnan(res.resonances.error_cents))
+    # the console says which quantities were compared, and no table of NaN resonances
+    text = res.summary()
+    assert "resonances: none measurable" in text and not re.search(r"\bnan\b", text)
+    assert text.count("\n  ") >= 1 + len(res.harmonics)
 
 
 def test_bad_input():
