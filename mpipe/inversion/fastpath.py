@@ -49,7 +49,7 @@ REASONS = {DIVERGED: "diverged", SILENT: "silent"}
 @njit(cache=True)
 def _evaluate(
     out_r, target_p, target_std, p_lead, u_lead, filt, rho, fs, ph, uh, x, n0, z0,
-    base, ones, f, head_rev, h0, level1, level2, work1, work2, work, p_mod, p_ctx, fir,
+    base, ones, f, head, h0, level1, level2, work1, work2, fut, work, p_mod, p_ctx, fir,
     fir_work, buf, n_taps_fir, k, s_area, y_m, p_m, lam, y_c, alpha, a1, a2, a3, b1,
 ):  # fmt: skip
     """Residual of one candidate into ``out_r``; returns a status code (OK, DIVERGED, SILENT).
@@ -105,9 +105,9 @@ def _evaluate(
     dp0 = p_m - p_lead[n_lead - 1]
     n_run = p_mod.size
     _run_pressure(
-        x, n0, n_run, head_rev, h0, z0, rho, a1, a2, a3, b1, y_m, y_c, alpha, lam,
+        x, n0, n_run, head, h0, z0, rho, a1, a2, a3, b1, y_m, y_c, alpha, lam,
         s_area * fs, p_m, y, y_prev, dp0, level1, f[0], f[1], work1, level2, f[2], f[3],
-        work2, p_mod,
+        work2, fut, p_mod,
     )  # fmt: skip
     for i in range(n_run):
         if not math.isfinite(p_mod[i]):
@@ -229,6 +229,7 @@ class WindowEvaluator:
         width = max(n_lead, n + 2 * n_pad + 2)
         self.work = np.zeros((2, width))
         self.p_mod = np.empty(n + n_pad)
+        self.fut = np.empty(n + n_pad + lean.head.size)
         if self.filt:
             taps = np.asarray(lp.taps, dtype=float)
             # segments of 2M samples give M outputs each once the L taps fit: L - 1 <= M
@@ -275,9 +276,9 @@ class WindowEvaluator:
             code = _evaluate(
                 out, self.target_p, self.target_std, self.p_lead, self.u_lead, self.filt,
                 self.rho, self.fs, self.ph, self.uh, self.x, self.n0, k.z0, self.base,
-                self.ones, self.f, self.lean.head_rev, self.lean.h0, self.lean.level1,
-                self.lean.level2, self.work1, self.work2, self.work, self.p_mod, self.p_ctx,
-                self.fir, self.fir_work, self.buf, self.n_taps_fir, reed.k, reed.S,
+                self.ones, self.f, self.lean.head, self.lean.h0, self.lean.level1,
+                self.lean.level2, self.work1, self.work2, self.fut, self.work, self.p_mod,
+                self.p_ctx, self.fir, self.fir_work, self.buf, self.n_taps_fir, reed.k, reed.S,
                 reed.y_m, reed.p_m, reed.lam, reed.y_c, reed.alpha, a1, a2, a3, b1,
             )  # fmt: skip
         return REASONS.get(int(code), "")

@@ -176,8 +176,8 @@ class LeanKernel:
         B1 and B2, powers of two with B1 < B2.
     n0 : int
         Samples of p+ history a run buffer holds before its first output sample.
-    head_rev : ndarray
-        h[B1 - 1], ..., h[1] (the direct part).
+    head : ndarray
+        h[1], ..., h[B1 - 1] (the direct part).
     h0 : float
         Lag-0 tap.
     level1, level2 : tuple of ndarray
@@ -188,7 +188,7 @@ class LeanKernel:
     block1: int
     block2: int
     n0: int
-    head_rev: np.ndarray
+    head: np.ndarray
     h0: float
     level1: tuple
     level2: tuple
@@ -237,7 +237,7 @@ def prepare_lean(kernel: BoreKernel, block1: int | None = None, block2: int | No
     level2 = (*_partition_spectra(h[b2:], b2), *_fft_tables(b2))
     p1, p2 = level1[0].shape[0], level2[0].shape[0]
     n0 = max(n - 1, (p1 + 1) * b1, (p2 + 1) * b2)
-    head_rev = np.ascontiguousarray(h[1 : min(b1, n)][::-1])
-    for a in (head_rev, *level1, *level2):
+    head = np.ascontiguousarray(h[1 : min(b1, n)])
+    for a in (head, *level1, *level2):
         a.flags.writeable = False
-    return LeanKernel(b1, b2, n0, head_rev, float(h[0]), level1, level2)
+    return LeanKernel(b1, b2, n0, head, float(h[0]), level1, level2)

@@ -7,8 +7,8 @@ numba inlines into each loop, and differ only in how they form the bore's histor
 
 :func:`_run`
     Every output (p, u, u_f, u_r, y, h, p-) for any mouth-pressure series; lags 1..B-1 by a
-    direct dot product, lags >= B by a uniformly partitioned frequency-domain delay line of
-    block B (or every lag direct). The ``"fast"`` and ``"direct"`` methods of
+    direct sum (:func:`_spread`), lags >= B by a uniformly partitioned frequency-domain
+    delay line of block B (or every lag direct). The ``"fast"`` and ``"direct"`` methods of
     :func:`mpipe.reed.model.simulate`.
 :func:`_run_pressure`
     Pressure only, constant mouth pressure, no allocation: the lean kernel of the inversion
@@ -17,6 +17,12 @@ numba inlines into each loop, and differ only in how they form the bore's histor
 
 Both are exact convolutions: a block of B outputs only needs p+ at least B samples old,
 which is all known when the block starts (physics.md D.4).
+
+No kernel uses fastmath: with reassociation or contraction (fma) LLVM orders the sums
+itself, and numba keeps several differently optimised copies of a kernel (each caller
+links its own; which copy runs depends on what was compiled fresh and what was loaded
+from the on-disk cache), so the numbers depended on the cache's state. Every sum here has
+its order written in the source; the loops that need SIMD are elementwise.
 
 References
 ----------
@@ -34,18 +40,36 @@ from numba import njit
 from mpipe.reed.block_fft import _irfft_last_half, _rfft, _rfft_lean
 
 
-@njit(cache=True, fastmath={"reassoc", "contract"})
-def _dot(a, xs):
-    """Sum of a[k] xs[k] over k < len(a); xs is a contiguous slice.
+@njit(cache=True)
+def _spread(fut, i, v, head):
+    """Add ``v h[j]`` to ``fut[i + j]`` for lags j = 1..H-1 with ``i + j >= 0``.
 
-    Reassociation lets LLVM split the sum over SIMD lanes; the result differs from a
-    sequential sum only by rounding. Indexing a slice by a ``range`` index (not
-    ``start + k``) spares numba's negative-index wraparound, which blocks vectorisation.
+    The direct part of the history term, ``q(n) = sum_{j=1}^{H-1} h_j p+(n-j)``, in
+    transposed form: each new sample ``v = p+(i)`` is spread at once over the H-1 later
+    outputs it reaches (``head`` = h[1..H-1]), so ``fut[n]`` holds q(n) when sample n
+    starts. Each q(n) then sums its terms oldest first, an order fixed in the source, and
+    the loop over j is elementwise, which LLVM runs on SIMD lanes without fastmath. (A dot
+    product needs fastmath's reassociation for SIMD, and LLVM then picks the order per
+    compiled copy of a kernel: a fresh compile and numba's cache gave different numbers.)
     """
-    s = 0.0
-    for k in range(a.size):
-        s += a[k] * xs[k]
-    return s
+    lo = -1 - i if i < -1 else 0
+    dst = fut[i + 1 + lo : i + 1 + head.size]
+    src = head[lo:]
+    for j in range(src.size):
+        dst[j] += v * src[j]
+
+
+@njit(cache=True)
+def _seed(fut, n, x, n0, head):
+    """Zero ``fut[: n + K]`` and spread the history ``x[n0 - K : n0]`` into it, K = len(head).
+
+    Leaves in ``fut[i]`` the history's share of q(i) for the run's first K outputs.
+    """
+    n_head = head.size
+    for j in range(n + n_head):
+        fut[j] = 0.0
+    for i in range(-n_head, 0):
+        _spread(fut, i, x[n0 + i], head)
 
 
 @njit(inline="always")
@@ -120,7 +144,6 @@ def _uniform_tail(x, n0, b, g_re, g_im, f_re, f_im, acc_re, acc_im, zr, zi, tail
     bitrev, tw_re, tw_im, w_re, w_im = tables
     block = zr.size
     n_part = g_re.shape[0]
-    nb = block + 1
     if b > 0:
         c = b - 1
         slot = c % n_part
@@ -128,35 +151,22 @@ def _uniform_tail(x, n0, b, g_re, g_im, f_re, f_im, acc_re, acc_im, zr, zi, tail
             x, n0 + (c - 1) * block, f_re[slot], f_im[slot], zr, zi, bitrev, tw_re, tw_im,
             w_re, w_im,
         )  # fmt: skip
-    # the products are summed here, not by _accumulate: without its fastmath, so that the
-    # fast kernel keeps its exact rounding (the lean kernel's differs by contraction)
-    acc_re[:] = 0.0
-    acc_im[:] = 0.0
-    for k in range(n_part):
-        slot = (b - 1 - k) % n_part
-        gr = g_re[k]
-        gi = g_im[k]
-        fr = f_re[slot]
-        fi = f_im[slot]
-        for j in range(nb):
-            acc_re[j] += gr[j] * fr[j] - gi[j] * fi[j]
-            acc_im[j] += gr[j] * fi[j] + gi[j] * fr[j]
+    _accumulate(acc_re, acc_im, g_re, g_im, f_re, f_im, (b - 1) % n_part)
     _irfft_last_half(acc_re, acc_im, tail, zr, zi, bitrev, tw_re, tw_im, w_re, w_im)
 
 
 @njit(cache=True)
 def _run(
-    x, n0, n, head_rev, h0, z0, rho, a1, a2, a3, b1, y_m, y_c, alpha, lam, s_fs, pm, y,
+    x, n0, n, head, h0, z0, rho, a1, a2, a3, b1, y_m, y_c, alpha, lam, s_fs, pm, y,
     y_prev, dp, block, g_re, g_im, bitrev, tw_re, tw_im, w_re, w_im, out_p, out_u, out_uf,
     out_ur, out_y, out_h, out_pminus,
 ):  # fmt: skip
     """Run the scheme for n samples; x holds p+ with n0 samples of history before it.
 
-    ``head_rev`` is h[H-1], ..., h[1] (lags H-1 down to 1, run direct). With P = len(g_re)
+    ``head`` is h[1], ..., h[H-1] (lags 1 to H-1, run direct). With P = len(g_re)
     > 0, lags block..(P+1)*block-1 run by partitioned FFT (then H must equal ``block``).
     Returns the final (y, y_prev, dp).
     """
-    n_head = head_rev.size
     n_part = g_re.shape[0]
     inv = 1.0 / (1.0 - h0)
     bore = (z0, rho, inv, z0 * (1.0 + h0) * inv, 2.0 / rho)
@@ -171,6 +181,8 @@ def _run(
     zr = np.zeros(block)
     zi = np.zeros(block)
     tail = np.zeros(block)
+    fut = np.empty(n + head.size)
+    _seed(fut, n, x, n0, head)
     for i in range(n):
         m = n0 + i
         r = i % block
@@ -178,12 +190,13 @@ def _run(
             _uniform_tail(
                 x, n0, i // block, g_re, g_im, f_re, f_im, acc_re, acc_im, zr, zi, tail, tables
             )
-        q = _dot(head_rev, x[m - n_head : m])
+        q = fut[i]
         if n_part > 0:
             q += tail[r]
         p_m = pm[i]
         y_new, hh, ur, uf, u, pp, p = _step(q, p_m, y, y_prev, dp, reed, bore)
         x[m] = pp
+        _spread(fut, i, pp, head)
         out_p[i] = p
         out_u[i] = u
         out_uf[i] = uf
@@ -197,12 +210,14 @@ def _run(
     return y, y_prev, dp
 
 
-@njit(cache=True, fastmath={"reassoc", "contract"})
+@njit(cache=True)
 def _accumulate(acc_re, acc_im, g_re, g_im, f_re, f_im, newest):
     """Acc = sum_k G_k F_{newest - k}: the spectral products of the delay line.
 
-    Reassociation lets the inner loop over bins run on SIMD lanes; the sum over partitions
-    keeps its order, so the result differs from :func:`_run`'s only by contraction (fma).
+    The loop over bins is elementwise (SIMD lanes without fastmath) and the sum over
+    partitions runs in order: no fastmath here, whose contraction (fma) LLVM applied
+    differently in each compiled copy of the kernels (a fresh compile against numba's
+    cache) and so changed the numbers.
     """
     n_part = g_re.shape[0]
     nb = acc_re.size
@@ -249,8 +264,8 @@ def _fdl_tail(x, n0, blk, level, f_re, f_im, work):
 
 @njit(cache=True)
 def _run_pressure(
-    x, n0, n, head_rev, h0, z0, rho, a1, a2, a3, b1, y_m, y_c, alpha, lam, s_fs, p_m, y,
-    y_prev, dp, level1, f1_re, f1_im, work1, level2, f2_re, f2_im, work2, out_p,
+    x, n0, n, head, h0, z0, rho, a1, a2, a3, b1, y_m, y_c, alpha, lam, s_fs, p_m, y,
+    y_prev, dp, level1, f1_re, f1_im, work1, level2, f2_re, f2_im, work2, fut, out_p,
 ):  # fmt: skip
     """The scheme of :func:`_run` for a constant mouth pressure, pressure output only.
 
@@ -259,10 +274,11 @@ def _run_pressure(
     line of block B1 (``level1``), lags >= B2 by one of block B2 (``level2``); see
     :class:`mpipe.reed.bore_kernel.LeanKernel`. Each level's history spectra ``f*_re,
     f*_im`` come precomputed (:func:`history_spectra`; overwritten here) and the scratch
-    ``work*`` (shape ``(5, B + 1)``) is the caller's, so a run allocates nothing. Returns
-    the final (y, y_prev, dp).
+    ``work*`` (shape ``(5, B + 1)``) and ``fut`` (the direct part's pending sums, at least
+    ``n + B1`` samples) are the caller's, so a run allocates nothing. Returns the final
+    (y, y_prev, dp).
     """
-    n_head = head_rev.size
+    _seed(fut, n, x, n0, head)
     blk1 = level1[2].size
     blk2 = level2[2].size
     on1 = level1[0].shape[0] > 0
@@ -282,13 +298,14 @@ def _run_pressure(
             _fdl_tail(x, n0, c2, level2, f2_re, f2_im, work2)
         if on1 and r1 == 0:
             _fdl_tail(x, n0, c1, level1, f1_re, f1_im, work1)
-        q = _dot(head_rev, x[m - n_head : m])
+        q = fut[i]
         if on1:
             q += tail1[r1]
         if on2:
             q += tail2[r2]
         y_new, _, _, _, _, pp, p = _step(q, p_m, y, y_prev, dp, reed, bore)
         x[m] = pp
+        _spread(fut, i, pp, head)
         out_p[i] = p
         y_prev = y
         y = y_new

@@ -374,14 +374,14 @@ def _run_compiled(
     b = kernel.head_taps
     n_head = b - 1 if n_part else h.size - 1
     a1, a2, a3, b1 = reed_coefficients(reed, kernel.fs)
-    head_rev = np.ascontiguousarray(h[1 : n_head + 1][::-1])
+    head = np.ascontiguousarray(h[1 : n_head + 1])
     g_re = kernel.tail_re if n_part else np.zeros((0, b + 1))
     g_im = kernel.tail_im if n_part else np.zeros((0, b + 1))
-    for a in (head_rev, g_re, g_im):
+    for a in (head, g_re, g_im):
         a.flags.writeable = False
     out = {k: np.empty(n_samples) for k in ("p", "u", "u_f", "u_r", "y", "h", "p_minus")}
     end = _run(
-        x, n0, n_samples, head_rev, float(h[0]), kernel.z0, kernel.rho, a1, a2, a3, b1,
+        x, n0, n_samples, head, float(h[0]), kernel.z0, kernel.rho, a1, a2, a3, b1,
         reed.y_m, reed.y_c, reed.alpha, reed.lam, reed.S * kernel.fs, pm, *start, b,
         g_re, g_im, kernel.fft_bitrev, kernel.fft_tw_re, kernel.fft_tw_im,
         kernel.rfft_w_re, kernel.rfft_w_im, out["p"], out["u"], out["u_f"], out["u_r"],
@@ -442,9 +442,9 @@ def simulate_pressure(
     f1_re, f1_im, f2_re, f2_im = lean.history_spectra(x)
     a1, a2, a3, b1 = reed_coefficients(reed, kernel.fs)
     _run_pressure(
-        x, n0, n_samples, lean.head_rev, lean.h0, kernel.z0, kernel.rho, a1, a2, a3, b1,
+        x, n0, n_samples, lean.head, lean.h0, kernel.z0, kernel.rho, a1, a2, a3, b1,
         reed.y_m, reed.y_c, reed.alpha, reed.lam, reed.S * kernel.fs, reed.p_m, y, y_prev,
         dp, lean.level1, f1_re, f1_im, np.zeros((5, lean.block1 + 1)), lean.level2, f2_re,
-        f2_im, np.zeros((5, lean.block2 + 1)), out,
+        f2_im, np.zeros((5, lean.block2 + 1)), np.empty(n_samples + lean.head.size), out,
     )  # fmt: skip
     return out

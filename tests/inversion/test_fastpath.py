@@ -1,6 +1,9 @@
 """The compiled F2 evaluator against the plain reference, and the lean model kernel."""
 
 import dataclasses
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -87,3 +90,50 @@ def test_lean_kernel_matches_simulate(setup):
     state = ModelState(sim.p_plus[:W0], sim.y[W0 - 1], sim.y[W0 - 2], TABLE1.p_m - sim.p[W0 - 1])
     cont = simulate_pressure(TABLE1, kernel, N, state=state)
     np.testing.assert_allclose(cont, sim.p[W0 : W0 + N], rtol=0, atol=1e-9 * np.abs(sim.p).max())
+
+
+# Run in a fresh interpreter with its own numba cache directory: the first run compiles
+# every kernel and fills the cache, the second loads them from it.
+_CACHE_RUN = """
+import sys
+import numpy as np
+from mpipe.acoustics.reflection import reflection_function
+from mpipe.core.filters import design_lowpass
+from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWindow
+from mpipe.inversion.settings import PARAMETER_NAMES
+from mpipe.measurement.calibration import load_calibration
+from mpipe.reed.bore_kernel import prepare_bore
+from mpipe.reed.model import simulate_pressure
+from mpipe.reed.parameters import ReedParameters
+
+reed = ReedParameters(
+    k=8.66e6, S=7.62e-5, y_m=4e-4, p_m=1800.0, lam=0.013, m=0.05, g=3000.0, k_c=8.23e10
+)
+cal = load_calibration(sys.argv[1])
+air = cal.air_properties()
+kernel = prepare_bore(reflection_function(cal.bore, air, fs=1e5), air)
+p = simulate_pressure(reed, kernel, 7000)
+u = (p - p.mean()) / kernel.z0  # any measured-like flow will do: only equality is checked
+target = TargetWindow(p[5000:], u[5000:], p[:5000], u[:5000], 1e5, True)
+settings = ObjectiveSettings(lowpass=design_lowpass(1e5))
+objective = F2Objective(kernel, target, settings, reed, PARAMETER_NAMES)
+x = np.array([getattr(reed, n) for n in PARAMETER_NAMES]) * 1.01
+np.savez(sys.argv[2], lean=p, r=objective.residuals(x), f2=objective(x))
+"""
+
+
+def test_numbers_do_not_depend_on_the_numba_cache(tmp_path):
+    # the lean model and F2 are bit-identical whether numba compiled the kernels fresh or
+    # loaded them from its on-disk cache (fastmath once made the two differ by ~1e-14).
+    # simulate's kernel is left out to keep this test short: it shares the same helpers
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
+    cal = str(ROOT / "calibration" / "simplified_clarinet.yaml")
+    runs = []
+    for name in ("fresh", "cached"):
+        out = tmp_path / f"{name}.npz"
+        cmd = [sys.executable, "-c", _CACHE_RUN, cal, str(out)]
+        subprocess.run(cmd, env=env, check=True, timeout=300)
+        runs.append(np.load(out))
+    assert any((tmp_path / "numba").rglob("*.nbc"))  # the second run had a cache to load
+    fresh, cached = runs
+    assert [k for k in fresh.files if not np.array_equal(fresh[k], cached[k])] == []

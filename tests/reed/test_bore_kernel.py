@@ -36,7 +36,7 @@ def test_lean_levels_cover_every_lag_once(setup):
     lean = kernel.lean
     assert lean is kernel.lean  # made once
     b1, b2 = lean.block1, lean.block2
-    np.testing.assert_array_equal(lean.head_rev, kernel.h[1:b1][::-1])
+    np.testing.assert_array_equal(lean.head, kernel.h[1:b1])
     assert lean.h0 == kernel.h[0]
     # level 1 holds lags b1..b2-1, level 2 lags >= b2, in blocks of their own size
     assert lean.level1[0].shape == ((b2 - b1) // b1, b1 + 1)
