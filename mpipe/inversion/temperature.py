@@ -26,6 +26,7 @@ the front end's estimate is reported (``note``), as it points at the calibration
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import math
 from collections.abc import Callable, Mapping, Sequence
@@ -238,41 +239,12 @@ def fit_temperature(
     if not chosen:
         return dataclasses.replace(fallback, note="no window to fit the temperature on")
     n = int(round(config.window_s * fs))
-
-    def solve(t: float, warm: Sequence[ReedParameters]):
-        kernel, air = bore_kernel(calibration, fs, t)
-        reeds, rows, total = [], [], 0.0
-        for start, w in zip(chosen, warm, strict=True):
-            out = invert_window(p, u, fs, start, kernel, air.rho, config, zero_mean=zero_mean,
-                                warm=w)  # fmt: skip
-            if out.reed is None or not math.isfinite(out.row["f2"]):
-                return math.inf, list(warm), rows
-            reeds.append(out.reed)
-            rows.append({**out.row, **_combinations(out.reed, kernel.z0, air.rho)})
-            total += float(out.row["f2"]) ** 2
-        return total, reeds, rows
-
     lo, hi = front_end_c - config.temperature_range_c, front_end_c + config.temperature_range_c
-    runs, t_cold = [], front_end_c
-    for _ in range(1 + RESTARTS):
-        # The cold start's basin depends on the kernel: one made at a temperature far from
-        # the fitted one may hold a wrong minimum (m and g collapsed), which warm starts then
-        # carry along the whole profile. Start again cold where the fit ended until the
-        # fit ends near its own cold start, and keep the profile that fits best.
-        kernel, air = bore_kernel(calibration, fs, t_cold)
-        first = invert_window(p, u, fs, chosen[0], kernel, air.rho, config, zero_mean=zero_mean)
-        if first.reed is None:
-            break
-        profile = _Profile(solve, [first.reed] * len(chosen))
-        settled = _settle(profile, t_cold, lo, hi, config.temperature_evaluations)
-        runs.append((profile, settled, first, t_cold))
-        if settled is None or abs(settled[0] - t_cold) <= RESTART_C:
-            break
-        t_cold = min(max(settled[0], lo), hi)
+    cold = functools.partial(invert_window, p, u, fs, chosen[0], zero_mean=zero_mean)
+    solve = functools.partial(_solve, p, u, fs, calibration, chosen, config, zero_mean)
+    runs, error = _profiles(solve, cold, calibration, fs, config, len(chosen), front_end_c, lo, hi)
     if not runs:
-        return dataclasses.replace(
-            fallback, note="the fit's cold start failed: " + first.row["error"]
-        )
+        return dataclasses.replace(fallback, note="the fit's cold start failed: " + error)
     profile, settled, first, t_cold = min(
         runs, key=lambda r: min(v[0] for v in r[0].tried.values())
     )
@@ -313,6 +285,44 @@ def fit_temperature(
         best, se, "fit", front_end_c, _sensitivity(lower, upper, FINE_C), len(chosen),
         evaluations, note, anchor, _agreeing(first.row),
     )  # fmt: skip
+
+
+def _solve(p, u, fs, calibration, chosen, config, zero_mean, t: float, warm: Sequence):
+    """``R(T)`` (Pa^2), the windows' reeds and rows at kernel temperature ``t`` (degC)."""
+    kernel, air = bore_kernel(calibration, fs, t)
+    reeds, rows, total = [], [], 0.0
+    for start, w in zip(chosen, warm, strict=True):
+        out = invert_window(p, u, fs, start, kernel, air.rho, config, zero_mean=zero_mean, warm=w)
+        if out.reed is None or not math.isfinite(out.row["f2"]):
+            return math.inf, list(warm), rows
+        reeds.append(out.reed)
+        rows.append({**out.row, **_combinations(out.reed, kernel.z0, air.rho)})
+        total += float(out.row["f2"]) ** 2
+    return total, reeds, rows
+
+
+def _profiles(solve, cold, calibration, fs, config, count, t_cold, lo, hi):
+    """Profiles of R(T), each from a cold start; ``(profile, settled, cold row, T)`` each.
+
+    The cold start's basin depends on the kernel: one made at a temperature far from the
+    fitted one may hold a wrong minimum (m and g collapsed), which warm starts then carry
+    along the whole profile. The cold start is made again where the fit ended until the
+    fit ends near its own cold start (``RESTART_C``, at most ``RESTARTS`` times).
+    """
+    runs, error = [], ""
+    for _ in range(1 + RESTARTS):
+        kernel, air = bore_kernel(calibration, fs, t_cold)
+        first = cold(kernel, air.rho, config)
+        if first.reed is None:
+            error = first.row["error"]
+            break
+        profile = _Profile(solve, [first.reed] * count)
+        settled = _settle(profile, t_cold, lo, hi, config.temperature_evaluations)
+        runs.append((profile, settled, first, t_cold))
+        if settled is None or abs(settled[0] - t_cold) <= RESTART_C:
+            break
+        t_cold = min(max(settled[0], lo), hi)
+    return runs, error
 
 
 def _scatter_se(profile: _Profile, centre: float) -> float:
