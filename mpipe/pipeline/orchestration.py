@@ -176,6 +176,7 @@ def _stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg: Pip
         val = validate(mp["p"], mp["u"], float(mp["fs"]), cal, cfg.validation, t_eff)
         write_csv(folder / "impedance.csv", val.table())
         write_csv(folder / "validation.csv", val.resonances)
+        write_csv(folder / "harmonics.csv", val.harmonics)
         write_atomic(folder / "impedance.png", lambda t: plot_impedance(val, t, 2000.0))
         summary = {
             "verdict": val.verdict,
@@ -187,7 +188,7 @@ def _stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg: Pip
             "temperature_c": t_eff,
         }
         outputs = {"impedance": "impedance.csv", "resonances": "validation.csv",
-                   "plot": "impedance.png"}  # fmt: skip
+                   "harmonics": "harmonics.csv", "plot": "impedance.png"}  # fmt: skip
         return outputs, summary
 
     return work

@@ -141,10 +141,11 @@ def write_take_report(
     """
     windows = _read_csv(root / "inversion" / "windows.csv")
     resonances = _read_csv(root / "validation" / "validation.csv")
+    harmonics = _read_csv(root / "validation" / "harmonics.csv")
     plan = _read_csv(root / "conditioning" / "plan.csv")
     summary = _summary_section(records, windows)
     sections = [
-        _measurement_section(root, records, resonances),
+        _measurement_section(root, records, resonances, harmonics),
         _parameters_section(root, records, windows),
         _resynthesis_section(root, records),
         _run_section(records, take_paths, cal_path, version, plan),
@@ -165,8 +166,7 @@ def _summary_section(records: dict, windows: pd.DataFrame) -> Section:
         f"{fmt(val['band_error_db'], 3)} dB). {inv.get('status_line', '')}. A window is ok "
         "when the search met its tolerance, no parameter sits on a search bound and its "
         "residual is within a few times the take's best. Median relative residual of the "
-        f"model pressure {fmt(med_res, 3)}. Effective air temperature "
-        f"{fmt(val['temperature_c'], 4)} °C. "
+        f"model pressure {fmt(med_res, 3)}. Air temperature: {_temperature_words(val, inv)} "
         "The spread is the interquartile range (q25–q75) over the ok windows."
     )
     if val.get("failures"):
@@ -193,8 +193,24 @@ def _summary_section(records: dict, windows: pd.DataFrame) -> Section:
     return Section("Summary", summary_text, verdict, (), tuple(summary_tables))
 
 
-def _measurement_section(root: Path, records: dict, resonances: pd.DataFrame) -> Section:
-    """The impedance validation: verdict, propagation parameters, figures, resonances."""
+def _temperature_words(val: dict, inv: dict) -> str:
+    """The two temperatures of a take in words: the front end's and the bore model's."""
+    fit = inv.get("temperature") or {}
+    front = f"{fmt(val['temperature_c'], 4)} °C from the wave separation"
+    if fit.get("source") == "fit":
+        return (
+            f"{front}; the bore model's, fitted to the playing, {fmt(fit['temperature_c'], 4)}"
+            f" ± {fmt(fit['temperature_se_c'], 2)} °C (used by the inversion and the "
+            "resynthesis; its uncertainty is in every standard error)."
+        )
+    why = f": {fit['note']}" if fit.get("note") else ""
+    return f"{front}, used by the inversion too (not fitted{why})."
+
+
+def _measurement_section(
+    root: Path, records: dict, resonances: pd.DataFrame, harmonics: pd.DataFrame
+) -> Section:
+    """The impedance validation: verdict, propagation parameters, figures, compared values."""
     val = records["validation"].summary
     sep = records["separation"].summary
     t_lo, t_hi = sep["temperature_c_range"]
@@ -208,6 +224,7 @@ def _measurement_section(root: Path, records: dict, resonances: pd.DataFrame) ->
         f"Verdict: {val['verdict'].upper()}"
         + (f" ({val['reason']})" if val.get("reason") else "")
         + "."
+        + _resonance_words(resonances)
         + "".join(f"\nWarning: {w}." for w in sep.get("warnings", []))
         + (
             "\nThe validation FAILED; the inversion was run anyway (--accept-failed-validation)."
@@ -229,13 +246,34 @@ def _measurement_section(root: Path, records: dict, resonances: pd.DataFrame) ->
                 "scale η (–) and Mach number of the mean flow (–), against time (s).",
             ),
         ),  # fmt: skip
-        (
-            (
-                "Resonances: theory against measurement (empty cells: no measured peak "
-                "within the matching distance).",
-                resonances,
-            ),
-        ),  # fmt: skip
+        _validation_tables(resonances, harmonics),
+    )
+
+
+def _validation_tables(resonances: pd.DataFrame, harmonics: pd.DataFrame) -> tuple:
+    """The quantities the verdict compared: measured resonances and the note's harmonics."""
+    tables = []
+    measured = (
+        "frequency_measured_hz" in resonances and resonances["frequency_measured_hz"].notna().any()
+    )
+    if measured:
+        tables.append(("Resonances: theory against measurement (empty cells: no measured "
+                       "peak within the matching distance).", resonances))  # fmt: skip
+    if len(harmonics):
+        tables.append(("Harmonics of the note: measured against theoretical impedance, "
+                       "level (dB) and phase (°) errors, coherence; 'compared' marks those "
+                       "the verdict counts.", harmonics))  # fmt: skip
+    return tuple(tables)
+
+
+def _resonance_words(resonances: pd.DataFrame) -> str:
+    """A sentence when no resonance could be measured (a played note), else ""."""
+    if "frequency_measured_hz" in resonances and resonances["frequency_measured_hz"].notna().any():
+        return ""
+    theory = ", ".join(fmt(f) for f in resonances.get("frequency_theory_hz", []))
+    return (
+        "\nNo resonance is measurable from this take (a played note excites its harmonics "
+        f"only; theory at {theory} Hz): the verdict compares the harmonics below."
     )
 
 

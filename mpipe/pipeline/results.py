@@ -24,6 +24,7 @@ TABLES = {
     "blocks": ("separation", "blocks.csv"),
     "impedance": ("validation", "impedance.csv"),
     "resonances": ("validation", "validation.csv"),
+    "harmonics": ("validation", "harmonics.csv"),
     "plan": ("conditioning", "plan.csv"),
     "windows": ("inversion", "windows.csv"),
 }
@@ -47,8 +48,8 @@ class RunData:
         Sample rate of the signals, Hz.
     tables : Mapping[str, pandas.DataFrame]
         ``blocks`` (wave separation per block), ``impedance`` (measured and theoretical
-        Z/Z0), ``resonances`` (validation metrics), ``plan`` (window selection),
-        ``windows`` (reed parameters per window); those the run got to.
+        Z/Z0), ``resonances`` and ``harmonics`` (what the validation compared), ``plan``
+        (window selection), ``windows`` (reed parameters per window); those the run got to.
     signals : Mapping[str, ndarray]
         ``mouthpiece.p`` (Pa), ``mouthpiece.u`` (m^3/s), ``reference.p0``,
         ``reference.u0``, ``resynthesis.p``, ``resynthesis.u``, ... (see :attr:`units`).

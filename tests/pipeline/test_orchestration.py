@@ -84,6 +84,10 @@ def test_full_pipeline_recovers_the_truth(finished):
         'src="data:', ""
     )
     assert "uncertainty" in report.lower()
+    # the report says which temperature the bore model used, and what the verdict compared
+    fitted = windows["kernel_temperature_c"].iloc[0]
+    assert "fitted to the playing" in report and f"{fitted:.4g}" in report
+    assert "Harmonics of the note" in report or "Resonances: theory" in report
     for stage in STAGES:
         assert (run.folder / stage / "manifest.json").exists()
 
@@ -196,7 +200,7 @@ def test_load_run_gives_tables_and_signals_with_units(finished):
     data = mpipe.load_run(out)
     assert data.folder == run.folder and data.fs == 100_000.0
     assert data.verdict == "pass"
-    assert set(data.tables) == {"blocks", "impedance", "resonances", "plan", "windows"}
+    assert set(data.tables) == {"blocks", "impedance", "resonances", "harmonics", "plan", "windows"}
     assert data.unit("windows.k") == "Pa/m" and data.unit("windows.t_start_s") == "s"
     assert data.unit("mouthpiece.p") == "Pa" and data.unit("mouthpiece.u") == "m³/s"
     assert data.unit("blocks.temperature_c") == "°C" and data.unit("plan.f0_hz") == "Hz"

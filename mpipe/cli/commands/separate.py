@@ -19,8 +19,9 @@ validation FAILs, 0 for PASS and CANNOT-VERIFY.
     The per-block propagation parameters of the wave separation.
 ``impedance.csv``, ``impedance.png``
     Measured and theoretical normalised input impedance with coherence (paper Fig. 10).
-``validation.csv``
-    The resonance metrics of the validation.
+``validation.csv``, ``harmonics.csv``
+    What the validation compared: the resonances (measured when the take excites them)
+    and the harmonics of a played note.
 """
 
 from __future__ import annotations
@@ -61,6 +62,7 @@ OUTPUTS = (
     "impedance.csv",
     "impedance.png",
     "validation.csv",
+    "harmonics.csv",
 )
 
 
@@ -191,6 +193,7 @@ def _write_outputs(out: Path, fs: float, sep, tr, val, noise: dict) -> None:
     write_csv(out / "blocks.csv", sep.blocks)
     write_csv(out / "impedance.csv", val.table())
     write_csv(out / "validation.csv", val.resonances)
+    write_csv(out / "harmonics.csv", val.harmonics)
     write_atomic(out / "impedance.png", lambda tmp: plot_impedance(val, tmp, 2000.0))
 
 
