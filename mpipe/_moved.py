@@ -75,8 +75,9 @@ class _Alias(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
     def create_module(self, spec):
         new = MOVED.get(spec.name) or spec.name.replace("mpipe.commands.", "mpipe.cli.commands.")
+        where = " and ".join((new, *ALSO.get(spec.name, ())))
         warnings.warn(
-            f"{spec.name} moved to {new}; import it from there", DeprecationWarning, stacklevel=2
+            f"{spec.name} moved to {where}; import from there", DeprecationWarning, stacklevel=2
         )
         if spec.name not in ALSO:
             return importlib.import_module(new)

@@ -144,3 +144,12 @@ def test_modules_and_functions_stay_readable():
                 long_functions.append(f"{path.relative_to(PACKAGE)}:{node.lineno} {node.name}")
     assert not long_modules, long_modules
     assert not long_functions, long_functions
+
+
+def test_the_warning_of_a_split_module_names_every_new_home():
+    import subprocess
+    import sys
+
+    code = "import warnings; warnings.simplefilter('always'); import mpipe.model"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0 and "mpipe.reed.bore_kernel" in out.stderr, out.stderr

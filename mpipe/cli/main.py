@@ -20,7 +20,7 @@ from mpipe.core.errors import UserError
 from mpipe.core.progress import logging_redirect
 from mpipe.core.workers import exit_on_sigterm
 
-# Command modules under mpipe/commands, in the order `mpipe --help` lists them.
+# Command modules under mpipe/cli/commands, in the order `mpipe --help` lists them.
 COMMANDS = (
     "config",
     "calibrate",
