@@ -47,8 +47,21 @@ def ratio(row: dict) -> str:
     return f"x{r:.2f}"
 
 
+def met(row: dict) -> str:
+    """Whether the value meets its target (``"< 20 ms"``, ``">= 0.80"``): yes, NO or ""."""
+    parts = row["target"].split()
+    ops = {"<": float.__lt__, "<=": float.__le__, ">": float.__gt__, ">=": float.__ge__}
+    if len(parts) < 2 or parts[0] not in ops:
+        return ""
+    try:
+        bound = float(parts[1])
+    except ValueError:
+        return ""
+    return "yes" if ops[parts[0]](float(row["value"]), bound) else "NO"
+
+
 def table(rows: list[dict]) -> str:
-    head = ("benchmark", "figure", "value", "unit", "baseline", "ratio", "target")
+    head = ("benchmark", "figure", "value", "unit", "baseline", "ratio", "target", "met")
     cells = [
         (
             r["benchmark"].removeprefix("bench_"),
@@ -58,6 +71,7 @@ def table(rows: list[dict]) -> str:
             "" if r["baseline"] is None else f"{r['baseline']:.4g}",
             ratio(r),
             r["target"],
+            met(r),
         )
         for r in rows
     ]
@@ -95,8 +109,14 @@ def main(argv: list[str] | None = None) -> int:
         path = Path(env[TABLE_ENV])
         if path.exists():
             rows = [json.loads(line) for line in path.read_text().splitlines() if line]
-    print("\n=== headline figures (baseline measured in the same run)")
+    print(
+        "\n=== headline figures (baseline measured in the same run; ratio: speed-up for "
+        "times, value / baseline otherwise)"
+    )
     print(table(rows))
+    missed = [f"{r['benchmark']}: {r['figure']}" for r in rows if met(r) == "NO"]
+    if missed:
+        print(f"\n{len(missed)} figure(s) miss their target: " + "; ".join(missed))
     print("\nwall time per benchmark: " + ", ".join(f"{n} {t:.0f} s" for n, t in walls.items()))
     if failed:
         print("FAILED: " + ", ".join(failed))

@@ -33,6 +33,15 @@ def test_ratio_is_a_speed_up_for_times_and_a_gain_otherwise():
     assert text.splitlines()[2].split() == ["x", "f", "2", "ms", "8", "x4.00"]
 
 
+def test_met_reads_the_target():
+    run_all = _run_all()
+    row = {"value": 9.7, "target": "< 20 ms"}
+    assert run_all.met(row) == "yes" and run_all.met({**row, "value": 23.0}) == "NO"
+    assert run_all.met({"value": 0.98, "target": ">= 0.80"}) == "yes"
+    assert run_all.met({"value": 0.42, "target": ">= 1"}) == "NO"
+    assert run_all.met({"value": 1.0, "target": ""}) == ""
+
+
 def test_unknown_benchmark_is_refused_in_one_line():
     out = subprocess.run(
         [sys.executable, str(BENCH / "run_all.py"), "--only", "nonsense"],
