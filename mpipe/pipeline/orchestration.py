@@ -446,10 +446,9 @@ def _run_take(
     say(f"[{name}]     impedance validation: {verdict.upper()} ({val.summary.get('reason', '')})")
     if verdict == "fail":
         if not accept_failed_validation:
-            raise ValidationFailed(
-                f"{name}: stopped before the inversion: the impedance validation FAILED "
-                f"({val.summary.get('reason', '')}); see {d['validation']}; pass "
-                "--accept-failed-validation to invert anyway"
+            raise ValidationFailed(  # the reason was said on the line above
+                f"{name}: stopped before the inversion: the impedance validation FAILED; see "
+                f"{d['validation']}; pass --accept-failed-validation to invert anyway"
             )
         say(f"[{name}]     inverting despite the FAILED validation (--accept-failed-validation)")
     cond_config = {"conditioning": cfg.conditioning, "window_s": cfg.inversion.window_s,

@@ -249,7 +249,7 @@ def test_failed_validation_stops_the_run_and_separate_exits_non_zero(
     pipe.write_text(f"calibration: {wrong_bore}\nexecutor: {{kind: local, workers: 1}}\n")
     code = main(["run", str(pipe), str(take.audio), "-o", str(tmp_path / "r")])
     err = capsys.readouterr().err
-    assert code == 2 and "stopped before the inversion" in err
+    assert code == 1 and "stopped before the inversion" in err  # a result, not a usage error
     assert "--accept-failed-validation" in err
     assert not (tmp_path / "r" / take.audio.stem / "inversion").exists()
     # with --accept-failed-validation it goes on to the inversion (stopped here by a probe)

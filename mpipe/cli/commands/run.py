@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from mpipe.core.config import ConfigError
@@ -47,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe run``."""
     from mpipe.core.io import check_output_folder
     from mpipe.core.progress import write
-    from mpipe.pipeline.orchestration import run_take, take_name, usable
+    from mpipe.pipeline.orchestration import ValidationFailed, run_take, take_name, usable
 
     cfg = load_pipeline(args.pipeline)
     cal_path = Path(args.calibration) if args.calibration else cfg.calibration_path
@@ -89,6 +90,9 @@ def run(args: argparse.Namespace) -> int:
                 if not usable(result):
                     failed.append(t[0])
                     write(f"[{t[0].stem}] failed: no window has status ok (no usable result)")
+            except ValidationFailed as exc:  # a result (the measurement is not sound): 1
+                failed.append(t[0])
+                print(f"mpipe run: {exc}", file=sys.stderr)
             except (ValueError, OSError, UserError) as exc:
                 if isinstance(exc, ConfigError | UserError) and len(takes) == 1:
                     raise
