@@ -155,6 +155,11 @@ def load_calibration(path: str | Path) -> Calibration:
         Naming the file, the key path and what was expected.
     """
     data = dict(load_yaml(path))
+    if "bore" not in data and {"calibration", "inversion", "separation"} & set(data):
+        raise ConfigError(
+            f"{path}: this is a pipeline file (it has calibration/inversion/separation); "
+            "expected a calibration file here (the instrument: bore, microphones, air)"
+        )
     if "source" in data:
         raise ConfigError(f"{path}: source: this key is set by the loader, remove it")
     data["source"] = str(Path(path).resolve())

@@ -113,6 +113,11 @@ def load_pipeline(path: str | Path) -> PipelineConfig:
         file it refers to does not exist.
     """
     data = dict(load_yaml(path))
+    if "calibration" not in data and {"bore", "microphones"} & set(data):
+        raise ConfigError(
+            f"{path}: this is a calibration file (it has bore/microphones); expected a "
+            "pipeline file here (`mpipe config -o PIPE.yaml` writes one)"
+        )
     if "source" in data:
         raise ConfigError(f"{path}: source: this key is set by the loader, remove it")
     data["source"] = str(Path(path).resolve())

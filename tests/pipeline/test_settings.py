@@ -149,3 +149,15 @@ def test_config_command_prints_and_refuses_to_overwrite(tmp_path, capsys):
     target.write_text("mine")
     assert main(["config", "-o", str(target)]) == 2
     assert target.read_text() == "mine"
+
+
+def test_a_calibration_given_as_the_pipeline_and_back_is_named(tmp_path):
+    from mpipe.core.config import ConfigError
+    from mpipe.measurement.calibration import load_calibration
+
+    cal = ROOT / "calibration" / "simplified_clarinet.yaml"
+    pipe = ROOT / "pipelines" / "simplified_clarinet.yaml"
+    with pytest.raises(ConfigError, match="this is a calibration file"):
+        load_pipeline(cal)
+    with pytest.raises(ConfigError, match="this is a pipeline file"):
+        load_calibration(pipe)
