@@ -148,7 +148,7 @@ class InversionConfig:
     temperature_range_c: float = spec(
         "degC",
         "the fit searches this far on either side of the front end's temperature",
-        between(1.0, 30.0),
+        between(2.5, 30.0),
         default=8.0,
     )
     temperature_evaluations: int = spec(

@@ -38,6 +38,7 @@ import pandas as pd
 from mpipe.inversion.combinations import COMBINATION_NAMES, combination_values
 from mpipe.inversion.kernel import bore_kernel
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
+from mpipe.inversion.uncertainty import SE_PARAMETERS
 from mpipe.inversion.window import invert_window
 from mpipe.measurement.calibration import Calibration
 from mpipe.reed.parameters import ReedParameters
@@ -52,7 +53,7 @@ FINE_C = 0.25
 RESTART_C = 0.5
 RESTARTS = 2
 #: Quantities whose standard error the temperature widens.
-WIDENED = (*PARAMETER_NAMES, *COMBINATION_NAMES)
+WIDENED = (*SE_PARAMETERS, *COMBINATION_NAMES)
 
 
 @dataclass(frozen=True)
@@ -107,7 +108,7 @@ class TemperatureFit:
             "source": self.source,
             "front_end_c": self.front_end_c,
             "windows": self.windows,
-            "evaluations": [list(e) for e in self.evaluations],
+            "evaluations": [[t, r if math.isfinite(r) else None] for t, r in self.evaluations],
             "note": self.note,
             "cold_starts_agreeing": self.cold_starts_agreeing,
         }
@@ -115,8 +116,10 @@ class TemperatureFit:
     def line(self) -> str:
         """One console line."""
         if self.source != "fit":
-            return f"kernel temperature {self.temperature_c:.2f} degC ({self.source})" + (
-                f"; {self.note}" if self.note else ""
+            why = self.note or "inversion.temperature: front-end"
+            return (
+                f"kernel temperature {self.temperature_c:.2f} degC ({self.source}; not fitted: "
+                f"{why}); the standard errors leave out the temperature's uncertainty"
             )
         return (
             f"kernel temperature {self.temperature_c:.2f} +- {self.se_c:.2f} degC, fitted on "
@@ -182,15 +185,18 @@ def _settle(profile: _Profile, t0: float, lo: float, hi: float, max_evaluations:
         mid = best
     vertex, _ = _parabola_vertex(triple, values)
     centre = mid if not math.isfinite(vertex) else min(max(vertex, triple[0]), triple[2])
-    for _ in range(3):  # fine: settle the vertex
+    for step in range(3):  # fine: settle the vertex
         triple = (centre - FINE_C, centre, centre + FINE_C)
         values = [profile(t) for t in triple]
         vertex, curvature = _parabola_vertex(triple, values)
         if not all(math.isfinite(v) for v in values) or not math.isfinite(vertex):
             return None
+        # never further than the triple's reach from its (evaluated) centre
+        vertex = min(max(vertex, centre - 2 * FINE_C), centre + 2 * FINE_C)
         if abs(vertex - centre) <= FINE_C / 2 or len(profile.tried) >= max_evaluations:
-            return vertex, curvature, centre
-        centre = min(max(vertex, centre - 2 * FINE_C), centre + 2 * FINE_C)
+            break
+        if step < 2:
+            centre = vertex  # the last triple's centre stays the evaluated one
     return vertex, curvature, centre
 
 
@@ -245,8 +251,13 @@ def fit_temperature(
     runs, error = _profiles(solve, cold, calibration, fs, config, len(chosen), front_end_c, lo, hi)
     if not runs:
         return dataclasses.replace(fallback, note="the fit's cold start failed: " + error)
+
+    def inside(run) -> bool:
+        return run[1] is not None and run[1][1] > 0 and lo + COARSE_C <= run[1][0] <= hi - COARSE_C
+
+    candidates = [r for r in runs if inside(r)] or runs  # a settled profile before a lower R
     profile, settled, first, t_cold = min(
-        runs, key=lambda r: min(v[0] for v in r[0].tried.values())
+        candidates, key=lambda r: min(v[0] for v in r[0].tried.values())
     )
     evaluations = tuple(sorted((t, v[0]) for t, v in profile.tried.items()))
     base = dataclasses.replace(fallback, windows=len(chosen), evaluations=evaluations)
@@ -260,7 +271,8 @@ def fit_temperature(
             base, note=f"the fit ran to the edge of its range ({lo:.1f}..{hi:.1f} degC): not used"
         )
     rows = profile.tried[round(centre, 4)][2]
-    colour = np.nanmedian([n / r["n_eff"] if r.get("n_eff", 0) > 0 else 1.0 for r in rows])
+    ratios = [n / r["n_eff"] if r.get("n_eff", 0) > 0 else math.nan for r in rows]
+    colour = float(np.nanmedian(ratios)) if np.isfinite(ratios).any() else float(n)
     sigma2 = profile(centre) / (n * len(chosen))
     # R(T) = R0 + a (T - T0)^2 and Delta chi^2 = Delta R / (sigma^2 n / n_eff) = 1 at 1 SE
     se = math.sqrt(sigma2 * max(colour, 1.0) / curvature)

@@ -197,14 +197,17 @@ def _temperature_words(val: dict, inv: dict) -> str:
     """The two temperatures of a take in words: the front end's and the bore model's."""
     fit = inv.get("temperature") or {}
     front = f"{fmt(val['temperature_c'], 4)} °C from the wave separation"
+    note = f" Note: {fit['note']}." if fit.get("note") else ""
     if fit.get("source") == "fit":
         return (
             f"{front}; the bore model's, fitted to the playing, {fmt(fit['temperature_c'], 4)}"
             f" ± {fmt(fit['temperature_se_c'], 2)} °C (used by the inversion and the "
-            "resynthesis; its uncertainty is in every standard error)."
+            f"resynthesis; its uncertainty is in every standard error).{note}"
         )
-    why = f": {fit['note']}" if fit.get("note") else ""
-    return f"{front}, used by the inversion too (not fitted{why})."
+    return (
+        f"{front}, used by the inversion too: not fitted, so the standard errors leave out "
+        f"the temperature's uncertainty.{note}"
+    )
 
 
 def _measurement_section(

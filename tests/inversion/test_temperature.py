@@ -157,3 +157,21 @@ def test_a_cold_start_far_from_the_fitted_temperature_is_made_again(monkeypatch,
         assert fit.anchor.m == world.wrong.m
     slope = 0.2 / (1 + 0.2 * (fit.temperature_c - 20))  # d ln S / dT of the fake
     assert fit.sensitivity["S"] == pytest.approx(slope, rel=0.05)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_settle_returns_a_fine_triple_that_was_evaluated(seed):
+    # a rough profile (warm-start noise) with a generous budget: whatever the search does,
+    # the centre it returns and its two neighbours were evaluated (their rows are read)
+    rng = np.random.default_rng(seed)
+    phase, t0 = rng.uniform(0, 2 * np.pi), rng.uniform(-3, 3)
+
+    def rough(t, warm):
+        return 1 + 0.1 * (t - t0) ** 2 + 0.036 * np.sin(56 * t + phase), list(warm), []
+
+    profile = _Profile(rough, [None])
+    settled = _settle(profile, 0.0, -8.0, 8.0, 20)
+    if settled is not None:
+        _, _, centre = settled
+        for d in (-FINE_C, 0.0, FINE_C):
+            assert round(centre + d, 4) in profile.tried
