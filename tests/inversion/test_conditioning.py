@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mpipe.core.filters import design_lowpass
 from mpipe.inversion.conditioning import (
@@ -12,6 +14,7 @@ from mpipe.inversion.conditioning import (
     steady_state,
     synchronise,
 )
+from tests import lengths
 
 FS = 100_000.0
 
@@ -87,3 +90,37 @@ def test_steady_windows_flags_onset_silence_and_steady_note():
     assert (table.reason[table.t_start_s >= 0.4] == "silent").all()
     # the autocorrelation period estimate is biased by < 1 % on a 4-period window
     np.testing.assert_allclose(table.f0_hz[table.steady], 200.0, rtol=1e-2)
+
+
+@given(
+    duration_s=lengths.durations,
+    fs=lengths.rates,
+    extra=lengths.extras,
+    window_s=st.floats(0.005, 0.05),
+    hop_ratio=st.floats(0.25, 2.0),
+)
+@settings(max_examples=25, deadline=None)
+def test_windows_of_every_length_and_rate_lie_inside_the_take(
+    duration_s, fs, extra, window_s, hop_ratio
+):
+    # Issue 19: the conditioning windows of any take (50 ms to 30 s, 8-192 kHz, odd and even
+    # counts) lie inside [edge_s, T - edge_s], are a hop apart and leave less than one hop
+    # unused at the end.
+    from mpipe.inversion.conditioning import plan_inversion
+    from mpipe.inversion.settings import ConditioningConfig
+
+    n = lengths.samples(duration_s, fs, extra)
+    p = np.zeros(n)  # silent: the classification is not what is tested
+    cond = ConditioningConfig()
+    hop_s = hop_ratio * window_s
+    table = plan_inversion(p, fs, cond, window_s, hop_s)
+    window_n, hop = int(round(window_s * fs)), max(int(round(hop_s * fs)), 1)
+    first, last = int(round(cond.edge_s * fs)), int(round((n / fs - cond.edge_s) * fs))
+    starts = table["start"].to_numpy()
+    if starts.size == 0:
+        assert last - first < window_n
+        return
+    assert starts[0] == first and starts[-1] + window_n <= min(last, n)
+    assert np.all(np.diff(starts) == hop)
+    assert last - (starts[-1] + window_n) < hop
+    assert not table["invert"].any()

@@ -6,12 +6,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
 
 from mpipe.acoustics import ducts
 from mpipe.acoustics.bore import input_impedance
 from mpipe.core.filters import apply_lowpass, design_lowpass
 from mpipe.measurement.calibration import load_calibration
 from mpipe.measurement.translation import TranslationConfig, translate
+from tests import lengths
 
 CAL = load_calibration(Path(__file__).parents[2] / "calibration" / "simplified_clarinet.yaml")
 FS = 25_000.0
@@ -81,3 +83,40 @@ def test_translation_is_identity_at_reference_plane_length_zero_limit():
 def test_bad_shapes():
     with pytest.raises(ValueError, match="equal length"):
         translate(np.zeros(10), np.zeros(11), FS, CAL, TranslationConfig())
+
+
+# --- every length and rate (issue 19) -------------------------------------------------------
+
+
+@given(
+    duration_s=lengths.durations,
+    fs=lengths.rates,
+    extra=lengths.extras,
+)
+@settings(max_examples=10, deadline=None)
+def test_translation_of_every_length_and_rate(duration_s, fs, extra):
+    # A sine at the reference plane comes out at the mouthpiece as the transfer matrix at its
+    # frequency says, for takes from 50 ms to 30 s (longer than 2 s: shortened to 2 s plus
+    # the drawn remainder, the FFT's padding does not depend on the length) at 8-192 kHz.
+    from mpipe.measurement.translation import reference_to_mouthpiece
+
+    n = lengths.samples(duration_s, fs, extra, 2.0)
+    cfg = TranslationConfig()
+    if cfg.lowpass_hz + cfg.transition_hz >= 0.45 * fs:
+        cfg = TranslationConfig(lowpass_hz=0.3 * fs, transition_hz=0.1 * fs)
+    f = 40 * fs / 8000.0 if n > 0.2 * fs else 0.0
+    t = np.arange(n) / fs
+    z0 = CAL.air_properties(20.0).impedance(np.pi * CAL.main_radius**2)
+    p0, u0 = 100 * np.cos(2 * np.pi * f * t), 100 / z0 * np.cos(2 * np.pi * f * t + 0.3)
+    res = translate(p0, u0, fs, CAL, cfg, 20.0)
+    assert res.p.shape == (n,) and res.u.shape == (n,) and res.temperature_c.shape == (n,)
+    assert np.all(np.isfinite(res.p)) and np.all(np.isfinite(res.u))
+    if f == 0.0:
+        return
+    m = reference_to_mouthpiece(np.array([f]), CAL, 20.0)[0]
+    want_p = m[0, 0] * 100 + m[0, 1] * 100 / z0 * np.exp(0.3j)
+    inner = slice(int(0.08 * fs), n - int(0.08 * fs))
+    basis = np.column_stack([np.cos(2 * np.pi * f * t[inner]), -np.sin(2 * np.pi * f * t[inner])])
+    a, b = np.linalg.lstsq(basis, res.p[inner], rcond=None)[0]
+    got = a + 1j * b
+    assert abs(got - want_p) < 0.01 * abs(want_p)

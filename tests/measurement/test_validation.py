@@ -8,11 +8,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
 
 from mpipe.acoustics.bore import input_impedance
 from mpipe.measurement.calibration import load_calibration
 from mpipe.measurement.validation import ValidationConfig, validate
 from mpipe.measurement.validation_result import plot_impedance
+from tests import lengths
 
 CAL = load_calibration(Path(__file__).parents[2] / "calibration" / "simplified_clarinet.yaml")
 FS = 20_000.0
@@ -109,3 +111,28 @@ def test_two_coherent_harmonics_are_not_enough_to_pass():
     assert res.checks == 2 and res.verdict == "cannot-verify", res.summary()
     res2 = validate(p, u, FS, CAL, ValidationConfig(note_f0_hz=f0, min_checks=2))
     assert res2.verdict == "pass", res2.summary()
+
+
+@given(
+    duration_s=lengths.durations,
+    fs=lengths.rates,
+    extra=lengths.extras,
+)
+@settings(max_examples=10, deadline=None)
+def test_validation_of_every_length_and_rate(duration_s, fs, extra):
+    # Issue 19: the Welch segments fit every length from 50 ms to 30 s (longer than 3 s:
+    # shortened to 3 s plus the drawn remainder) at 8-192 kHz; broadband P = Z_in U is
+    # judged right once the take holds enough averages.
+    n = lengths.samples(duration_s, fs, extra, 3.0)
+    rng = np.random.default_rng(0)
+    f = np.fft.rfftfreq(n, 1 / fs)
+    U = 1e-6 * (rng.normal(size=f.size) + 1j * rng.normal(size=f.size))
+    U[0] = 0
+    z = input_impedance(CAL.bore, 2 * np.pi * np.maximum(f, 1e-3), CAL.air_properties())
+    P = z * U
+    if n % 2 == 0:
+        U[-1], P[-1] = U[-1].real, P[-1].real
+    res = validate(np.fft.irfft(P, n), np.fft.irfft(U, n), fs, CAL, ValidationConfig())
+    assert res.freqs[-1] <= fs / 2
+    if n >= 2.0 * fs:
+        assert res.band_error_db < 0.5, (n, fs, res.failures)

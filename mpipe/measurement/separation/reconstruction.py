@@ -140,8 +140,12 @@ def overlap_add(
     fb = freqs[band]
     ramp = _u_ramp(fb, config)
     win = np.hanning(length + 1)[:-1]  # periodic Hann: shifted copies at hop sum to one
-    out = np.zeros((n + 2 * (pad + length), 2))
     origin = pad + length  # index in ``out`` of sample 0
+    # The buffer holds every block's padded inverse FFT: nfft (a fast length, up to a few
+    # per cent above length + 2 pad) from the last block's start, which may lie one sample
+    # before the end of the take.
+    last = max(origin + n, origin + int(np.max(starts, initial=0)) - pad + nfft)
+    out = np.zeros((last, 2))
     for b, s in enumerate(starts):
         th = Theta(c_track[b], smooth[b, 1], smooth[b, 2])
         geo_b = geometry.corrected(float(smooth[b, 3]))
