@@ -257,7 +257,7 @@ def check_file_rate(path: str | Path, fs: float) -> None:
     """Refuse, before any work, a sample rate the audio file cannot store.
 
     Every audio container stores an integer rate in Hz; FLAC (as written by libsndfile)
-    at most ``FLAC_MAX_RATE_HZ``.
+    at most ``FLAC_MAX_RATE_HZ``, and above 65 535 Hz only multiples of 10 Hz.
 
     Raises
     ------
@@ -272,6 +272,11 @@ def check_file_rate(path: str | Path, fs: float) -> None:
         raise ValueError(
             f"sample rate {fs:g} Hz cannot be stored in FLAC (at most {FLAC_MAX_RATE_HZ} Hz); "
             "use --fs-out for a lower file rate or write .wav"
+        )
+    if Path(path).suffix.lower() == ".flac" and round(fs) > 65_535 and round(fs) % 10:
+        raise ValueError(
+            f"sample rate {fs:g} Hz cannot be stored in FLAC (above 65 535 Hz only multiples "
+            "of 10 Hz); write .wav"
         )
 
 

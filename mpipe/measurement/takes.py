@@ -28,6 +28,7 @@ import numpy as np
 import soundfile as sf
 
 from mpipe.core.errors import UserError
+from mpipe.core.resampling import resample
 from mpipe.measurement.calibration import Calibration
 from mpipe.measurement.calibration_tables import divide_response, read_mic_calibration
 from mpipe.measurement.take_checks import (
@@ -301,51 +302,6 @@ def _apply_relative_calibration(
         freqs, h = read_mic_calibration(table, band=band)
         raw[:, i] = divide_response(raw[:, i], fs, freqs, h)
         log.debug("%s: applied relative calibration %s", mic.name, table)
-
-
-# Anti-aliasing window of resample_poly: scipy's default (Kaiser beta 5) ripples by ~1e-3 in
-# the pass band; beta 10 keeps the gain within 1e-5 over the analysis band.
-_RESAMPLE_WINDOW = ("kaiser", 10.0)
-
-
-def resample(x: np.ndarray, fs_from: float, fs_to: float) -> np.ndarray:
-    """Resample signals along axis 0 with a polyphase filter (``scipy.signal.resample_poly``).
-
-    The one place where mpipe changes a sample rate, shared by every command: takes at
-    the pipeline's rate, mouthpiece signals at the inversion's rate.
-
-    Parameters
-    ----------
-    x : ndarray
-        Signals, time along axis 0.
-    fs_from, fs_to : float
-        Sample rates in Hz; their ratio must be rational with a denominator below 10000
-        (any pair of integer rates in Hz up to 10 MHz qualifies after reduction).
-
-    Returns
-    -------
-    ndarray
-        ``round(n fs_to / fs_from)`` samples (up to one sample more from the filter).
-
-    Raises
-    ------
-    ValueError
-        When the ratio is not such a fraction (e.g. a non-integer rate in Hz).
-    """
-    from fractions import Fraction
-
-    from scipy import signal
-
-    ratio = Fraction(fs_to / fs_from).limit_denominator(10_000)
-    if abs(float(ratio) - fs_to / fs_from) > 1e-9 * fs_to / fs_from:
-        raise ValueError(
-            f"cannot resample {fs_from:g} Hz to {fs_to:g} Hz: the ratio is not a simple fraction"
-        )
-    if ratio == 1:
-        return np.array(x, dtype=float)
-    return signal.resample_poly(
-        x, ratio.numerator, ratio.denominator, axis=0, window=_RESAMPLE_WINDOW
-    )
 
 
 def _read_audio(path: Path) -> tuple[np.ndarray, float, str]:

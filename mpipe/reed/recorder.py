@@ -11,11 +11,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from fractions import Fraction
 
 import numpy as np
 import scipy.fft
 from scipy import signal
+
+from mpipe.core.resampling import rate_ratio
 
 SUPPORTED_BITS = (16, 24, 32)
 # Anti-aliasing window of resample_poly. scipy's default (Kaiser beta 5) ripples by ~1e-3 in
@@ -61,12 +62,13 @@ def _per_mic(values: Sequence[float] | None, n_mics: int, name: str) -> tuple[fl
 def _rate_ratio(fs: float, fs_out: float) -> tuple[int, int]:
     if not fs_out > 0:
         raise ValueError(f"output sample rate must be positive, got {fs_out} Hz")
-    ratio = Fraction(fs_out / fs).limit_denominator(10_000)
-    if abs(float(ratio) * fs - fs_out) > 1e-9 * fs_out:
+    up, down, error = rate_ratio(fs, fs_out)
+    if error != 0.0:
         raise ValueError(
-            f"output rate {fs_out:g} Hz is not a simple rational multiple of {fs:g} Hz"
+            f"output rate {fs_out:g} Hz is not an exact rational multiple of {fs:g} Hz "
+            "(a file stores an integer rate in Hz)"
         )
-    return ratio.numerator, ratio.denominator
+    return up, down
 
 
 def _resample(x: np.ndarray, up: int, down: int) -> np.ndarray:

@@ -156,10 +156,23 @@ def test_takes_are_resampled_to_the_pipeline_rate(tmp_path, vtake):
     assert err < 2e-3
 
 
-def test_resample_refuses_irrational_ratios():
-    from mpipe.measurement.takes import resample
+def test_a_take_at_any_rate_is_read(tmp_path, vtake):
+    # Issue 19: 93 034 Hz (a simulator's rate) is not a simple fraction of 100 kHz; it is
+    # read and resampled, the same pressures as at 48 kHz within the band.
+    import soundfile as sf
 
-    x = np.sin(np.arange(4410) / 10.0)
-    assert resample(x, 44_100.0, 100_000.0).size == 10_000
-    with pytest.raises(ValueError, match="not a simple fraction"):
-        resample(x, 44_100.0, 100_000.0 * np.pi)
+    cal, vt = vtake
+    files = write_virtual_take(tmp_path / "take.flac", vt, cal)
+    cal2 = load_calibration(files.calibration)
+    ref = read_take(files.audio, cal2, fs=100_000.0)
+    data, fs = sf.read(files.audio, always_2d=True)
+    from mpipe.core.resampling import resample
+
+    odd = resample(data, fs, 93_034.0)
+    sf.write(tmp_path / "odd.wav", odd, 93_034, subtype="FLOAT")
+    take = read_take(tmp_path / "odd.wav", cal2, fs=100_000.0)
+    assert take.fs == 100_000.0 and take.fs_file == 93_034.0
+    n = min(ref.n_samples, take.n_samples)
+    mid = slice(5000, n - 5000)
+    err = np.max(np.abs(take.pressures[mid] - ref.pressures[mid])) / np.max(np.abs(ref.pressures))
+    assert err < 2e-3

@@ -34,6 +34,7 @@ def test_unit_gains_and_equal_rates_leave_the_signal_alone():
 
 def test_rate_ratio():
     assert _rate_ratio(100_000.0, 48_000.0) == (12, 25)
+    assert _rate_ratio(100_000.0, 93_034.0) == (46_517, 50_000)  # issue 19
     with pytest.raises(ValueError, match="rational"):
         _rate_ratio(100_000.0, 100_000.0 * np.pi / 3)
     with pytest.raises(ValueError, match="positive"):

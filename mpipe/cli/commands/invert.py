@@ -138,7 +138,7 @@ def _at_inversion_rate(
     """The signals resampled to ``inversion.sample_rate`` (Hz) when they differ."""
     if abs(fs - rate) > 1e-6 * fs:
         # One rate for the pipeline, as in `mpipe run` (which resamples the take when read).
-        from mpipe.measurement.takes import resample
+        from mpipe.core.resampling import resample
 
         log.info("%s: resampling %g Hz -> %g Hz (inversion.sample_rate)", path, fs, rate)
         try:
