@@ -64,8 +64,9 @@ class SeparationConfig:
         "Hz",
         "lower edge of the band above the separation band where the noise level of each "
         "channel is measured (null: 1.1 (band_edge_hz + band_taper_hz)); the band ends at "
-        "0.95 of the Nyquist frequency of the recording. When it is narrower than 1 kHz the "
-        "noise level is the low quantile of the spectrum in the estimation band",
+        "0.9 of the Nyquist frequency of the recording (and where a resampler passes 0.9 of "
+        "the power). When it is narrower than 1 kHz the noise level is the low quantile of "
+        "the spectrum in the estimation band",
         positive,
         default=None,
     )
