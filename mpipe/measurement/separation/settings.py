@@ -158,6 +158,16 @@ class SeparationConfig:
         between(0.0, 1e4),
         default=1.0,
     )
+    drift_level: float = spec(
+        "",
+        "test level of the choice of the model of (T, eta, M) over the take: a constant, "
+        "unless a straight line in time fits better than noise would with this probability "
+        "(likelihood ratio), and the smoother (smooth_s) only if it beats the line so; a "
+        "steady take gets one value with the pooled standard error (0: always constant, "
+        "1: always the smoother)",
+        between(0.0, 1.0),
+        default=0.01,
+    )
     max_evaluations: int = spec(
         "",
         "iterations (residual evaluations) per block of the least-squares solver",

@@ -12,31 +12,9 @@ import numpy as np
 from mpipe.measurement.separation.noise import noise_levels, resampler_response
 from mpipe.measurement.separation.settings import SeparationConfig
 from mpipe.measurement.separation.stage import separate
-from mpipe.measurement.takes import resample
-from mpipe.reed.recording import virtual_recording
-from tests.measurement.separation.separation_fields import CAL
+from tests.measurement.separation.separation_fields import CAL, note_take
 
 FS = 100_000.0
-
-
-def _note(n=50_000, f0=147.0, harmonics=24):
-    """A steady note rich in harmonics (1/k amplitudes), p in Pa and u in m^3/s."""
-    t = np.arange(n) / FS
-    env = np.minimum(t / 0.01, 1.0)
-    k = np.arange(1, harmonics + 1)[:, None]
-    phase = np.sin(1.3 * k)
-    p = np.sum(1500.0 / k * np.sin(2 * np.pi * f0 * k * t + phase), axis=0) * env
-    u = 1e-4 + np.sum(1e-4 / k * np.cos(2 * np.pi * f0 * k * t + 2 * phase), axis=0) * env
-    return p, u
-
-
-def _take(snr_db, seed, fs_out=FS):
-    p, u = _note()
-    take = virtual_recording(p, u, FS, CAL, snr_db=snr_db, seed=seed, fs_out=fs_out)
-    x = take.signals * np.asarray(take.sensitivity)
-    # two-sided noise PSD in the scaling of noise_levels: sigma^2 / fs of the file
-    truth = (np.asarray(take.noise_rms) * np.asarray(take.sensitivity)) ** 2 / fs_out
-    return (resample(x, fs_out, FS) if fs_out != FS else x), truth
 
 
 def test_noise_level_matches_the_added_noise_at_any_rate():
@@ -45,7 +23,7 @@ def test_noise_level_matches_the_added_noise_at_any_rate():
     cfg = SeparationConfig()
     for fs_out in (FS, 44_100.0):
         for seed in (1, 2, 3):
-            x, truth = _take(70.0, seed, fs_out)
+            x, truth = note_take(70.0, seed, fs_out)
             measured = noise_levels(x, FS, cfg, band_limit_hz=fs_out / 2)
             assert np.all(np.abs(measured / truth - 1.0) < 0.04), (fs_out, seed)
 
@@ -64,7 +42,7 @@ def test_chi2_per_degree_of_freedom_is_one_on_clean_takes():
     # bin) used to exceed the real noise, and chi^2 came out 0.35.
     for snr in (70.0, 45.0):
         for seed in (1, 2, 3):
-            x, _ = _take(snr, seed)
+            x, _ = note_take(snr, seed)
             res = separate(x, FS, CAL, SeparationConfig())
             chi2 = float(np.median(res.blocks.residual[res.blocks.trusted]))
             assert abs(chi2 - 1.0) < 0.1, (snr, seed, chi2)
