@@ -46,9 +46,11 @@ reported per block. ``kappa`` (>= 1) accounts for the correlation of adjacent bi
 windowed, zero-padded residual (computed from the window, a sandwich estimate), so that the
 standard errors from the Gauss-Newton curvature are honest.
 
-Blocks are then combined by a weighted local linear regression over ``smooth_s`` seconds
-with each block's information matrix (the prior counted once), which follows a linear
-drift of temperature or flow without lag.
+Blocks are then combined, with each block's information matrix (the prior counted once),
+into a constant, a straight line in time or a weighted local linear regression over
+``smooth_s`` seconds, whichever the data support (likelihood-ratio tests at
+``drift_level``): a steady take gets one value with the pooled standard error, and a
+drift is followed without lag.
 
 Reconstruction has no block seams: every block is multiplied by a periodic Hann window
 (hop = half a block, so the windows sum to one), zero-padded on both sides, separated in
@@ -83,6 +85,9 @@ propagation
     The per-block estimate of (T, eta, M, dx): :class:`Prior`, :func:`estimate_block`.
 tracking
     theta over the blocks: :func:`estimate_blocks`, :func:`smooth_blocks`.
+drift
+    Constant, linear or smoothed theta over the take, chosen by the data
+    (:func:`choose_track`, :class:`TrackChoice`).
 reconstruction
     The overlap-add reconstruction of p0, u0 and :func:`reference_noise`.
 result

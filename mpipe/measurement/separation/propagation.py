@@ -114,7 +114,9 @@ class BlockEstimate:
     data_information : ndarray
         Information matrix of the data alone (without the prior), free parameters.
     residual : float
-        chi^2 per term at the estimate.
+        chi^2 per degree of freedom at the estimate: the sum of the squared unit-variance
+        residuals over the terms less those the fitted parameters take (about 1 when the
+        sensor noise explains the misfit).
     kappa : float
         Variance inflation from correlated residual terms.
     at_bound : tuple of str
@@ -254,7 +256,11 @@ def estimate_block(
     # data information with the final kappa (the Jacobian carries 1 / kappa_fit)
     info_data = (jac.T @ jac) * (kappa_fit / kappa)
     cov = np.linalg.pinv(info_data + info_prior)
-    chi2 = float(np.sum(res.fun[: 2 * m] ** 2) / 2.0 * kappa_fit / max(m, 1))
+    # chi^2 per degree of freedom: the fitted parameters take kappa tr(I_data cov) terms'
+    # worth of the residual (the sandwich trace; a parameter held by its prior takes none)
+    lost = kappa * float(np.trace(info_data @ cov))
+    dof = max(m - lost, 0.5 * m, 1.0)
+    chi2 = float(np.sum(res.fun[: 2 * m] ** 2) / 2.0 * kappa_fit / dof)
     return BlockEstimate(current, cov, info_data, chi2, kappa, _on_bounds(current, prior), evals)
 
 

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from mpipe.measurement.separation.drift import TrackChoice
 from mpipe.measurement.separation.propagation import _NAMES
 from mpipe.measurement.separation.settings import SeparationConfig
 from mpipe.measurement.separation.tracking import BlockFits
@@ -40,6 +41,10 @@ class SeparationResult:
     geometry : Geometry
         Microphones and bore used, with the median position correction of the middle
         microphone.
+    track : TrackChoice or None
+        The model of theta over the take the data support (constant, linear or smoothed),
+        with the take-level values and their pooled standard errors, and whether the
+        data show a drift.
     """
 
     fs: float
@@ -49,6 +54,7 @@ class SeparationResult:
     config: SeparationConfig
     noise_psd: np.ndarray
     geometry: Geometry
+    track: TrackChoice | None = None
 
     def temperature_track(self) -> np.ndarray:
         """Effective temperature in degC at every sample (linear between block centres)."""
@@ -82,7 +88,8 @@ class SeparationResult:
 #: Columns of :attr:`SeparationResult.blocks` with their meaning.
 BLOCK_COLUMNS = {
     "time_s": "block centre, s",
-    "temperature_c": "smoothed effective temperature used for the reconstruction, degC",
+    "temperature_c": "effective temperature used for the reconstruction (the model the data "
+    "support: constant, linear or smoothed; see the log), degC",
     "temperature_se_c": "its standard error, degC",
     "c_m_s": "sound speed of the calibration's air at that temperature, m/s",
     "loss_scale": "smoothed eta used for the reconstruction",

@@ -64,8 +64,9 @@ class SeparationConfig:
         "Hz",
         "lower edge of the band above the separation band where the noise level of each "
         "channel is measured (null: 1.1 (band_edge_hz + band_taper_hz)); the band ends at "
-        "0.95 of the Nyquist frequency of the recording. When it is narrower than 1 kHz the "
-        "noise level is the low quantile of the spectrum in the estimation band",
+        "0.9 of the Nyquist frequency of the recording (and where a resampler passes 0.9 of "
+        "the power). When it is narrower than 1 kHz the noise level is the low quantile of "
+        "the spectrum in the estimation band",
         positive,
         default=None,
     )
@@ -156,6 +157,16 @@ class SeparationConfig:
         "time are smoothed (air temperature and mean flow change over seconds)",
         between(0.0, 1e4),
         default=1.0,
+    )
+    drift_level: float = spec(
+        "",
+        "test level of the choice of the model of (T, eta, M) over the take: a constant, "
+        "unless a straight line in time fits better than noise would with this probability "
+        "(likelihood ratio), and the smoother (smooth_s) only if it beats the line so; a "
+        "steady take gets one value with the pooled standard error (0: always constant, "
+        "1: always the smoother)",
+        between(0.0, 1.0),
+        default=0.01,
     )
     max_evaluations: int = spec(
         "",

@@ -28,6 +28,7 @@ from mpipe.measurement.separation.blocks import (
     cross_spectra,
 )
 from mpipe.measurement.separation.checks import check_band
+from mpipe.measurement.separation.drift import TrackChoice, choose_track, overlap_correlation
 from mpipe.measurement.separation.noise import _NOISE_FLOOR, noise_levels
 from mpipe.measurement.separation.propagation import Prior, _fixed_mach, _fixed_mach_t
 from mpipe.measurement.separation.reconstruction import overlap_add
@@ -219,20 +220,31 @@ def _smoothed_track(
     trust: np.ndarray,
     adaptive: bool,
     config: SeparationConfig,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Theta per block for the reconstruction: values, standard errors, sound speed (m/s)."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, TrackChoice]:
+    """Theta per block for the reconstruction under the model the data support.
+
+    Returns the values, their standard errors, the sound speed (m/s) and the
+    :class:`TrackChoice` (constant, linear or smoothed, and the take-level values).
+    """
     nb = centres.size
     if adaptive:
         kept = [e if trust[j] else None for j, e in enumerate(fits.estimates)]
-        smooth, smooth_se = smooth_blocks(centres, kept, plan.prior, config.smooth_s)
+        smoothed = smooth_blocks(centres, kept, plan.prior, config.smooth_s, dof=True)
+        rho = overlap_correlation(plan.length, plan.hop)
+        choice = choose_track(centres, kept, plan.prior, smoothed, rho, config.drift_level)
     else:
-        smooth = np.tile(plan.start, (nb, 1))
-        smooth_se = np.zeros((nb, plan.prior.mean.size))
+        held = np.tile(plan.start, (nb, 1))
+        zeros = np.zeros(plan.prior.mean.size)
+        choice = TrackChoice(
+            "held", held, np.zeros_like(held), plan.start.copy(), zeros, zeros, zeros,
+            1.0, 1.0, 0.0,
+        )  # fmt: skip
+    smooth, smooth_se = choice.values.copy(), choice.se
     geometry = plan.geometry
     if plan.held_mach is not None:
         smooth[:, 2] = [_fixed_mach_t(config, geometry, t) for t in smooth[:, 0]]
     c_track = np.array([geometry.sound_speed(float(t)) for t in smooth[:, 0]])
-    return smooth, smooth_se, c_track
+    return smooth, smooth_se, c_track, choice
 
 
 def _log_outcome(result: SeparationResult, median_j: float) -> None:
@@ -249,6 +261,8 @@ def _log_outcome(result: SeparationResult, median_j: float) -> None:
         table.mach.max(),
         median_j,
     )
+    if result.track is not None:
+        log.info("separation: %s", result.track.sentence())
 
 
 def separate(
@@ -311,7 +325,9 @@ def separate(
     adaptive = plan.can_estimate and int(np.sum(plan.prior.free)) > 0
     trust, median_j = _trusted_blocks(fitted, fits.residual, adaptive, config)
     centres = (plan.starts + plan.hop) / fs
-    smooth, smooth_se, c_track = _smoothed_track(plan, centres, fits, trust, adaptive, config)
+    smooth, smooth_se, c_track, track = _smoothed_track(
+        plan, centres, fits, trust, adaptive, config
+    )
 
     # 2. Separate every windowed block with its smoothed theta, overlap-add.
     p0, u0 = overlap_add(x, fs, plan.starts, plan.length, smooth, c_track, plan.geometry, config)
@@ -324,6 +340,7 @@ def separate(
         config=config,
         noise_psd=2 * noise_raw,
         geometry=plan.geometry.corrected(float(np.median(smooth[:, 3]))),
+        track=track,
     )
     _log_outcome(result, median_j)
     return result

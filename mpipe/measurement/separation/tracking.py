@@ -182,7 +182,8 @@ def smooth_blocks(
     estimates: list[BlockEstimate | None],
     prior: Prior,
     half_width_s: float,
-) -> tuple[np.ndarray, np.ndarray]:
+    dof: bool = False,
+):
     """Weighted local linear regression of the blocks' estimates, with the prior once.
 
     Parameters
@@ -196,6 +197,10 @@ def smooth_blocks(
     half_width_s : float
         Half-width of the tricube kernel, s (0: each block alone with the prior); it grows
         to twice that at the first and last estimated block.
+    dof : bool
+        Also return the smoother's degrees of freedom: the trace of its hat matrix (how
+        much each block's estimate moves its own smoothed value), summed over the blocks
+        with an estimate.
 
     Returns
     -------
@@ -204,6 +209,8 @@ def smooth_blocks(
         of the middle microphone (m).
     se : ndarray
         Shape ``(n_blocks, 4)``: their standard errors (0 for held parameters).
+    dof : float
+        Only with ``dof=True``.
 
     Notes
     -----
@@ -222,21 +229,24 @@ def smooth_blocks(
         if e is not None:
             out[j, ~prior.free] = e.values[~prior.free]
     if p == 0:
-        return out, se
+        return (out, se, 0.0) if dof else (out, se)
     info_p = prior.information
     mu0 = prior.mean[idx]
     hs, infos, ts = [], [], []
+    own = {}
     for j, e in enumerate(estimates):
         if e is None:
             continue
         i_j = e.data_information
+        own[j] = i_j
         post = np.linalg.pinv(e.cov)
         hs.append(post @ e.values[idx] - info_p @ mu0)
         infos.append(i_j)
         ts.append(times[j])
     if not infos:
         out[:, idx] = mu0
-        return out, se
+        return (out, se, 0.0) if dof else (out, se)
+    trace = 0.0
     ts_a = np.array(ts)
     # a weak prior on the slope keeps the local fit regular with one block in reach
     slope_info = np.eye(p) * 1e-12
@@ -271,6 +281,9 @@ def smooth_blocks(
         cov = minv @ meat @ minv
         out[b, idx] = beta[:p]
         se[b, idx] = np.sqrt(np.maximum(np.diag(cov)[:p], 0.0))
+        if b in own:
+            # d(value at b) / d(y_b) = [M^-1]_aa k(0) I_b, k(0) = 1
+            trace += float(np.trace(minv[:p, :p] @ own[b]))
     lo, hi = prior.lower, prior.upper
     out = np.clip(out, lo, hi)
-    return out, se
+    return (out, se, trace) if dof else (out, se)

@@ -14,9 +14,12 @@ from scipy import signal
 
 from mpipe.acoustics import ducts
 from mpipe.measurement.calibration import load_calibration
+from mpipe.measurement.takes import resample
+from mpipe.reed.recording import virtual_recording
 
 CAL = load_calibration(Path(__file__).parents[3] / "calibration" / "simplified_clarinet.yaml")
 FS = 25_000.0
+FS_NOTE = 100_000.0
 
 
 def mic_offsets():
@@ -79,3 +82,37 @@ def analytic_field(offsets, P0, U0, freqs, temperature_c=20.0):
         t_inv = ducts.invert(ducts.cylinder_matrix(omega, CAL.main_radius, x, air))
         out.append(t_inv[:, 0, 0] * P0 + t_inv[:, 0, 1] * U0)
     return np.stack(out, axis=-1)
+
+
+def steady_note(n=50_000, f0=147.0, harmonics=24):
+    """A steady note rich in harmonics (1/k amplitudes), p in Pa and u in m^3/s."""
+    t = np.arange(n) / FS_NOTE
+    env = np.minimum(t / 0.01, 1.0)
+    k = np.arange(1, harmonics + 1)[:, None]
+    phase = np.sin(1.3 * k)
+    p = np.sum(1500.0 / k * np.sin(2 * np.pi * f0 * k * t + phase), axis=0) * env
+    u = 1e-4 + np.sum(1e-4 / k * np.cos(2 * np.pi * f0 * k * t + 2 * phase), axis=0) * env
+    return p, u
+
+
+def note_take(snr_db, seed, fs_out=FS_NOTE, temperature_c=None):
+    """A virtual take of :func:`steady_note` at 100 kHz, and its noise level.
+
+    Pa signals (resampled from fs_out when that differs) and the added noise's two-sided
+    PSD (sigma^2 / fs_out, the scaling of noise_levels).
+    """
+    p, u = steady_note()
+    take = virtual_recording(
+        p,
+        u,
+        FS_NOTE,
+        CAL,
+        snr_db=snr_db,
+        seed=seed,
+        fs_out=fs_out,
+        temperature_c=temperature_c,
+    )
+    x = take.signals * np.asarray(take.sensitivity)
+    # two-sided noise PSD in the scaling of noise_levels: sigma^2 / fs of the file
+    truth = (np.asarray(take.noise_rms) * np.asarray(take.sensitivity)) ** 2 / fs_out
+    return (resample(x, fs_out, FS_NOTE) if fs_out != FS_NOTE else x), truth

@@ -1,0 +1,232 @@
+"""Constant or drifting: the model of theta over a take, chosen by the data (physics.md E.5).
+
+Each trusted block gives a Gaussian measurement of theta (its estimate with the prior
+removed, weighted by its data information). Three models of theta(t) are fitted to them,
+each with the prior counted once: a constant, a straight line in time, and the local
+linear smoother (:func:`mpipe.measurement.separation.tracking.smooth_blocks`). The simpler
+constant is kept unless the line or the smoother lowers chi^2 by more than noise would at
+the level ``drift_level`` (likelihood-ratio tests, the level shared between the two; the
+smoother's degrees of freedom are the trace of its hat matrix), and the line is preferred
+to the smoother unless the smoother beats it at that level. A steady take thus gets one
+value with the pooled standard error, and a drift the data show is followed.
+
+Adjacent blocks overlap by half, so their estimates correlate (``rho``, 3/70 for the Hann
+window, :func:`overlap_correlation`): the covariances are sandwich estimates with that
+correlation, and the test statistics are divided by ``1 + 2 rho``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from mpipe.measurement.separation.propagation import BlockEstimate, Prior
+
+#: The models, simplest first.
+MODELS = ("constant", "linear", "smooth")
+
+
+@dataclass(frozen=True)
+class TrackChoice:
+    """theta over the take as the data support it.
+
+    Attributes
+    ----------
+    model : str
+        ``'constant'``, ``'linear'`` or ``'smooth'`` (or ``'held'``: not estimated).
+    values, se : ndarray
+        Shape ``(n_blocks, 4)``: theta per block under the chosen model (degC, -, -, m)
+        and its standard errors (0 for held parameters).
+    level, level_se : ndarray
+        Shape ``(4,)``: the take-level value, theta averaged over the trusted blocks
+        (the constant, or the line at their mean time), and its standard error.
+    change, change_se : ndarray
+        Shape ``(4,)``: the change of theta from the first to the last trusted block by
+        the straight line, and its standard error.
+    p_drift : float
+        p-value of the constant model against the line or the smoother, whichever is
+        smaller, doubled (Bonferroni; small: the data show a change).
+    p_curve : float
+        p-value of the line against the smoother (small: the change is not linear).
+    span_s : float
+        Time between the first and the last trusted block, s.
+    """
+
+    model: str
+    values: np.ndarray
+    se: np.ndarray
+    level: np.ndarray
+    level_se: np.ndarray
+    change: np.ndarray
+    change_se: np.ndarray
+    p_drift: float
+    p_curve: float
+    span_s: float
+
+    def sentence(self) -> str:
+        """Whether the data show a drift of the temperature, in words (degC)."""
+        t, se = self.level[0], self.level_se[0]
+        dt, dse = self.change[0], self.change_se[0]
+        if self.model == "held":
+            return f"Effective temperature held at {t:.2f} degC (not estimated)."
+        head = f"Effective temperature {t:.2f} +- {se:.2f} degC over the take"
+        if self.model == "constant":
+            return (
+                f"{head}; the data show no drift (change over {self.span_s:.1f} s "
+                f"{dt:+.2f} +- {dse:.2f} degC, p = {self.p_drift:.2g}): one value for the take."
+            )
+        shape = "linear" if self.model == "linear" else "not linear (smoothed track)"
+        return (
+            f"{head}; the data show a drift of {dt:+.2f} +- {dse:.2f} degC over "
+            f"{self.span_s:.1f} s (p = {self.p_drift:.2g}), {shape}."
+        )
+
+
+def overlap_correlation(length: int, hop: int) -> float:
+    """Correlation of the estimates of two blocks ``hop`` samples apart (white noise).
+
+    A block's estimate error is, to first order, ``sum_t w(t)^2 s(t) e(t)`` for its
+    window ``w``, a steady sensitivity signal ``s`` and white noise ``e``, so two blocks
+    correlate by ``sum w_1^2 w_2^2 / sum w^4`` (3/70 for Hann windows overlapping by half).
+    """
+    w = np.hanning(length + 1)[:-1]
+    if hop >= length:
+        return 0.0
+    return float(np.sum(w[hop:] ** 2 * w[: length - hop] ** 2) / np.sum(w**4))
+
+
+def _measurements(estimates: list[BlockEstimate | None], prior: Prior):
+    """Per trusted block: index, data information and information vector (prior removed)."""
+    idx = np.flatnonzero(prior.free)
+    info_p = prior.information
+    mu0 = prior.mean[idx]
+    out = []
+    for j, e in enumerate(estimates):
+        if e is None:
+            continue
+        post = np.linalg.pinv(e.cov)
+        out.append((j, e.data_information, post @ e.values[idx] - info_p @ mu0))
+    return out
+
+
+def _line_fit(times, meas, prior: Prior, degree: int, t_ref: float, rho: float):
+    """Constant (degree 0) or line (1) by weighted least squares: coefficients, cov, chi^2."""
+    idx = np.flatnonzero(prior.free)
+    p = idx.size
+    info_p = prior.information
+    mu0 = prior.mean[idx]
+    q = (degree + 1) * p
+    m = np.zeros((q, q))
+    rhs = np.zeros(q)
+    meat = np.zeros((q, q))
+    xs = {}
+    for j, i_j, h_j in meas:
+        tau = times[j] - t_ref
+        x = np.hstack([np.eye(p)] + ([tau * np.eye(p)] if degree else []))
+        xs[j] = (x, i_j)
+        m += x.T @ i_j @ x
+        rhs += x.T @ h_j
+    meat[:] = m
+    for j, (x, i_j) in xs.items():
+        if j + 1 in xs:
+            x2, i_2 = xs[j + 1]
+            cross = rho * x.T @ (0.5 * (i_j + i_2)) @ x2
+            meat += cross + cross.T
+    m[:p, :p] += info_p
+    rhs[:p] += info_p @ mu0
+    meat[:p, :p] += info_p
+    minv = np.linalg.pinv(m)
+    beta = minv @ rhs
+    cov = minv @ meat @ minv
+    chi2 = 0.0
+    for j, i_j, h_j in meas:
+        y = np.linalg.pinv(i_j) @ h_j
+        r = y - xs[j][0] @ beta
+        chi2 += float(r @ i_j @ r)
+    return beta, cov, chi2
+
+
+def choose_track(
+    times: np.ndarray,
+    estimates: list[BlockEstimate | None],
+    prior: Prior,
+    smooth: tuple[np.ndarray, np.ndarray, float],
+    rho: float,
+    level: float,
+) -> TrackChoice:
+    """Fit the constant, the line and the smoother, and keep the simplest the data allow.
+
+    Parameters
+    ----------
+    times : ndarray
+        Block centres, s.
+    estimates : list
+        Per block its :class:`BlockEstimate`, or None (not fitted or not trusted).
+    prior : Prior
+        Prior on (T, eta, M, dx), counted once in each model.
+    smooth : tuple
+        The smoother's values and standard errors (each shape ``(n_blocks, 4)``) and its
+        degrees of freedom (:func:`smooth_blocks` with ``dof=True``).
+    rho : float
+        Correlation of adjacent blocks' estimates (:func:`overlap_correlation`).
+    level : float
+        Test level: a more complex model is taken when its p-value is below it.
+
+    Returns
+    -------
+    TrackChoice
+    """
+    s_values, s_se, s_dof = smooth
+    idx = np.flatnonzero(prior.free)
+    p = idx.size
+    meas = _measurements(estimates, prior)
+    zeros = np.zeros(prior.mean.size)
+    if p == 0 or not meas:
+        lev = s_values[0] if len(s_values) else prior.mean
+        return TrackChoice("held", s_values, s_se, lev, zeros, zeros, zeros, 1.0, 1.0, 0.0)
+    t_used = np.array([times[j] for j, _, _ in meas])
+    t_ref = float(np.mean(t_used))
+    span = float(t_used.max() - t_used.min())
+    b0, c0, chi0 = _line_fit(times, meas, prior, 0, t_ref, rho)
+    b1, c1, chi1 = _line_fit(times, meas, prior, 1, t_ref, rho)
+    chi_s = 0.0
+    for j, i_j, h_j in meas:
+        r = np.linalg.pinv(i_j) @ h_j - s_values[j, idx]
+        chi_s += float(r @ i_j @ r)
+    inflate = 1.0 + 2.0 * rho
+
+    def p_value(chi_simple: float, chi_complex: float, dof: float) -> float:
+        if dof < 0.5 or len(meas) < 2:
+            return 1.0
+        return float(stats.chi2.sf(max(chi_simple - chi_complex, 0.0) / inflate, dof))
+
+    # Any change against the constant: a line, or a smooth curve (a rise and fall has no
+    # linear trend); the two tests share the level (Bonferroni).
+    p_line = p_value(chi0, chi1, p)
+    p_any = p_value(chi0, chi_s, s_dof - p)
+    p_drift = min(1.0, 2.0 * min(p_line, p_any))
+    p_curve = p_value(chi1, chi_s, s_dof - 2 * p)
+    values, se = s_values.copy(), s_se.copy()
+    if p_drift >= level:
+        model = "constant"
+        values[:, idx] = b0
+        se[:, idx] = np.sqrt(np.maximum(np.diag(c0), 0.0))
+    elif p_curve >= level:
+        model = "linear"
+        for b, t in enumerate(times):
+            x = np.hstack([np.eye(p), (t - t_ref) * np.eye(p)])
+            values[b, idx] = x @ b1
+            se[b, idx] = np.sqrt(np.maximum(np.diag(x @ c1 @ x.T), 0.0))
+    else:
+        model = "smooth"
+    values = np.clip(values, prior.lower, prior.upper)
+    lev, lev_se, change, change_se = (zeros.copy() for _ in range(4))
+    lev[:] = values[0]
+    use_b, use_c = (b0, c0) if model == "constant" else (b1, c1)
+    lev[idx] = use_b[:p]
+    lev_se[idx] = np.sqrt(np.maximum(np.diag(use_c)[:p], 0.0))
+    change[idx] = b1[p:] * span
+    change_se[idx] = np.sqrt(np.maximum(np.diag(c1)[p:], 0.0)) * span
+    return TrackChoice(model, values, se, lev, lev_se, change, change_se, p_drift, p_curve, span)

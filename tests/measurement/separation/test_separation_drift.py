@@ -1,0 +1,105 @@
+"""Tests of the choice between a constant and a drifting theta (physics.md E.5).
+
+First on Gaussian block measurements whose answer is known in closed form (the pooled
+mean and its standard error, the false-drift rate of the test), then through the
+separation on virtual takes: a steady one gets one value, a 3 degC drift is followed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mpipe.measurement.separation.drift import choose_track, overlap_correlation
+from mpipe.measurement.separation.propagation import BlockEstimate, Prior
+from mpipe.measurement.separation.settings import SeparationConfig
+from mpipe.measurement.separation.stage import separate
+from mpipe.measurement.separation.tracking import smooth_blocks
+from tests.measurement.separation.separation_fields import CAL, FS_NOTE, note_take
+
+INF = np.inf
+PRIOR = Prior(
+    mean=np.array([20.0, 1.0, 0.0, 0.0]),
+    width=np.array([INF, INF, INF, INF]),
+    lower=np.array([-10.0, 0.1, -0.1, -1e-3]),
+    upper=np.array([50.0, 10.0, 0.1, 1e-3]),
+    free=np.array([True, False, False, False]),
+)
+
+
+def _blocks(truth, sigma, rng):
+    """Independent Gaussian estimates of T with standard error sigma (no prior)."""
+    info = np.array([[1.0 / sigma**2]])
+    out = []
+    for t in truth:
+        v = np.array([t + sigma * rng.standard_normal(), 1.0, 0.0, 0.0])
+        out.append(BlockEstimate(v, np.linalg.inv(info), info, 1.0, 1.0, (), 1))
+    return out
+
+
+def _choose(times, est, level=0.05):
+    smooth = smooth_blocks(times, est, PRIOR, 1.0, dof=True)
+    return choose_track(times, est, PRIOR, smooth, 0.0, level)
+
+
+def test_steady_blocks_give_the_pooled_mean_and_its_standard_error():
+    # 40 blocks of SE 2 degC about 21 degC: the constant model's value is their mean and
+    # its SE 2 / sqrt(40) (no prior, independent blocks); the false-drift rate of the
+    # test at level 0.05 over 300 draws lies within 0.02..0.09 (binomial, 3.5 sigma).
+    rng = np.random.default_rng(5)
+    times = np.arange(40) * 0.04
+    drifts = 0
+    for i in range(300):
+        est = _blocks(np.full(40, 21.0), 2.0, rng)
+        ch = _choose(times, est)
+        drifts += ch.model != "constant"
+        if i == 0:
+            mean = np.mean([e.values[0] for e in est])
+            assert ch.model == "constant"
+            assert np.allclose(ch.values[:, 0], mean) and abs(ch.level[0] - mean) < 1e-9
+            assert abs(ch.level_se[0] - 2.0 / np.sqrt(40)) < 1e-9
+            assert np.ptp(ch.values[:, 0]) == 0.0
+    assert 0.02 * 300 <= drifts <= 0.09 * 300
+
+
+def test_a_drift_is_a_line_and_a_bend_is_smoothed():
+    # 3 degC over the blocks at SE 0.2: the line, with the change within 3 SE; a
+    # V-shaped change (up 3, down 3) is not a line: the smoother.
+    rng = np.random.default_rng(6)
+    times = np.arange(60) * 0.04
+    est = _blocks(20.0 + 3.0 * times / times[-1], 0.2, rng)
+    ch = _choose(times, est)
+    assert ch.model == "linear" and ch.p_drift < 1e-6
+    assert abs(ch.change[0] - 3.0) < 3 * ch.change_se[0]
+    v = 20.0 + 3.0 * (1 - np.abs(2 * times / times[-1] - 1))
+    ch = _choose(times, _blocks(v, 0.2, rng))
+    assert ch.model == "smooth"
+
+
+def test_overlap_correlation_of_hann_blocks_is_3_over_70():
+    assert abs(overlap_correlation(8000, 4000) - 3 / 70) < 1e-3
+    assert overlap_correlation(8000, 8000) == 0.0
+
+
+def test_steady_take_has_one_value_and_a_drift_is_followed():
+    # Virtual takes of a steady note (0.5 s, 100 kHz), 4 noise seeds each:
+    # - air at a constant 20 degC, 45 dB: for at least 3 of 4 seeds the track is flat (it
+    #   varies by less than its SE) and the take-level value within 3 SE of the truth;
+    # - air drifting 20 -> 23 degC, 70 dB: for at least 3 of 4 seeds every trusted block
+    #   is within 2 SE (+ 0.02 degC) of the truth and the model is not constant.
+    cfg = SeparationConfig()
+    flat = followed = 0
+    for seed in (1, 2, 3, 4):
+        x, _ = note_take(45.0, seed)
+        tr = separate(x, FS_NOTE, CAL, cfg).track
+        b_se = tr.level_se[0]
+        flat += bool(np.ptp(tr.values[:, 0]) < b_se and abs(tr.level[0] - 20.0) < 3 * b_se)
+        x, _ = note_take(70.0, seed, temperature_c=(20.0, 23.0))
+        res = separate(x, FS_NOTE, CAL, cfg)
+        b = res.blocks[res.blocks.trusted]
+        truth = 20.0 + 3.0 * b.time_s / (x.shape[0] / FS_NOTE)
+        err = np.abs(b.temperature_c - truth)
+        followed += bool(
+            res.track.model != "constant" and np.all(err < 2 * b.temperature_se_c + 0.02)
+        )
+    assert flat >= 3
+    assert followed >= 3
