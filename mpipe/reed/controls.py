@@ -143,16 +143,15 @@ def make_controls(
             return np.full(t.shape, float(curve))
         return np.asarray(curve, dtype=float)
 
+    # a hold over [a, b) s covers the samples with a <= t < b
     spans = tuple(
-        (int(np.ceil(a * fs - 1e-9)), int(np.ceil(b * fs - 1e-9)))
-        for a, b in tongue
-        if int(np.ceil(b * fs - 1e-9)) > int(np.ceil(a * fs - 1e-9))
+        (int(np.searchsorted(t, a - 1e-12)), int(np.searchsorted(t, b - 1e-12))) for a, b in tongue
     )
     return Controls(
         fs=float(fs),
         p_m=sample(p_m),
         reed={name: sample(c) for name, c in reed_curves.items()},
-        tongue=spans,
+        tongue=tuple((a, b) for a, b in spans if b > a),
         notes=((0.0, t[-1]),) if notes is None else tuple(notes),
     )
 
@@ -269,7 +268,7 @@ def plan_pieces(reed: ReedParameters, controls: Controls, chunk_s: float = CHUNK
     pieces: list[Piece] = []
     for a, b in zip(edges[:-1], edges[1:], strict=True):
         cell = slice((a // step) * step, min((a // step + 1) * step, n))
-        values = {k: float(np.mean(v[cell])) for k, v in varying.items()}
+        values = {k: _cell_value(v[cell]) for k, v in varying.items()}
         try:
             piece_reed = dataclasses.replace(base, **values) if values else base
         except ValueError as exc:
@@ -281,6 +280,12 @@ def plan_pieces(reed: ReedParameters, controls: Controls, chunk_s: float = CHUNK
         else:
             pieces.append(Piece(a, b, piece_reed, tongued))
     return pieces
+
+
+def _cell_value(values: np.ndarray) -> float:
+    """Mean of a curve over a cell; its exact value where it is constant there."""
+    first = float(values[0])
+    return first if np.all(values == first) else float(np.mean(values))
 
 
 def play(
