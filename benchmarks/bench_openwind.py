@@ -225,6 +225,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=1, help="worker processes of mpipe run (1)")
     ap.add_argument("--keep", metavar="DIR", help="keep the take and the run in DIR")
     args = ap.parse_args(argv)
+    sys.stdout.reconfigure(line_buffering=True)  # each take's table as soon as it is done
     try:
         import openwind  # noqa: F401
     except ImportError:

@@ -272,6 +272,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=1, help="worker processes of mpipe run (1)")
     ap.add_argument("--keep", metavar="DIR", help="keep the takes and runs in DIR")
     args = ap.parse_args(argv)
+    sys.stdout.reconfigure(line_buffering=True)  # each take's table as soon as it is done
     cases = [c for c in args.cases.split(",") if c]
     unknown = set(cases) - set(CASES)
     if unknown:
