@@ -112,11 +112,9 @@ def synthesize(calibration: Calibration, reed, options: SynthOptions, score=None
     take : VirtualTake
         The recording and its truth.
     run : mpipe.reed.controls.PlayedRun
-        The model run at ``options.fs_model``.
+        The model run at ``options.fs_model`` (``run.controls``: what the player did).
     mach : float
         The Mach number used.
-    controls : mpipe.reed.controls.Controls
-        What the virtual player did.
 
     Notes
     -----
@@ -185,7 +183,7 @@ def synthesize(calibration: Calibration, reed, options: SynthOptions, score=None
         fs_out=options.fs_out,
         seed=noise_seed,
     )
-    return take, run, mach, controls
+    return take, run, mach
 
 
 def _check_options(options: SynthOptions, with_score: bool) -> None:
@@ -260,7 +258,7 @@ def make_take(
     score = None if options.score is None else load_score(options.score)
     _check_options(options, score is not None)
     reed = load_reed(reed_path)
-    take, run, mach, controls = synthesize(calibration, reed, options, score)
+    take, run, mach = synthesize(calibration, reed, options, score)
     breath_seed, noise_seed = child_seeds(options.seed)
     recipe = {
         "command": command,
@@ -282,7 +280,7 @@ def make_take(
     truth["mouth_pressure_model"] = run.mouth_pressure
     truth["swell"] = options.swell
     truth["breath_noise_pa"] = options.breath_noise_pa
-    truth.update(played_truth(run, controls, options.chunk_s))
+    truth.update(played_truth(run, options.chunk_s))
     return _write(
         out,
         take,
@@ -294,7 +292,7 @@ def make_take(
     )
 
 
-def played_truth(run, controls, step_s: float) -> dict[str, np.ndarray]:
+def played_truth(run, step_s: float) -> dict[str, np.ndarray]:
     """What the virtual player did, for the truth file (compact: float32 curves on a grid).
 
     Returns the curves of :func:`mpipe.reed.controls.control_curves` on a ``step_s`` grid,
@@ -304,6 +302,7 @@ def played_truth(run, controls, step_s: float) -> dict[str, np.ndarray]:
     """
     from mpipe.reed.controls import control_curves
 
+    controls = run.controls
     out = control_curves(run, step_s)
     out["opening_model"] = run.h.astype(np.float32)
     notes = np.asarray(controls.notes, dtype=float).reshape(-1, 2)

@@ -204,6 +204,8 @@ class PlayedRun:
         The stretches of constant reed parameters, in order.
     final_state : ModelState
         State after the last sample.
+    controls : Controls
+        What the player did (the curves before the pieces' averaging).
     """
 
     fs: float
@@ -217,6 +219,7 @@ class PlayedRun:
     mouth_pressure: np.ndarray
     pieces: tuple[Piece, ...]
     final_state: ModelState
+    controls: Controls
 
     def parameter(self, name: str) -> np.ndarray:
         """The reed parameter ``name`` the model used at each sample (its unit)."""
@@ -358,7 +361,12 @@ def play(
         for k in names:
             out[k][span] = part[k]
     return PlayedRun(
-        fs=kernel.fs, mouth_pressure=pm, pieces=tuple(pieces), final_state=state, **out
+        fs=kernel.fs,
+        mouth_pressure=pm,
+        pieces=tuple(pieces),
+        final_state=state,
+        controls=controls,
+        **out,
     )
 
 

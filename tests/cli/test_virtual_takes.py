@@ -34,7 +34,7 @@ def test_the_options_of_mpipe_0_1_give_the_same_take_bit_for_bit(shipped_calibra
     cal, reed = shipped_calibration, load_reed(REED)
     opts = SynthOptions(duration_s=0.15, swell=0.1, breath_noise_pa=10.0, onset_s=0.02,
                         snr_db=40.0, seed=3)  # fmt: skip
-    take, run, _, controls = synthesize(cal, reed, opts)
+    take, run, _ = synthesize(cal, reed, opts)
     air = cal.air_properties()
     kernel = prepare_bore(reflection_function(cal.bore, air, opts.fs_model), air)
     n = 15_000
@@ -44,7 +44,7 @@ def test_the_options_of_mpipe_0_1_give_the_same_take_bit_for_bit(shipped_calibra
                    onset_s=0.02, noise_std_pa=10.0, seed=breath)  # fmt: skip
     old = virtual_recording(sim.p, sim.u, opts.fs_model, cal, snr_db=40.0, bits=24, seed=noise)
     assert np.array_equal(run.p, sim.p) and np.array_equal(take.signals, old.signals)
-    assert controls.notes == ((0.0, 0.15),)
+    assert run.controls.notes == ((0.0, 0.15),)
 
 
 def test_synth_take_plays_a_score_and_keeps_its_truth(tmp_path):
