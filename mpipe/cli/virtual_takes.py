@@ -31,8 +31,8 @@ class SynthOptions:
 
     Attributes
     ----------
-    duration_s : float
-        Length of the take, s.
+    duration_s : float or None
+        Length of the take, s; with a score, None takes the score's length.
     fs_model : float
         Sample rate of the model and of the virtual field, Hz.
     fs_out : float or None
@@ -60,9 +60,16 @@ class SynthOptions:
         Word length of the file (16 or 24 for FLAC).
     mic_calibration : bool
         Write the exact relative calibration tables of microphones 2 to N.
+    score : str or None
+        A score file (:mod:`mpipe.reed.score`): the notes, silences and control curves the
+        virtual player plays. Sets the mouth pressure, so ``swell`` must be 0 (each note has
+        its own attack; ``onset_s`` is not used).
+    chunk_s : float
+        Length of the pieces over which reed parameters that vary are held, s
+        (:mod:`mpipe.reed.controls`).
     """
 
-    duration_s: float
+    duration_s: float | None
     fs_model: float = 100_000.0
     fs_out: float | None = None
     temperature_c: float | tuple[float, float] | None = None
@@ -76,6 +83,8 @@ class SynthOptions:
     seed: int = 0
     bits: int = 24
     mic_calibration: bool = True
+    score: str | None = None
+    chunk_s: float = 1e-3
 
 
 def child_seeds(seed: int) -> tuple[int, int]:
@@ -84,7 +93,7 @@ def child_seeds(seed: int) -> tuple[int, int]:
     return tuple(int(c.generate_state(1)[0]) for c in children)  # type: ignore[return-value]
 
 
-def synthesize(calibration: Calibration, reed, options: SynthOptions):
+def synthesize(calibration: Calibration, reed, options: SynthOptions, score=None):
     """Simulate the instrument and record it with the virtual microphones.
 
     Parameters
@@ -95,15 +104,22 @@ def synthesize(calibration: Calibration, reed, options: SynthOptions):
         Reed parameters (SI units); ``reed.p_m`` is the mouth pressure at the start.
     options : SynthOptions
         Duration, rates, air, errors, noise and seed.
+    score : mpipe.reed.score.Score, optional
+        The notes to play (overrides ``options.score``, which is then not read).
 
     Returns
     -------
     take : VirtualTake
         The recording and its truth.
-    sim : mpipe.reed.model.Simulation
-        The model run at ``options.fs_model``.
+    run : mpipe.reed.controls.PlayedRun
+        The model run at ``options.fs_model`` (``run.controls``: what the player did).
     mach : float
         The Mach number used.
+
+    Notes
+    -----
+    Without a score the mouth pressure is ``p_m (1 + swell t / T)`` with an onset of
+    ``onset_s``, the reed constant: one run of the model, the numbers of mpipe 0.1.
 
     References
     ----------
@@ -111,12 +127,12 @@ def synthesize(calibration: Calibration, reed, options: SynthOptions):
     """
     from mpipe.acoustics.reflection import reflection_function
     from mpipe.reed.bore_kernel import prepare_bore
-    from mpipe.reed.model import simulate
+    from mpipe.reed.controls import make_controls, play
+    from mpipe.reed.score import load_score, score_controls
 
-    if not options.duration_s > 0:
-        raise ValueError(f"duration must be positive, got {options.duration_s} s")
-    if options.swell <= -1.0:
-        raise ValueError(f"swell must be > -1, got {options.swell}")
+    if score is None and options.score is not None:
+        score = load_score(options.score)
+    _check_options(options, score is not None)
     temp = options.temperature_c
     if isinstance(temp, tuple):
         t_model = 0.5 * (temp[0] + temp[1])
@@ -124,32 +140,38 @@ def synthesize(calibration: Calibration, reed, options: SynthOptions):
         t_model = calibration.air.temperature_c if temp is None else float(temp)
     air = calibration.air_properties(t_model)
     fs = options.fs_model
+    if score is not None:
+        controls = score_controls(score, reed, fs, options.duration_s)
+        onset = 0.0
+    else:
+        n = int(round(options.duration_s * fs))
+        t = np.arange(1, n + 1) / fs
+        controls = make_controls(fs, n, reed.p_m * (1.0 + options.swell * t / options.duration_s))
+        onset = options.onset_s
     rf = reflection_function(calibration.bore, air, fs)
     kernel = prepare_bore(rf, air)
-    n = int(round(options.duration_s * fs))
-    t = np.arange(1, n + 1) / fs
-    mouth = reed.p_m * (1.0 + options.swell * t / options.duration_s)
     breath_seed, noise_seed = child_seeds(options.seed)
-    log.info("simulating %.3g s at %g Hz (air at %g degC)", options.duration_s, fs, t_model)
-    sim = simulate(
+    n = controls.n_samples
+    log.info("simulating %.3g s at %g Hz (air at %g degC)", n / fs, fs, t_model)
+    run = play(
         reed,
         kernel,
-        n,
-        mouth_pressure=mouth,
-        onset_s=options.onset_s,
+        controls,
+        onset_s=onset,
         noise_std_pa=options.breath_noise_pa,
         seed=breath_seed,
+        chunk_s=options.chunk_s,
     )
-    if not np.all(np.isfinite(sim.p)):
+    if not np.all(np.isfinite(run.p)):
         raise ValueError("the simulation diverged; check the reed parameters")
     if options.mach == "auto":
         area = np.pi * calibration.main_radius**2
-        mach = float(np.mean(sim.u[n // 2 :]) / (area * air.c))
+        mach = float(np.mean(run.u[n // 2 :]) / (area * air.c))
     else:
         mach = float(options.mach)
     take = virtual_recording(
-        sim.p,
-        sim.u,
+        run.p,
+        run.u,
         fs,
         calibration,
         temperature_c=temp,
@@ -161,7 +183,22 @@ def synthesize(calibration: Calibration, reed, options: SynthOptions):
         fs_out=options.fs_out,
         seed=noise_seed,
     )
-    return take, sim, mach
+    return take, run, mach
+
+
+def _check_options(options: SynthOptions, with_score: bool) -> None:
+    """Refuse, in one line, options that contradict each other or cannot be played."""
+    if with_score:
+        if options.swell != 0.0:
+            raise ValueError("swell: not with a score (the score sets the mouth pressure)")
+        if options.duration_s is not None and not options.duration_s > 0:
+            raise ValueError(f"duration must be positive, got {options.duration_s} s")
+    elif options.duration_s is None or not options.duration_s > 0:
+        raise ValueError(f"duration must be positive, got {options.duration_s} s")
+    if options.swell <= -1.0:
+        raise ValueError(f"swell must be > -1, got {options.swell}")
+    if not options.chunk_s > 0:
+        raise ValueError(f"chunk_s must be positive, got {options.chunk_s} s")
 
 
 def make_take(
@@ -201,6 +238,7 @@ def make_take(
         Before any work, when an output exists and ``force`` is not set.
     """
     from mpipe.reed.parameters import load_reed
+    from mpipe.reed.score import load_score, score_mapping
 
     out = Path(out)
     check_file_rate(out, options.fs_out if options.fs_out is not None else options.fs_model)
@@ -217,8 +255,10 @@ def make_take(
                 f"--{name.replace('_', '-')}: {len(values)} values given, but "
                 f"{calibration_path} has {n_mics} microphones (one value per microphone)"
             )
+    score = None if options.score is None else load_score(options.score)
+    _check_options(options, score is not None)
     reed = load_reed(reed_path)
-    take, sim, mach = synthesize(calibration, reed, options)
+    take, run, mach = synthesize(calibration, reed, options, score)
     breath_seed, noise_seed = child_seeds(options.seed)
     recipe = {
         "command": command,
@@ -233,10 +273,14 @@ def make_take(
         "breath_noise_seed": breath_seed,
         "microphone_noise_seed": noise_seed,
     }
+    if score is not None:
+        recipe["score_sha256"] = _sha256(options.score)
+        recipe["score"] = score_mapping(score)
     truth = {f"reed_{k}": v for k, v in reed.to_mapping().items()}
-    truth["mouth_pressure_model"] = sim.mouth_pressure
+    truth["mouth_pressure_model"] = run.mouth_pressure
     truth["swell"] = options.swell
     truth["breath_noise_pa"] = options.breath_noise_pa
+    truth.update(played_truth(run, options.chunk_s))
     return _write(
         out,
         take,
@@ -246,6 +290,27 @@ def make_take(
         mic_calibration=options.mic_calibration,
         force=force,
     )
+
+
+def played_truth(run, step_s: float) -> dict[str, np.ndarray]:
+    """What the virtual player did, for the truth file (compact: float32 curves on a grid).
+
+    Returns the curves of :func:`mpipe.reed.controls.control_curves` on a ``step_s`` grid,
+    the reed opening at the model rate (``opening_model``, m, float32), the sounding span of
+    each note (``note_start_s``, ``note_end_s``) and the tongue holds (``tongue_start_s``,
+    ``tongue_end_s``), in s from the start of the take.
+    """
+    from mpipe.reed.controls import control_curves
+
+    controls = run.controls
+    out = control_curves(run, step_s)
+    out["opening_model"] = run.h.astype(np.float32)
+    notes = np.asarray(controls.notes, dtype=float).reshape(-1, 2)
+    out["note_start_s"], out["note_end_s"] = notes[:, 0], notes[:, 1]
+    # sample i is at t = (i + 1) / fs (the model's time axis)
+    holds = (np.asarray(controls.tongue, dtype=float).reshape(-1, 2) + 1.0) / controls.fs
+    out["tongue_start_s"], out["tongue_end_s"] = holds[:, 0], holds[:, 1]
+    return out
 
 
 #: Highest sample rate a FLAC stream can declare in its header (20-bit field in units of
@@ -284,4 +349,11 @@ def _sha256(path: str | Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-__all__ = ["SynthOptions", "VirtualTake", "check_file_rate", "make_take", "synthesize"]
+__all__ = [
+    "SynthOptions",
+    "VirtualTake",
+    "check_file_rate",
+    "make_take",
+    "played_truth",
+    "synthesize",
+]

@@ -18,6 +18,11 @@ bore_kernel
     The bore's reflection function prepared for the kernels (``prepare_bore``).
 scheme
     The reed update's coefficients and the plain NumPy reference loop.
+controls
+    A virtual player's control curves (p_m, y_m, k, ... over time, tongue holds) and the
+    model played under them.
+score
+    A small YAML score of notes and silences, turned into controls.
 playing
     Playing frequency of a periodic signal.
 recording

@@ -1,8 +1,11 @@
 """Virtual takes: rates an audio file cannot store are refused before any work."""
 
+import numpy as np
 import pytest
+import yaml
 
 from mpipe.cli.virtual_takes import SynthOptions, make_take
+from mpipe.core.errors import UserError
 from tests.conftest import SHIPPED
 
 REED = SHIPPED.parent / "reed_table1.yaml"
@@ -27,3 +30,58 @@ def test_file_rates_flac_cannot_store_are_refused_before_simulating():
         check_file_rate("take.flac", 93_034.0)
     for path, fs in (("take.wav", 93_034.0), ("take.flac", 96_000.0), ("take.flac", 51_200.0)):
         check_file_rate(path, fs)
+
+
+def test_the_options_of_mpipe_0_1_give_the_same_take_bit_for_bit(shipped_calibration):
+    # the take of the old options, made as mpipe 0.1 made it: one run of the model with the
+    # swell, onset and breath noise, then the virtual recording
+    from mpipe.acoustics.reflection import reflection_function
+    from mpipe.cli.virtual_takes import child_seeds, synthesize
+    from mpipe.reed.bore_kernel import prepare_bore
+    from mpipe.reed.model import simulate
+    from mpipe.reed.parameters import load_reed
+    from mpipe.reed.recording import virtual_recording
+
+    cal, reed = shipped_calibration, load_reed(REED)
+    opts = SynthOptions(duration_s=0.15, swell=0.1, breath_noise_pa=10.0, onset_s=0.02,
+                        snr_db=40.0, seed=3)  # fmt: skip
+    take, run, _ = synthesize(cal, reed, opts)
+    air = cal.air_properties()
+    kernel = prepare_bore(reflection_function(cal.bore, air, opts.fs_model), air)
+    n = 15_000
+    t = np.arange(1, n + 1) / opts.fs_model
+    breath, noise = child_seeds(3)
+    sim = simulate(reed, kernel, n, mouth_pressure=reed.p_m * (1 + 0.1 * t / 0.15),
+                   onset_s=0.02, noise_std_pa=10.0, seed=breath)  # fmt: skip
+    old = virtual_recording(sim.p, sim.u, opts.fs_model, cal, snr_db=40.0, bits=24, seed=noise)
+    assert np.array_equal(run.p, sim.p) and np.array_equal(take.signals, old.signals)
+    assert run.controls.notes == ((0.0, 0.15),)
+
+
+def test_synth_take_plays_a_score_and_keeps_its_truth(tmp_path):
+    from tests.cli.test_synth_take import run_synth_take
+
+    score = tmp_path / "two.yaml"
+    score.write_text(
+        "notes:\n"
+        "  - {duration: 0.12, p_m: 1800, tongued: true, tongue_hold: 0.02}\n"
+        "  - {gap: 0.05, duration: 0.12, p_m: 2000, y_m: [[0, 4.0e-4], [0.1, 3.6e-4]]}\n"
+    )
+    out = tmp_path / "t.flac"
+    base = [str(SHIPPED), "--reed", str(REED), "--score", str(score), "-o", str(out)]
+    assert run_synth_take([*base, "--fs-out", "50000"]) == 0
+    truth = np.load(tmp_path / "t.truth.npz")
+    assert truth["p"].size == 17_000  # 0.29 s of notes and gap, 0.05 s of silence at the end
+    np.testing.assert_allclose(truth["note_start_s"], [0.02, 0.17])
+    np.testing.assert_allclose(truth["tongue_end_s"], [0.02])
+    ym = truth["control_y_m"]
+    assert float(truth["control_fs"]) == 1000.0 and ym.dtype == np.float32
+    assert ym[100] == np.float32(4e-4) and ym[280] == np.float32(3.6e-4)
+    assert np.all(truth["control_p_m"][125:165] == 0)  # the silence between the notes
+    sidecar = yaml.safe_load((tmp_path / "t.yaml").read_text())
+    assert sidecar["recipe"]["score"]["notes"][1]["gap"] == 0.05
+    assert "--score" in sidecar["recipe"]["command"]
+    with pytest.raises(UserError, match="--swell: not with --score"):
+        run_synth_take([*base, "--swell", "0.1", "--force"])
+    with pytest.raises(UserError, match="--duration: required without --score"):
+        run_synth_take([str(SHIPPED), "--reed", str(REED), "-o", str(out), "--force"])

@@ -40,7 +40,25 @@ def add_parser(sub) -> None:
     )
     p.add_argument("calibration", help="calibration YAML (instrument and microphones)")
     p.add_argument("--reed", required=True, metavar="REED.yaml", help="reed parameter YAML")
-    p.add_argument("--duration", required=True, type=float, metavar="SECONDS", help="length, s")
+    p.add_argument(
+        "--duration",
+        type=float,
+        metavar="SECONDS",
+        help="length, s (required without --score; with one, default the score's length)",
+    )
+    p.add_argument(
+        "--score",
+        metavar="SCORE.yaml",
+        help="notes, silences and control curves to play (p_m, y_m, k, ..., vibrato, "
+        "tonguing); examples in examples/scores/",
+    )
+    p.add_argument(
+        "--chunk",
+        type=float,
+        default=1e-3,
+        metavar="S",
+        help="pieces over which varying reed parameters are held, s (0.001)",
+    )
     _add_conditions(p)
     _add_microphone_errors(p)
     _add_player(p)
@@ -104,9 +122,10 @@ def _add_player(p) -> None:
     p.add_argument(
         "--swell",
         type=float,
-        default=0.0,
+        default=None,
         metavar="FRACTION",
-        help="relative rise of the mouth pressure over the take (0.1 = +10 %%)",
+        help="relative rise of the mouth pressure over the take (0.1 = +10 %%; 0); not "
+        "with --score",
     )
     p.add_argument(
         "--breath-noise",
@@ -118,14 +137,16 @@ def _add_player(p) -> None:
     p.add_argument(
         "--onset",
         type=float,
-        default=0.01,
+        default=None,
         metavar="S",
-        help="raised-cosine rise time of the mouth pressure, s (0.01)",
+        help="raised-cosine rise time of the mouth pressure, s (0.01); not with --score "
+        "(each note has its attack)",
     )
 
 
 def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe synth-take``."""
+    _resolve_player(args)
     temp = args.temperature
     if temp is not None:
         temp = temp[0] if len(temp) == 1 else (temp[0], temp[1])
@@ -151,6 +172,8 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         bits=args.bits,
         mic_calibration=not args.no_mic_calibration,
+        score=args.score,
+        chunk_s=args.chunk,
     )
     command = "mpipe synth-take " + " ".join(shlex.quote(a) for a in _reconstruct_argv(args))
     try:
@@ -167,9 +190,34 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _resolve_player(args: argparse.Namespace) -> None:
+    """Defaults of --swell and --onset, refused in one line beside --score."""
+    if not args.chunk > 0:
+        raise UserError(f"--chunk: expected a positive duration in s, got {args.chunk:g}")
+    if args.score is None:
+        if args.duration is None:
+            raise UserError("--duration: required without --score (length of the take, s)")
+        args.swell = 0.0 if args.swell is None else args.swell
+        args.onset = 0.01 if args.onset is None else args.onset
+        return
+    for flag, value in (("--swell", args.swell), ("--onset", args.onset)):
+        if value is not None:
+            raise UserError(
+                f"{flag}: not with --score {args.score} (the score sets the mouth pressure "
+                "and each note's attack)"
+            )
+    args.swell, args.onset = 0.0, 0.01
+
+
 def _reconstruct_argv(args: argparse.Namespace) -> list[str]:
     """The options as given, in a canonical order, for the sidecar."""
-    out = [args.calibration, "--reed", args.reed, "--duration", f"{args.duration:g}"]
+    out = [args.calibration, "--reed", args.reed]
+    if args.duration is not None:
+        out += ["--duration", f"{args.duration:g}"]
+    if args.score is not None:
+        out += ["--score", args.score]
+    if args.chunk != 1e-3:
+        out += ["--chunk", f"{args.chunk:g}"]
     pairs = [
         ("--fs-model", args.fs_model),
         ("--fs-out", args.fs_out),
@@ -181,9 +229,9 @@ def _reconstruct_argv(args: argparse.Namespace) -> list[str]:
             "--phase-error-deg",
             args.phase_error_deg and ",".join(f"{v:g}" for v in args.phase_error_deg),
         ),
-        ("--swell", args.swell),
+        ("--swell", None if args.score else args.swell),
         ("--breath-noise", args.breath_noise),
-        ("--onset", args.onset),
+        ("--onset", None if args.score else args.onset),
         ("--bits", args.bits),
         ("--seed", args.seed),
     ]
