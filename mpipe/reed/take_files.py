@@ -302,7 +302,9 @@ def _write_sidecar(
 def calibration_mapping(calibration: Calibration) -> dict[str, Any]:
     """A YAML-ready mapping of a calibration, accepted by ``load_calibration``.
 
-    ``source`` is left out (the loader sets it) and so are keys whose value is None.
+    ``source`` is left out (the loader sets it) and so are keys whose value is None;
+    ``bore.open_holes`` too (the loader sets it from ``fingering``), and the fingerings are
+    written as the file's mapping name -> open holes.
     """
 
     def convert(obj):
@@ -310,7 +312,7 @@ def calibration_mapping(calibration: Calibration) -> dict[str, Any]:
             out = {}
             for f in dataclasses.fields(obj):
                 value = getattr(obj, f.name)
-                if value is None or f.name == "source":
+                if value is None or f.name in ("source", "open_holes"):
                     continue
                 out[f.name] = convert(value)
             return out
@@ -318,7 +320,9 @@ def calibration_mapping(calibration: Calibration) -> dict[str, Any]:
             return [convert(v) for v in obj]
         return obj
 
-    return convert(calibration)
+    out = convert(calibration)
+    out["fingerings"] = {f.name: list(f.open) for f in calibration.fingerings}
+    return out
 
 
 def _plain(obj):
