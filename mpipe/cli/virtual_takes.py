@@ -60,6 +60,8 @@ class SynthOptions:
         Word length of the file (16 or 24 for FLAC).
     mic_calibration : bool
         Write the exact relative calibration tables of microphones 2 to N.
+    fingering : str or None
+        The fingering played (a name of the calibration's fingerings); None: its default.
     """
 
     duration_s: float
@@ -76,6 +78,7 @@ class SynthOptions:
     seed: int = 0
     bits: int = 24
     mic_calibration: bool = True
+    fingering: str | None = None
 
 
 def child_seeds(seed: int) -> tuple[int, int]:
@@ -206,7 +209,7 @@ def make_take(
     check_file_rate(out, options.fs_out if options.fs_out is not None else options.fs_model)
     planned = take_file_paths(out, options.mic_calibration)
     check_writable([planned.audio, planned.sidecar, planned.truth, planned.calibration], force)
-    calibration = load_calibration(calibration_path)
+    calibration = load_calibration(calibration_path, options.fingering)
     n_mics = len(calibration.microphones)
     for name, values in (
         ("gain_error_db", options.gain_error_db),

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import shlex
 
+from mpipe.cli.commands import add_fingering_option
 from mpipe.cli.virtual_takes import SynthOptions, make_take
 from mpipe.core.config import ConfigError
 from mpipe.core.errors import UserError
@@ -53,6 +54,7 @@ def add_parser(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed (0)")
     p.add_argument("-o", "--output", required=True, metavar="TAKE.flac", help="audio file")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    add_fingering_option(p)
     p.set_defaults(func=run)
 
 
@@ -151,6 +153,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         bits=args.bits,
         mic_calibration=not args.no_mic_calibration,
+        fingering=args.fingering,
     )
     command = "mpipe synth-take " + " ".join(shlex.quote(a) for a in _reconstruct_argv(args))
     try:
@@ -173,6 +176,7 @@ def _reconstruct_argv(args: argparse.Namespace) -> list[str]:
     pairs = [
         ("--fs-model", args.fs_model),
         ("--fs-out", args.fs_out),
+        ("--fingering", args.fingering),
         ("--temperature", args.temperature and ",".join(f"{v:g}" for v in args.temperature)),
         ("--mach", args.mach),
         ("--snr", args.snr),
