@@ -217,9 +217,9 @@ class Bore:
         return hole.name in self.open_holes
 
     def holes_between(self, x0: float, x1: float) -> tuple[ToneHole, ...]:
-        """Tone holes with centres strictly between ``x0`` and ``x1`` (m), upstream first."""
+        """Tone holes with centres in ``[x0, x1)`` (m), upstream first."""
         return tuple(
-            sorted((h for h in self.holes if x0 < h.position < x1), key=lambda h: h.position)
+            sorted((h for h in self.holes if x0 <= h.position < x1), key=lambda h: h.position)
         )
 
     def segment_at(self, x: float) -> Segment:
@@ -261,8 +261,8 @@ def transfer_matrix(
     -------
     ndarray
         Shape ``(n, 2, 2)``: ``[P(x0), U(x0)] = T @ [P(x1), U(x1)]``. The identity when
-        ``x0 == x1``. The tone holes whose centres lie strictly between x0 and x1 are
-        included, open or closed as ``bore.open_holes`` says.
+        ``x0 == x1``. The tone holes whose centres lie in [x0, x1) are
+        included (a hole at a cut belongs downstream), open or closed as ``bore.open_holes`` says.
     """
     omega = np.atleast_1d(np.asarray(omega, dtype=float))
     x1 = bore.length if x1 is None else x1
