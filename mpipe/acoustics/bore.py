@@ -19,6 +19,7 @@ import numpy as np
 
 from mpipe.acoustics import ducts
 from mpipe.acoustics.air import Air
+from mpipe.acoustics.measured_bore import MeasuredInput
 from mpipe.acoustics.radiation import RADIATION_MODELS, radiation_impedance
 from mpipe.acoustics.tone_holes import HOLE_RADIATION_MODELS, ToneHole, check_holes, hole_matrix
 from mpipe.core.config import Where, between, spec
@@ -162,6 +163,20 @@ class Bore:
         default=(),
     )
 
+    measured: str | None = spec(
+        "",
+        "a measured input impedance file that stands in for the theory (physics.md D.5), "
+        "path relative to the calibration file; its layout declared as for "
+        "`mpipe impedance --measured` (YAML header or sidecar FILE.yaml); the segments still "
+        "give the duct to the microphones and the equivalent bore outside the measured band",
+        default=None,
+    )
+    measured_input: MeasuredInput | None = spec(
+        "",
+        "the measured impedance and its fitted equivalent bore (set by the loader)",
+        default=None,
+    )
+
     def _check(self, where: Where) -> None:
         if not self.segments:
             raise where.error("segments", "expected at least one segment")
@@ -292,6 +307,9 @@ def transfer_matrix(
 def input_impedance(bore: Bore, omega: np.ndarray, air: Air) -> np.ndarray:
     """Input impedance at the mouthpiece entry, Pa s/m^3 (physics.md D.1).
 
+    A bore with a ``measured_input`` gives the measured impedance in its band and its
+    fitted equivalent bore's outside (physics.md D.5).
+
     Parameters
     ----------
     bore : Bore
@@ -307,6 +325,10 @@ def input_impedance(bore: Bore, omega: np.ndarray, air: Air) -> np.ndarray:
         Complex Z_in, same shape as ``omega``.
     """
     omega = np.atleast_1d(np.asarray(omega, dtype=float))
+    measured = bore.measured_input
+    if measured is not None:
+        # the measurement in its band, the fitted equivalent bore outside (physics.md D.5)
+        return measured.blend(omega, air, input_impedance(measured.equivalent, omega, air))
     z_l = radiation_impedance(
         omega, bore.exit_radius, air, bore.radiation.model, bore.radiation.flange_radius
     )

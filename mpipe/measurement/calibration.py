@@ -27,6 +27,7 @@ from pathlib import Path
 from mpipe.acoustics.air import AIR_MODELS, Air, air_properties
 from mpipe.acoustics.bore import JOIN_TOLERANCE, Bore
 from mpipe.core.config import ConfigError, Where, between, build, load_yaml, positive, spec
+from mpipe.measurement.measured_instrument import attach_measured_bore
 
 
 @dataclass(frozen=True)
@@ -225,6 +226,8 @@ def _fingering_list(data: dict, path: str | Path) -> None:
             f"{path}: bore.open_holes: set by the loader from the fingering; write "
             "'fingerings' (name -> open holes) and 'fingering' (the default) instead"
         )
+    if isinstance(bore, Mapping) and "measured_input" in bore:
+        raise ConfigError(f"{path}: bore.measured_input: set by the loader, remove it")
     fingerings = data.get("fingerings")
     if fingerings is None:
         return
@@ -277,11 +280,13 @@ def load_calibration(path: str | Path, fingering: str | None = None) -> Calibrat
     _fingering_list(data, path)
     cal = build(Calibration, data, Where(str(path)))
     name = fingering if fingering is not None else cal.fingering
-    if name is None:
-        if cal.fingerings:
-            raise ConfigError(
-                f"{path}: fingering: missing; name the default fingering (one of "
-                f"{', '.join(f.name for f in cal.fingerings)}) or give --fingering NAME"
-            )
-        return cal
-    return cal.with_fingering(name)
+    if name is not None:
+        cal = cal.with_fingering(name)
+    elif cal.fingerings:
+        raise ConfigError(
+            f"{path}: fingering: missing; name the default fingering (one of "
+            f"{', '.join(f.name for f in cal.fingerings)}) or give --fingering NAME"
+        )
+    if cal.bore.measured is not None:
+        cal = attach_measured_bore(cal, path)
+    return cal
