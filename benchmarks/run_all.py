@@ -27,6 +27,7 @@ from headline import TABLE_ENV  # noqa: E402
 #: Arguments of each benchmark in the default (short) run; ``--full`` drops them.
 QUICK_ARGS = {
     "bench_bore": [],
+    "bench_holes": ["--df", "0.5"],
     "bench_model": ["--seconds", "1", "--repeats", "3"],
     "bench_inversion": [],
     "bench_frontend": ["--duration", "1"],

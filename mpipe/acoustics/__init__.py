@@ -10,6 +10,8 @@ ducts
     Plane waves with visco-thermal losses; transfer matrices of cylinders and cones.
 radiation
     Radiation impedance of the open end.
+tone_holes
+    Side holes, open or closed: T-networks with length corrections (physics.md D.3).
 bore
     Bore geometry, its transfer matrix, input impedance and resonances (physics.md D.1).
 reflection

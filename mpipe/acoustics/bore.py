@@ -2,7 +2,8 @@
 
 The bore is a chain of cylinders and truncated cones along +x, from the mouthpiece
 entry (x = 0) to the open end. Steps between radii at segment junctions are allowed and
-have the identity matrix (physics.md B.7).
+have the identity matrix (physics.md B.7). Tone holes in the wall, open or closed, are
+T-networks inserted at their positions (:mod:`mpipe.acoustics.tone_holes`, physics.md D.3).
 
 References
 ----------
@@ -18,7 +19,9 @@ import numpy as np
 
 from mpipe.acoustics import ducts
 from mpipe.acoustics.air import Air
+from mpipe.acoustics.measured_bore import MeasuredInput
 from mpipe.acoustics.radiation import RADIATION_MODELS, radiation_impedance
+from mpipe.acoustics.tone_holes import HOLE_RADIATION_MODELS, ToneHole, check_holes, hole_matrix
 from mpipe.core.config import Where, between, spec
 
 # Plausible radii of a woodwind bore, m: below 0.5 mm or above 5 cm is a unit slip.
@@ -121,6 +124,17 @@ class Radiation:
     flange_radius: float | None = spec(
         "m", "outer radius of a finite flange", between(*RADIUS_RANGE, _RADIUS_HINT), default=None
     )
+    hole_model: str = spec(
+        "",
+        f"radiation model of the open tone holes' outer ends, one of "
+        f"{', '.join(HOLE_RADIATION_MODELS)}",
+        lambda v: (
+            None
+            if v in HOLE_RADIATION_MODELS
+            else f"expected one of {HOLE_RADIATION_MODELS}, got {v!r}"
+        ),
+        default="unflanged",
+    )
 
     def _check(self, where: Where) -> None:
         if self.model == "finite-flange" and self.flange_radius is None:
@@ -138,6 +152,29 @@ class Bore:
         "visco-thermal loss model: bessel (exact), keefe (large radius) or lossless",
         lambda v: None if v in ducts.LOSS_MODELS else f"expected one of {ducts.LOSS_MODELS}",
         default="bessel",
+    )
+    holes: tuple[ToneHole, ...] = spec(
+        "", "tone holes in the wall (physics.md D.3); the fingerings open them", default=()
+    )
+    open_holes: tuple[str, ...] = spec(
+        "",
+        "names of the open holes; set by the loader from the calibration's fingering "
+        "(write fingerings in a calibration file, not this key)",
+        default=(),
+    )
+
+    measured: str | None = spec(
+        "",
+        "a measured input impedance file that stands in for the theory (physics.md D.5), "
+        "path relative to the calibration file; its layout declared as for "
+        "`mpipe impedance --measured` (YAML header or sidecar FILE.yaml); the segments still "
+        "give the duct to the microphones and the equivalent bore outside the measured band",
+        default=None,
+    )
+    measured_input: MeasuredInput | None = spec(
+        "",
+        "the measured impedance and its fitted equivalent bore (set by the loader)",
+        default=None,
     )
 
     def _check(self, where: Where) -> None:
@@ -159,6 +196,13 @@ class Bore:
                     f"{kind} of {abs(gap):.6g} m after segment {i - 1} "
                     f"(which ends at {prev.x_end:g} m); expected x_start = {prev.x_end:g} m",
                 )
+        check_holes(self.holes, self.length, self.radius_at, where)
+        known = {h.name for h in self.holes}
+        for name in self.open_holes:
+            if name not in known:
+                raise where.error(
+                    "open_holes", f"no hole named {name!r}; the holes are {sorted(known)}"
+                )
 
     @property
     def length(self) -> float:
@@ -178,6 +222,20 @@ class Bore:
     def entry_impedance(self, air: Air) -> float:
         """Real characteristic impedance Z0 = rho c / S at the entry, Pa s/m^3."""
         return air.impedance(np.pi * self.entry_radius**2)
+
+    def radius_at(self, x: float) -> float:
+        """Radius in m at axial position ``x`` (m); the upstream segment's at a junction."""
+        return self.segment_at(min(max(x, 0.0), self.length)).radius_at(x)
+
+    def is_open(self, hole: ToneHole) -> bool:
+        """True when ``hole`` is open in this bore's fingering."""
+        return hole.name in self.open_holes
+
+    def holes_between(self, x0: float, x1: float) -> tuple[ToneHole, ...]:
+        """Tone holes with centres in ``[x0, x1)`` (m), upstream first."""
+        return tuple(
+            sorted((h for h in self.holes if x0 <= h.position < x1), key=lambda h: h.position)
+        )
 
     def segment_at(self, x: float) -> Segment:
         """The segment containing position ``x`` (m); raises ValueError outside the bore."""
@@ -218,18 +276,39 @@ def transfer_matrix(
     -------
     ndarray
         Shape ``(n, 2, 2)``: ``[P(x0), U(x0)] = T @ [P(x1), U(x1)]``. The identity when
-        ``x0 == x1``.
+        ``x0 == x1``. The tone holes whose centres lie in [x0, x1) are
+        included (a hole at a cut belongs downstream), open or closed as ``bore.open_holes`` says.
     """
     omega = np.atleast_1d(np.asarray(omega, dtype=float))
     x1 = bore.length if x1 is None else x1
-    pieces = bore.between(x0, x1)
-    if not pieces:
+    matrices = []
+    start = x0
+    # the tone holes cut the duct into pieces; each hole's T-network sits at its centre
+    for hole in bore.holes_between(x0, x1):
+        matrices += [p.matrix(omega, air, bore.losses) for p in bore.between(start, hole.position)]
+        matrices.append(
+            hole_matrix(
+                omega,
+                hole,
+                bore.radius_at(hole.position),
+                air,
+                bore.is_open(hole),
+                bore.losses,
+                bore.radiation.hole_model,
+            )
+        )
+        start = hole.position
+    matrices += [p.matrix(omega, air, bore.losses) for p in bore.between(start, x1)]
+    if not matrices:
         return ducts.identity_matrix(omega.size)
-    return ducts.chain([p.matrix(omega, air, bore.losses) for p in pieces])
+    return ducts.chain(matrices)
 
 
 def input_impedance(bore: Bore, omega: np.ndarray, air: Air) -> np.ndarray:
     """Input impedance at the mouthpiece entry, Pa s/m^3 (physics.md D.1).
+
+    A bore with a ``measured_input`` gives the measured impedance in its band and its
+    fitted equivalent bore's outside (physics.md D.5).
 
     Parameters
     ----------
@@ -246,6 +325,10 @@ def input_impedance(bore: Bore, omega: np.ndarray, air: Air) -> np.ndarray:
         Complex Z_in, same shape as ``omega``.
     """
     omega = np.atleast_1d(np.asarray(omega, dtype=float))
+    measured = bore.measured_input
+    if measured is not None:
+        # the measurement in its band, the fitted equivalent bore outside (physics.md D.5)
+        return measured.blend(omega, air, input_impedance(measured.equivalent, omega, air))
     z_l = radiation_impedance(
         omega, bore.exit_radius, air, bore.radiation.model, bore.radiation.flange_radius
     )

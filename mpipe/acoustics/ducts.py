@@ -170,7 +170,7 @@ def cylinder_matrix(
     gamma, zc = propagation(omega, radius, air, losses)
     gl = gamma * length
     ch, sh = np.cosh(gl), np.sinh(gl)
-    return _stack(ch, zc * sh, sh / zc, ch)
+    return abcd(ch, zc * sh, sh / zc, ch)
 
 
 def cone_matrix(
@@ -222,7 +222,7 @@ def cone_matrix(
     b = (r1 / r2) * zc1 * sh
     c = ((r2 / r1 - beta**2 / gamma**2) * sh + (length * beta**2 / gamma) * ch) / zc1
     d = (r1 / r2) * (ch + (beta / gamma) * sh)
-    return _stack(a, b, c, d)
+    return abcd(a, b, c, d)
 
 
 def identity_matrix(n: int) -> np.ndarray:
@@ -252,7 +252,7 @@ def invert(t: np.ndarray) -> np.ndarray:
 
     Maps upstream quantities to downstream ones.
     """
-    return _stack(t[..., 1, 1], -t[..., 0, 1], -t[..., 1, 0], t[..., 0, 0])
+    return abcd(t[..., 1, 1], -t[..., 0, 1], -t[..., 1, 0], t[..., 0, 0])
 
 
 def load_impedance(t: np.ndarray, z_load: np.ndarray) -> np.ndarray:
@@ -264,7 +264,8 @@ def load_impedance(t: np.ndarray, z_load: np.ndarray) -> np.ndarray:
     return (a * z_load + b) / (c * z_load + d)
 
 
-def _stack(a, b, c, d) -> np.ndarray:
+def abcd(a, b, c, d) -> np.ndarray:
+    """Stack the elements A, B, C, D (broadcast together) into matrices of shape ``(..., 2, 2)``."""
     a = np.asarray(a, dtype=complex)
     shape = np.broadcast(a, b, c, d).shape
     out = np.empty(shape + (2, 2), dtype=complex)

@@ -67,6 +67,8 @@ class SynthOptions:
     chunk_s : float
         Length of the pieces over which reed parameters that vary are held, s
         (:mod:`mpipe.reed.controls`).
+    fingering : str or None
+        The fingering played (a name of the calibration's fingerings); None: its default.
     """
 
     duration_s: float | None
@@ -85,6 +87,7 @@ class SynthOptions:
     mic_calibration: bool = True
     score: str | None = None
     chunk_s: float = 1e-3
+    fingering: str | None = None
 
 
 def child_seeds(seed: int) -> tuple[int, int]:
@@ -244,7 +247,7 @@ def make_take(
     check_file_rate(out, options.fs_out if options.fs_out is not None else options.fs_model)
     planned = take_file_paths(out, options.mic_calibration)
     check_writable([planned.audio, planned.sidecar, planned.truth, planned.calibration], force)
-    calibration = load_calibration(calibration_path)
+    calibration = load_calibration(calibration_path, options.fingering)
     n_mics = len(calibration.microphones)
     for name, values in (
         ("gain_error_db", options.gain_error_db),

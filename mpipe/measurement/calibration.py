@@ -2,16 +2,32 @@
 
 One YAML file per measured instrument set-up (see ``calibration/simplified_clarinet.yaml``).
 Paths inside it (microphone calibration tables) are relative to the file.
+
+An instrument with tone holes names its fingerings (which holes are open) beside the bore::
+
+    bore:
+      segments: [...]
+      holes:
+        - {name: hole1, position: 0.10, radius: 0.0015, chimney: 0.0017}   # metres
+    fingerings:            # name -> the holes that are open
+      xxxx: []
+      oxxx: [hole1]
+    fingering: xxxx        # the default
+
+The loader opens the holes of the chosen fingering (the file's default, or the one given to
+:func:`load_calibration`) in ``calibration.bore``, which every stage then uses.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from mpipe.acoustics.air import AIR_MODELS, Air, air_properties
 from mpipe.acoustics.bore import JOIN_TOLERANCE, Bore
 from mpipe.core.config import ConfigError, Where, between, build, load_yaml, positive, spec
+from mpipe.measurement.measured_instrument import attach_measured_bore
 
 
 @dataclass(frozen=True)
@@ -64,6 +80,14 @@ class Microphone:
 
 
 @dataclass(frozen=True)
+class Fingering:
+    """One fingering: a name and the tone holes it opens (the others are closed)."""
+
+    name: str = spec("", "name of the fingering, e.g. oxxx")
+    open: tuple[str, ...] = spec("", "names of the holes that are open", default=())
+
+
+@dataclass(frozen=True)
 class Calibration:
     """A measured instrument set-up."""
 
@@ -78,8 +102,18 @@ class Calibration:
     )
     reference_plane: float = spec("m", "position where p0, u0 are reconstructed", between(0.0, 5.0))
     source: str = spec("", "file the calibration was read from (set by the loader)", default="")
+    fingerings: tuple[Fingering, ...] = spec(
+        "",
+        "the fingerings of an instrument with tone holes, a mapping name -> list of the open "
+        "holes (in the file: fingerings: {xxxx: [], oxxx: [hole1]})",
+        default=(),
+    )
+    fingering: str | None = spec(
+        "", "the fingering played (the default; --fingering NAME chooses another)", default=None
+    )
 
     def _check(self, where: Where) -> None:
+        self._check_fingerings(where)
         length = self.bore.length
         if len(self.microphones) < 2:
             raise where.error(
@@ -116,6 +150,45 @@ class Calibration:
                 "the microphones and the reference plane must lie in one cylindrical segment "
                 f"(they span {lo:g}-{hi:g} m)",
             )
+        for i, hole in enumerate(self.bore.holes):
+            if lo - hole.radius < hole.position < hi + hole.radius:
+                raise where.error(
+                    f"bore.holes[{i}]",
+                    f"hole {hole.name!r} at {hole.position:g} m lies between the microphones "
+                    f"and the reference plane ({lo:g}-{hi:g} m), where the wave separation needs "
+                    "a plain duct; move the microphones or the reference plane off the hole",
+                )
+
+    def _check_fingerings(self, where: Where) -> None:
+        holes = {h.name for h in self.bore.holes}
+        names = [f.name for f in self.fingerings]
+        for f in self.fingerings:
+            if names.count(f.name) > 1:
+                raise where.error(f"fingerings.{f.name}", "this fingering is given twice")
+            for hole in f.open:
+                if hole not in holes:
+                    raise where.error(
+                        f"fingerings.{f.name}",
+                        f"no hole named {hole!r} in bore.holes (the holes are "
+                        f"{sorted(holes) or 'none'})",
+                    )
+        if self.fingering is not None and self.fingering not in names:
+            raise where.error("fingering", _unknown_fingering(self.fingering, names))
+
+    def with_fingering(self, name: str) -> Calibration:
+        """A copy playing fingering ``name``: its holes open in ``bore``, the others closed.
+
+        Raises
+        ------
+        ConfigError
+            When the calibration has no fingering of that name.
+        """
+        for f in self.fingerings:
+            if f.name == name:
+                bore = replace(self.bore, open_holes=tuple(f.open))
+                return replace(self, bore=bore, fingering=name)
+        names = [f.name for f in self.fingerings]
+        raise ConfigError(f"{self.source or 'calibration'}: {_unknown_fingering(name, names)}")
 
     @property
     def main_radius(self) -> float:
@@ -137,13 +210,54 @@ class Calibration:
         return replace(self, bore=bore)
 
 
-def load_calibration(path: str | Path) -> Calibration:
+def _unknown_fingering(name: str, names: list[str]) -> str:
+    if not names:
+        return (
+            f"no fingering {name!r}: the file has no fingerings (expected a 'fingerings' mapping)"
+        )
+    return f"unknown fingering {name!r}; expected one of {', '.join(names)}"
+
+
+def _fingering_list(data: dict, path: str | Path) -> None:
+    """Turn the file's ``fingerings`` mapping into the list :func:`build` reads, in place."""
+    bore = data.get("bore")
+    if isinstance(bore, Mapping) and "open_holes" in bore:
+        raise ConfigError(
+            f"{path}: bore.open_holes: set by the loader from the fingering; write "
+            "'fingerings' (name -> open holes) and 'fingering' (the default) instead"
+        )
+    if isinstance(bore, Mapping) and "measured_input" in bore:
+        raise ConfigError(f"{path}: bore.measured_input: set by the loader, remove it")
+    fingerings = data.get("fingerings")
+    if fingerings is None:
+        return
+    if not isinstance(fingerings, Mapping):
+        raise ConfigError(
+            f"{path}: fingerings: expected a mapping of name -> list of open holes, "
+            "e.g. {xxxx: [], oxxx: [hole1]}"
+        )
+    out = []
+    for name, holes in fingerings.items():
+        if holes is None:
+            holes = []
+        if not isinstance(holes, list) or not all(isinstance(h, str) for h in holes):
+            raise ConfigError(
+                f"{path}: fingerings.{name}: expected a list of hole names, got {holes!r}"
+            )
+        out.append({"name": str(name), "open": holes})
+    data["fingerings"] = out
+
+
+def load_calibration(path: str | Path, fingering: str | None = None) -> Calibration:
     """Read and validate a calibration file.
 
     Parameters
     ----------
     path : str or Path
         YAML file.
+    fingering : str, optional
+        The fingering to play (a name of the file's ``fingerings``); default: the file's
+        ``fingering``. Without fingerings every tone hole is closed.
 
     Returns
     -------
@@ -163,4 +277,16 @@ def load_calibration(path: str | Path) -> Calibration:
     if "source" in data:
         raise ConfigError(f"{path}: source: this key is set by the loader, remove it")
     data["source"] = str(Path(path).resolve())
-    return build(Calibration, data, Where(str(path)))
+    _fingering_list(data, path)
+    cal = build(Calibration, data, Where(str(path)))
+    name = fingering if fingering is not None else cal.fingering
+    if name is not None:
+        cal = cal.with_fingering(name)
+    elif cal.fingerings:
+        raise ConfigError(
+            f"{path}: fingering: missing; name the default fingering (one of "
+            f"{', '.join(f.name for f in cal.fingerings)}) or give --fingering NAME"
+        )
+    if cal.bore.measured is not None:
+        cal = attach_measured_bore(cal, path)
+    return cal

@@ -406,7 +406,7 @@ def _run_take(
         stops before the inversion.
     """
     take_paths = [Path(p) for p in take_paths]
-    cal = load_calibration(cal_path)
+    cal = load_calibration(cal_path, cfg.fingering)
     name = take_name(take_paths)
     root = Path(out) / name
     d = {s: root / s for s in STAGES}
@@ -422,6 +422,9 @@ def _run_take(
     def stage(i: int, key: str, inputs: dict, config, work) -> StageRecord:
         nonlocal redone
         t0 = time.perf_counter()
+        if cal.fingering is not None and key != "conditioning":
+            # another fingering is another bore: a stage made with it is redone
+            config = {"stage": config, "fingering": cal.fingering}
         # Once a stage is redone, the stages after it are derived from new data: they are
         # this run's own results, replaced without --force.
         with stage_timer(f"[{name}] {i}/{len(STAGES)} {key}"):

@@ -41,6 +41,12 @@ class PipelineConfig:
     """A whole pipeline file."""
 
     calibration: str = spec("", "calibration file, relative to the pipeline file")
+    fingering: str | None = spec(
+        "",
+        "the fingering played, a name of the calibration's fingerings (null: the "
+        "calibration's default)",
+        default=None,
+    )
     separation: SeparationConfig = spec(
         "", "wave separation (two or more microphones)", default=SeparationConfig()
     )

@@ -302,7 +302,11 @@ def _write_sidecar(
 def calibration_mapping(calibration: Calibration) -> dict[str, Any]:
     """A YAML-ready mapping of a calibration, accepted by ``load_calibration``.
 
-    ``source`` is left out (the loader sets it) and so are keys whose value is None.
+    ``source`` is left out (the loader sets it) and so are keys whose value is None;
+    ``bore.open_holes`` and ``bore.measured_input`` too (the loader sets them from
+    ``fingering`` and ``bore.measured``), and the fingerings are written as the file's
+    mapping name -> open holes. A ``bore.measured`` path is made absolute (the copy is
+    written elsewhere).
     """
 
     def convert(obj):
@@ -310,7 +314,7 @@ def calibration_mapping(calibration: Calibration) -> dict[str, Any]:
             out = {}
             for f in dataclasses.fields(obj):
                 value = getattr(obj, f.name)
-                if value is None or f.name == "source":
+                if value is None or f.name in ("source", "open_holes", "measured_input"):
                     continue
                 out[f.name] = convert(value)
             return out
@@ -318,7 +322,11 @@ def calibration_mapping(calibration: Calibration) -> dict[str, Any]:
             return [convert(v) for v in obj]
         return obj
 
-    return convert(calibration)
+    out = convert(calibration)
+    if calibration.bore.measured_input is not None:
+        out["bore"]["measured"] = calibration.bore.measured_input.source
+    out["fingerings"] = {f.name: list(f.open) for f in calibration.fingerings}
+    return out
 
 
 def _plain(obj):

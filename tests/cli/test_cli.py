@@ -68,3 +68,34 @@ def test_demo_and_example_find_the_shipped_files():
 
     assert (examples.CALIBRATION_DIR / "simplified_clarinet.yaml").is_file()
     assert (demo.ROOT / "pipelines" / "simplified_clarinet.yaml").is_file()
+
+
+def test_impedance_command_plays_a_fingering(tmp_path, capsys):
+    from pathlib import Path
+
+    import yaml
+
+    shipped = Path(__file__).resolve().parents[2] / "calibration" / "simplified_clarinet.yaml"
+    data = yaml.safe_load(shipped.read_text())
+    data["bore"]["holes"] = [{"name": "h1", "position": 0.6, "radius": 0.004, "chimney": 0.003}]
+    data["fingerings"] = {"closed": [], "open": ["h1"]}
+    data["fingering"] = "closed"
+    cal = tmp_path / "holes.yaml"
+    cal.write_text(yaml.safe_dump(data))
+
+    def first_peak(*extra):
+        assert main(["impedance", str(cal), "--fmax", "1000", *extra]) == 0
+        out = capsys.readouterr().out
+        assert "fingering" in out.splitlines()[0]
+        return float(out.splitlines()[2].split()[1])
+
+    closed, opened = first_peak(), first_peak("--fingering", "open")
+    assert first_peak("--fingering", "closed") == closed
+    assert opened > closed * 1.05  # an open hole 22 cm before the end shortens the tube
+    assert main(["impedance", str(cal), "--fingering", "nope"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "unknown fingering 'nope'" in err and "\n" not in err
+    for command in ("simulate", "synth-take", "separate", "invert", "run"):
+        with pytest.raises(SystemExit):
+            main([command, "--help"])
+        assert "--fingering NAME" in capsys.readouterr().out

@@ -124,3 +124,99 @@ def test_exponent_without_sign_or_dot_reads_as_number(tmp_path):
     path = tmp_path / "cal.yaml"
     path.write_text(text)
     assert load_calibration(path).bore.segments[2].radius == 0.0075
+
+
+# --- tone holes and fingerings ---------------------------------------------------------
+
+HOLES = [
+    {"name": "h1", "position": 0.50, "radius": 0.003, "chimney": 0.003},
+    {"name": "h2", "position": 0.60, "radius": 0.0035, "chimney": 0.003},
+]
+
+
+def holed_dict(**changes):
+    data = shipped_dict()
+    data["bore"]["holes"] = [dict(h) for h in HOLES]
+    data["fingerings"] = {"xx": [], "xo": ["h2"], "oo": ["h1", "h2"]}
+    data["fingering"] = "xx"
+    for key, value in changes.items():
+        if value is DELETE:
+            data.pop(key)
+        else:
+            data[key] = value
+    return data
+
+
+def test_fingerings_open_their_holes(tmp_path):
+    path = write(tmp_path, holed_dict())
+    cal = load_calibration(path)
+    assert cal.fingering == "xx" and cal.bore.open_holes == ()
+    assert {f.name for f in cal.fingerings} == {"xx", "xo", "oo"}
+    cal = load_calibration(path, "oo")
+    assert cal.fingering == "oo" and set(cal.bore.open_holes) == {"h1", "h2"}
+    assert cal.with_fingering("xo").bore.open_holes == ("h2",)
+
+
+def one_line_error(path, fingering=None):
+    with pytest.raises(ConfigError) as err:
+        load_calibration(path, fingering)
+    text = str(err.value)
+    assert "\n" not in text and text.startswith(str(path))
+    return text
+
+
+@pytest.mark.parametrize(
+    "hole, message",
+    [
+        ({"position": 0.9}, r"not inside the bore \(0 to 0.8182 m\)"),
+        ({"position": 0.8170}, "not inside the bore"),
+        ({"radius": 0.008}, r"larger than the bore's radius 0.0075 m"),
+        ({"position": 0.603}, "overlap"),
+        ({"name": "h2"}, "two holes are named 'h2'"),
+        ({"position": 0.27}, "lies between the microphones and the reference plane"),
+        ({"radius": 0.03}, "expected a value in|larger than"),
+    ],
+)
+def test_bad_holes_are_one_line_errors(tmp_path, hole, message):
+    data = holed_dict()
+    data["bore"]["holes"][0].update(hole)
+    assert re.search(message, one_line_error(write(tmp_path, data)))
+
+
+def test_a_hole_on_a_cone_must_fit_its_radius_there(tmp_path):
+    # the shipped cone widens from 6 mm at 0.0316 m to 7.5 mm at 0.0826 m
+    data = holed_dict()
+    data["bore"]["holes"][0].update(position=0.04, radius=0.0062)
+    assert "larger than the bore's radius" in one_line_error(write(tmp_path, data))
+    data["bore"]["holes"][0].update(position=0.075, radius=0.0062)
+    assert load_calibration(write(tmp_path, data)).bore.holes[0].radius == 0.0062
+
+
+def test_a_register_hole_before_the_reference_plane_is_allowed(tmp_path):
+    data = holed_dict()
+    data["bore"]["holes"][0].update(position=0.15)
+    assert load_calibration(write(tmp_path, data)).bore.holes[0].position == 0.15
+
+
+@pytest.mark.parametrize(
+    "changes, fingering, message",
+    [
+        ({}, "ox", "unknown fingering 'ox'; expected one of "),
+        ({"fingering": "nope"}, None, "fingering: unknown fingering 'nope'"),
+        ({"fingerings": {"xx": ["h9"]}}, None, "fingerings.xx: no hole named 'h9'"),
+        ({"fingering": DELETE}, None, "fingering: missing; name the default fingering"),
+        ({"fingerings": ["h1"]}, None, "fingerings: expected a mapping"),
+        ({"fingerings": {"xx": "h1"}}, None, "fingerings.xx: expected a list of hole names"),
+    ],
+)
+def test_bad_fingerings_are_one_line_errors(tmp_path, changes, fingering, message):
+    text = one_line_error(write(tmp_path, holed_dict(**changes)), fingering)
+    assert message in text
+
+
+def test_fingering_of_a_file_without_fingerings(tmp_path):
+    assert "the file has no fingerings" in one_line_error(SHIPPED, "xx")
+    data = holed_dict(fingerings=DELETE, fingering=DELETE)
+    assert load_calibration(write(tmp_path, data)).bore.open_holes == ()  # all closed
+    data["bore"]["open_holes"] = ["h1"]
+    assert "set by the loader from the fingering" in one_line_error(write(tmp_path, data))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from mpipe.acoustics.radiation import RADIATION_MODELS
+from mpipe.cli.commands import add_fingering_option
 from mpipe.core.config import ConfigError
 from mpipe.core.errors import UserError
 from mpipe.core.io import check_writable, write_csv
@@ -42,6 +43,7 @@ def add_parser(sub) -> None:
         "--csv", metavar="FILE.csv", help="write frequency_hz, z_real, z_imag, zc (Pa s/m^3)"
     )
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    add_fingering_option(p)
     m = p.add_argument_group(
         "measured impedance",
         "compare a measured input impedance with the theory (resonances in cents, peak "
@@ -70,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe impedance``."""
     check_writable([p for p in (args.plot, args.csv) if p], args.force)
     try:
-        cal = load_calibration(args.calibration)
+        cal = load_calibration(args.calibration, args.fingering)
     except ConfigError:
         if _looks_like_table(args.calibration):
             raise UserError(
@@ -94,7 +96,8 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UserError(str(exc)) from None
     print(
-        f"{cal.name}: {curve.radiation} end, air at {curve.temperature_c:g} degC, "
+        f"{cal.name}{_fingering_note(cal)}: {curve.radiation} end, air at "
+        f"{curve.temperature_c:g} degC, "
         f"Zc = {curve.z0:.4g} Pa s/m^3"
     )
     print(format_resonances(curve.resonances(args.count)))
@@ -206,3 +209,11 @@ def _number(token: str) -> bool:
     except ValueError:
         return False
     return True
+
+
+def _fingering_note(cal) -> str:
+    """`` (fingering oxxx: hole1 open)`` for an instrument with holes, else empty."""
+    if not cal.bore.holes:
+        return ""
+    opened = ", ".join(cal.bore.open_holes) or "none"
+    return f" (fingering {cal.fingering or 'none: every hole closed'}; open holes: {opened})"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import sys
@@ -11,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from mpipe import __version__
+from mpipe.cli.commands import add_fingering_option
 from mpipe.core.errors import UserError
 from mpipe.core.io import check_writable, write_atomic, write_text_atomic
 from mpipe.measurement.calibration import load_calibration
@@ -59,6 +61,7 @@ def add_parser(sub) -> None:
         help="last time in s (default: conditioning.edge_s before the end)",
     )
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    add_fingering_option(p)
     p.set_defaults(func=run)
 
 
@@ -107,10 +110,12 @@ def _run(args: argparse.Namespace) -> int:
     out = Path(args.output)
     check_writable([out / name for name in (*OUTPUTS, "windows.parquet")], args.force)
     cfg = load_pipeline(args.pipeline)
+    if args.fingering is not None:
+        cfg = dataclasses.replace(cfg, fingering=args.fingering)
     inv = cfg.inversion
     fs, p, u, temperature = load_mouthpiece(args.mouthpiece)
     fs, p, u = _at_inversion_rate(args.mouthpiece, fs, p, u, inv.sample_rate)
-    cal = load_calibration(cfg.calibration_path)
+    cal = load_calibration(cfg.calibration_path, cfg.fingering)
     plan, take = _track(args, cfg, cal, fs, p, u, temperature)
     result, kernel, air = take.tracking, take.kernel, take.air
     table = result.table
@@ -122,6 +127,7 @@ def _run(args: argparse.Namespace) -> int:
         "mouthpiece": str(Path(args.mouthpiece).resolve()),
         "pipeline": cfg.source,
         "calibration": str(cfg.calibration_path),
+        "fingering": cal.fingering,
         "temperature_c": take.temperature.temperature_c,
         "temperature": take.temperature.summary(),
         "zero_mean_flow": result.zero_mean,

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
+from mpipe.cli.commands import add_fingering_option
 from mpipe.core.config import ConfigError
 from mpipe.core.errors import UserError
 from mpipe.pipeline.settings import load_pipeline
@@ -35,6 +37,7 @@ def add_parser(sub) -> None:
         help="calibration file to use instead of the pipeline's (e.g. a virtual take's copy)",
     )
     p.add_argument("--force", action="store_true", help="redo finished stages and windows")
+    add_fingering_option(p)
     p.add_argument(
         "--accept-failed-validation",
         action="store_true",
@@ -51,6 +54,8 @@ def run(args: argparse.Namespace) -> int:
     from mpipe.pipeline.orchestration import ValidationFailed, run_take, take_name, usable
 
     cfg = load_pipeline(args.pipeline)
+    if args.fingering is not None:
+        cfg = dataclasses.replace(cfg, fingering=args.fingering)
     cal_path = Path(args.calibration) if args.calibration else cfg.calibration_path
     if not cal_path.is_file():
         raise UserError(f"{cal_path}: no such calibration file")

@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mpipe.cli.commands import add_fingering_option
 from mpipe.core.errors import UserError
 from mpipe.core.io import check_writable, write_atomic, write_csv, write_npz_atomic
 from mpipe.inversion.kernel import take_temperature
@@ -84,6 +85,7 @@ def add_parser(sub) -> None:
     )
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    add_fingering_option(p)
     p.add_argument(
         "--pipeline",
         metavar="PIPE.yaml",
@@ -120,7 +122,7 @@ def _run(args: argparse.Namespace) -> int:
 
     takes, cal_path, out, paths = _inputs(args)
     log.info("reading calibration %s", cal_path)
-    cal = load_calibration(cal_path)
+    cal = load_calibration(cal_path, _fingering(args))
     log.info("reading take %s", ", ".join(takes))
     sep_cfg, tr_cfg, val_cfg, rate = _settings(args)
     take = read_take(takes if len(takes) > 1 else takes[0], cal, fs=rate)
@@ -219,3 +221,12 @@ def _print_summary(sep, val, paths: list[Path]) -> int:
         print("validation FAILED: the mouthpiece signals do not match the bore's impedance")
         return 1
     return 0
+
+
+def _fingering(args: argparse.Namespace) -> str | None:
+    """``--fingering``, else the pipeline's ``fingering`` (with ``--pipeline``), else None."""
+    if args.fingering is not None or args.pipeline is None:
+        return args.fingering
+    from mpipe.pipeline.settings import load_pipeline
+
+    return load_pipeline(args.pipeline).fingering

@@ -19,6 +19,7 @@ import numpy as np
 from mpipe import __version__
 from mpipe.acoustics.bore import find_resonances, input_impedance
 from mpipe.acoustics.reflection import reflection_function
+from mpipe.cli.commands import add_fingering_option
 from mpipe.core.errors import UserError
 from mpipe.core.io import check_writable, write_atomic
 from mpipe.measurement.calibration import load_calibration
@@ -70,6 +71,7 @@ def add_parser(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the breath noise (0)")
     p.add_argument("--method", choices=METHODS, default="fast", help="convolution kernel (fast)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    add_fingering_option(p)
     p.set_defaults(func=run)
 
 
@@ -80,7 +82,7 @@ def _sha256(path: str | Path) -> str:
 def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe simulate``."""
     outputs, n = _checked_arguments(args)
-    cal = load_calibration(args.calibration)
+    cal = load_calibration(args.calibration, args.fingering)
     reed = load_reed(args.reed)
     air = cal.air_properties()
     sim, kernel = _simulate(args, cal, reed, air, n)
@@ -95,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     f_play = playing_frequency(p_steady, args.fs) if np.ptp(p_steady) > 1e-3 else math.nan
     rms = float(np.std(p_steady))
 
-    meta = _metadata(args, reed, kernel, f_play, f1, rms)
+    meta = {**_metadata(args, reed, kernel, f_play, f1, rms), "fingering": cal.fingering}
     _write_signals(args.output, sim, reed, kernel, args.fs, meta)
     if args.wav:
         _write_wav(sim, args.wav)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import shlex
 
+from mpipe.cli.commands import add_fingering_option
 from mpipe.cli.virtual_takes import SynthOptions, make_take
 from mpipe.core.config import ConfigError
 from mpipe.core.errors import UserError
@@ -71,6 +72,7 @@ def add_parser(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed (0)")
     p.add_argument("-o", "--output", required=True, metavar="TAKE.flac", help="audio file")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    add_fingering_option(p)
     p.set_defaults(func=run)
 
 
@@ -174,6 +176,7 @@ def run(args: argparse.Namespace) -> int:
         mic_calibration=not args.no_mic_calibration,
         score=args.score,
         chunk_s=args.chunk,
+        fingering=args.fingering,
     )
     command = "mpipe synth-take " + " ".join(shlex.quote(a) for a in _reconstruct_argv(args))
     try:
@@ -221,6 +224,7 @@ def _reconstruct_argv(args: argparse.Namespace) -> list[str]:
     pairs = [
         ("--fs-model", args.fs_model),
         ("--fs-out", args.fs_out),
+        ("--fingering", args.fingering),
         ("--temperature", args.temperature and ",".join(f"{v:g}" for v in args.temperature)),
         ("--mach", args.mach),
         ("--snr", args.snr),
