@@ -197,6 +197,29 @@ class InversionConfig:
         between(1.0, 1e6),
         default=3.0,
     )
+    residual_limit: float = spec(
+        "",
+        "a window whose relative residual ||p - p_model|| / ||p|| exceeds this is "
+        "high-residual whatever the take's best (the model does not play what was played; "
+        "at 45 dB SNR a right fit leaves about 0.005), and a take whose median does is "
+        "flagged",
+        between(1e-6, 10.0),
+        default=0.10,
+    )
+    pitch_limit_cents: float = spec(
+        "cent",
+        "a take is flagged when the median, over its ok windows, of the model's playing "
+        "frequency minus the measured one exceeds this in magnitude",
+        between(0.01, 1200.0),
+        default=10.0,
+    )
+    level_limit_db: float = spec(
+        "dB",
+        "a take is flagged when the median, over its ok windows, of the model's RMS "
+        "pressure level minus the measured one exceeds this in magnitude",
+        between(0.001, 60.0),
+        default=1.0,
+    )
     retry_cold: bool = spec(
         "",
         "give a window that is not ok after its warm start a cold start of its own (kept "

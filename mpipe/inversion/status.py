@@ -10,10 +10,19 @@ sanity checks. Otherwise, in order of precedence:
 ``at-bound``
     A free parameter sits on a search bound, or the rest opening y_m on the contact point
     y_c (the reed model needs y_m > y_c): the estimate is set by the bound, not the data.
+``no-errors``
+    The estimate has no standard errors: its Jacobian or residual was not finite, or the
+    SVD of the Jacobian did not converge (``uncertainty_note`` says which).
+``low-dof``
+    The residual is so coloured that it carries fewer effective samples than one more
+    than the free parameters (``dof = n_eff - p < 1``): it cannot measure the noise, and
+    the standard errors, computed with one degree of freedom, are rough.
 ``high-residual``
     The relative residual ||p - p_model|| / ||p|| exceeds ``residual_factor`` times the
     take's best: the model fits this window far worse than others of the same take, so it
-    probably sits in another local minimum or the window is not steady.
+    probably sits in another local minimum or the window is not steady; or it exceeds
+    ``residual_limit`` whatever the take's best: the model does not play what was played
+    (a whole take in a wrong basin has no better window to compare with).
 
 ``status_reason`` lists every check that failed, so a window can be both not converged and
 at a bound.
@@ -29,7 +38,7 @@ import pandas as pd
 from mpipe.inversion.settings import InversionConfig
 
 #: The statuses, best first.
-STATUSES = ("ok", "high-residual", "at-bound", "not-converged", "failed")
+STATUSES = ("ok", "high-residual", "low-dof", "no-errors", "at-bound", "not-converged", "failed")
 
 
 def search_bounds(config: InversionConfig, max_p: float) -> np.ndarray:
@@ -102,8 +111,9 @@ def window_status(row: dict) -> tuple[str, str]:
     Parameters
     ----------
     row : dict
-        A row with ``error``, ``optimiser_converged``, ``optimiser_message`` and
-        ``at_bound``.
+        A row with ``error``, ``optimiser_converged``, ``optimiser_message``,
+        ``at_bound`` and, when the window has been through the error analysis, ``dof``
+        (NaN: no standard errors) and ``uncertainty_note``.
 
     Returns
     -------
@@ -119,7 +129,26 @@ def window_status(row: dict) -> tuple[str, str]:
     if row.get("at_bound"):
         status = "at-bound" if status == "ok" else status
         reasons.append(f"on a bound: {row['at_bound'].replace(';', ', ')}")
+    if "dof" in row:
+        dof = _number(row["dof"])
+        if not math.isfinite(dof):
+            status = "no-errors" if status == "ok" else status
+            note = str(row.get("uncertainty_note") or "no standard errors")
+            reasons.append(note if note.startswith("no standard errors") else
+                           f"no standard errors: {note}")  # fmt: skip
+        elif dof < 1:
+            status = "low-dof" if status == "ok" else status
+            reasons.append(
+                f"n_eff - p = {dof:.3g} < 1: the residual cannot measure the noise, SEs rough"
+            )
     return status, "; ".join(reasons)
+
+
+def _number(value) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan
 
 
 def classify(table: pd.DataFrame, config: InversionConfig) -> pd.DataFrame:
@@ -146,20 +175,24 @@ def classify(table: pd.DataFrame, config: InversionConfig) -> pd.DataFrame:
     clean = np.array([s == "ok" for s in status])
     pool = rr[clean] if clean.any() else rr[np.array([s != "failed" for s in status])]
     pool = pool[np.isfinite(pool)]
-    if pool.size:
-        limit = config.residual_factor * float(pool.min())
-        for i, value in enumerate(rr):
-            if status[i] != "failed" and value > limit:
-                reasons[i] = "; ".join(
-                    r
-                    for r in (
-                        reasons[i],
-                        f"relative residual {value:.3g} > {config.residual_factor:g} x the "
-                        f"take's best {pool.min():.3g}",
-                    )
-                    if r
-                )
-                status[i] = "high-residual" if status[i] == "ok" else status[i]
+    best = float(pool.min()) if pool.size else math.nan
+    for i, value in enumerate(rr):
+        if status[i] == "failed":
+            continue
+        why = ""
+        if value > config.residual_limit:
+            why = (
+                f"relative residual {value:.3g} > inversion.residual_limit "
+                f"{config.residual_limit:g}: the model does not play what was played"
+            )
+        elif value > config.residual_factor * best:
+            why = (
+                f"relative residual {value:.3g} > {config.residual_factor:g} x the take's "
+                f"best {best:.3g}"
+            )
+        if why:
+            reasons[i] = "; ".join(r for r in (reasons[i], why) if r)
+            status[i] = "high-residual" if status[i] == "ok" else status[i]
     out["status"] = status
     out["status_reason"] = reasons
     out["converged"] = out["status"] == "ok"

@@ -32,9 +32,10 @@ COLUMNS = (
     "status", "status_reason", "converged", *uncertainty_columns(),
     "step1_p_m", "k_closing", "S_closing", "y_m_closing", "f1_closing",
     "k_opening", "S_opening", "y_m_opening", "f1_opening",
-    "f2", "relative_residual", "n_iterations", "n_evaluations", "optimiser",
+    "f2", "relative_residual", "model_f0_cents", "model_level_db", "n_iterations",
+    "n_evaluations", "optimiser",
     "optimiser_converged", "optimiser_message", "at_bound", "warm", "cold_starts_agreeing",
-    "retried_cold", "wall_time_s", "error",
+    "retried_cold", "wall_time_s", "error", "take_checks",
 )  # fmt: skip
 
 
@@ -73,6 +74,7 @@ def blank_row(start: int, n: int, fs: float, config: InversionConfig, *, cold: b
         warm=not cold,
         retried_cold=False,
         uncertainty_note="no estimate",
+        take_checks="",
     )
     row.update({c: False for c in COLUMNS if c.startswith("determined_")})
     return row

@@ -11,7 +11,9 @@ table whichever is used:
 3. every window started from that cold start on the kernel at the fitted temperature
    (:func:`mpipe.inversion.tracking.track`);
 4. the temperature's share added to every standard error
-   (:func:`mpipe.inversion.temperature.widen_standard_errors`).
+   (:func:`mpipe.inversion.temperature.widen_standard_errors`);
+5. the take-level checks (:func:`mpipe.inversion.diagnostics.take_checks`): each reason
+   in :attr:`TakeInversion.checks` and in the table's ``take_checks`` column.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import numpy as np
 
 from mpipe.acoustics.air import Air
 from mpipe.core.progress import ProgressBar
+from mpipe.inversion.diagnostics import take_checks
 from mpipe.inversion.kernel import bore_kernel, take_temperature
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.temperature import TemperatureFit, fit_temperature, widen_standard_errors
@@ -48,12 +51,16 @@ class TakeInversion:
         The bore kernel at that temperature (for the resynthesis).
     air : Air
         The air at that temperature.
+    checks : tuple of str
+        Why the take as a whole should not pass, one line each (empty: nothing found); see
+        :mod:`mpipe.inversion.diagnostics`.
     """
 
     tracking: Tracking
     temperature: TemperatureFit
     kernel: BoreKernel
     air: Air
+    checks: tuple[str, ...] = ()
 
 
 def invert_take(
@@ -113,7 +120,19 @@ def invert_take(
     if fit.anchor is not None and len(table):
         # the take's cold start was the fit's, on the first window: its agreement goes there
         table.loc[table.index[0], "cold_starts_agreeing"] = fit.cold_starts_agreeing
-    return TakeInversion(dataclasses.replace(result, table=table), fit, kernel, air)
+    agreeing = fit.cold_starts_agreeing if fit.anchor is not None else _first_agreeing(table)
+    checks = take_checks(
+        table, config, temperature_source=fit.source, temperature_note=fit.note,
+        cold_starts_agreeing=agreeing,
+    )  # fmt: skip
+    table["take_checks"] = "; ".join(checks)
+    return TakeInversion(dataclasses.replace(result, table=table), fit, kernel, air, tuple(checks))
+
+
+def _first_agreeing(table) -> int | None:
+    """The agreement of the take's own cold start (its first cold window), if it had one."""
+    values = table["cold_starts_agreeing"].dropna() if "cold_starts_agreeing" in table else ()
+    return int(values.iloc[0]) if len(values) else None
 
 
 __all__ = ["TakeInversion", "invert_take"]

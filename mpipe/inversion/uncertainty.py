@@ -30,8 +30,13 @@ space with a singular value below ``rcond`` times the largest is a null directio
 do not constrain the parameters along it (for instance the exact scale invariance of a reed
 whose contact starts at closure, see :func:`scale_direction`). The covariance is the
 pseudo-inverse over the other directions; every parameter or combination with a component
-along a null direction gets an infinite standard error. Known invariances (gauges) are
-added as null directions explicitly.
+along a null direction gets an infinite standard error.
+
+**Degrees of freedom.** ``n_eff - p`` is kept (:attr:`Covariance.dof`): below 1 the
+residual cannot measure the noise, the SEs are computed with one degree of freedom and the
+window's status says so (``low-dof``, :mod:`mpipe.inversion.status`). A Jacobian or
+residual that is not finite, or an SVD that does not converge, raises: the window then has
+no standard errors and its status is ``no-errors``.
 
 **Standard errors in the parameters' own units** by the delta method:
 ``se_x = x se_z``. The relative standard error is ``se_z``; a parameter is *determined*
@@ -53,8 +58,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: Step of the forward-difference Jacobian in log parameters (as the trust-region search).
-DIFF_STEP = 1e-4
+from mpipe.inversion.least_squares import DIFF_STEP
 
 #: Singular values below this fraction of the largest mark a null direction. A forward
 #: difference of step 1e-4 in log parameters leaves the Jacobian of an exactly invariant
@@ -174,6 +178,8 @@ class Covariance:
         Integrated autocorrelation time of the residual, samples.
     n_eff : float
         ``n / tau``.
+    dof : float
+        ``n_eff - p``, the residual's degrees of freedom (below 1: the SEs are rough).
     """
 
     names: tuple[str, ...]
@@ -184,6 +190,7 @@ class Covariance:
     n: int
     tau: float
     n_eff: float
+    dof: float
 
     def log_se(self, exponents: np.ndarray, tol: float = 1e-3) -> float:
         """Standard error of ``e . ln x``.
@@ -215,7 +222,6 @@ def covariance(
     residual: np.ndarray,
     names: Sequence[str],
     *,
-    gauges: Sequence[np.ndarray] = (),
     rcond: float = RCOND,
 ) -> Covariance:
     """Covariance of the log parameters from the Jacobian and residual at the solution.
@@ -228,72 +234,71 @@ def covariance(
         Residual at the solution, Pa.
     names : sequence of str
         Parameter names of the columns.
-    gauges : sequence of ndarray
-        Known invariant directions in ln-x space (length p each), added to the null
-        directions found from the singular values.
     rcond : float
         Relative singular-value threshold of a null direction.
 
     Returns
     -------
     Covariance
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        When the Jacobian or the residual is not finite, or the SVD does not converge.
     """
     j = np.asarray(jacobian, dtype=float)
     r = np.asarray(residual, dtype=float)
+    if not (np.all(np.isfinite(j)) and np.all(np.isfinite(r))):
+        raise np.linalg.LinAlgError("the Jacobian or the residual is not finite")
     n, p = j.shape
     tau = integrated_autocorrelation(r)
     n_eff = n / tau
-    # Fewer effective samples than parameters leaves no degree of freedom for the noise;
-    # one is kept so that the result stays finite (and large).
-    dof = max(n_eff - p, 1.0)
-    sigma = float(np.linalg.norm(r)) / math.sqrt(dof)
-    gauge = [np.asarray(g, dtype=float) / np.linalg.norm(g) for g in gauges if np.any(g)]
-    if gauge:
-        # Remove the known invariances from J first: the fit cannot move along them.
-        q, _ = np.linalg.qr(np.column_stack(gauge))
-        proj = np.eye(p) - q @ q.T
-        j = j @ proj
+    dof = n_eff - p
+    # Below one degree of freedom the noise is not measured: one is used so the result
+    # stays finite (and large), and the status says the SEs are rough.
+    sigma = float(np.linalg.norm(r)) / math.sqrt(max(dof, 1.0))
     _, sv, vt = np.linalg.svd(j, full_matrices=False)
     keep = sv > rcond * (sv[0] if sv.size and sv[0] > 0 else 1.0)
-    if gauge:
-        # The projected J has exact zeros along the gauges: never count them as determined.
-        g_mat = np.column_stack(gauge)
-        for i in range(sv.size):
-            if np.linalg.norm(g_mat.T @ vt[i]) > 0.5:
-                keep[i] = False
     inv = (vt[keep].T / sv[keep] ** 2) @ vt[keep]
-    null = vt[~keep]
     return Covariance(
         names=tuple(names),
         cov=sigma**2 * inv,
-        null=null,
+        null=vt[~keep],
         singular_values=sv,
         sigma=sigma,
         n=n,
         tau=tau,
         n_eff=n_eff,
+        dof=dof,
     )
 
 
-def scale_direction(names: Sequence[str]) -> np.ndarray:
+def scale_direction(names: Sequence[str], alpha: float = 2.0) -> np.ndarray:
     """The scale invariance of a reed whose contact point moves with the rest opening.
 
-    Scaling k, S, lam and m by 1/a, y_m and y_c by a and k_c by 1/a^alpha leaves the
-    pressure and the flow unchanged when y_c is tied to y_m (contact from closure) or
-    free; with alpha = 2 (the default) in ln space the direction is
-    ``(-1, -1, +1, 0, -1, 0, -1, -2, +1)`` over ``(k, S, y_m, p_m, m, g, lam, k_c, y_c)``.
+    The reed equation per unit area (physics.md) is
+    ``m y'' + m g y' + k y + k_c [y - y_c]_+^alpha = dp``, the reed's flow ``S dy/dt`` and
+    the flow through the opening ``lam (y_m - y) sqrt(2 dp / rho)``. Scaling every
+    displacement by a (y, y_m, y_c) leaves dp, and so p and u, unchanged when m, k and S
+    and lam scale by 1/a, g not at all, and the contact term ``k_c a^alpha [y - y_c]^alpha``
+    stays the same: k_c scales by ``a^-alpha``. This holds when y_c moves with y_m (contact
+    from closure) or is free. In ln space the direction over
+    ``(k, S, y_m, p_m, m, g, lam, k_c, y_c)`` is ``(-1, -1, +1, 0, -1, 0, -1, -alpha, +1)``.
 
     Parameters
     ----------
     names : sequence of str
         Free parameter names.
+    alpha : float
+        Exponent of the contact force (``inversion.alpha``).
 
     Returns
     -------
     ndarray
         Unnormalised direction over ``names``.
     """
-    weights = {"k": -1.0, "S": -1.0, "y_m": 1.0, "m": -1.0, "lam": -1.0, "k_c": -2.0, "y_c": 1.0}
+    weights = {"k": -1.0, "S": -1.0, "y_m": 1.0, "m": -1.0, "lam": -1.0, "k_c": -alpha,
+               "y_c": 1.0}  # fmt: skip
     return np.array([weights.get(n, 0.0) for n in names])
 
 

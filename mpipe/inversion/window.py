@@ -23,6 +23,7 @@ import numpy as np
 
 from mpipe.core.filters import design_lowpass
 from mpipe.inversion.coldstart import global_search
+from mpipe.inversion.diagnostics import playing_difference
 from mpipe.inversion.least_squares import trust_region
 from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWindow
 from mpipe.inversion.rosenbrock import SearchResult
@@ -218,6 +219,8 @@ def invert_window(
         row.update(_estimate_columns(reed, search, pw, bounds, config))
         errors = _errors_or_note(objective, search, bounds, reed, kernel, config, row, start / fs)
         row.update(errors)
+        res = search.residuals if search.residuals is not None else objective.residuals(search.x)
+        row.update(playing_difference(pw, pw - np.asarray(res, dtype=float), fs))
     except Exception as exc:  # noqa: BLE001 - a failed window is recorded, the take goes on
         log.warning("window at %.4f s failed: %s", start / fs, exc)
         row["error"] = f"{type(exc).__name__}: {exc}"
@@ -337,7 +340,7 @@ def _errors_or_note(objective, search, bounds, reed, kernel, config, row, t_star
     except (ValueError, np.linalg.LinAlgError) as exc:
         # the estimate stands; only its error bars are missing
         log.warning("window at %.4f s: no standard errors: %s", t_start, exc)
-        return {"uncertainty_note": f"no standard errors: {exc}"}
+        return {"uncertainty_note": f"no standard errors: {exc}", "dof": math.nan}
 
 
 def _uncertainty(objective, search, bounds, reed, kernel, config, at_bound: str) -> dict:
@@ -369,6 +372,7 @@ def _uncertainty(objective, search, bounds, reed, kernel, config, at_bound: str)
         limit=config.determined_limit,
         scale_gauge=None if config.contact == "fixed" else "lam",
         invalid=invalid,
+        alpha=config.alpha,
     )
     if not search.converged:
         out["uncertainty_note"] = "; ".join(

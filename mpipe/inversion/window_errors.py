@@ -32,6 +32,7 @@ def window_uncertainty(
     limit: float = 0.10,
     scale_gauge: str | None = None,
     invalid: Mapping[str, str] | None = None,
+    alpha: float = 2.0,
 ) -> dict:
     """The uncertainty columns of one window's row.
 
@@ -56,13 +57,15 @@ def window_uncertainty(
     invalid : mapping, optional
         Free parameter -> reason its SE is not valid (on a search bound): SE NaN,
         undetermined, and so are the combinations that involve it.
+    alpha : float
+        Exponent of the contact force (the scale invariance moves k_c as 1/a^alpha).
 
     Returns
     -------
     dict
         ``<name>_se`` and ``determined_<name>`` for every parameter and combination,
-        the combinations' values, ``residual_sigma`` (Pa), ``n_eff`` and
-        ``uncertainty_note``.
+        the combinations' values, ``residual_sigma`` (Pa), ``n_eff``, ``dof``
+        (``n_eff - p``) and ``uncertainty_note``.
     """
     invalid = dict(invalid or {})
     row: dict = {}
@@ -80,7 +83,8 @@ def window_uncertainty(
     if cov is not None:
         row["residual_sigma"] = cov.sigma
         row["n_eff"] = cov.n_eff
-        notes += _covariance_notes(cov, free, scaled, scale_gauge)
+        row["dof"] = cov.dof
+        notes += _covariance_notes(cov, free, scaled, scale_gauge, alpha)
     for name, reason in invalid.items():
         notes.append(f"{name}: no valid SE ({reason})")
     row["uncertainty_note"] = "; ".join(notes)
@@ -111,7 +115,7 @@ def _parameter_errors(
 
 
 def _covariance_notes(
-    cov: Covariance, free: Sequence[str], scaled: set, scale_gauge: str | None
+    cov: Covariance, free: Sequence[str], scaled: set, scale_gauge: str | None, alpha: float
 ) -> list[str]:
     """What the covariance leaves undetermined: fixed parameters, invariance, null directions."""
     notes = []
@@ -121,17 +125,17 @@ def _covariance_notes(
     if scale_gauge is not None:
         notes.append(
             "scale invariance (contact point moves with y_m): any a gives the same p "
-            "and u with k, S, lam, m / a, y_m, y_c * a, k_c / a^2; "
+            f"and u with k, S, lam, m / a, y_m, y_c * a, k_c / a^{alpha:g}; "
             f"{scale_gauge} is held at its configured value to fix a, so "
             f"{', '.join(n for n in SE_PARAMETERS if n in scaled)} are undetermined "
             "(SE inf) and only the combinations are measured"
         )
     for v in cov.null:
         notes.append("undetermined direction: " + _describe(v, free))
-    if cov.n_eff - len(free) < 1:
+    if cov.dof < 1:
         notes.append(
             f"residual too coloured: {cov.n_eff:.3g} effective samples for {len(free)} "
-            "parameters, SEs rough"
+            "parameters, SEs rough (status low-dof)"
         )
     return notes
 
@@ -149,7 +153,7 @@ def uncertainty_columns() -> tuple[str, ...]:
         cols.append(f"{name}_se")
     for name in (*SE_PARAMETERS, *COMBINATION_NAMES):
         cols.append(f"determined_{name}")
-    return (*cols, "residual_sigma", "n_eff", "uncertainty_note")
+    return (*cols, "residual_sigma", "n_eff", "dof", "uncertainty_note")
 
 
 #: Columns of the long-format correlation table.

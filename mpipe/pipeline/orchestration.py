@@ -292,6 +292,7 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
             "temperature_c": take.temperature.temperature_c,
             "temperature": take.temperature.summary(),
             "temperature_line": take.temperature.line(),
+            "take_checks": list(take.checks),
         }
         return outputs, summary
 
@@ -465,6 +466,8 @@ def _run_take(
                 _stage_inversion(mouthpiece, plan, cal, cfg, client))  # fmt: skip
     say(f"[{name}]     {inv.summary['temperature_line']}")
     say(f"[{name}]     {inv.summary['status_line']}")
+    for reason in inv.summary.get("take_checks", []):
+        say(f"[{name}]     CHECK: {reason}")
     if not inv.summary["status_counts"]["ok"]:
         say(f"[{name}]     no window has status ok: see inversion/windows.csv, status_reason")
     windows = d["inversion"] / "windows.csv"

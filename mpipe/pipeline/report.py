@@ -9,6 +9,7 @@ page itself (embedded figures, numbered tables, rounding) is
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -78,11 +79,14 @@ def flag_windows(windows: pd.DataFrame) -> pd.DataFrame:
     )
 
 
-def overall_verdict(validation: str | bool, windows: pd.DataFrame) -> tuple:
+def overall_verdict(
+    validation: str | bool, windows: pd.DataFrame, take_checks: Sequence[str] = ()
+) -> tuple:
     """``(label, kind)`` of the take: FAIL, CHECK or PASS, with the reason in the label.
 
     ``validation`` is the validation's verdict (``"pass"``, ``"fail"``, ``"cannot-verify"``)
-    or a bool (passed).
+    or a bool (passed); ``take_checks`` the inversion's take-level reasons
+    (:func:`mpipe.inversion.diagnostics.take_checks`), each of which makes the take CHECK.
     """
     if isinstance(validation, bool):
         validation = "pass" if validation else "fail"
@@ -94,6 +98,8 @@ def overall_verdict(validation: str | bool, windows: pd.DataFrame) -> tuple:
         return "FAIL: no window has status ok (no usable result)", "fail"
     if validation != "pass":
         return "CHECK: the impedance validation could not verify the measurement", "check"
+    if take_checks:
+        return "CHECK: " + "; ".join(take_checks), "check"
     if n_ok < n:
         return f"CHECK: {n_ok} of {n} windows ok, {n - n_ok} not ok (see their reasons)", "check"
     return f"PASS: validation passed, all {n} windows ok", "pass"
@@ -158,7 +164,7 @@ def _summary_section(records: dict, windows: pd.DataFrame) -> Section:
     val = records["validation"].summary
     inv = records["inversion"].summary
     flags = flag_windows(windows)
-    verdict = overall_verdict(str(val["verdict"]), windows)
+    verdict = overall_verdict(str(val["verdict"]), windows, inv.get("take_checks", ()))
     params = parameter_summary(windows)
     med_res = inv.get("relative_residual_median")
     summary_text = (
@@ -171,6 +177,8 @@ def _summary_section(records: dict, windows: pd.DataFrame) -> Section:
     )
     if val.get("failures"):
         summary_text += "\n\nValidation failures: " + "; ".join(val["failures"]) + "."
+    if inv.get("take_checks"):
+        summary_text += "\n\nTake-level checks: " + "; ".join(inv["take_checks"]) + "."
     from mpipe.inversion.coverage import summary as uncertainty_summary
 
     uncertainty = uncertainty_summary(windows)

@@ -1,4 +1,4 @@
-"""Window status: ok only when converged, off the bounds and with a residual like the take's."""
+"""Window status: ok only when converged, off the bounds, with valid SEs and a fitting residual."""
 
 import numpy as np
 import pandas as pd
@@ -60,8 +60,8 @@ def test_classify_precedence_and_take_relative_residual():
     assert list(out["converged"]) == [True, True, False, False, False, False]
     reason = out["status_reason"].iloc[4]
     assert "budget" in reason and "k=upper" in reason and "relative residual" in reason
-    assert count(out) == {"ok": 2, "high-residual": 1, "at-bound": 1, "not-converged": 1,
-                          "failed": 1}  # fmt: skip
+    assert count(out) == {"ok": 2, "high-residual": 1, "low-dof": 0, "no-errors": 0,
+                          "at-bound": 1, "not-converged": 1, "failed": 1}  # fmt: skip
     assert summary_line(out).startswith("6 windows: 2 ok")
 
 
@@ -71,3 +71,27 @@ def test_no_clean_window_compares_with_the_best_unclean_one():
     out = classify(table, CFG)
     assert list(out["status"]) == ["at-bound", "at-bound"]
     assert "relative residual" in out["status_reason"].iloc[1]
+
+
+def test_a_take_all_in_one_bad_basin_is_high_residual_in_absolute_terms():
+    # every window equally bad: no window is 3x the take's best, but all exceed the limit
+    table = pd.DataFrame([_row(relative_residual=0.3), _row(relative_residual=0.31)])
+    out = classify(table, CFG)
+    assert list(out["status"]) == ["high-residual", "high-residual"]
+    assert "inversion.residual_limit" in out["status_reason"].iloc[0]
+    assert list(classify(table, InversionConfig(residual_limit=0.5))["status"]) == ["ok", "ok"]
+
+
+def test_no_standard_errors_and_too_few_degrees_of_freedom_are_statuses():
+    rows = [
+        _row(dof=5.0, uncertainty_note=""),
+        _row(dof=np.nan, uncertainty_note="no standard errors: SVD did not converge"),
+        _row(dof=0.4, uncertainty_note=""),
+        _row(dof=0.4, at_bound="m=lower"),  # the worse status wins, both reasons kept
+    ]
+    out = classify(pd.DataFrame(rows), CFG)
+    assert list(out["status"]) == ["ok", "no-errors", "low-dof", "at-bound"]
+    assert "SVD" in out["status_reason"].iloc[1]
+    assert "n_eff - p = 0.4" in out["status_reason"].iloc[2]
+    assert "n_eff - p" in out["status_reason"].iloc[3]
+    assert not out["converged"].iloc[1:].any()

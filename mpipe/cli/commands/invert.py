@@ -133,9 +133,13 @@ def _run(args: argparse.Namespace) -> int:
         "zero_mean_flow": result.zero_mean,
         "start_s": args.start,
         "end_s": args.end,
+        "take_checks": list(take.checks),
     }
     write_text_atomic(out / "run.json", json.dumps(run_info, indent=2) + "\n")
-    return _print_windows(table, out)
+    code = _print_windows(table, out)
+    for reason in take.checks:
+        sys.stdout.write(f"CHECK: {reason}\n")
+    return code
 
 
 def _at_inversion_rate(
