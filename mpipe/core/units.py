@@ -88,6 +88,9 @@ def unit_of(name: str) -> str:
         return UNITS[name]
     if name.endswith("_se") and name[: -len("_se")] in UNITS:
         return UNITS[name[: -len("_se")]]  # a standard error has its quantity's unit
+    for stat in ("_median_se", "_window_se", "_median"):  # a segment's summary of a quantity
+        if name.endswith(stat) and name[: -len(stat)] in UNITS:
+            return UNITS[name[: -len(stat)]]
     for suffix, unit in SUFFIX_UNITS:
         if name.endswith(suffix) and len(name) > len(suffix):
             return unit

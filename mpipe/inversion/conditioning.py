@@ -16,6 +16,7 @@ Chatziioannou & van Walstijn 2012, section 4.2 ("a simple synchronisation proced
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -334,7 +335,7 @@ def steady_windows(
     return table
 
 
-def plan_inversion(
+def plan_take(
     p: np.ndarray,
     fs: float,
     conditioning,
@@ -342,13 +343,21 @@ def plan_inversion(
     hop_s: float,
     start_s: float | None = None,
     end_s: float | None = None,
-) -> pd.DataFrame:
-    """The windows of a take and which of them are inverted: one rule for every command.
+    resonances_hz: Sequence[float] = (),
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The take's segments, its windows and which of them are inverted: one rule everywhere.
 
     Windows of ``window_s`` every ``hop_s`` span ``[start_s, end_s]``, which default to the
-    take less ``conditioning.edge_s`` at both ends (the filters' edges); each is classified
-    by :func:`steady_windows`, and the steady ones (all but the silent ones when
-    ``conditioning.invert_transients``) are marked ``invert``.
+    take less ``conditioning.edge_s`` at both ends (the filters' edges). The take is split
+    into notes and silences (:func:`mpipe.inversion.segments.segment_take`); each window
+    gets its segment, phase (onset / sustain / release / silence), playing frequency, pitch,
+    regime and level (:func:`mpipe.inversion.segments.assign_windows`), and the paper's
+    steadiness test (:func:`steady_windows`, column ``steady``). With
+    ``conditioning.select: sounding`` (the default) every window lying wholly inside a note
+    after its first ``onset_periods`` periods, with a playing frequency, is inverted: attacks,
+    crescendos, vibrato and releases included; whether the model explains it is then the
+    window's status. With ``select: steady`` only the steady windows are (and the other
+    sounding ones too with ``invert_transients``).
 
     Parameters
     ----------
@@ -357,17 +366,24 @@ def plan_inversion(
     fs : float
         Sample rate, Hz.
     conditioning : mpipe.inversion.settings.ConditioningConfig
-        Steadiness tolerance, playing-frequency range, silence level, edges.
+        Segmentation thresholds, steadiness tolerance, playing-frequency range, silence
+        level, edges.
     window_s, hop_s : float
         Window length and hop, s.
     start_s, end_s : float, optional
         Span analysed, s.
+    resonances_hz : sequence of float
+        The bore's resonances, Hz (the regime of each note; empty: not named).
 
     Returns
     -------
-    pandas.DataFrame
-        The columns of :func:`steady_windows` and ``invert``.
+    (plan, segments)
+        ``plan``: the columns of :func:`steady_windows`, ``segment, phase, inside,
+        pitch_cents, regime, spl_db`` and ``invert``; ``segments``: the table of
+        :func:`mpipe.inversion.segments.segment_take`.
     """
+    from mpipe.inversion.segments import assign_windows, segment_take
+
     c = conditioning
     n = int(np.size(p))
     first = c.edge_s if start_s is None else max(start_s, 0.0)
@@ -378,5 +394,40 @@ def plan_inversion(
     table = steady_windows(
         p, fs, starts, window_n, c.steady_tolerance, c.f0_min_hz, c.f0_max_hz, c.min_rms_pa
     )
-    table["invert"] = table["steady"] | (c.invert_transients & (table["reason"] != "silent"))
-    return table
+    segments, tracks = segment_take(p, fs, c, resonances_hz)
+    if len(table):
+        table = assign_windows(table, segments, c, tracks)
+    else:
+        for col in ("segment", "phase", "inside", "pitch_cents", "regime", "spl_db"):
+            table[col] = pd.Series(dtype=object)
+    if c.select == "steady":
+        table["invert"] = table["steady"] | (c.invert_transients & (table["reason"] != "silent"))
+    else:
+        sounding = table["inside"].astype(bool) & (table["rms_pa"] >= c.min_rms_pa)
+        table["invert"] = sounding & np.isfinite(table["f0_hz"].to_numpy(float))
+    return table, segments
+
+
+def plan_inversion(
+    p: np.ndarray,
+    fs: float,
+    conditioning,
+    window_s: float,
+    hop_s: float,
+    start_s: float | None = None,
+    end_s: float | None = None,
+    resonances_hz: Sequence[float] = (),
+) -> pd.DataFrame:
+    """The window plan of :func:`plan_take` (its segments are in the ``segment`` column)."""
+    return plan_take(p, fs, conditioning, window_s, hop_s, start_s, end_s, resonances_hz)[0]
+
+
+def bore_resonances(calibration, count: int = 8, fmax_hz: float = 6000.0) -> list[float]:
+    """Frequencies of the first input-impedance peaks of a calibration's bore, Hz.
+
+    The regime of a note is named from them (:func:`mpipe.measurement.pitch.regime`).
+    """
+    from mpipe.measurement.impedance import impedance_curve
+
+    curve = impedance_curve(calibration, fmin=20.0, fmax=fmax_hz, df=1.0)
+    return [r.frequency_hz for r in curve.resonances(count)]

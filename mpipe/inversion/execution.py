@@ -10,7 +10,7 @@ back instead of recomputed.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,10 +40,13 @@ class Job:
 def run_windows(
     job: Job,
     items: Sequence[tuple[int, dict | None]],
-    warm: ReedParameters | None,
+    warm: ReedParameters | Mapping[int, ReedParameters] | None,
     report: Callable[[int], None] | None = None,
 ) -> list[tuple[dict, np.ndarray | None]]:
     """Invert windows, each from the same start ``warm`` (cold when None).
+
+    ``warm`` may also map a window's start sample to its start (its segment's cold start);
+    a window missing from the mapping is cold-started.
 
     ``items`` are ``(start sample, previous row)`` pairs. Every window depends only on its
     own data and on ``warm``, never on which windows ran before it in the same task, so the
@@ -80,9 +83,7 @@ def _run_windows_inner(job, items, warm, report):
     return out
 
 
-def _one_window(
-    job: Job, s: int, previous: dict | None, warm: ReedParameters | None
-) -> tuple[dict, np.ndarray | None]:
+def _one_window(job: Job, s: int, previous: dict | None, warm) -> tuple[dict, np.ndarray | None]:
     """Row and step-2 history of the window at sample ``s``: read back, retried or inverted."""
     saved = None if job.checkpoint is None else load_checkpoint(job.checkpoint, s)
     if previous is not None and saved is not None and saved[0].get("retried_cold"):
@@ -92,9 +93,10 @@ def _one_window(
     elif saved is not None:
         row, hist = saved
     else:
+        start = warm.get(s) if isinstance(warm, Mapping) else warm  # per segment, or one
         o = invert_window(
             job.p, job.u, job.fs, s, job.kernel, job.rho, job.config,
-            zero_mean=job.zero_mean, warm=warm,
+            zero_mean=job.zero_mean, warm=start,
         )  # fmt: skip
         row, hist = o.row, None if o.search is None else o.search.history
     if job.checkpoint is not None and (saved is None or previous is not None):
@@ -139,7 +141,7 @@ def split_chains(starts: Sequence[int], n_chains: int) -> list[list[int]]:
 def dispatch(
     job: Job,
     items: Sequence[tuple[int, dict | None]],
-    warm: ReedParameters | None,
+    warm: ReedParameters | Mapping[int, ReedParameters] | None,
     executor: ExecutorConfig,
     workers: int,
     client,

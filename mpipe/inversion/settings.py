@@ -141,9 +141,19 @@ class InversionConfig:
     )
     temperature_windows: int = spec(
         "",
-        "windows, spread over the take, that the temperature is fitted on",
+        "fewest windows, spread over the take's notes, that the temperature is fitted on",
         between(1, 64),
         default=6,
+    )
+    temperature_windows_per_s: float = spec(
+        "1/s",
+        "windows the temperature is fitted on per second of inverted playing (a longer "
+        "take is fitted on more windows, up to temperature_windows_max)",
+        between(0.0, 50.0),
+        default=1.0,
+    )
+    temperature_windows_max: int = spec(
+        "", "most windows the temperature is fitted on", between(1, 256), default=24
     )
     temperature_range_c: float = spec(
         "degC",
@@ -219,6 +229,14 @@ class InversionConfig:
         "pressure level minus the measured one exceeds this in magnitude",
         between(0.001, 60.0),
         default=1.0,
+    )
+    p_m_context_s: float = spec(
+        "s",
+        "the upper search bound of p_m scales with the largest pressure within this time "
+        "before and after the window (an attack or a release plays below its mouth "
+        "pressure: the window's own peak would cut the search off); 0: the window's own",
+        between(0.0, 2.0),
+        default=0.2,
     )
     retry_cold: bool = spec(
         "",
@@ -377,7 +395,7 @@ class ExecutorConfig:
 
 @dataclass(frozen=True)
 class ConditioningConfig:
-    """Choice of the windows that are inverted (physics.md J: steady state only)."""
+    """Segments of a take (notes, silences) and the windows that are inverted (docs/playing.md)."""
 
     steady_tolerance: float = spec(
         "",
@@ -401,8 +419,59 @@ class ConditioningConfig:
     )
     invert_transients: bool = spec(
         "",
-        "invert unsteady windows too (the paper: step 1 is unreliable there)",
+        "with select: steady, invert the unsteady sounding windows too",
         default=False,
+    )
+    select: Literal["sounding", "steady"] = spec(
+        "",
+        "windows inverted: every sounding window of a note after its first periods "
+        "(sounding), or the paper's steady windows only (steady)",
+        default="sounding",
+    )
+    silence_db: float = spec(
+        "dB",
+        "level below the take's loud level (99th percentile of the RMS envelope) that counts "
+        "as silence (min_rms_pa is the absolute floor)",
+        between(3.0, 120.0),
+        default=30.0,
+    )
+    level_frame_s: float = spec(
+        "s", "length of the moving RMS giving the level envelope", between(1e-3, 0.1), default=0.01
+    )
+    frame_hop_s: float = spec(
+        "s", "hop of the level and f0 tracks that place segment boundaries",
+        between(1e-4, 0.05), default=0.005,
+    )  # fmt: skip
+    min_silence_s: float = spec(
+        "s", "shorter silences inside a note do not split it", between(0.0, 1.0), default=0.01
+    )
+    min_note_s: float = spec(
+        "s", "shorter sounding stretches are not notes (nor new regimes)",
+        between(0.0, 1.0), default=0.03,
+    )  # fmt: skip
+    pitch_jump_cents: float = spec(
+        "cent",
+        "an f0 change larger than this within 10 ms of a note starts a new segment (a new "
+        "note played legato, a register change, a squeak)",
+        between(10.0, 2400.0),
+        default=80.0,
+    )
+    onset_periods: float = spec(
+        "",
+        "periods of the playing frequency after a segment's start before windows are inverted",
+        between(0.0, 100.0),
+        default=2.0,
+    )
+    onset_s: float = spec(
+        "s", "windows starting this soon after a note's start are in its onset phase",
+        between(0.0, 10.0), default=0.05,
+    )  # fmt: skip
+    release_s: float = spec(
+        "s", "windows ending this close to a note's end are in its release phase",
+        between(0.0, 10.0), default=0.03,
+    )  # fmt: skip
+    a4_hz: float = spec(
+        "Hz", "reference pitch A4 for pitches in cents", between(300.0, 600.0), default=440.0
     )
 
     def _check(self, where: Where) -> None:

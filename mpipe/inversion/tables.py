@@ -27,7 +27,7 @@ log = logging.getLogger(__name__)
 
 #: Columns of the per-window table, in order.
 COLUMNS = (
-    "window", "t_start_s", "t_end_s", *PARAMETER_NAMES, "y_c", "alpha",
+    "window", "t_start_s", "t_end_s", "segment", *PARAMETER_NAMES, "y_c", "alpha",
     "kernel_temperature_c", "kernel_temperature_se_c",
     "status", "status_reason", "converged", *uncertainty_columns(),
     "step1_p_m", "k_closing", "S_closing", "y_m_closing", "f1_closing",

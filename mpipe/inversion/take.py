@@ -6,10 +6,11 @@ table whichever is used:
 
 1. the temperature the signals carry (the wave separation's estimate, else the
    calibration's; :func:`mpipe.inversion.kernel.take_temperature`);
-2. the kernel temperature fitted to the playing from there, with the take's cold start
+2. the kernel temperature fitted to the playing from there, on windows spread over every
+   note, each note with its own cold start
    (:func:`mpipe.inversion.temperature.fit_temperature`; ``inversion.temperature``);
-3. every window started from that cold start on the kernel at the fitted temperature
-   (:func:`mpipe.inversion.tracking.track`);
+3. every window started from its note's cold start on the kernel at the fitted
+   temperature (:func:`mpipe.inversion.tracking.track`);
 4. the temperature's share added to every standard error
    (:func:`mpipe.inversion.temperature.widen_standard_errors`);
 5. the take-level checks (:func:`mpipe.inversion.diagnostics.take_checks`): each reason
@@ -76,6 +77,8 @@ def invert_take(
     progress: ProgressBar | None = None,
     client=None,
     checkpoint: str | Path | None = None,
+    segments: Sequence[int] | None = None,
+    steady: Sequence[bool] | None = None,
 ) -> TakeInversion:
     """Invert the planned windows of a take (see the module docstring for the steps).
 
@@ -98,6 +101,12 @@ def invert_take(
         calibration's.
     progress, client, checkpoint
         As in :func:`mpipe.inversion.tracking.track`.
+    segments : sequence of int, optional
+        The segment (note) of each window (the plan's ``segment`` column): each note gets
+        its own cold start; None: the take is one segment.
+    steady : sequence of bool, optional
+        Which windows are steady (the plan's ``steady``): the temperature is fitted on
+        them where a note has enough.
 
     Returns
     -------
@@ -109,12 +118,14 @@ def invert_take(
     zero_mean = detect_zero_mean(np.asarray(u, float), config.signal, config.zero_mean_ratio)
     fit = fit_temperature(
         p, u, fs, calibration, list(starts), config, zero_mean=zero_mean, front_end_c=front,
-        source="front end" if carried else "calibration",
+        source="front end" if carried else "calibration", segments=segments,
+        steady=steady,
     )  # fmt: skip
     kernel, air = bore_kernel(calibration, fs, fit.temperature_c)
     result = track(
         p, u, fs, kernel, air.rho, config, executor, progress=progress, client=client,
-        starts=starts, checkpoint=checkpoint, anchor=fit.anchor,
+        starts=starts, checkpoint=checkpoint, anchor=dict(fit.anchors) or None,
+        segments=segments,
     )  # fmt: skip
     table = widen_standard_errors(result.table, fit, config.determined_limit)
     if fit.anchor is not None and len(table):

@@ -87,6 +87,9 @@ class TemperatureFit:
     cold_starts_agreeing : int or None
         How many of the cold start's short searches reached its minimum (see
         :mod:`mpipe.inversion.coldstart`).
+    anchors : dict
+        Segment -> its first fitted window's reed at the fitted temperature: the start of
+        every window of that segment (a segment missing here gets its own cold start).
     """
 
     temperature_c: float
@@ -99,6 +102,7 @@ class TemperatureFit:
     note: str = ""
     anchor: ReedParameters | None = None
     cold_starts_agreeing: int | None = None
+    anchors: Mapping[int, ReedParameters] = dataclasses.field(default_factory=dict)
 
     def summary(self) -> dict:
         """JSON-ready record for manifests and the report."""
@@ -135,6 +139,51 @@ def pick_windows(starts: Sequence[int], count: int) -> list[int]:
         return starts
     idx = np.unique(np.round(np.linspace(0, len(starts) - 1, count)).astype(int))
     return [starts[i] for i in idx]
+
+
+def window_count(n_windows: int, config: InversionConfig) -> int:
+    """How many windows the fit uses: growing with the inverted playing time.
+
+    ``temperature_windows_per_s`` per second of the ``n_windows`` inverted windows (every
+    ``hop_s``), at least ``temperature_windows`` and at most ``temperature_windows_max``.
+    """
+    grown = int(round(config.temperature_windows_per_s * n_windows * config.hop_s))
+    return max(config.temperature_windows, min(grown, config.temperature_windows_max))
+
+
+def pick_by_segment(
+    starts: Sequence[int],
+    segments: Sequence[int],
+    count: int,
+    steady: Sequence[bool] | None = None,
+) -> tuple[list[int], list[int]]:
+    """Window starts for the fit, spread over every segment in proportion to its windows.
+
+    Each segment gets at least one window (its cold start is made in the fit), the rest
+    are shared out by the segments' numbers of windows. Within a segment the steady
+    windows are taken when it has enough (the fit's R(T) holds the reed fixed over each
+    window, and an attack's growing oscillation pulls the temperature), else its central
+    half.
+
+    Returns
+    -------
+    (starts, segments) of the chosen windows, in time order.
+    """
+    steady = [True] * len(starts) if steady is None else [bool(x) for x in steady]
+    groups: dict[int, list[tuple[int, bool]]] = {}
+    for s, g, st in zip(starts, segments, steady, strict=True):
+        groups.setdefault(int(g), []).append((int(s), st))
+    total = sum(len(v) for v in groups.values())
+    chosen = []
+    for g, members in groups.items():
+        quota = max(1, int(round(count * len(members) / max(total, 1))))
+        pool = [s for s, st in members if st]
+        if len(pool) < quota:
+            n = len(members)
+            pool = [s for s, _ in members[n // 4 : max(n - n // 4, n // 4 + 1)]]
+        chosen += [(s, g) for s in pick_windows(pool, quota)]
+    chosen.sort()
+    return [s for s, _ in chosen], [g for _, g in chosen]
 
 
 @dataclass
@@ -211,6 +260,8 @@ def fit_temperature(
     zero_mean: bool,
     front_end_c: float,
     source: str = "front end",
+    segments: Sequence[int] | None = None,
+    steady: Sequence[bool] | None = None,
 ) -> TemperatureFit:
     """The kernel temperature that makes the model play the take best, with its SE.
 
@@ -233,6 +284,12 @@ def fit_temperature(
         of the search, and the kernel temperature when the fit is off or fails.
     source : str
         Where ``front_end_c`` comes from, for the report.
+    segments : sequence of int, optional
+        The segment (note) of each window of ``starts``; each segment fitted gets its own
+        cold start, and its windows start from it (default: one segment).
+    steady : sequence of bool, optional
+        Which windows of ``starts`` are steady (the plan's ``steady``): the fit prefers
+        them (see :func:`pick_by_segment`).
 
     Returns
     -------
@@ -241,14 +298,16 @@ def fit_temperature(
     fallback = TemperatureFit(front_end_c, math.nan, source, front_end_c)
     if config.temperature != "fit":
         return fallback
-    chosen = pick_windows(starts, config.temperature_windows)
+    segments = [0] * len(starts) if segments is None else [int(g) for g in segments]
+    chosen, groups = pick_by_segment(starts, segments, window_count(len(starts), config), steady)
     if not chosen:
         return dataclasses.replace(fallback, note="no window to fit the temperature on")
     n = int(round(config.window_s * fs))
     lo, hi = front_end_c - config.temperature_range_c, front_end_c + config.temperature_range_c
-    cold = functools.partial(invert_window, p, u, fs, chosen[0], zero_mean=zero_mean)
+    firsts = {g: s for s, g in reversed(list(zip(chosen, groups, strict=True)))}
+    cold = functools.partial(_cold_starts, p, u, fs, firsts, zero_mean)
     solve = functools.partial(_solve, p, u, fs, calibration, chosen, config, zero_mean)
-    runs, error = _profiles(solve, cold, calibration, fs, config, len(chosen), front_end_c, lo, hi)
+    runs, error = _profiles(solve, cold, calibration, fs, config, groups, front_end_c, lo, hi)
     if not runs:
         return dataclasses.replace(fallback, note="the fit's cold start failed: " + error)
 
@@ -292,11 +351,24 @@ def fit_temperature(
         )
     log.info("kernel temperature fitted: %.3f +- %.3f degC (%d evaluations on %d windows)",
              best, se, len(evaluations), len(chosen))  # fmt: skip
-    anchor = profile.tried[round(centre, 4)][1][0]
+    reeds = profile.tried[round(centre, 4)][1]
+    anchors = {}
+    for g, reed in zip(groups, reeds, strict=True):
+        anchors.setdefault(g, reed)  # each segment's first fitted window
     return TemperatureFit(
         best, se, "fit", front_end_c, _sensitivity(lower, upper, FINE_C), len(chosen),
-        evaluations, note, anchor, _agreeing(first.row),
+        evaluations, note, reeds[0], _agreeing(first.row), anchors,
     )  # fmt: skip
+
+
+def _cold_starts(p, u, fs, firsts, zero_mean, kernel, rho, config) -> dict:
+    """Segment -> the cold start of its first fitted window (stops at the first failure)."""
+    out = {}
+    for g, start in firsts.items():
+        out[g] = invert_window(p, u, fs, start, kernel, rho, config, zero_mean=zero_mean)
+        if out[g].reed is None:
+            break
+    return out
 
 
 def _solve(p, u, fs, calibration, chosen, config, zero_mean, t: float, warm: Sequence):
@@ -313,7 +385,7 @@ def _solve(p, u, fs, calibration, chosen, config, zero_mean, t: float, warm: Seq
     return total, reeds, rows
 
 
-def _profiles(solve, cold, calibration, fs, config, count, t_cold, lo, hi):
+def _profiles(solve, cold, calibration, fs, config, groups, t_cold, lo, hi):
     """Profiles of R(T), each from a cold start; ``(profile, settled, cold row, T)`` each.
 
     The cold start's basin depends on the kernel: one made at a temperature far from the
@@ -324,11 +396,13 @@ def _profiles(solve, cold, calibration, fs, config, count, t_cold, lo, hi):
     runs, error = [], ""
     for _ in range(1 + RESTARTS):
         kernel, air = bore_kernel(calibration, fs, t_cold)
-        first = cold(kernel, air.rho, config)
-        if first.reed is None:
-            error = first.row["error"]
+        colds = cold(kernel, air.rho, config)  # one per segment
+        failed = [c for c in colds.values() if c.reed is None]
+        if failed:
+            error = failed[0].row["error"]
             break
-        profile = _Profile(solve, [first.reed] * count)
+        first = next(iter(colds.values()))
+        profile = _Profile(solve, [colds[g].reed for g in groups])
         settled = _settle(profile, t_cold, lo, hi, config.temperature_evaluations)
         runs.append((profile, settled, first, t_cold))
         if settled is None or abs(settled[0] - t_cold) <= RESTART_C:
@@ -420,4 +494,11 @@ def widen_standard_errors(table: pd.DataFrame, fit: TemperatureFit, limit: float
     return out
 
 
-__all__ = ["TemperatureFit", "fit_temperature", "pick_windows", "widen_standard_errors"]
+__all__ = [
+    "TemperatureFit",
+    "fit_temperature",
+    "pick_by_segment",
+    "pick_windows",
+    "widen_standard_errors",
+    "window_count",
+]

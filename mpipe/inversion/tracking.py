@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -138,7 +138,8 @@ def track(
     client=None,
     starts: Sequence[int] | None = None,
     checkpoint: str | Path | None = None,
-    anchor: ReedParameters | None = None,
+    anchor: ReedParameters | Mapping[int, ReedParameters] | None = None,
+    segments: Sequence[int] | None = None,
 ) -> Tracking:
     """Invert every window of a take.
 
@@ -176,10 +177,15 @@ def track(
         conditioning stage passes the steady windows only.
     checkpoint : str or Path, optional
         Folder where each finished window is saved; windows found there are not redone.
-    anchor : ReedParameters, optional
+    anchor : ReedParameters or mapping, optional
         Start every window here instead of cold-starting the first one (the temperature
         fit of :func:`mpipe.inversion.take.invert_take` has already made the take's cold
-        start).
+        start); a mapping gives each segment's start (segment id -> reed), and a segment
+        missing from it is cold-started.
+    segments : sequence of int, optional
+        The segment (note) of each window of ``starts`` (the plan's ``segment`` column):
+        each segment gets its own cold start and its windows start from it, never from
+        another note's (default: the whole take is one segment).
 
     Returns
     -------
@@ -218,15 +224,18 @@ def track(
         "zero-mean" if zero_mean else "full",
     )
     run = dict(executor=executor, workers=workers, client=client)
-    if anchor is None:
-        results = _cold_then_warm(job, starts, update, **run)
-    else:
-        results = dispatch(job, [(s, None) for s in starts], anchor, executor, workers, client,
-                           update)  # fmt: skip
-        results.sort(key=lambda r: r[0]["t_start_s"])
+    if segments is None:
+        segments = [0] * len(starts)
+    if len(segments) != len(starts):
+        raise ValueError(f"{len(segments)} segment ids for {len(starts)} windows")
+    anchors = dict(anchor) if isinstance(anchor, Mapping) else {}
+    if anchor is not None and not isinstance(anchor, Mapping):
+        anchors = {int(g): anchor for g in set(segments)}
+    results = _cold_then_warm(job, starts, [int(g) for g in segments], anchors, update, **run)
     table = classify(window_table(results), config)
     if config.retry_cold:
         table = _retry_not_ok(job, results, table, **run)
+    table["segment"] = [int(g) for _, g in sorted(zip(starts, segments, strict=True))]
     histories, correlations = histories_and_correlations(results)
     table["window"] = np.arange(len(table))
     return Tracking(
@@ -234,15 +243,46 @@ def track(
     )
 
 
-def _cold_then_warm(job: Job, starts: list[int], update, *, executor, workers, client) -> list:
-    """The first window cold-started, every other one from its result; sorted by time."""
+def _cold_then_warm(
+    job: Job,
+    starts: list[int],
+    segments: list[int],
+    anchors: dict,
+    update,
+    *,
+    executor,
+    workers,
+    client,
+) -> list:
+    """Each segment cold-started once (unless anchored), its windows warm from that start.
+
+    Returns the results sorted by time.
+    """
     from mpipe.inversion.resynthesis import reed_from_row
 
-    # One cold start per take, shared by every other window.
-    results = run_windows(job, [(starts[0], None)], None, update)
-    anchor = None if results[0][0].get("error") else reed_from_row(results[0][0])
-    items = [(s, None) for s in starts[1:]]
-    results += dispatch(job, items, anchor, executor, workers, client, update)
+    # each segment's first window within 10 % of its loudest: the sustain, not an attack
+    # playing below its mouth pressure
+    n = int(round(job.config.window_s * job.fs))
+    loud = {s: float(np.std(job.p[s : s + n])) for s in starts}
+    peak: dict[int, float] = {}
+    for s, g in zip(starts, segments, strict=True):
+        peak[g] = max(peak.get(g, 0.0), loud[s])
+    firsts: dict[int, int] = {}
+    for s, g in zip(starts, segments, strict=True):
+        if g not in anchors and g not in firsts and loud[s] >= 0.9 * peak[g]:
+            firsts[g] = s
+    # One cold start per segment (in parallel when there are several), shared by its windows.
+    colds = dispatch(job, [(s, None) for s in firsts.values()], None, executor, workers,
+                     client, update) if len(firsts) > 1 else (
+        run_windows(job, [(s, None) for s in firsts.values()], None, update))  # fmt: skip
+    by_start = {int(round(r[0]["t_start_s"] * job.fs)): r for r in colds}
+    for g, s in firsts.items():
+        row = by_start[s][0]
+        anchors[g] = None if row.get("error") else reed_from_row(row)
+    warm = {s: anchors[g] for s, g in zip(starts, segments, strict=True)}
+    done = set(firsts.values())
+    items = [(s, None) for s in starts if s not in done]
+    results = colds + dispatch(job, items, warm, executor, workers, client, update)
     results.sort(key=lambda r: r[0]["t_start_s"])
     return results
 

@@ -209,7 +209,7 @@ def invert_window(
         base = warm if warm is not None else start_point(s1, config)
         target = TargetWindow(pw, uw, p[:start], u[:start], fs, zero_mean)
         objective = _objective(kernel, target, base, config)
-        bounds = search_bounds(config, float(np.max(pw)))
+        bounds = _bounds(config, p, start, n, fs)
         search, agreeing = _search(objective, base, bounds, config, cold=cold)
         if agreeing is not None:
             row["cold_starts_agreeing"] = agreeing
@@ -228,6 +228,21 @@ def invert_window(
     row.update(zip(("status", "status_reason"), window_status(row), strict=True))
     row["converged"] = row["status"] == "ok"
     return WindowOutcome(row=row, step1=s1, search=search, reed=reed)
+
+
+def _bounds(config: InversionConfig, p: np.ndarray, start: int, n: int, fs: float) -> np.ndarray:
+    """Search bounds of the window at ``start`` (``n`` samples).
+
+    p_m's lower bound scales with the window's own peak pressure, its upper one with the
+    peak within ``p_m_context_s`` of the window.
+    """
+    bounds = search_bounds(config, float(np.max(p[start : start + n])))
+    if "p_m" in config.search_parameters and config.p_m_context_s > 0:
+        reach = int(round(config.p_m_context_s * fs))
+        peak = float(np.max(p[max(start - reach, 0) : start + n + reach]))
+        i = config.search_parameters.index("p_m")
+        bounds[i, 1] = max(bounds[i, 1], config.bounds.p_m[1] * peak)
+    return bounds
 
 
 def _step1(

@@ -35,6 +35,7 @@ from scipy import ndimage, signal
 from mpipe.acoustics.bore import input_impedance
 from mpipe.core.config import between, positive, spec
 from mpipe.measurement.calibration import Calibration
+from mpipe.measurement.pitch import yin_f0
 from mpipe.measurement.validation_metrics import harmonic_errors, resonance_errors
 from mpipe.measurement.validation_result import ValidationResult, db
 
@@ -149,26 +150,36 @@ def measured_impedance(
     return freqs, z, coh
 
 
-def _f0(freqs: np.ndarray, s_pp: np.ndarray) -> float:
-    """Strongest spectral line in 50-1000 Hz when it stands 30 dB above the median level.
+def _f0(p: np.ndarray, fs: float, freqs: np.ndarray, s_uu: np.ndarray) -> float:
+    """The played note's fundamental, Hz, or NaN when no note is played.
 
-    Given the flow spectrum, so that bore resonances under broadband excitation do not
-    count as a note.
+    YIN (:func:`mpipe.measurement.pitch.yin_f0`) on frames of the pressure spread over the
+    signal, median over the frames that have a period: it takes the first period at which
+    the signal repeats, so it cannot lock on the octave or the twelfth of a clarinet note
+    whose even harmonics are weak (the strongest spectral line may be the third harmonic).
+    A note counts as played when the flow's spectrum has a line at one of the first three
+    harmonics 30 dB above its median level in 50-1000 Hz (broadband excitation shows the
+    bore's resonances in the pressure, not a line in the flow).
     """
+    frame = int(round(2.2 / 50.0 * fs))
+    if p.size < frame:
+        return float("nan")
+    starts = np.linspace(0, p.size - frame, min(15, max(1, p.size // frame))).astype(int)
+    estimates = [yin_f0(p[s : s + frame], fs, 50.0, 2000.0)[0] for s in starts]
+    estimates = [f for f in estimates if np.isfinite(f)]
+    if len(estimates) < max(1, len(starts) // 2):
+        return float("nan")
+    f0 = float(np.median(estimates))
     band = (freqs >= 50) & (freqs <= 1000)
     if not np.any(band):
         return float("nan")
-    level = s_pp[band]
-    i = int(np.argmax(level))
-    if level[i] < 1e3 * np.median(level):
-        return float("nan")
-    j = np.flatnonzero(band)[i]
-    if 0 < j < freqs.size - 1:
-        a, b, c = np.log(s_pp[j - 1 : j + 2] + 1e-300)
-        den = a - 2 * b + c
-        delta = 0.5 * (a - c) / den if den != 0 else 0.0
-        return float(freqs[j] + delta * (freqs[1] - freqs[0]))
-    return float(freqs[j])
+    floor = float(np.median(s_uu[band]))
+    df = freqs[1] - freqs[0]
+    for h in (1, 2, 3):
+        near = np.abs(freqs - h * f0) <= max(1.5 * df, 0.01 * h * f0)
+        if np.any(near) and s_uu[near].max() >= 1e3 * floor:
+            return f0
+    return float("nan")
 
 
 def validate(
@@ -220,7 +231,7 @@ def validate(
     err_db = db(z_me) - db(z_th)
     err_deg = np.rad2deg(np.angle(z_me / z_th))
     # The excitation (U) shows whether a note is played; P carries the resonances too.
-    f0 = config.note_f0_hz if config.note_f0_hz is not None else _f0(freqs, s_uu)
+    f0 = config.note_f0_hz if config.note_f0_hz is not None else _f0(p, fs, freqs, s_uu)
     tonal = f0 is not None and np.isfinite(f0)
     good = band & (coh >= config.min_coherence)
     if tonal:

@@ -194,8 +194,8 @@ def _stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg: Pip
     return work
 
 
-def _stage_conditioning(mouthpiece: Path, cfg: PipelineConfig):
-    from mpipe.inversion.conditioning import plan_inversion
+def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig):
+    from mpipe.inversion.conditioning import bore_resonances, plan_take
     from mpipe.inversion.tracking import detect_zero_mean
 
     inv = cfg.inversion
@@ -203,11 +203,14 @@ def _stage_conditioning(mouthpiece: Path, cfg: PipelineConfig):
     def work(folder: Path):
         mp = _load_npz(mouthpiece)
         fs = float(mp["fs"])
-        table = plan_inversion(mp["p"], fs, cfg.conditioning, inv.window_s, inv.hop_s)
+        table, segments = plan_take(mp["p"], fs, cfg.conditioning, inv.window_s, inv.hop_s,
+                                    resonances_hz=bore_resonances(cal))  # fmt: skip
         write_csv(folder / "plan.csv", table)
+        write_csv(folder / "segments.csv", segments)
         f0 = table["f0_hz"].to_numpy(dtype=float)
         summary = {
             "windows": len(table),
+            "notes": int((segments["label"] == "note").sum()),
             "steady": int(table["steady"].sum()),
             "to_invert": int(table["invert"].sum()),
             "zero_mean_flow": bool(detect_zero_mean(mp["u"], inv.signal, inv.zero_mean_ratio)),
@@ -215,13 +218,14 @@ def _stage_conditioning(mouthpiece: Path, cfg: PipelineConfig):
             if np.isfinite(f0).any()
             else float("nan"),
         }
-        return {"plan": "plan.csv"}, summary
+        return {"plan": "plan.csv", "segments": "segments.csv"}, summary
 
     return work
 
 
 def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: PipelineConfig, client):
     from mpipe.inversion import resynthesis as rs
+    from mpipe.inversion.segments import segment_summary, with_played
     from mpipe.inversion.status import count as count_status
     from mpipe.inversion.status import summary_line
     from mpipe.inversion.tables import write_correlations, write_table
@@ -236,7 +240,8 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
         fs = float(mp["fs"])
         p, u = mp["p"], mp["u"]
         table_plan = pd.read_csv(plan)
-        starts = table_plan.loc[table_plan["invert"], "start"].astype(int).tolist()
+        chosen = table_plan[table_plan["invert"]]
+        starts = chosen["start"].astype(int).tolist()
         if not starts:
             reasons = table_plan["reason"].fillna("").astype(str).value_counts()
             why = ", ".join(f"{n} {r or 'steady'}" for r, n in reasons.items())
@@ -247,7 +252,7 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
                 else ""
             )
             raise ValueError(
-                f"no steady window to invert ({len(table_plan)} windows: {why}{hint}; "
+                f"no sounding window to invert ({len(table_plan)} windows: {why}{hint}; "
                 "see conditioning/plan.csv)"
             )
         bar = ProgressBar(len(starts))
@@ -255,16 +260,19 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
             take = invert_take(
                 p, u, fs, cal, inv, cfg.executor, starts=starts,
                 temperature_c=mp.get("temperature_c"), progress=bar, client=client,
-                checkpoint=checkpoint,
+                checkpoint=checkpoint, segments=chosen["segment"].astype(int).tolist(),
+                steady=chosen["steady"].astype(bool).tolist(),
             )  # fmt: skip
         finally:
             bar.close()
         result, air = take.tracking, take.air
-        table = result.table
+        table = with_played(result.table, table_plan)
+        per_segment = segment_summary(pd.read_csv(plan.parent / "segments.csv"), table)
+        write_csv(folder / "segments.csv", per_segment)
         written = write_table(table, folder)
         write_correlations(result.correlations, folder)
         rs.plot_tracks(table, folder / "tracks.png")
-        outputs = {"windows": "windows.csv", "tracks": "tracks.png"}
+        outputs = {"windows": "windows.csv", "tracks": "tracks.png", "segments": "segments.csv"}
         outputs["correlations"] = "correlations.csv"
         if any(w.suffix == ".parquet" for w in written):
             outputs["windows_parquet"] = "windows.parquet"
@@ -457,8 +465,8 @@ def _run_take(
         say(f"[{name}]     inverting despite the FAILED validation (--accept-failed-validation)")
     cond_config = {"conditioning": cfg.conditioning, "window_s": cfg.inversion.window_s,
                    "hop_s": cfg.inversion.hop_s, "signal": cfg.inversion.signal}  # fmt: skip
-    cond = stage(4, "conditioning", {"mouthpiece": mouthpiece}, cond_config,
-                 _stage_conditioning(mouthpiece, cfg))  # fmt: skip
+    cond = stage(4, "conditioning", {"mouthpiece": mouthpiece, **cal_inputs}, cond_config,
+                 _stage_conditioning(mouthpiece, cal, cfg))  # fmt: skip
     say(f"[{name}]     {cond.summary['to_invert']} of {cond.summary['windows']} windows to invert")
     plan = d["conditioning"] / "plan.csv"
     inv_inputs = {"mouthpiece": mouthpiece, "plan": plan, "blocks": blocks, **cal_inputs}

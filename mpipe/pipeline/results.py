@@ -27,6 +27,7 @@ TABLES = {
     "harmonics": ("validation", "harmonics.csv"),
     "plan": ("conditioning", "plan.csv"),
     "windows": ("inversion", "windows.csv"),
+    "segments": ("inversion", "segments.csv"),
 }
 #: Signal files: prefix -> (stage folder, file).
 SIGNALS = {
@@ -49,7 +50,8 @@ class RunData:
     tables : Mapping[str, pandas.DataFrame]
         ``blocks`` (wave separation per block), ``impedance`` (measured and theoretical
         Z/Z0), ``resonances`` and ``harmonics`` (what the validation compared), ``plan``
-        (window selection), ``windows`` (reed parameters per window); those the run got to.
+        (window selection), ``windows`` (reed parameters per window, with what was played),
+        ``segments`` (notes and silences, each note's medians); those the run got to.
     signals : Mapping[str, ndarray]
         ``mouthpiece.p`` (Pa), ``mouthpiece.u`` (m^3/s), ``reference.p0``,
         ``reference.u0``, ``resynthesis.p``, ``resynthesis.u``, ... (see :attr:`units`).

@@ -57,7 +57,7 @@ class PipelineConfig:
         "", "impedance validation against theory", default=ValidationConfig()
     )
     conditioning: ConditioningConfig = spec(
-        "", "steady-window selection", default=ConditioningConfig()
+        "", "segments and the windows inverted", default=ConditioningConfig()
     )
     inversion: InversionConfig = spec("", "step 1, step 2 and tracking", default=InversionConfig())
     resynthesis: ResynthesisConfig = spec("", "resynthesis outputs", default=ResynthesisConfig())

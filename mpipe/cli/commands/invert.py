@@ -25,6 +25,7 @@ OUTPUTS = (
     "windows.csv",
     "correlations.csv",
     "plan.csv",
+    "segments.csv",
     "signals.png",
     "flow_pressure.png",
     "history.png",
@@ -162,37 +163,45 @@ def _at_inversion_rate(
 
 def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
     """The window plan and the take's inversion (kernel temperature, windows, kernel, air)."""
-    from mpipe.inversion.conditioning import plan_inversion
+    from mpipe.inversion.conditioning import bore_resonances, plan_take
     from mpipe.inversion.take import invert_take
     from mpipe.inversion.tracking import ProgressBar
 
     inv = cfg.inversion
     # The same windows and the same bore kernel as `mpipe run` (one answer per take).
-    plan = plan_inversion(p, fs, cfg.conditioning, inv.window_s, inv.hop_s, args.start, args.end)
-    starts = plan.loc[plan["invert"], "start"].astype(int).tolist()
+    plan, segments = plan_take(p, fs, cfg.conditioning, inv.window_s, inv.hop_s, args.start,
+                               args.end, bore_resonances(cal))  # fmt: skip
+    chosen = plan[plan["invert"]]
+    starts = chosen["start"].astype(int).tolist()
     if not starts:
         raise UserError(
-            f"{args.mouthpiece}: no steady window to invert ({len(plan)} windows in the span, "
-            f"none steady; see conditioning in {args.pipeline})"
+            f"{args.mouthpiece}: no sounding window to invert ({len(plan)} windows in the "
+            f"span, none inside a note; see conditioning in {args.pipeline})"
         )
     bar = ProgressBar(len(starts))
     try:
         take = invert_take(p, u, fs, cal, inv, cfg.executor, starts=starts,
-                           temperature_c=temperature, progress=bar)  # fmt: skip
+                           temperature_c=temperature, progress=bar,
+                           segments=chosen["segment"].astype(int).tolist(),
+                           steady=chosen["steady"].astype(bool).tolist())  # fmt: skip
     except ValueError as exc:
         raise UserError(f"{args.mouthpiece}: {exc}") from None
     finally:
         bar.close()
-    return plan, take
+    return (plan, segments), take
 
 
 def _write_results(out: Path, plan, result, p, u, fs: float, kernel, air, inv) -> None:
     """Tables, the resynthesis (plots and WAV) and the parameter tracks into ``out``."""
     from mpipe.inversion import resynthesis as rs
+    from mpipe.inversion.segments import segment_summary, with_played
     from mpipe.inversion.tables import write_correlations, write_table
 
-    table = result.table
+    plan, segments = plan
+    table = with_played(result.table, plan)
     write_atomic(out / "plan.csv", lambda tmp: plan.to_csv(tmp, index=False))
+    summary = segment_summary(segments, table)
+    write_atomic(out / "segments.csv", lambda tmp: summary.to_csv(tmp, index=False))
     write_table(table, out)
     write_correlations(result.correlations, out)
     res = rs.resynthesise(table, p, u, fs, kernel, inv, result.zero_mean)

@@ -1,0 +1,298 @@
+"""A take split into notes and silences, from the mouthpiece pressure alone.
+
+A player's take is a phrase: notes with attacks and releases, silences between them,
+sometimes a squeak or a change of register. :func:`segment_take` finds them from two
+tracks of the mouthpiece pressure (settings in ``conditioning``, docs/playing.md):
+
+1. the level: a moving RMS over ``level_frame_s`` every millisecond. A sample is sounding
+   where the level is at least ``silence_db`` below the take's loud level (the 99th
+   percentile of the envelope) and at least ``min_rms_pa``. Silences shorter than
+   ``min_silence_s`` do not split a note; sounding stretches shorter than ``min_note_s``
+   are not notes;
+2. the playing frequency: YIN (:func:`mpipe.measurement.pitch.yin_f0`) over frames two
+   periods of ``f0_min_hz`` long, every ``frame_hop_s``, median-smoothed over 25 ms. Within
+   a sounding stretch, an f0 change of more than ``pitch_jump_cents`` within 10 ms starts a
+   new segment: a note played legato, a register change, a squeak (a change of regime
+   always moves the playing frequency by far more than a vibrato does).
+
+Every segment gets its label (``note`` or ``silence``), its playing frequency (median over
+its frames), pitch in cents against ``a4_hz``, nearest note, regime (from the bore's
+resonances, :func:`mpipe.measurement.pitch.regime`) and sound pressure level (dB re 20 uPa).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import pandas as pd
+
+from mpipe.measurement.pitch import f0_track, note_name, pitch_cents, regime
+
+#: Reference pressure of the sound pressure level, Pa.
+P_REF_PA = 20e-6
+#: Columns of :func:`segment_take`'s table.
+SEGMENT_COLUMNS = ("segment", "start_s", "end_s", "label", "duration_s", "f0_hz",
+                   "pitch_cents", "note", "regime", "rms_pa", "spl_db")  # fmt: skip
+_SMOOTH_S = 0.025
+_JUMP_S = 0.01
+
+
+def spl_db(rms_pa):
+    """Sound pressure level of an RMS pressure (Pa), dB re 20 uPa (-inf for 0)."""
+    with np.errstate(divide="ignore"):
+        out = 20.0 * np.log10(np.asarray(rms_pa, dtype=float) / P_REF_PA)
+    return float(out) if out.ndim == 0 else out
+
+
+def level_envelope(p: np.ndarray, fs: float, frame_s: float, step_s: float = 1e-3):
+    """Centred moving RMS of ``p`` (mean removed) every ``step_s``: times (s), RMS (Pa)."""
+    x = np.asarray(p, dtype=float)
+    x = x - x.mean()
+    half = max(int(round(frame_s * fs / 2)), 1)
+    e = np.concatenate([[0.0], np.cumsum(x * x)])
+    centres = np.arange(0, x.size, max(int(round(step_s * fs)), 1))
+    lo = np.clip(centres - half, 0, x.size)
+    hi = np.clip(centres + half, 0, x.size)
+    rms = np.sqrt(np.maximum(e[hi] - e[lo], 0.0) / np.maximum(hi - lo, 1))
+    return centres / fs, rms
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """``(first, last + 1)`` of every run of True."""
+    edges = np.diff(np.concatenate([[0], mask.astype(int), [0]]))
+    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True))
+
+
+def sounding_runs(t: np.ndarray, level: np.ndarray, threshold: float, conditioning):
+    """Sounding stretches ``(start s, end s)`` of a level envelope, gaps and blips removed."""
+    c = conditioning
+    step = float(t[1] - t[0]) if t.size > 1 else 1e-3
+    mask = level >= threshold
+    for a, b in _runs(~mask):  # short silences inside a note do not split it
+        if a > 0 and b < mask.size and (b - a) * step < c.min_silence_s:
+            mask[a:b] = True
+    return [(t[a], t[b - 1] + step) for a, b in _runs(mask) if (b - a) * step >= c.min_note_s]
+
+
+def _split_on_pitch(start: float, end: float, centres, cents, conditioning) -> list[float]:
+    """Times inside ``[start, end]`` where the smoothed pitch jumps (new segments start)."""
+    c = conditioning
+    inside = (centres >= start) & (centres <= end)
+    if inside.sum() < 3:
+        return []
+    hop = float(centres[1] - centres[0])
+    width = max(int(round(_SMOOTH_S / hop)) | 1, 3)
+    smooth = pd.Series(cents[inside]).rolling(width, center=True, min_periods=1).median()
+    smooth = smooth.to_numpy()
+    lag = max(int(round(_JUMP_S / hop)), 1)
+    times = centres[inside]
+    cuts, ref = [], np.nan
+    for i in range(lag, smooth.size):
+        ref = smooth[i - lag] if np.isfinite(smooth[i - lag]) else ref
+        if (
+            np.isfinite(smooth[i])
+            and np.isfinite(ref)
+            and abs(smooth[i] - ref) > c.pitch_jump_cents
+        ):
+            cut = float(times[i - lag // 2])
+            last = cuts[-1] if cuts else start
+            if cut - last >= c.min_note_s and end - cut >= c.min_note_s:
+                cuts.append(cut)
+            ref = smooth[i]
+    return cuts
+
+
+def segment_take(
+    p: np.ndarray,
+    fs: float,
+    conditioning,
+    resonances_hz: Sequence[float] = (),
+) -> tuple[pd.DataFrame, dict]:
+    """Notes and silences of a take (see the module docstring).
+
+    Parameters
+    ----------
+    p : ndarray
+        Mouthpiece pressure, Pa.
+    fs : float
+        Sample rate, Hz.
+    conditioning : mpipe.inversion.settings.ConditioningConfig
+        Thresholds (``silence_db``, ``min_rms_pa``, ``min_silence_s``, ``min_note_s``,
+        ``pitch_jump_cents``, ``frame_hop_s``, ``level_frame_s``, ``f0_min_hz``,
+        ``f0_max_hz``, ``a4_hz``).
+    resonances_hz : sequence of float
+        The bore's input-impedance peaks, Hz (for the regime; empty: regime "").
+
+    Returns
+    -------
+    (segments, tracks)
+        ``segments``: one row per segment in time order, columns :data:`SEGMENT_COLUMNS`,
+        covering the whole take; ``tracks``: ``t_level_s, level_pa, t_f0_s, f0_hz,
+        threshold_pa`` (the tracks the boundaries come from).
+    """
+    c = conditioning
+    p = np.asarray(p, dtype=float)
+    duration = p.size / fs
+    t_lev, level = level_envelope(p, fs, c.level_frame_s)
+    loud = float(np.percentile(level, 99)) if level.size else 0.0
+    threshold = max(c.min_rms_pa, loud * 10 ** (-c.silence_db / 20))
+    frame = max(2.2 / c.f0_min_hz, 0.02)
+    centres, f0, _ = f0_track(p, fs, frame, c.frame_hop_s, c.f0_min_hz, c.f0_max_hz)
+    cents = pitch_cents(f0, c.a4_hz) if f0.size else np.array([])
+    bounds: list[tuple[float, float, str]] = []
+    edge = 0.0
+    for start, end in sounding_runs(t_lev, level, threshold, c):
+        if start > edge:
+            bounds.append((edge, start, "silence"))
+        cuts = _split_on_pitch(start, end, centres, cents, c) if centres.size > 3 else []
+        for a, b in zip([start, *cuts], [*cuts, end], strict=True):
+            bounds.append((a, b, "note"))
+        edge = end
+    if edge < duration:
+        bounds.append((edge, duration, "silence"))
+    rows = [_describe(i, a, b, label, p, fs, centres, f0, c, resonances_hz)
+            for i, (a, b, label) in enumerate(bounds)]  # fmt: skip
+    table = pd.DataFrame(rows, columns=list(SEGMENT_COLUMNS))
+    tracks = {"t_level_s": t_lev, "level_pa": level, "t_f0_s": centres, "f0_hz": f0,
+              "threshold_pa": threshold}  # fmt: skip
+    return table, tracks
+
+
+def _describe(i, a, b, label, p, fs, centres, f0, c, resonances_hz) -> dict:
+    """One segment's row: its f0 (median over frames inside it), pitch, regime and level."""
+    i0, i1 = int(round(a * fs)), max(int(round(b * fs)), int(round(a * fs)) + 1)
+    x = p[i0:i1]
+    rms = float(np.sqrt(np.mean((x - x.mean()) ** 2))) if x.size else 0.0
+    f = math.nan
+    if label == "note":
+        inside = (centres >= a) & (centres <= b) & np.isfinite(f0)
+        f = float(np.median(f0[inside])) if inside.any() else math.nan
+    return {
+        "segment": i, "start_s": float(a), "end_s": float(b), "label": label,
+        "duration_s": float(b - a), "f0_hz": f, "pitch_cents": pitch_cents(f, c.a4_hz),
+        "note": note_name(f, c.a4_hz),
+        "regime": regime(f, resonances_hz) if label == "note" else "silence",
+        "rms_pa": rms, "spl_db": spl_db(rms),
+    }  # fmt: skip
+
+
+def assign_windows(
+    plan: pd.DataFrame, segments: pd.DataFrame, conditioning, tracks: dict
+) -> pd.DataFrame:
+    """Each window's segment, phase, playing frequency, pitch, regime and level.
+
+    A window belongs to the segment holding its centre. Its phase is ``onset`` when it
+    starts within ``onset_s`` of its note's start, ``release`` when it ends within
+    ``release_s`` of its end, ``sustain`` otherwise, and ``silence`` in a silence. Its f0
+    is the median of the YIN frames centred inside it.
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``plan`` with ``segment, phase, inside`` (the window lies wholly inside its note,
+        after ``onset_periods`` periods), ``f0_hz`` (replaced), ``pitch_cents``, ``regime``
+        and ``spl_db``.
+    """
+    c = conditioning
+    out = plan.copy()
+    t0 = out["t_start_s"].to_numpy(float)
+    t1 = out["t_end_s"].to_numpy(float)
+    mid = 0.5 * (t0 + t1)
+    starts = segments["start_s"].to_numpy(float)
+    idx = np.clip(np.searchsorted(starts, mid, side="right") - 1, 0, len(segments) - 1)
+    seg = segments.iloc[idx].reset_index(drop=True)
+    note = (seg["label"] == "note").to_numpy()
+    s0, s1 = seg["start_s"].to_numpy(float), seg["end_s"].to_numpy(float)
+    skip = c.onset_periods / seg["f0_hz"].to_numpy(float)
+    skip = np.where(np.isfinite(skip), skip, 0.0)
+    phase = np.where(t0 < s0 + c.onset_s, "onset", np.where(t1 > s1 - c.release_s, "release",
+                     "sustain"))  # fmt: skip
+    out["segment"] = seg["segment"].to_numpy(int)
+    out["phase"] = np.where(note, phase, "silence")
+    out["inside"] = note & (t0 >= s0 + skip - 1e-9) & (t1 <= s1 + 1e-9)
+    cf, f0 = tracks["t_f0_s"], tracks["f0_hz"]
+    med = []
+    for a, b in zip(t0, t1, strict=True):
+        sel = f0[(cf >= a) & (cf <= b)]
+        sel = sel[np.isfinite(sel)]
+        med.append(float(np.median(sel)) if sel.size else math.nan)
+    out["f0_hz"] = med
+    out["pitch_cents"] = pitch_cents(np.asarray(med), c.a4_hz)
+    out["regime"] = np.where(note, seg["regime"].to_numpy(), "silence")
+    out["spl_db"] = spl_db(out["rms_pa"].to_numpy(float))
+    return out
+
+
+#: Per-window columns of the plan carried into the windows table (what was played).
+PLAYED_COLUMNS = ("phase", "f0_hz", "pitch_cents", "regime", "rms_pa", "spl_db")
+#: Quantities summarised per segment.
+SUMMARISED = ("p_m", "p_M", "gamma", "zeta", "k", "S", "y_m", "lam", "m", "g", "k_c")
+
+
+def with_played(table: pd.DataFrame, plan: pd.DataFrame) -> pd.DataFrame:
+    """The windows table with each window's phase, f0, pitch, regime and level from the plan."""
+    cols = [c for c in PLAYED_COLUMNS if c in plan]
+    extra = plan[["t_start_s", *cols]].copy()
+    extra["_key"] = extra["t_start_s"].round(9)
+    out = table.drop(columns=[c for c in cols if c in table]).copy()
+    out["_key"] = out["t_start_s"].round(9)
+    merged = out.merge(extra.drop(columns="t_start_s"), on="_key", how="left")
+    return merged.drop(columns="_key")
+
+
+def segment_summary(segments: pd.DataFrame, table: pd.DataFrame) -> pd.DataFrame:
+    """Each segment's own result: windows, ok windows, medians and their standard errors.
+
+    For each quantity of :data:`SUMMARISED` over the segment's ``ok`` windows:
+    ``<name>_median``; ``<name>_median_se``, the standard error of that median as a
+    statistic of the windows (``1.2533 sigma / sqrt(n)``, sigma from the median absolute
+    deviation: it includes the playing's own change over the note, a crescendo for
+    instance), NaN for fewer than 3 ok windows; and ``<name>_window_se``, the median of the
+    windows' own standard errors.
+
+    Parameters
+    ----------
+    segments : pandas.DataFrame
+        :func:`segment_take`'s table.
+    table : pandas.DataFrame
+        Windows table with a ``segment`` column.
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``segments`` with ``windows, ok_windows`` and the columns above.
+    """
+    out = segments.copy()
+    seg = table["segment"] if "segment" in table else pd.Series(0, index=table.index)
+    ok = table["status"].astype(str) == "ok"
+    out["windows"] = [int((seg == g).sum()) for g in out["segment"]]
+    out["ok_windows"] = [int(((seg == g) & ok).sum()) for g in out["segment"]]
+    for name in SUMMARISED:
+        if name not in table:
+            continue
+        med, se, wse = [], [], []
+        for g in out["segment"]:
+            sel = (seg == g) & ok
+            x = pd.to_numeric(table.loc[sel, name], errors="coerce").dropna().to_numpy(float)
+            med.append(float(np.median(x)) if x.size else math.nan)
+            mad = 1.4826 * float(np.median(np.abs(x - np.median(x)))) if x.size else math.nan
+            se.append(1.2533 * mad / math.sqrt(x.size) if x.size >= 3 else math.nan)
+            col = f"{name}_se"
+            w = pd.to_numeric(table.loc[sel, col], errors="coerce").dropna() if col in table else []
+            wse.append(float(np.median(w)) if len(w) else math.nan)
+        out[f"{name}_median"] = med
+        out[f"{name}_median_se"] = se
+        out[f"{name}_window_se"] = wse
+    return out
+
+
+def note_segments(summary: pd.DataFrame) -> pd.DataFrame:
+    """The note rows of a segment table (silences left out)."""
+    return summary[summary["label"] == "note"].reset_index(drop=True)
+
+
+__all__ = ["P_REF_PA", "PLAYED_COLUMNS", "SEGMENT_COLUMNS", "SUMMARISED", "assign_windows",
+           "level_envelope", "note_segments", "segment_summary", "segment_take",
+           "sounding_runs", "spl_db", "with_played"]  # fmt: skip
