@@ -37,6 +37,8 @@ least_squares, coldstart
     Trust-region search on F2's residual vector; the global cold start.
 fastpath
     The compiled evaluation of F2 (the inner loop).
+sensitivities
+    F2's Jacobian from the model's forward sensitivities (one run for every parameter).
 status
     ok, or why a window's numbers should not be trusted.
 uncertainty

@@ -42,25 +42,10 @@ OK, DIVERGED, SILENT = 0, 1, 2
 REASONS = {DIVERGED: "diverged", SILENT: "silent"}
 
 
-# numba's on-disk cache of this function is keyed on this file only: after editing the
-# kernels it calls in mpipe/reed/kernels.py or block_fft.py, delete
-# mpipe/inversion/__pycache__/fastpath*.nb* (a stale cache keeps the old kernel compiled in).
-# Long on purpose: the compiled hot loop of every F2 evaluation, kept in one numba frame.
 @njit(cache=True)
-def _evaluate(
-    out_r, target_p, target_std, p_lead, u_lead, filt, rho, fs, ph, uh, x, n0, z0,
-    base, ones, f, head, h0, level1, level2, work1, work2, fut, work, p_mod, p_ctx, fir,
-    fir_work, buf, n_taps_fir, k, s_area, y_m, p_m, lam, y_c, alpha, a1, a2, a3, b1,
-):  # fmt: skip
-    """Residual of one candidate into ``out_r``; returns a status code (OK, DIVERGED, SILENT).
-
-    Mirrors :func:`mpipe.inversion.objective.run_model` with the history start. ``base``,
-    ``ones`` and ``f`` are 4-tuples (level-1 re, im, level-2 re, im) of the history
-    spectra with no mean-flow shift, of the shift's indicator, and the ones to fill.
-    """
+def _lead_in(ylead, p_lead, k, p_m, y_c, alpha, a1, a2, a3, b1):
+    """Reed lead-in driven by the measured pressure (history_start.reed_trajectory)."""
     n_lead = p_lead.size
-    # reed lead-in driven by the measured pressure (history_start.reed_trajectory)
-    ylead = work[0, :n_lead]
     y0 = (p_m - p_lead[0]) / k
     ylead[0] = y0
     ylead[1] = y0
@@ -68,24 +53,33 @@ def _evaluate(
         c = ylead[i] - y_c
         contact = c**alpha if c > 0.0 else 0.0
         ylead[i + 1] = a1 * ylead[i] + a2 * ylead[i - 1] + b1 * (p_m - p_lead[i]) + a3 * contact
-    missing = 0.0
-    if filt:
-        # history_start.missing_mean_flow: candidate flow minus measured flow over the second
-        # half of the lead-in
-        half = n_lead // 2
-        acc = 0.0
-        for i in range(half, n_lead):
-            dp = p_m - p_lead[i]
-            h = y_m - ylead[i]
-            if h < 0.0:
-                h = 0.0
-            sgn = 1.0 if dp > 0.0 else (-1.0 if dp < 0.0 else 0.0)
-            uf = sgn * lam * h * math.sqrt(2.0 * abs(dp) / rho)
-            prev = ylead[i - 1] if i > 0 else ylead[0]
-            ur = s_area * (ylead[i] - prev) * fs
-            acc += uf + ur - u_lead[i]
-        missing = acc / (n_lead - half)
-    # forward-wave history and its block spectra (affine in the missing mean flow)
+
+
+@njit(cache=True)
+def _missing_flow(ylead, p_lead, u_lead, rho, fs, s_area, y_m, p_m, lam):
+    """history_start.missing_mean_flow: candidate minus measured flow over the lead-in."""
+    n_lead = p_lead.size
+    half = n_lead // 2
+    acc = 0.0
+    for i in range(half, n_lead):
+        dp = p_m - p_lead[i]
+        h = y_m - ylead[i]
+        if h < 0.0:
+            h = 0.0
+        sgn = 1.0 if dp > 0.0 else (-1.0 if dp < 0.0 else 0.0)
+        uf = sgn * lam * h * math.sqrt(2.0 * abs(dp) / rho)
+        prev = ylead[i - 1] if i > 0 else ylead[0]
+        ur = s_area * (ylead[i] - prev) * fs
+        acc += uf + ur - u_lead[i]
+    return acc / (n_lead - half)
+
+
+@njit(cache=True)
+def _load_history(x, n0, ph, uh, z0, missing, base, ones, f):
+    """Forward-wave history into ``x[:n0]`` and its block spectra ``f = base + c ones``.
+
+    The spectra are affine in the missing mean flow (c = Z0 missing / 2).
+    """
     n_hist = ph.size
     start = n0 - n_hist
     for j in range(start):
@@ -100,53 +94,56 @@ def _evaluate(
         for s in range(fl.shape[0]):
             for j in range(fl.shape[1]):
                 fl[s, j] = bl[s, j] + cshift * ol[s, j]
-    y = ylead[n_lead - 1]
-    y_prev = ylead[n_lead - 2]
-    dp0 = p_m - p_lead[n_lead - 1]
+
+
+@njit(cache=True)
+def _lowpass(out, n, p_mod, p_ctx, fir, fir_work, buf, n_taps_fir):
+    """The first n samples of the measurement's low-pass of [p_ctx, p_mod] past p_ctx.
+
+    Overlap-save FFT convolution: the filter's spectrum ``fir`` = (H_re, H_im, bitrev,
+    tw_re, tw_im, w_re, w_im) for segments of 2M. The input is stored at offset M in
+    ``buf`` (whose other samples stay zero); output i is sum_j taps[j] seq[i + 1 + j]
+    (symmetric taps), the linear convolution at i + 1 + 2d, which a segment starting at
+    buf[i0 + 1 + 2d] (i0 = first output of the block) gives as the second half of its
+    circular convolution.
+    """
+    h_re, h_im, bitrev, tw_re, tw_im, w_re, w_im = fir
+    m = bitrev.size
+    n_ctx = p_ctx.size
     n_run = p_mod.size
-    _run_pressure(
-        x, n0, n_run, head, h0, z0, rho, a1, a2, a3, b1, y_m, y_c, alpha, lam,
-        s_area * fs, p_m, y, y_prev, dp0, level1, f[0], f[1], work1, level2, f[2], f[3],
-        work2, fut, p_mod,
-    )  # fmt: skip
+    for j in range(n_ctx):
+        buf[m + j] = p_ctx[j]
+    for j in range(n_run):
+        buf[m + n_ctx + j] = p_mod[j]
+    acc_re = fir_work[0, : m + 1]
+    acc_im = fir_work[1, : m + 1]
+    zr = fir_work[2, :m]
+    zi = fir_work[3, :m]
+    half = fir_work[4, :m]
+    i0 = 0
+    while i0 < n:
+        _rfft_lean(buf, i0 + n_taps_fir, acc_re, acc_im, zr, zi, bitrev, tw_re, tw_im, w_re, w_im)
+        for j in range(m + 1):
+            ar = acc_re[j]
+            ai = acc_im[j]
+            acc_re[j] = ar * h_re[j] - ai * h_im[j]
+            acc_im[j] = ar * h_im[j] + ai * h_re[j]
+        _irfft_last_half(acc_re, acc_im, half, zr, zi, bitrev, tw_re, tw_im, w_re, w_im)
+        for j in range(min(m, n - i0)):
+            out[i0 + j] = half[j]
+        i0 += m
+
+
+@njit(cache=True)
+def _residual(out_r, target_p, target_std, p_mod, filt, p_ctx, fir, fir_work, buf, n_taps_fir):
+    """``target - measured model pressure`` into ``out_r``; returns a status code."""
+    n_run = p_mod.size
     for i in range(n_run):
         if not math.isfinite(p_mod[i]):
             return DIVERGED
     n = target_p.size
     if filt:
-        # low-pass the window by overlap-save FFT convolution: the filter's spectrum
-        # ``fir`` = (H_re, H_im, bitrev, tw_re, tw_im, w_re, w_im) for segments of 2M.
-        # The input is [last ctx samples of the measured history, model run], stored at
-        # offset M in ``buf`` (whose other samples stay zero); output i is
-        # sum_j taps[j] seq[i + 1 + j] (symmetric taps), the linear convolution at
-        # i + 1 + 2d, which a segment starting at buf[i0 + 1 + 2d] (i0 = first output of
-        # the block) gives as the second half of its circular convolution.
-        h_re, h_im, bitrev, tw_re, tw_im, w_re, w_im = fir
-        m = bitrev.size
-        n_ctx = p_ctx.size
-        for j in range(n_ctx):
-            buf[m + j] = p_ctx[j]
-        for j in range(n_run):
-            buf[m + n_ctx + j] = p_mod[j]
-        acc_re = fir_work[0, : m + 1]
-        acc_im = fir_work[1, : m + 1]
-        zr = fir_work[2, :m]
-        zi = fir_work[3, :m]
-        half = fir_work[4, :m]
-        i0 = 0
-        while i0 < n:
-            _rfft_lean(
-                buf, i0 + n_taps_fir, acc_re, acc_im, zr, zi, bitrev, tw_re, tw_im, w_re, w_im
-            )
-            for j in range(m + 1):
-                ar = acc_re[j]
-                ai = acc_im[j]
-                acc_re[j] = ar * h_re[j] - ai * h_im[j]
-                acc_im[j] = ar * h_im[j] + ai * h_re[j]
-            _irfft_last_half(acc_re, acc_im, half, zr, zi, bitrev, tw_re, tw_im, w_re, w_im)
-            for j in range(min(m, n - i0)):
-                out_r[i0 + j] = half[j]
-            i0 += m
+        _lowpass(out_r, n, p_mod, p_ctx, fir, fir_work, buf, n_taps_fir)
     else:
         for i in range(n):
             out_r[i] = p_mod[i]
@@ -164,6 +161,41 @@ def _evaluate(
         if not math.isfinite(out_r[i]):
             return DIVERGED
     return OK
+
+
+# numba's on-disk cache of a function is keyed on its own file only: after editing the
+# kernels it calls (mpipe/reed/kernels.py, block_fft.py, or the helpers above from another
+# module), delete the stale caches (mpipe/**/__pycache__/*.nb*), which keep the old code.
+@njit(cache=True)
+def _evaluate(
+    out_r, target_p, target_std, p_lead, u_lead, filt, rho, fs, ph, uh, x, n0, z0,
+    base, ones, f, head, h0, level1, level2, work1, work2, fut, work, p_mod, p_ctx, fir,
+    fir_work, buf, n_taps_fir, k, s_area, y_m, p_m, lam, y_c, alpha, a1, a2, a3, b1,
+):  # fmt: skip
+    """Residual of one candidate into ``out_r``; returns a status code (OK, DIVERGED, SILENT).
+
+    Mirrors :func:`mpipe.inversion.objective.run_model` with the history start. ``base``,
+    ``ones`` and ``f`` are 4-tuples (level-1 re, im, level-2 re, im) of the history
+    spectra with no mean-flow shift, of the shift's indicator, and the ones to fill.
+    """
+    n_lead = p_lead.size
+    ylead = work[0, :n_lead]
+    _lead_in(ylead, p_lead, k, p_m, y_c, alpha, a1, a2, a3, b1)
+    missing = 0.0
+    if filt:
+        missing = _missing_flow(ylead, p_lead, u_lead, rho, fs, s_area, y_m, p_m, lam)
+    _load_history(x, n0, ph, uh, z0, missing, base, ones, f)
+    y = ylead[n_lead - 1]
+    y_prev = ylead[n_lead - 2]
+    dp0 = p_m - p_lead[n_lead - 1]
+    _run_pressure(
+        x, n0, p_mod.size, head, h0, z0, rho, a1, a2, a3, b1, y_m, y_c, alpha, lam,
+        s_area * fs, p_m, y, y_prev, dp0, level1, f[0], f[1], work1, level2, f[2], f[3],
+        work2, fut, p_mod,
+    )  # fmt: skip
+    return _residual(
+        out_r, target_p, target_std, p_mod, filt, p_ctx, fir, fir_work, buf, n_taps_fir
+    )
 
 
 class WindowEvaluator:

@@ -4,8 +4,9 @@ F2 is the norm of a residual vector (target minus model pressure, one entry per 
 the window), so a Gauss-Newton-type method that sees every residual, not only their norm,
 converges in far fewer model runs than a direct search: on the measured path a cold window
 takes a few hundred model runs instead of several thousand, and a warm one a few dozen.
-The Jacobian is taken by forward differences in ``z = ln(x / x_ref)``; its value at the
-solution is kept, for the parameter uncertainties.
+The Jacobian in ``z = ln(x / x_ref)`` comes from the model's forward sensitivities when
+the caller gives them (:mod:`mpipe.inversion.sensitivities`: one model run), else by forward
+differences (n runs); its value at the solution is kept, for the parameter uncertainties.
 
 The search works in ``z = ln(x / x_ref)`` with ``x_ref`` the geometric mean of each
 parameter's bounds, so the result does not depend on where the search started beyond the
@@ -80,6 +81,7 @@ def secant_levenberg_marquardt(
     x_tolerance: float,
     f_tolerance: float | None,
     max_evaluations: int,
+    jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray] | None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, str]:
     """Bounded Levenberg-Marquardt whose Jacobian is updated by Broyden's secant rule.
 
@@ -105,12 +107,16 @@ def secant_levenberg_marquardt(
     f_tolerance : float or None
         Or when the sum of squares is predicted to fall by less than this fraction.
     max_evaluations : int
-        Budget of calls of ``fun``.
+        Budget of calls of ``fun``; a Jacobian counts as n calls whether it is taken by
+        differences or from ``jacobian`` (so the budget ends a search at the same step).
+    jacobian : callable, optional
+        ``jacobian(z) -> (r, J)``: the residuals and their exact Jacobian (the model's
+        forward sensitivities), or None where it has none (then forward differences).
 
     Returns
     -------
     z, r, jac, status, message
-        Best point, its residuals, the difference Jacobian at it, status (0: budget spent,
+        Best point, its residuals, the true Jacobian at it, status (0: budget spent,
         > 0: converged as in scipy's least_squares) and message.
 
     References
@@ -121,18 +127,18 @@ def secant_levenberg_marquardt(
     Equations, SIAM 1996, ch. 8 and 10.
     """
     n = z0.size
-    f = _Counted(fun)
+    f = _Counted(fun, jacobian)
     z = z0.copy()
     r = f(z)
     cost = float(r @ r)
-    jac = _difference_jacobian(f, z, r, z_hi)
+    jac = f.jacobian(z, r, z_hi)
     fresh = True
     mu = 1e-3
     nu = 2.0
     failures = 0
     f_tol = f_tolerance if f_tolerance else 0.0
     status, message = 0, "evaluation budget spent"
-    while f.n + 1 <= max_evaluations:
+    while f.cost + 1 <= max_evaluations:
         z_new, dz, predicted = _damped_step(jac, r, z, mu, z_lo, z_hi)
         small = float(np.linalg.norm(dz)) <= x_tolerance * (1.0 + float(np.linalg.norm(z)))
         if small or (f_tol and 0 <= predicted <= f_tol * cost):
@@ -144,9 +150,9 @@ def secant_levenberg_marquardt(
                     else "predicted fall of the sum of squares below tolerance"
                 )
                 break
-            if f.n + n > max_evaluations:
+            if f.cost + n > max_evaluations:
                 break
-            jac = _difference_jacobian(f, z, r, z_hi)
+            jac = f.jacobian(z, r, z_hi)
             fresh = True
             continue
         r_new = f(z_new)
@@ -165,26 +171,42 @@ def secant_levenberg_marquardt(
             mu *= nu
             nu *= 2.0
             failures += 1
-            if failures >= 2 and f.n + n <= max_evaluations:
+            if failures >= 2 and f.cost + n <= max_evaluations:
                 # the updated Jacobian has stopped predicting: take a true one
-                jac = _difference_jacobian(f, z, r, z_hi)
+                jac = f.jacobian(z, r, z_hi)
                 fresh = True
                 failures = 0
-    if not fresh and f.n + n <= max_evaluations:
-        jac = _difference_jacobian(f, z, r, z_hi)
+    if not fresh and f.cost + n <= max_evaluations:
+        jac = f.jacobian(z, r, z_hi)
     return z, r, jac, status, message
 
 
 class _Counted:
-    """``fun`` with a count of its calls (``n``)."""
+    """``fun`` with the budget it has spent (``cost``: calls, n per Jacobian).
 
-    def __init__(self, fun: Callable[[np.ndarray], np.ndarray]):
+    ``jacobian(z, r, z_hi)`` takes the Jacobian from ``jac_fun`` (the model's
+    sensitivities) when given and available, else by forward differences.
+    """
+
+    def __init__(self, fun: Callable[[np.ndarray], np.ndarray], jac_fun=None):
         self.fun = fun
-        self.n = 0
+        self.jac_fun = jac_fun
+        self.cost = 0
 
     def __call__(self, z: np.ndarray) -> np.ndarray:
-        self.n += 1
+        self.cost += 1
         return self.fun(z)
+
+    def jacobian(self, z: np.ndarray, r: np.ndarray, z_hi: np.ndarray) -> np.ndarray:
+        if self.jac_fun is not None:
+            out = self.jac_fun(z)
+            if out is not None:
+                self.cost += z.size
+                return out[1]
+        cost = self.cost
+        jac = _difference_jacobian(self.fun, z, r, z_hi)
+        self.cost = cost + z.size
+        return jac
 
 
 def _difference_jacobian(f, z: np.ndarray, r: np.ndarray, z_hi: np.ndarray) -> np.ndarray:
@@ -227,6 +249,7 @@ def trust_region(
     max_evaluations: int = 400,
     infeasible_norm: float = math.inf,
     secant: bool = False,
+    jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray] | None] | None = None,
 ) -> SearchResult:
     """Minimise ``||residuals(x)||`` inside bounds by the trust-region reflective method.
 
@@ -252,6 +275,13 @@ def trust_region(
         Jacobian only at the start, after a failed step and to confirm the stop) instead
         of scipy's trust-region reflective method with a difference Jacobian at every
         step: 2-4x fewer model runs from a good start (warm windows).
+    jacobian : callable, optional
+        ``jacobian(x) -> (r, J)``: the residuals and ``J = d residuals / d x`` (shape
+        ``(n_residuals, n_parameters)``, the caller's units) in one model run, from the
+        model's forward sensitivities, or None where it has none (infeasible ``x``); the
+        search then takes its Jacobians from it instead of by forward differences (n model
+        runs each). The budget still charges n runs per Jacobian, so that it ends a search
+        at the same step either way; ``n_evaluations`` counts the model runs made.
 
     Returns
     -------
@@ -270,11 +300,11 @@ def trust_region(
     z0 = np.clip(
         np.log(np.asarray(x0, dtype=float) / x_ref), z_lo + 1e-9 * span, z_hi - 1e-9 * span
     )
-    fun = _LogResiduals(residuals, x_ref, z_lo, z_hi, infeasible_norm, z0)
+    fun = _LogResiduals(residuals, x_ref, z_lo, z_hi, infeasible_norm, z0, jacobian)
     if secant:
         z, r, jac, status, message = secant_levenberg_marquardt(
             fun, z0, z_lo, z_hi, x_tolerance=x_tolerance, f_tolerance=f_tolerance,
-            max_evaluations=max_evaluations,
+            max_evaluations=max_evaluations, jacobian=fun.jacobian if jacobian else None,
         )  # fmt: skip
         f = float(np.linalg.norm(r))
         return SearchResult(
@@ -301,15 +331,20 @@ class _LogResiduals:
     after each call.
     """
 
-    def __init__(self, residuals, x_ref, z_lo, z_hi, infeasible_norm: float, z0: np.ndarray):
+    def __init__(
+        self, residuals, x_ref, z_lo, z_hi, infeasible_norm: float, z0: np.ndarray, jac=None
+    ):
         self.residuals, self.x_ref, self.z_lo, self.z_hi = residuals, x_ref, z_lo, z_hi
         self.infeasible_norm = infeasible_norm
+        self.jac = jac
         self.history: list[float] = []
         self.best_norm, self.best_z = math.inf, z0.copy()
 
     def __call__(self, z: np.ndarray) -> np.ndarray:
         x = self.x_ref * np.exp(np.clip(z, self.z_lo, self.z_hi))
-        r = np.asarray(self.residuals(x), dtype=float)
+        return self._record(z, np.asarray(self.residuals(x), dtype=float))
+
+    def _record(self, z: np.ndarray, r: np.ndarray) -> np.ndarray:
         norm = float(np.linalg.norm(r))
         if not math.isfinite(norm):
             r = np.full(r.size, self.infeasible_norm / math.sqrt(max(r.size, 1)))
@@ -318,6 +353,25 @@ class _LogResiduals:
             self.best_norm, self.best_z = norm, z.copy()
         self.history.append(min(self.best_norm, norm))
         return r
+
+    def jacobian(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Residuals and d residuals / d z from ``jac`` (one model run), or None."""
+        x = self.x_ref * np.exp(np.clip(z, self.z_lo, self.z_hi))
+        out = self.jac(x)
+        if out is None:
+            return None
+        r, jx = out
+        jz = np.asarray(jx, dtype=float) * x  # d r / d ln x = x d r / d x
+        if not np.all(np.isfinite(jz)):
+            return None
+        return self._record(z, np.asarray(r, dtype=float)), jz
+
+    def scipy_jacobian(self, z: np.ndarray) -> np.ndarray:
+        """The Jacobian at ``z`` for scipy: from ``jac``, or by forward differences."""
+        out = self.jacobian(z)
+        if out is not None:
+            return out[1]
+        return _difference_jacobian(self, z, self(z), self.z_hi)
 
 
 #: scipy's termination status -> message.
@@ -337,7 +391,7 @@ def _reflective(
     f_tolerance: float | None,
     max_evaluations: int,
 ) -> SearchResult:
-    """The trust-region reflective method of scipy, with a forward-difference Jacobian."""
+    """The trust-region reflective method of scipy (Jacobian: sensitivities or differences)."""
     n = z0.size
     # scipy counts only the evaluations of the residuals themselves, not the n more that
     # each forward-difference Jacobian costs: translate the model-run budget.
@@ -347,7 +401,7 @@ def _reflective(
         z0,
         bounds=(fun.z_lo, fun.z_hi),
         method="trf",
-        jac="2-point",
+        jac=fun.scipy_jacobian if fun.jac is not None else "2-point",
         diff_step=DIFF_STEP,
         x_scale=1.0,
         xtol=x_tolerance,

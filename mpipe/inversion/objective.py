@@ -356,6 +356,51 @@ class F2Objective:
             return None
         return WindowEvaluator(self.kernel, self.target, self.settings)
 
+    @functools.cached_property
+    def _sensitivities(self):
+        # the Jacobian's work buffers, built on first use once per window
+        from mpipe.inversion.sensitivities import SensitivityEvaluator
+
+        ev = self._evaluator
+        if ev is None:
+            return None
+        return SensitivityEvaluator(ev, self.free, self.contact_at_closure)
+
+    @property
+    def has_jacobian(self) -> bool:
+        """True when :meth:`jacobian` gives the model's own derivatives (compiled path)."""
+        return self._evaluator is not None
+
+    def jacobian(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Residuals (Pa) and their Jacobian from the model's forward sensitivities.
+
+        Parameters
+        ----------
+        x : ndarray
+            Free-parameter values, SI units, in the order of ``free``.
+
+        Returns
+        -------
+        (r, J) or None
+            ``r`` as :meth:`residuals`, ``J[i, j] = d r_i / d x_j`` (Pa per the SI unit of
+            parameter j), computed in one model run
+            (:mod:`mpipe.inversion.sensitivities`); None for an infeasible candidate or
+            without the compiled evaluator (``fast`` false or a rest start).
+        """
+        sens = self._sensitivities
+        if sens is None:
+            return None
+        try:
+            reed = self.reed(x)
+        except ValueError:
+            return None
+        n = self.target.p.size
+        r = np.empty(n)
+        jac = np.empty((n, len(self.free)))
+        if sens.jacobian_into(reed, r, jac):
+            return None
+        return r, jac
+
     @property
     def penalty(self) -> float:
         """F2 of an infeasible candidate, Pa: far above any feasible mismatch."""

@@ -283,6 +283,15 @@ class InversionConfig:
         between(0.0, 0.1),
         default=1e-4,
     )
+    jacobian: Literal["sensitivities", "differences"] = spec(
+        "",
+        "how the trust-region search takes the Jacobian of F2's residuals. sensitivities: "
+        "from the model's forward sensitivities, run alongside the model (one run, exact to "
+        "rounding; needs fast_objective and start: history); differences: forward "
+        "differences, one extra model run per parameter. Either way a Jacobian counts as one "
+        "run per parameter against the budgets",
+        default="sensitivities",
+    )
     fast_objective: bool = spec(
         "",
         "compute F2's residuals by the compiled per-window evaluator (the same numbers to "

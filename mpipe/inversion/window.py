@@ -132,6 +132,11 @@ def local_search(
             max_evaluations=budget,
             infeasible_norm=objective.penalty,
             secant=not cold and config.warm_secant,
+            jacobian=(
+                objective.jacobian
+                if objective.has_jacobian and config.jacobian == "sensitivities"
+                else None
+            ),
         )
     return minimise(
         objective,

@@ -14,6 +14,8 @@ model
     ``simulate`` and its result types.
 kernels, block_fft
     Its compiled per-sample scheme (full and lean kernels) and their radix-2 FFT.
+sensitivity
+    The scheme's forward sensitivities: the pressure's derivatives by every parameter.
 bore_kernel
     The bore's reflection function prepared for the kernels (``prepare_bore``).
 scheme
