@@ -124,7 +124,19 @@ def load_pipeline(path: str | Path) -> PipelineConfig:
     cfg = build(PipelineConfig, data, Where(str(path)))
     if not cfg.calibration_path.is_file():
         raise ConfigError(f"{path}: calibration: no such file {cfg.calibration_path}")
+    _check_window(cfg, path)
     return cfg
+
+
+def _check_window(cfg: PipelineConfig, path: str | Path) -> None:
+    """A window must hold one period of the lowest playing frequency (its f0 is measured)."""
+    shortest = 1.0 / cfg.conditioning.f0_min_hz
+    if cfg.inversion.window_s < shortest:
+        raise ConfigError(
+            f"{path}: inversion.window_s: {cfg.inversion.window_s:g} s holds less than one "
+            f"period of the lowest playing frequency conditioning.f0_min_hz = "
+            f"{cfg.conditioning.f0_min_hz:g} Hz; expected at least {shortest:.3g} s"
+        )
 
 
 __all__ = [
