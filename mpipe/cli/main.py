@@ -38,6 +38,20 @@ COMMANDS = (
 _WRITE_ERRORS = (errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EROFS, errno.EFBIG)
 
 
+class DefaultsFormatter(argparse.HelpFormatter):
+    """Help that shows every option's default (unless its text already does, or it has none)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if not action.option_strings or any(default is v for v in (None, False, argparse.SUPPRESS)):
+            return text
+        shown = f"({default:g})" if isinstance(default, float) else f"({default})"
+        if "%(default)" in text or "default" in text.lower() or shown in text:
+            return text
+        return f"{text} (default: %(default)s)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Assemble the argument parser from the command modules."""
     parser = argparse.ArgumentParser(
@@ -50,6 +64,11 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMANDS:
         importlib.import_module(f"mpipe.cli.commands.{name}").add_parser(sub)
+    for command in sub.choices.values():
+        command.formatter_class = DefaultsFormatter
+        for group in command._subparsers._group_actions if command._subparsers else ():
+            for nested in group.choices.values():  # mpipe calibrate sensitivity, ...
+                nested.formatter_class = DefaultsFormatter
     return parser
 
 

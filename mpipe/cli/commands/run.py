@@ -34,7 +34,8 @@ def add_parser(sub) -> None:
     p.add_argument(
         "--calibration",
         metavar="FILE.yaml",
-        help="calibration file to use instead of the pipeline's (e.g. a virtual take's copy)",
+        help="calibration file to use instead of the pipeline's (e.g. a virtual take's copy; "
+        "default: the pipeline's)",
     )
     p.add_argument("--force", action="store_true", help="redo finished stages and windows")
     p.add_argument(
@@ -122,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
     from mpipe.core.progress import write
     from mpipe.pipeline.orchestration import ValidationFailed, run_take, usable
 
-    cfg = load_pipeline(args.pipeline)
+    cfg = load_pipeline(args.pipeline, check_calibration=args.calibration is None)
     cal_path = Path(args.calibration) if args.calibration else cfg.calibration_path
     if not cal_path.is_file():
         raise UserError(f"{cal_path}: no such calibration file")

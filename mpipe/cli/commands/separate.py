@@ -102,7 +102,8 @@ def add_parser(sub) -> None:
         "--fixed-mach",
         type=float,
         metavar="M",
-        help="hold the Mach number of the mean flow at M instead of estimating it",
+        help="hold the Mach number of the mean flow at M instead of estimating it (default: "
+        "the settings', estimated)",
     )
     p.set_defaults(func=run)
 
@@ -164,7 +165,7 @@ def _inputs(args: argparse.Namespace) -> tuple[list[str], str, Path, list[Path]]
 def _settings(args: argparse.Namespace):
     """Separation, translation and validation settings, and the sample rate (Hz)."""
     if args.pipeline:
-        pipe = load_pipeline(args.pipeline)
+        pipe = load_pipeline(args.pipeline, check_calibration=False)
         sep_cfg, tr_cfg, val_cfg = pipe.separation, pipe.translation, pipe.validation
         rate = pipe.inversion.sample_rate
     else:

@@ -55,8 +55,10 @@ def add_parser(sub) -> None:
     p.add_argument(
         "-o", "--output", required=True, metavar="OUT.npz", help="signals and parameters (npz)"
     )
-    p.add_argument("--wav", metavar="OUT.wav", help="mouthpiece pressure as a WAV file")
-    p.add_argument("--plot", metavar="OUT.png", help="plot of p, u and y")
+    p.add_argument(
+        "--wav", metavar="OUT.wav", help="mouthpiece pressure as a WAV file (default: none)"
+    )
+    p.add_argument("--plot", metavar="OUT.png", help="plot of p, u and y (default: none)")
     p.add_argument(
         "--onset",
         type=float,

@@ -66,7 +66,12 @@ def _add_conditions(p) -> None:
         metavar="HZ",
         help="model sample rate in Hz (100000)",
     )
-    p.add_argument("--fs-out", type=float, metavar="HZ", help="file sample rate in Hz")
+    p.add_argument(
+        "--fs-out",
+        type=float,
+        metavar="HZ",
+        help="file sample rate in Hz (default: the model rate)",
+    )
     p.add_argument(
         "--temperature",
         type=lambda s: _numbers(s, (1, 2), "--temperature"),
@@ -83,7 +88,12 @@ def _add_conditions(p) -> None:
 
 def _add_microphone_errors(p) -> None:
     """Noise and sensitivity/phase mismatch of the virtual microphones."""
-    p.add_argument("--snr", type=float, metavar="DB", help="microphone noise SNR per channel, dB")
+    p.add_argument(
+        "--snr",
+        type=float,
+        metavar="DB",
+        help="microphone noise SNR per channel, dB (default: no noise)",
+    )
     p.add_argument(
         "--gain-error-db",
         type=lambda s: _numbers(s, tuple(range(2, 65)), "--gain-error-db"),
