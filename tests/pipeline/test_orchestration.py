@@ -155,7 +155,9 @@ def test_malformed_pipeline_and_take_give_clear_errors(tmp_path, take, capsys):
     err = capsys.readouterr().err
     assert "stereo.wav: has 2 channels" in err
     # with several takes, a bad one is reported and the others go on
-    assert main(["run", str(good), str(stereo), str(stereo), "-o", str(tmp_path / "o")]) == 1
+    other = tmp_path / "stereo2.wav"
+    sf.write(other, np.zeros((20000, 2)), 100000)
+    assert main(["run", str(good), str(stereo), str(other), "-o", str(tmp_path / "o")]) == 1
     assert "2 of 2 takes failed" in capsys.readouterr().out
     assert main(["run", str(good), str(tmp_path / "missing.flac"), "-o", str(tmp_path)]) == 2
     assert "no such take file" in capsys.readouterr().err
