@@ -10,6 +10,7 @@ as one line, without a traceback.
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import logging
 import sys
@@ -33,6 +34,24 @@ COMMANDS = (
 )
 
 
+# Errors of writing a file that the user can fix (the disk, the quota, the permissions).
+_WRITE_ERRORS = (errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EROFS, errno.EFBIG)
+
+
+class DefaultsFormatter(argparse.HelpFormatter):
+    """Help that shows every option's default (unless its text already does, or it has none)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if not action.option_strings or any(default is v for v in (None, False, argparse.SUPPRESS)):
+            return text
+        shown = f"({default:g})" if isinstance(default, float) else f"({default})"
+        if "%(default)" in text or "default" in text.lower() or shown in text:
+            return text
+        return f"{text} (default: %(default)s)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Assemble the argument parser from the command modules."""
     parser = argparse.ArgumentParser(
@@ -45,13 +64,43 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMANDS:
         importlib.import_module(f"mpipe.cli.commands.{name}").add_parser(sub)
+    for command in sub.choices.values():
+        command.formatter_class = DefaultsFormatter
+        for group in command._subparsers._group_actions if command._subparsers else ():
+            for nested in group.choices.values():  # mpipe calibrate sensitivity, ...
+                nested.formatter_class = DefaultsFormatter
     return parser
 
 
+#: Options whose values may start with a minus sign (``--time-convention -jwt``): argparse
+#: would read such a value as an option.
+_DASH_VALUES = ("--time-convention",)
+
+
+def _join_dash_values(argv: list[str]) -> list[str]:
+    """``--opt -value`` as ``--opt=-value`` for the options of :data:`_DASH_VALUES`."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        if argv[i] in _DASH_VALUES and i + 1 < len(argv) and argv[i + 1].startswith("-"):
+            out.append(f"{argv[i]}={argv[i + 1]}")
+            i += 2
+        else:
+            out.append(argv[i])
+            i += 1
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Run the command line; returns the process exit code."""
+    """Run the command line; returns the process exit code.
+
+    Errors the user can fix exit with status 2 and one line; so does a file that cannot be
+    written (a full disk, a refused permission), after the command removed what it had
+    written. Ctrl-C exits with 130 and one line: finished outputs (and an interrupted
+    `mpipe run`'s finished stages and windows) are kept, so the same command resumes.
+    """
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_join_dash_values(sys.argv[1:] if argv is None else list(argv)))
     level = logging.WARNING if args.quiet else (logging.DEBUG if args.verbose else logging.INFO)
     logging.basicConfig(level=level, format="%(message)s")
     # SIGTERM ends the command through SystemExit, so that worker pools are terminated,
@@ -63,6 +112,23 @@ def main(argv: list[str] | None = None) -> int:
             return int(args.func(args) or 0)
     except (ConfigError, UserError) as exc:
         print(f"mpipe {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(
+            f"mpipe {args.command}: interrupted; finished files are kept and no file is "
+            "half-written: run the same command again to resume",
+            file=sys.stderr,
+        )
+        return 130
+    except OSError as exc:
+        if exc.errno not in _WRITE_ERRORS:
+            raise
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(
+            f"mpipe {args.command}: error: {where}cannot write: {exc.strerror or exc}; "
+            "no file was left half-written",
+            file=sys.stderr,
+        )
         return 2
 
 

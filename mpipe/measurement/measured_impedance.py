@@ -136,8 +136,31 @@ class MeasuredImpedance:
     source: str
 
     def normalised(self, z0: float) -> np.ndarray:
-        """Z/Zc (dimensionless); ``z0`` (Pa s/m^3) converts an absolute Z."""
-        return self.z if self.layout.normalisation == "Z/Zc" else self.z / z0
+        """Z/Zc (dimensionless); ``z0`` (Pa s/m^3) converts an absolute Z.
+
+        Raises
+        ------
+        UserError
+            When the median of |Z/Zc| lies outside 0.01-100: an input impedance swings
+            about Zc (peaks of tens, dips of hundredths), so the declared normalisation
+            must be wrong (|Z| in Pa s/m^3 declared as Z/Zc is ~Zc, 1e6-1e7, too large).
+        """
+        zn = self.z if self.layout.normalisation == "Z/Zc" else self.z / z0
+        median = float(np.median(np.abs(zn)))
+        if not _PLAUSIBLE_ZN[0] <= median <= _PLAUSIBLE_ZN[1]:
+            other = "Pa s/m^3" if self.layout.normalisation == "Z/Zc" else "Z/Zc"
+            raise UserError(
+                f"{self.source}: read as {self.layout.normalisation}, |Z/Zc| has a median of "
+                f"{median:.3g} (Zc = {z0:.3g} Pa s/m^3 at the entry); an input impedance "
+                f"lies about Zc (median between {_PLAUSIBLE_ZN[0]:g} and {_PLAUSIBLE_ZN[1]:g}): "
+                f"is the file in {other}? declare normalisation: {other}"
+            )
+        return zn
+
+
+#: Range of the median of |Z/Zc| over an input impedance curve that a right normalisation
+#: gives (peaks of ~10-50, dips of ~0.02-0.1; a wrong one is off by Zc ~ 1e6-1e7).
+_PLAUSIBLE_ZN = (0.01, 100.0)
 
 
 _NAMES = {
@@ -334,8 +357,25 @@ def _impedance(
     path: Path, data: np.ndarray, lay: ImpedanceFileLayout
 ) -> tuple[np.ndarray, np.ndarray]:
     """Frequencies (Hz, increasing) and complex Z under e^{+jwt}, from the declared columns."""
+    bad = ~np.all(np.isfinite(data), axis=1)
+    if np.any(bad):
+        raise UserError(
+            f"{path}: {int(bad.sum())} data row(s) hold NaN or infinite values (the first is "
+            f"data row {int(np.argmax(bad)) + 1}); expected numbers in every row: remove them"
+        )
     col = {k: data[:, i] for i, k in enumerate(lay.columns) if k != "ignore"}
     freqs = col["frequency_hz"]
+    if np.max(freqs) < _LOWEST_TOP_HZ:
+        raise UserError(
+            f"{path}: frequencies reach only {np.max(freqs):.4g}; expected Hz up to at least "
+            f"{_LOWEST_TOP_HZ:g} Hz (kHz values? multiply the column by 1000)"
+        )
+    if "phase_deg" in col and 0.1 < np.max(np.abs(col["phase_deg"])) <= np.pi + 1e-6:
+        raise UserError(
+            f"{path}: the phase_deg column stays within ±π (largest |value| "
+            f"{np.max(np.abs(col['phase_deg'])):.3g}); an input impedance's phase swings "
+            "through about ±90 degrees: the values look like radians (declare phase_rad)"
+        )
     if "re" in col:
         im = col["im"] if "im" in col else -col["minus_im"]
         z = col["re"] + 1j * im
@@ -352,6 +392,11 @@ def _impedance(
     if np.any(np.diff(freqs) <= 0) or freqs[0] < 0:
         raise UserError(f"{path}: frequencies must be >= 0 Hz and distinct")
     return freqs, z
+
+
+#: A measured input impedance of a wind instrument reaches above this frequency (Hz); a
+#: file whose highest frequency is lower holds kHz (or another unit).
+_LOWEST_TOP_HZ = 50.0
 
 
 def _check_physics(m: MeasuredImpedance) -> None:

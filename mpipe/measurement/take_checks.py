@@ -85,8 +85,13 @@ def full_scale_threshold(subtype: str) -> float:
     """Smallest |sample| counted as digital full scale for a soundfile subtype.
 
     For an N-bit integer format the largest positive code reads as 1 - 2^(1-N) and the
-    most negative as -1; half a step below the former counts. Float formats use 1.0.
+    most negative as -1; half a step below the former counts. A float file (``FLOAT``,
+    ``DOUBLE``) has no full scale: samples beyond 1.0 are stored as they are, so none counts
+    (a clipped float take is caught by its flat tops, :func:`check_channel`). Other formats
+    use 1.0.
     """
+    if subtype in ("FLOAT", "DOUBLE"):
+        return float("inf")
     bits = {"PCM_S8": 8, "PCM_U8": 8, "PCM_16": 16, "PCM_24": 24, "PCM_32": 32}.get(subtype)
     if bits is None:
         return 1.0

@@ -311,8 +311,14 @@ def _read_audio(path: Path) -> tuple[np.ndarray, float, str]:
     if not path.is_file():
         raise UserError(f"{path}: not a file")
     try:
-        info = sf.info(str(path))
-        data, fs = sf.read(str(path), dtype="float64", always_2d=True)
+        # opened here, not by libsndfile, so that a refused open is named as such (libsndfile
+        # says "System error")
+        with path.open("rb") as f:
+            info = sf.info(f)
+            f.seek(0)
+            data, fs = sf.read(f, dtype="float64", always_2d=True)
+    except PermissionError:
+        raise UserError(f"{path}: permission denied (cannot open the file for reading)") from None
     except (RuntimeError, OSError, TypeError, ValueError) as exc:
         # soundfile raises LibsndfileError (a RuntimeError) for unknown or damaged files
         raise UserError(f"{path}: cannot read audio: {exc}") from None

@@ -160,4 +160,6 @@ def run_stage(
         "wall_s": wall,
     }
     write_text_atomic(manifest_path, json.dumps(record, indent=2))
+    # A finished stage needs no resumable state (it is skipped when run again).
+    shutil.rmtree(partial, ignore_errors=True)
     return StageRecord(stage, "done", wall, record["outputs"], record["summary"])

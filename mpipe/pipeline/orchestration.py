@@ -358,18 +358,21 @@ def run_take(
     client=None,
     say: Callable[[str], None] = print,
     accept_failed_validation: bool = False,
+    name: str | None = None,
 ) -> TakeRun:
     """Run every stage on one take, holding the lock of its output folder ``out/<take>``.
 
-    The arguments and result are those of :func:`_run_take`. Raises
+    The arguments and result are those of :func:`_run_take`; ``name`` is the take's folder
+    (default :func:`take_name`). Raises
     :class:`mpipe.core.errors.UserError` at once when the folder is not writable or another run
     holds it: two runs on one folder would mix their results.
     """
     from mpipe.core.io import folder_lock
 
-    with folder_lock(Path(out) / take_name([Path(p) for p in take_paths])):
+    name = name or take_name([Path(p) for p in take_paths])
+    with folder_lock(Path(out) / name):
         return _run_take(
-            cfg, cal_path, take_paths, out, force, client, say, accept_failed_validation
+            cfg, cal_path, take_paths, out, force, client, say, accept_failed_validation, name
         )
 
 
@@ -382,6 +385,7 @@ def _run_take(
     client=None,
     say: Callable[[str], None] = print,
     accept_failed_validation: bool = False,
+    name: str | None = None,
 ) -> TakeRun:
     """Run every stage on one take.
 
@@ -403,6 +407,8 @@ def _run_take(
         Where the one-line-per-stage progress goes.
     accept_failed_validation : bool
         Invert even when the impedance validation FAILs (the report says so).
+    name : str, optional
+        Folder of the take's results under ``out`` (default :func:`take_name`).
 
     Returns
     -------
@@ -415,8 +421,13 @@ def _run_take(
         stops before the inversion.
     """
     take_paths = [Path(p) for p in take_paths]
+<<<<<<< HEAD
     cal = load_calibration(cal_path, cfg.fingering)
     name = take_name(take_paths)
+=======
+    cal = load_calibration(cal_path)
+    name = name or take_name(take_paths)
+>>>>>>> any-take
     root = Path(out) / name
     d = {s: root / s for s in STAGES}
     records: dict[str, StageRecord] = {}

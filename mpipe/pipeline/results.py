@@ -87,8 +87,23 @@ def _take_folder(out: Path, take: str | None) -> Path:
         if not folder.is_dir():
             raise FileNotFoundError(f"{out}: no take {take!r}")
         return folder
+    if not out.is_dir():
+        raise FileNotFoundError(f"{out}: no such folder")
     takes = sorted(p.name for p in out.iterdir() if (p / "separation").is_dir())
     if not takes:
+        # a folder holding the run's folder (make demo's demo_output/run/<take>)
+        nested = sorted(
+            p
+            for d in out.iterdir()
+            if d.is_dir()
+            for p in d.iterdir()
+            if (p / "separation").is_dir()
+        )
+        if len(nested) == 1:
+            return nested[0]
+        if nested:
+            names = ", ".join(str(p.relative_to(out)) for p in nested)
+            raise ValueError(f"{out}: holds {len(nested)} takes ({names}); pass one's folder")
         raise FileNotFoundError(f"{out}: no mpipe run output (no <take>/separation folder)")
     if len(takes) > 1:
         raise ValueError(f"{out}: holds {len(takes)} takes ({', '.join(takes)}); pass take=")
@@ -101,7 +116,8 @@ def load_run(out: str | Path, take: str | None = None) -> RunData:
     Parameters
     ----------
     out : str or Path
-        The run's output folder (``-o OUT``) or one take's folder ``OUT/<take>``.
+        The run's output folder (``-o OUT``), one take's folder ``OUT/<take>``, or a folder
+        holding one run's folder (``make demo``'s ``demo_output``).
     take : str, optional
         Take name, needed when ``out`` holds several takes.
 

@@ -40,7 +40,11 @@ from mpipe.measurement.validation import ValidationConfig
 class PipelineConfig:
     """A whole pipeline file."""
 
-    calibration: str = spec("", "calibration file, relative to the pipeline file")
+    calibration: str = spec(
+        "",
+        "calibration file, relative to the pipeline file (`mpipe run --calibration` and "
+        "`mpipe separate` take theirs instead)",
+    )
     fingering: str | None = spec(
         "",
         "the fingering played, a name of the calibration's fingerings (null: the "
@@ -100,13 +104,17 @@ def pipeline_yaml(cfg: PipelineConfig | None = None, calibration: str | None = N
     return PIPELINE_HEADER + to_commented_yaml(cfg, skip=("source",))
 
 
-def load_pipeline(path: str | Path) -> PipelineConfig:
+def load_pipeline(path: str | Path, check_calibration: bool = True) -> PipelineConfig:
     """Read and validate a pipeline file.
 
     Parameters
     ----------
     path : str or Path
         YAML file.
+    check_calibration : bool
+        Refuse a ``calibration`` that names no file; False when the command is given
+        another calibration (``mpipe run --calibration``, ``mpipe separate``, ``mpipe
+        config``), so that the placeholder ``mpipe config`` writes does not block it.
 
     Returns
     -------
@@ -128,9 +136,21 @@ def load_pipeline(path: str | Path) -> PipelineConfig:
         raise ConfigError(f"{path}: source: this key is set by the loader, remove it")
     data["source"] = str(Path(path).resolve())
     cfg = build(PipelineConfig, data, Where(str(path)))
-    if not cfg.calibration_path.is_file():
+    if check_calibration and not cfg.calibration_path.is_file():
         raise ConfigError(f"{path}: calibration: no such file {cfg.calibration_path}")
+    _check_window(cfg, path)
     return cfg
+
+
+def _check_window(cfg: PipelineConfig, path: str | Path) -> None:
+    """A window must hold one period of the lowest playing frequency (its f0 is measured)."""
+    shortest = 1.0 / cfg.conditioning.f0_min_hz
+    if cfg.inversion.window_s < shortest:
+        raise ConfigError(
+            f"{path}: inversion.window_s: {cfg.inversion.window_s:g} s holds less than one "
+            f"period of the lowest playing frequency conditioning.f0_min_hz = "
+            f"{cfg.conditioning.f0_min_hz:g} Hz; expected at least {shortest:.3g} s"
+        )
 
 
 __all__ = [

@@ -99,3 +99,38 @@ def test_impedance_command_plays_a_fingering(tmp_path, capsys):
         with pytest.raises(SystemExit):
             main([command, "--help"])
         assert "--fingering NAME" in capsys.readouterr().out
+def test_every_help_shows_its_defaults():
+    # Issue 19: every option of every command (and subcommand) states its default in its
+    # --help text: shown by the formatter for a value, written out for one that is None.
+    import argparse
+
+    from mpipe.cli.main import build_parser
+
+    def options(parser, name):
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for sub_name, sub in action.choices.items():
+                    yield from options(sub, f"{name} {sub_name}")
+            elif action.option_strings and not action.required and action.nargs != 0:
+                yield name, parser, action
+
+    missing = []
+    for name, parser, action in options(build_parser(), "mpipe"):
+        if action.default is argparse.SUPPRESS:
+            continue
+        text = parser.formatter_class("mpipe")._get_help_string(action)
+        value = action.default
+        stated = "default" in text.lower() or (
+            value is not None and f"({value:g})" in text
+            if isinstance(value, float)
+            else f"({value})" in text
+        )
+        if not stated:
+            missing.append(f"{name} {action.option_strings[-1]}")
+    assert not missing, missing
+
+
+def test_help_is_printed_with_the_defaults(capsys):
+    with pytest.raises(SystemExit):
+        main(["separate", "--help"])
+    assert "(default: " in capsys.readouterr().out

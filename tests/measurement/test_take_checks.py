@@ -98,3 +98,20 @@ def test_sanity_checks_pass_a_good_take_at_any_snr(tmp_path, shipped_calibration
         vt = virtual_recording(p, u, FS, cal, snr_db=snr, bits=bits, seed=seed, fs_out=48_000.0)
         path, cal2 = _write_mono_take(tmp_path, vt, cal, (0, 1, 2))
         read_take(path, cal2)
+
+
+def test_a_float_file_above_one_is_not_clipped(tmp_path, shipped_calibration):
+    # Issue 19: a float WAV holds samples beyond 1.0 as they are: a take peaking at 3 x
+    # full scale (sensitivities a third) reads as the same pressures, no clipping reported.
+    cal = shipped_calibration
+    vt = virtual_recording(*signals(), FS, cal, snr_db=50.0, bits=24, fs_out=48_000.0)
+    path, cal_ok = _write_mono_take(tmp_path, vt, cal, (0, 1, 2))
+    ref = read_take(path, cal_ok)
+    (tmp_path / "big").mkdir()
+    big, cal_big = _write_mono_take(
+        tmp_path / "big", vt, cal, (0, 1, 2), scale=(1 / 3, 1 / 3, 1 / 3), edit=lambda d: 3 * d
+    )
+    assert np.max(np.abs(sf.read(big)[0])) > 1.0
+    take = read_take(big, cal_big)
+    assert take.clip_fraction == (0.0, 0.0, 0.0)
+    np.testing.assert_allclose(take.pressures, ref.pressures, rtol=1e-6, atol=1e-6)

@@ -97,13 +97,28 @@ def test_interrupted_run_resumes_and_redoes_nothing_done(finished, take, pipelin
 
     out, run, _ = finished
     before = pd.read_csv(run.folder / "inversion" / "windows.csv", keep_default_na=False)
-    # interrupt the inversion after its first window: no manifest, one checkpoint left
+    # a finished stage keeps no resumable state (issue 19: no inversion/partial/ left)
+    partial = run.folder / "inversion" / "partial"
+    assert not partial.exists()
+    # redo the inversion and press Ctrl-C during its second window: no manifest, the
+    # windows finished before it are checkpointed
     (run.folder / "inversion" / "manifest.json").unlink()
-    checkpoints = sorted((run.folder / "inversion" / "partial" / "windows").glob("w*.json"))
-    for c in checkpoints[1:]:
-        c.unlink()
-    calls = []
     real = tracking.invert_window
+    calls = []
+
+    def interrupted(*a, **k):
+        if calls:
+            raise KeyboardInterrupt
+        calls.append(a[3])
+        return real(*a, **k)
+
+    monkeypatch.setattr(tracking, "invert_window", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run_take(pipeline, take.calibration, [take.audio], out, say=lambda s: None)
+    assert not (run.folder / "inversion" / "manifest.json").exists()
+    checkpoints = sorted((partial / "windows").glob("w*.json"))
+    assert 1 <= len(checkpoints) < len(before)
+    calls = []
     monkeypatch.setattr(
         tracking, "invert_window", lambda *a, **k: calls.append(a[3]) or real(*a, **k)
     )
@@ -111,7 +126,8 @@ def test_interrupted_run_resumes_and_redoes_nothing_done(finished, take, pipelin
     status = {k: r.status for k, r in again.records.items()}
     assert status["separation"] == status["translation"] == status["validation"] == "skipped"
     assert status["inversion"] == "done"
-    assert len(calls) == len(checkpoints) - 1  # only the lost windows were redone
+    assert len(calls) == len(before) - len(checkpoints)  # only the lost windows were redone
+    assert not partial.exists()
     after = pd.read_csv(run.folder / "inversion" / "windows.csv", keep_default_na=False)
     np.testing.assert_allclose(after["k"], before["k"], rtol=1e-9)
     # a finished run is skipped whole, and other settings never overwrite it silently
@@ -139,7 +155,9 @@ def test_malformed_pipeline_and_take_give_clear_errors(tmp_path, take, capsys):
     err = capsys.readouterr().err
     assert "stereo.wav: has 2 channels" in err
     # with several takes, a bad one is reported and the others go on
-    assert main(["run", str(good), str(stereo), str(stereo), "-o", str(tmp_path / "o")]) == 1
+    other = tmp_path / "stereo2.wav"
+    sf.write(other, np.zeros((20000, 2)), 100000)
+    assert main(["run", str(good), str(stereo), str(other), "-o", str(tmp_path / "o")]) == 1
     assert "2 of 2 takes failed" in capsys.readouterr().out
     assert main(["run", str(good), str(tmp_path / "missing.flac"), "-o", str(tmp_path)]) == 2
     assert "no such take file" in capsys.readouterr().err
@@ -217,6 +235,15 @@ def test_load_run_gives_tables_and_signals_with_units(finished):
     assert numeric and not any(len(tok) > 17 for tok in numeric)
     with pytest.raises(TypeError):
         data.tables["windows"] = None
+
+
+def test_load_run_finds_the_run_in_the_folder_above(finished, tmp_path):
+    # Issue 19: the README's mpipe.load_run("demo_output") (the run is in demo_output/run)
+    import mpipe
+
+    out, run, _ = finished
+    (tmp_path / "run").symlink_to(out, target_is_directory=True)
+    assert mpipe.load_run(tmp_path).folder.resolve() == run.folder.resolve()
 
 
 @pytest.fixture(scope="module")

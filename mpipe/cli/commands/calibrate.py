@@ -40,13 +40,15 @@ def add_parser(sub) -> None:
         "--full-scale-v",
         type=float,
         default=None,
-        help="peak voltage at the converter that reads as digital full scale (1.0), V",
+        help="peak voltage at the converter that reads as digital full scale (1.0), V (no "
+        "default: this or --full-scale-dbu)",
     )
     s.add_argument(
         "--full-scale-dbu",
         type=float,
         default=None,
-        help="the same as an RMS level in dBu (a sine at full scale), instead of --full-scale-v",
+        help="the same as an RMS level in dBu (a sine at full scale), instead of --full-scale-v "
+        "(no default)",
     )
     s.set_defaults(func=run_sensitivity)
 
@@ -73,7 +75,12 @@ def add_parser(sub) -> None:
                 metavar="X",
                 help="position of the rigid cap, m from the mouthpiece entry",
             )
-            m.add_argument("--temperature", type=float, metavar="C", help="air temperature, degC")
+            m.add_argument(
+                "--temperature",
+                type=float,
+                metavar="C",
+                help="air temperature, degC (default: the calibration's)",
+            )
         m.add_argument("-o", "--output", required=True, metavar="FILE.csv", help="output CSV")
         m.add_argument("--fmin", type=float, default=20.0, help="lowest frequency, Hz")
         m.add_argument("--fmax", type=float, default=7250.0, help="highest frequency, Hz")

@@ -22,9 +22,14 @@ def add_parser(sub) -> None:
     )
     p.add_argument("pipeline", nargs="?", help="pipeline YAML to resolve (default: none)")
     p.add_argument(
-        "--calibration", metavar="FILE.yaml", help="calibration path to write into the output"
+        "--calibration",
+        metavar="FILE.yaml",
+        help="calibration path to write into the output (default: the pipeline's, or a "
+        "placeholder)",
     )
-    p.add_argument("-o", "--output", metavar="FILE.yaml", help="write here instead of stdout")
+    p.add_argument(
+        "-o", "--output", metavar="FILE.yaml", help="write here instead of stdout (default: stdout)"
+    )
     p.add_argument("--force", action="store_true", help="overwrite the output file")
     p.set_defaults(func=run)
 
@@ -33,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe config``."""
     if args.output:
         check_writable([args.output], args.force)
-    cfg = load_pipeline(args.pipeline) if args.pipeline else None
+    cfg = load_pipeline(args.pipeline, check_calibration=False) if args.pipeline else None
     text = pipeline_yaml(cfg, args.calibration)
     if args.output:
         write_text_atomic(Path(args.output), text)

@@ -31,16 +31,23 @@ def add_parser(sub) -> None:
         "--flange-radius",
         type=float,
         metavar="M",
-        help="outer flange radius in m, for --radiation finite-flange",
+        help="outer flange radius in m, for --radiation finite-flange (default: the calibration's)",
     )
-    p.add_argument("--temperature", type=float, metavar="C", help="air temperature in degC")
+    p.add_argument(
+        "--temperature",
+        type=float,
+        metavar="C",
+        help="air temperature in degC (default: the calibration's)",
+    )
     p.add_argument("--fmin", type=float, default=10.0, help="lowest frequency in Hz (10)")
     p.add_argument("--fmax", type=float, default=4000.0, help="highest frequency in Hz (4000)")
     p.add_argument("--df", type=float, default=0.5, help="frequency step in Hz (0.5)")
     p.add_argument("--count", type=int, default=5, help="resonances to list (5)")
-    p.add_argument("--plot", metavar="FILE.png", help="write the impedance plot")
+    p.add_argument("--plot", metavar="FILE.png", help="write the impedance plot (default: none)")
     p.add_argument(
-        "--csv", metavar="FILE.csv", help="write frequency_hz, z_real, z_imag, zc (Pa s/m^3)"
+        "--csv",
+        metavar="FILE.csv",
+        help="write frequency_hz, z_real, z_imag, zc (Pa s/m^3) (default: none)",
     )
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
     add_fingering_option(p)
@@ -50,20 +57,36 @@ def add_parser(sub) -> None:
         "levels in dB, band error, plot). The file's layout comes from its YAML header or "
         "sidecar FILE.yaml, or from these options (see docs/your_own_recording.md)",
     )
-    m.add_argument("--measured", metavar="FILE", help="measured impedance (text)")
+    m.add_argument(
+        "--measured", metavar="FILE", help="measured impedance (text) (default: none, theory only)"
+    )
     m.add_argument(
         "--columns",
         metavar="K,K,K",
         help="kind of each column: frequency_hz, re, im, minus_im, magnitude, magnitude_db, "
-        "phase_deg, phase_rad, ignore",
+        "phase_deg, phase_rad, ignore (default: the file's header or sidecar)",
     )
-    m.add_argument("--normalisation", choices=["Z/Zc", "Pa s/m^3"], help="of the file")
-    m.add_argument("--time-convention", choices=["+jwt", "-jwt"], help="of the file")
-    m.add_argument("--entry-radius", type=float, metavar="M", help="radius of the file's Zc, m")
+    m.add_argument(
+        "--normalisation",
+        choices=["Z/Zc", "Pa s/m^3"],
+        help="of the file (default: its header or sidecar)",
+    )
+    m.add_argument(
+        "--time-convention",
+        choices=["+jwt", "-jwt"],
+        help="of the file (default: its header or sidecar, else +jwt)",
+    )
+    m.add_argument(
+        "--entry-radius",
+        type=float,
+        metavar="M",
+        help="radius of the file's Zc, m (default: the calibration's entry)",
+    )
     m.add_argument(
         "--take-impedance",
         metavar="IMPEDANCE.csv",
-        help="a take's own impedance (OUT/<take>/validation/impedance.csv) to compare too",
+        help="a take's own impedance (OUT/<take>/validation/impedance.csv) to compare too "
+        "(default: none)",
     )
     p.set_defaults(func=run)
 

@@ -88,15 +88,41 @@ def load_mouthpiece(path: str | Path) -> tuple[float, np.ndarray, np.ndarray, np
         missing = [k for k in ("fs", "p", "u") if k not in data.files]
         if missing:
             raise UserError(f"{path}: missing key {missing[0]!r} (expected fs, p, u)")
-        fs = float(np.asarray(data["fs"]).ravel()[0])
-        p = np.asarray(data["p"], dtype=float).ravel()
-        u = np.asarray(data["u"], dtype=float).ravel()
-        temperature = data["temperature_c"] if "temperature_c" in data.files else None
+        fs_arr = _numeric(data, "fs", path)
+        if fs_arr.size != 1 or not (np.isfinite(fs_arr).all() and float(fs_arr.ravel()[0]) > 0):
+            raise UserError(
+                f"{path}: key 'fs': expected one positive sample rate in Hz, got "
+                f"{np.array2string(fs_arr.ravel()[:3])}"
+            )
+        fs = float(fs_arr.ravel()[0])
+        p = _numeric(data, "p", path).astype(float).ravel()
+        u = _numeric(data, "u", path).astype(float).ravel()
+        temperature = (
+            _numeric(data, "temperature_c", path) if "temperature_c" in data.files else None
+        )
     if p.shape != u.shape:
         raise UserError(f"{path}: p and u differ in length ({p.size} and {u.size})")
     if not (np.all(np.isfinite(p)) and np.all(np.isfinite(u))):
         raise UserError(f"{path}: p or u contains non-finite samples")
     return fs, p, u, temperature
+
+
+def _numeric(data, key: str, path) -> np.ndarray:
+    """Array ``key`` of an open npz, refused in one line unless it holds numbers."""
+    try:
+        arr = np.asarray(data[key])
+    except ValueError:  # object arrays need pickle, which is never loaded
+        raise UserError(
+            f"{path}: key {key!r} holds Python objects (an object array); expected numbers "
+            "(save float arrays with numpy.savez)"
+        ) from None
+    if arr.dtype.kind not in "iuf":
+        what = "text" if arr.dtype.kind in "SU" else f"dtype {arr.dtype}"
+        raise UserError(
+            f"{path}: key {key!r} holds {what} ({np.array2string(arr.ravel()[:3])}); "
+            "expected numbers (fs in Hz, p in Pa, u in m^3/s)"
+        )
+    return arr
 
 
 def run(args: argparse.Namespace) -> int:
@@ -169,8 +195,14 @@ def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
 
     inv = cfg.inversion
     # The same windows and the same bore kernel as `mpipe run` (one answer per take).
-    plan, segments = plan_take(p, fs, cfg.conditioning, inv.window_s, inv.hop_s, args.start,
-                               args.end, bore_resonances(cal))  # fmt: skip
+    try:
+        plan, segments = plan_take(p, fs, cfg.conditioning, inv.window_s, inv.hop_s,
+                                   args.start, args.end, bore_resonances(cal))  # fmt: skip
+    except ValueError as exc:
+        msg = str(exc)
+        raise UserError(
+            f"{args.mouthpiece}: {'--' if msg.startswith(('start ', 'end ')) else ''}{msg}"
+        ) from None
     chosen = plan[plan["invert"]]
     starts = chosen["start"].astype(int).tolist()
     if not starts:

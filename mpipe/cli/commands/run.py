@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 from mpipe.cli.commands import add_fingering_option
@@ -28,13 +29,15 @@ def add_parser(sub) -> None:
         nargs="+",
         metavar="TAKE",
         help="multichannel take files; the mono files of one take (one per microphone) may "
-        "be joined with commas: mic1.wav,mic2.wav,mic3.wav",
+        "be joined with commas: mic1.wav,mic2.wav,mic3.wav (a file whose name holds a comma "
+        "is taken whole). Takes sharing a file name get the folder <dir>_<name>",
     )
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output directory")
     p.add_argument(
         "--calibration",
         metavar="FILE.yaml",
-        help="calibration file to use instead of the pipeline's (e.g. a virtual take's copy)",
+        help="calibration file to use instead of the pipeline's (e.g. a virtual take's copy; "
+        "default: the pipeline's)",
     )
     p.add_argument("--force", action="store_true", help="redo finished stages and windows")
     add_fingering_option(p)
@@ -47,31 +50,95 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run)
 
 
+def _take_files(arg: str) -> list[Path]:
+    """The files of one TAKE argument.
+
+    An existing file is taken as it is (commas in its name and all); otherwise the argument
+    holds the comma-separated mono files of one take.
+    """
+    if Path(arg).is_file():
+        return [Path(arg)]
+    files = [Path(p) for p in arg.split(",")] if "," in arg else [Path(arg)]
+    if len(files) > 64:
+        raise UserError(f"{arg}: expected one file or one mono file per microphone")
+    for p in files:
+        if not p.is_file():
+            raise UserError(f"{p}: no such take file" + (f" (in {arg})" if len(files) > 1 else ""))
+    return files
+
+
+def take_names(takes: Sequence[Sequence[str | Path]]) -> list[str]:
+    """Folder names of the takes of one run, distinct: takes sharing a stem are told apart.
+
+    A take's name is its file's stem; when several takes of the run share it, each is
+    named ``<folder>_<stem>`` after its file's folder, or ``<stem>_<suffix>`` when they lie
+    in one folder (``take.wav`` and ``take.flac``).
+
+    Raises
+    ------
+    UserError
+        When one file is given as two takes.
+    """
+    files = [Path(t[0]).resolve() for t in takes]
+    for i, f in enumerate(files):
+        if f in files[:i]:
+            raise UserError(f"{takes[i][0]}: given twice as a take")
+    stems = [Path(t[0]).stem for t in takes]
+    names = []
+    for t, stem in zip(takes, stems, strict=True):
+        first = Path(t[0])
+        if stems.count(stem) == 1:
+            names.append(stem)
+        elif (
+            sum(
+                Path(o[0]).stem == stem and Path(o[0]).resolve().parent == first.resolve().parent
+                for o in takes
+            )
+            > 1
+        ):
+            names.append(f"{stem}_{first.suffix.lstrip('.')}")
+        else:
+            names.append(f"{first.resolve().parent.name}_{stem}")
+    return names
+
+
+def _check_lengths(takes: list[list[Path]], cfg) -> None:
+    """Refuse, before any work, a take too short for one window within conditioning.edge_s."""
+    import soundfile as sf
+
+    from mpipe.inversion.conditioning import check_span
+
+    for t in takes:
+        try:
+            info = sf.info(str(t[0]))
+        except (RuntimeError, OSError):
+            continue  # an unreadable file is named when the take is read
+        try:
+            check_span(info.frames, info.samplerate, cfg.conditioning.edge_s,
+                       cfg.inversion.window_s, None, None)  # fmt: skip
+        except ValueError as exc:
+            raise UserError(f"{t[0]}: {exc}") from None
+
+
 def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe run``."""
     from mpipe.core.io import check_output_folder
     from mpipe.core.progress import write
-    from mpipe.pipeline.orchestration import ValidationFailed, run_take, take_name, usable
+    from mpipe.pipeline.orchestration import ValidationFailed, run_take, usable
 
-    cfg = load_pipeline(args.pipeline)
+    cfg = load_pipeline(args.pipeline, check_calibration=args.calibration is None)
     if args.fingering is not None:
         cfg = dataclasses.replace(cfg, fingering=args.fingering)
     cal_path = Path(args.calibration) if args.calibration else cfg.calibration_path
     if not cal_path.is_file():
         raise UserError(f"{cal_path}: no such calibration file")
-    takes = [[Path(p) for p in t.split(",")] for t in args.takes]
-    for t in takes:
-        if len(t) == 0 or len(t) > 64:
-            raise UserError(
-                f"{','.join(map(str, t))}: expected one file or one mono file per microphone"
-            )
-        for p in t:
-            if not p.is_file():
-                raise UserError(f"{p}: no such take file")
+    takes = [_take_files(t) for t in args.takes]
+    names = take_names(takes)
+    _check_lengths(takes, cfg)
     # a bad output path fails now, not after the computation
     check_output_folder(args.output)
-    for t in takes:
-        check_output_folder(Path(args.output) / take_name(t))
+    for name in names:
+        check_output_folder(Path(args.output) / name)
     client = None
     if cfg.executor.kind == "dask":
         from distributed import Client
@@ -80,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
         client = Client(cfg.executor.scheduler)
     failed = []
     try:
-        for t in takes:
+        for t, name in zip(takes, names, strict=True):
             try:
                 result = run_take(
                     cfg,
@@ -91,10 +158,11 @@ def run(args: argparse.Namespace) -> int:
                     client,
                     say=write,
                     accept_failed_validation=args.accept_failed_validation,
+                    name=name,
                 )
                 if not usable(result):
                     failed.append(t[0])
-                    write(f"[{t[0].stem}] failed: no window has status ok (no usable result)")
+                    write(f"[{name}] failed: no window has status ok (no usable result)")
             except ValidationFailed as exc:  # a result (the measurement is not sound): 1
                 failed.append(t[0])
                 print(f"mpipe run: {exc}", file=sys.stderr)
@@ -102,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
                 if isinstance(exc, ConfigError | UserError) and len(takes) == 1:
                     raise
                 failed.append(t[0])
-                print(f"[{t[0].stem}] failed: {exc}")
+                print(f"[{name}] failed: {exc}")
     finally:
         if client is not None:
             client.close()

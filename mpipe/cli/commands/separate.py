@@ -104,7 +104,8 @@ def add_parser(sub) -> None:
         "--fixed-mach",
         type=float,
         metavar="M",
-        help="hold the Mach number of the mean flow at M instead of estimating it",
+        help="hold the Mach number of the mean flow at M instead of estimating it (default: "
+        "the settings', estimated)",
     )
     p.set_defaults(func=run)
 
@@ -166,7 +167,7 @@ def _inputs(args: argparse.Namespace) -> tuple[list[str], str, Path, list[Path]]
 def _settings(args: argparse.Namespace):
     """Separation, translation and validation settings, and the sample rate (Hz)."""
     if args.pipeline:
-        pipe = load_pipeline(args.pipeline)
+        pipe = load_pipeline(args.pipeline, check_calibration=False)
         sep_cfg, tr_cfg, val_cfg = pipe.separation, pipe.translation, pipe.validation
         rate = pipe.inversion.sample_rate
     else:
@@ -190,13 +191,34 @@ def _write_outputs(out: Path, fs: float, sep, tr, val, noise: dict) -> None:
         "temperature_c": tr.temperature_c,
         **noise,
     }
-    write_npz_atomic(out / "mouthpiece.npz", **arrays)
-    write_atomic(out / "mouthpiece.wav", lambda tmp: write_mouthpiece_wav(tmp, tr.p, tr.u, fs))
-    write_csv(out / "blocks.csv", sep.blocks)
-    write_csv(out / "impedance.csv", val.table())
-    write_csv(out / "validation.csv", val.resonances)
-    write_csv(out / "harmonics.csv", val.harmonics)
-    write_atomic(out / "impedance.png", lambda tmp: plot_impedance(val, tmp, 2000.0))
+    steps = [
+        (out / "mouthpiece.npz", lambda path: write_npz_atomic(path, **arrays)),
+        (
+            out / "mouthpiece.wav",
+            lambda path: write_atomic(path, lambda t: write_mouthpiece_wav(t, tr.p, tr.u, fs)),
+        ),
+        (out / "blocks.csv", lambda path: write_csv(path, sep.blocks)),
+        (out / "impedance.csv", lambda path: write_csv(path, val.table())),
+        (out / "validation.csv", lambda path: write_csv(path, val.resonances)),
+        (out / "harmonics.csv", lambda path: write_csv(path, val.harmonics)),
+        (out / "impedance.png", lambda path: write_atomic(path, lambda t: _plot(val, t))),
+    ]
+    written: list[Path] = []
+    try:
+        for path, write in steps:
+            write(path)
+            written.append(path)
+    except OSError as exc:
+        # all or nothing: a full disk leaves no mix of this run's files and older ones
+        for path in written:
+            path.unlink(missing_ok=True)
+        if exc.filename is None:
+            exc.filename = str(path)
+        raise
+
+
+def _plot(val, path: Path) -> None:
+    plot_impedance(val, path, 2000.0)
 
 
 def _print_summary(sep, val, paths: list[Path]) -> int:

@@ -56,8 +56,10 @@ def add_parser(sub) -> None:
     p.add_argument(
         "-o", "--output", required=True, metavar="OUT.npz", help="signals and parameters (npz)"
     )
-    p.add_argument("--wav", metavar="OUT.wav", help="mouthpiece pressure as a WAV file")
-    p.add_argument("--plot", metavar="OUT.png", help="plot of p, u and y")
+    p.add_argument(
+        "--wav", metavar="OUT.wav", help="mouthpiece pressure as a WAV file (default: none)"
+    )
+    p.add_argument("--plot", metavar="OUT.png", help="plot of p, u and y (default: none)")
     p.add_argument(
         "--onset",
         type=float,
@@ -119,6 +121,11 @@ def _checked_arguments(args: argparse.Namespace) -> tuple[list, int]:
         raise UserError(f"--duration: expected a positive number of seconds, got {args.duration}")
     if not (math.isfinite(args.fs) and args.fs > 0):
         raise UserError(f"--fs: expected a positive sample rate in Hz, got {args.fs}")
+    if args.fs < MIN_FS_HZ:
+        raise UserError(
+            f"--fs: {args.fs:g} Hz is too low; the bore's reflection function is checked up "
+            f"to {CHECK_BAND_HZ:g} Hz, so expected at least {MIN_FS_HZ:g} Hz"
+        )
     if args.onset < 0 or args.noise < 0:
         raise UserError("--onset and --noise must be >= 0")
     n = int(round(args.duration * args.fs))
@@ -130,6 +137,13 @@ def _checked_arguments(args: argparse.Namespace) -> tuple[list, int]:
     if args.wav and args.fs != round(args.fs):
         raise UserError(f"--wav needs an integer sample rate, got --fs {args.fs}")
     return outputs, n
+
+
+#: Upper edge of the band where the truncated reflection function is checked, Hz (the
+#: default of :func:`mpipe.acoustics.reflection.reflection_function`), and the lowest rate
+#: whose Nyquist frequency holds it with a 10 % margin.
+CHECK_BAND_HZ = 7250.0
+MIN_FS_HZ = 2.2 * CHECK_BAND_HZ
 
 
 def _simulate(args: argparse.Namespace, cal, reed, air, n: int):

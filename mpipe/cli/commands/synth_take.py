@@ -8,6 +8,7 @@ audio file, its sidecar (with this command line), the truth and a calibration co
 from __future__ import annotations
 
 import argparse
+import math
 import shlex
 
 from mpipe.cli.commands import add_fingering_option
@@ -85,7 +86,12 @@ def _add_conditions(p) -> None:
         metavar="HZ",
         help="model sample rate in Hz (100000)",
     )
-    p.add_argument("--fs-out", type=float, metavar="HZ", help="file sample rate in Hz")
+    p.add_argument(
+        "--fs-out",
+        type=float,
+        metavar="HZ",
+        help="file sample rate in Hz (default: the model rate)",
+    )
     p.add_argument(
         "--temperature",
         type=lambda s: _numbers(s, (1, 2), "--temperature"),
@@ -102,7 +108,12 @@ def _add_conditions(p) -> None:
 
 def _add_microphone_errors(p) -> None:
     """Noise and sensitivity/phase mismatch of the virtual microphones."""
-    p.add_argument("--snr", type=float, metavar="DB", help="microphone noise SNR per channel, dB")
+    p.add_argument(
+        "--snr",
+        type=float,
+        metavar="DB",
+        help="microphone noise SNR per channel, dB (default: no noise)",
+    )
     p.add_argument(
         "--gain-error-db",
         type=lambda s: _numbers(s, tuple(range(2, 65)), "--gain-error-db"),
@@ -146,9 +157,36 @@ def _add_player(p) -> None:
     )
 
 
+#: Peak memory of a simulation per model sample, bytes (measured: synth-take at 100 kHz
+#: grows by about 30 MB per second of take; see docs/memory.md).
+BYTES_PER_MODEL_SAMPLE = 320
+
+
+def _check_duration(duration_s: float, fs_model: float) -> None:
+    """Refuse, before simulating, a duration that is not positive or will not fit in memory."""
+    import os
+
+    if not (math.isfinite(duration_s) and duration_s > 0):
+        raise UserError(f"--duration: expected a positive length in s, got {duration_s:g}")
+    need = duration_s * fs_model * BYTES_PER_MODEL_SAMPLE
+    try:
+        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        have = 16 * 2**30
+    if need > 0.8 * have:
+        longest = 0.8 * have / (fs_model * BYTES_PER_MODEL_SAMPLE)
+        raise UserError(
+            f"--duration: {duration_s:g} s at --fs-model {fs_model:g} Hz needs about "
+            f"{need / 2**30:.3g} GiB of memory, this machine has {have / 2**30:.3g} GiB; "
+            f"expected at most {longest:.0f} s"
+        )
+
+
 def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe synth-take``."""
     _resolve_player(args)
+    if args.duration is not None:
+        _check_duration(args.duration, args.fs_model)
     temp = args.temperature
     if temp is not None:
         temp = temp[0] if len(temp) == 1 else (temp[0], temp[1])
