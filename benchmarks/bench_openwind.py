@@ -183,34 +183,45 @@ def write_take(path: Path, cal, reed, duration: float, snr: float, seed: int):
 
 
 def compare(folder: Path, truth, reed) -> None:
-    """Medians of the ok windows' parameters against the mapped OpenWInD reed."""
+    """Every inverted window against OpenWInD's controls and its (mapped) reed.
+
+    The status rules judge mpipe's model on its own terms: a parameter the two reed models
+    define differently can sit on its search bound while p_m and p_M are right, so this
+    looks at every inverted window whatever its status.
+    """
     import pandas as pd
 
     path = folder / "inversion" / "windows.csv"
     if not path.exists():
         return
     win = pd.read_csv(path)
-    ok = win[win["status"] == "ok"]
-    if ok.empty:
-        print("  no ok window")
+    win = win[np.isfinite(win["p_m"])]
+    if win.empty:
+        print("  no inverted window")
         return
-    print("  medians of the ok windows against OpenWInD's reed (mapped; see the docstring):")
+    cells = list(zip(win["t_start_s"], win["t_end_s"], strict=True))
+    pm = np.array([float(np.mean(truth["control_p_m"][int(a * 1e3) : int(np.ceil(b * 1e3))]))
+                   for a, b in cells])  # fmt: skip
+    e_pm = win["p_m"].to_numpy() / pm - 1
+    e_pM = (win["k"] * win["y_m"]).to_numpy() / (reed.k * reed.y_m) - 1
+    n = len(win)
+    iqr = 100 * np.subtract(*np.percentile(e_pm, [75, 25]))
+    in_pm, in_pM = int(np.sum(np.abs(e_pm) <= 0.03)), int(np.sum(np.abs(e_pM) <= 0.05))
+    print(f"  every inverted window ({n}, any status): p_m error median "
+          f"{100 * np.median(e_pm):+.2f} %, IQR {iqr:.2f} %, within 3 %: {in_pm}/{n}; "
+          f"p_M = k y_m error median {100 * np.median(e_pM):+.2f} %, "
+          f"within 5 %: {in_pM}/{n}")  # fmt: skip
+    bounds = win["at_bound"].fillna("").astype(str).value_counts()
+    print("  on a bound: " + ", ".join(f"{k or 'none'} {v}" for k, v in bounds.items()))
+    print("  medians of every inverted window against OpenWInD's reed (mapped; see the docstring):")
     for name, true in (("k", reed.k), ("y_m", reed.y_m), ("S", reed.S), ("lam", reed.lam),
                        ("m", reed.m), ("g", reed.g), ("k_c", reed.k_c)):  # fmt: skip
         note = "  (no counterpart: contact laws differ)" if name == "k_c" else ""
-        print(f"    {name:4s} {ok[name].median():.4g} vs {true:.4g}: "
-              f"{100 * (ok[name].median() / true - 1):+.1f} %{note}")  # fmt: skip
-    err = (
-        ok["p_m"]
-        / [
-            float(np.mean(truth["control_p_m"][int(a * 1000) : int(np.ceil(b * 1000))]))
-            for a, b in zip(ok["t_start_s"], ok["t_end_s"], strict=True)
-        ]
-        - 1
-    )
-    print(f"  p_m error per ok window: median {100 * np.median(err):+.2f} %, "
-          f"IQR {100 * np.subtract(*np.percentile(err, [75, 25])):.2f} %")  # fmt: skip
-    record("OpenWInD take: median p_m error of ok windows", abs(100 * np.median(err)), "%",
+        print(f"    {name:4s} {win[name].median():.4g} vs {true:.4g}: "
+              f"{100 * (win[name].median() / true - 1):+.1f} %{note}")  # fmt: skip
+    record("OpenWInD take: inverted windows with p_m within 3 %",
+           100 * np.mean(np.abs(e_pm) <= 0.03), "%", target=">= 90")  # fmt: skip
+    record("OpenWInD take: median |p_m error|, inverted windows", abs(100 * np.median(e_pm)), "%",
            target="<= 3")  # fmt: skip
     temps = ", ".join(f"{v:.2f}" for v in win["kernel_temperature_c"].dropna().unique()[:3])
     played = float(truth["temperature_c"][0])

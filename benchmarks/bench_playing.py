@@ -261,6 +261,7 @@ def summarise(summary: list, cases: list[str], snr: float) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=2, help="noise seeds per take (2)")
+    ap.add_argument("--first-seed", type=int, default=0, help="first noise seed (0)")
     ap.add_argument("--snr", type=float, default=45.0, help="microphone SNR, dB (45)")
     ap.add_argument(
         "--cases", default=",".join(CASES), help=f"comma-separated, of {', '.join(CASES)}"
@@ -285,7 +286,7 @@ def main(argv: list[str] | None = None) -> int:
         pipe = pipeline_copy(folder, args.workers)
         summary = []
         for name in cases:
-            for seed in range(args.seeds):
+            for seed in range(args.first_seed, args.first_seed + args.seeds):
                 files = make(name, folder, seed, args.snr)
                 run = run_pipeline(files, pipe, folder / "out")
                 take = folder / "out" / files.audio.stem

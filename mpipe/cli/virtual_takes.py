@@ -260,6 +260,12 @@ def make_take(
             )
     score = None if options.score is None else load_score(options.score)
     _check_options(options, score is not None)
+    if score is not None and options.duration_s is not None:
+        if options.duration_s < score.duration - 1e-9:
+            raise UserError(
+                f"--duration: {options.duration_s:g} s is shorter than the score "
+                f"{options.score} ({score.duration:g} s)"
+            )
     reed = load_reed(reed_path)
     take, run, mach = synthesize(calibration, reed, options, score)
     breath_seed, noise_seed = child_seeds(options.seed)

@@ -311,4 +311,12 @@ def score_mapping(score: Score) -> dict[str, Any]:
     return dataclasses.asdict(score)
 
 
-__all__ = ["Note", "Score", "Vibrato", "load_score", "score_controls", "score_from_mapping"]
+__all__ = [
+    "Note",
+    "Score",
+    "Vibrato",
+    "load_score",
+    "score_controls",
+    "score_from_mapping",
+    "score_mapping",
+]

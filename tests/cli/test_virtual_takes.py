@@ -83,5 +83,7 @@ def test_synth_take_plays_a_score_and_keeps_its_truth(tmp_path):
     assert "--score" in sidecar["recipe"]["command"]
     with pytest.raises(UserError, match="--swell: not with --score"):
         run_synth_take([*base, "--swell", "0.1", "--force"])
+    with pytest.raises(UserError, match=r"--duration: 0.2 s is shorter than the score .*two"):
+        run_synth_take([*base, "--duration", "0.2", "--force"])
     with pytest.raises(UserError, match="--duration: required without --score"):
         run_synth_take([str(SHIPPED), "--reed", str(REED), "-o", str(out), "--force"])
