@@ -65,23 +65,36 @@ class TrackChoice:
     p_curve: float
     span_s: float
 
-    def sentence(self) -> str:
-        """Whether the data show a drift of the temperature, in words (degC)."""
+    def sentence(self, deg: str = "degC", pm: str = "+-") -> str:
+        """Whether the data show a drift of the temperature, in words (``deg``: its unit)."""
         t, se = self.level[0], self.level_se[0]
         dt, dse = self.change[0], self.change_se[0]
         if self.model == "held":
-            return f"Effective temperature held at {t:.2f} degC (not estimated)."
-        head = f"Effective temperature {t:.2f} +- {se:.2f} degC over the take"
+            return f"Effective temperature held at {t:.2f} {deg} (not estimated)."
+        head = f"Effective temperature {t:.2f} {pm} {se:.2f} {deg} over the take"
         if self.model == "constant":
             return (
                 f"{head}; the data show no drift (change over {self.span_s:.1f} s "
-                f"{dt:+.2f} +- {dse:.2f} degC, p = {self.p_drift:.2g}): one value for the take."
+                f"{dt:+.2f} {pm} {dse:.2f} {deg}, p = {self.p_drift:.2g}): one value for the "
+                "take."
             )
         shape = "linear" if self.model == "linear" else "not linear (smoothed track)"
         return (
-            f"{head}; the data show a drift of {dt:+.2f} +- {dse:.2f} degC over "
+            f"{head}; the data show a drift of {dt:+.2f} {pm} {dse:.2f} {deg} over "
             f"{self.span_s:.1f} s (p = {self.p_drift:.2g}), {shape}."
         )
+
+    def summary(self) -> dict:
+        """JSON-safe take-level figures (degC): model, value, SE, drift, its SE, in words."""
+        return {
+            "track_model": self.model,
+            "temperature_c_take": float(self.level[0]),
+            "temperature_se_c_take": float(self.level_se[0]),
+            "temperature_drift_c": float(self.change[0]),
+            "temperature_drift_se_c": float(self.change_se[0]),
+            "drift_p_value": float(self.p_drift),
+            "drift_sentence": self.sentence("°C", "±"),
+        }
 
 
 def overlap_correlation(length: int, hop: int) -> float:
