@@ -78,6 +78,8 @@ def _load_npz(path: Path) -> dict:
 
 
 def _plot_blocks(blocks: pd.DataFrame, path: Path, sentence: str = "") -> None:
+    import textwrap
+
     import matplotlib
 
     matplotlib.use("Agg")
@@ -98,9 +100,8 @@ def _plot_blocks(blocks: pd.DataFrame, path: Path, sentence: str = "") -> None:
         ax.grid(alpha=0.3)
     axes[-1].set_xlabel("time [s]")
     axes[0].legend(loc="best", fontsize=8)
-    axes[0].set_title(
-        sentence or "Propagation parameters tracked by the wave separation", fontsize=8
-    )
+    title = sentence or "Propagation parameters tracked by the wave separation"
+    axes[0].set_title(textwrap.fill(title, 110), fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110, format="png")
     plt.close(fig)
