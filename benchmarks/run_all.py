@@ -31,6 +31,7 @@ QUICK_ARGS = {
     "bench_model": ["--seconds", "1", "--repeats", "3"],
     "bench_inversion": [],
     "bench_frontend": ["--duration", "1"],
+    "bench_crb": ["--seeds", "3", "--rates", "100000"],
     "bench_microphones": ["--seeds", "2"],
     "bench_realtime": ["--duration", "2", "--repeats", "1", "--skip-before"],
     "bench_uncertainty": ["--paths", "adaptive"],

@@ -77,24 +77,31 @@ def _load_npz(path: Path) -> dict:
         return {k: data[k] for k in data.files}
 
 
-def _plot_blocks(blocks: pd.DataFrame, path: Path) -> None:
+def _plot_blocks(blocks: pd.DataFrame, path: Path, sentence: str = "") -> None:
+    import textwrap
+
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(3, 1, sharex=True, figsize=(8, 6))
-    for ax, col, label in zip(
+    for ax, col, se_col, label in zip(
         axes,
         ("temperature_c", "loss_scale", "mach"),
+        ("temperature_se_c", "loss_scale_se", "mach_se"),
         ("effective temperature [°C]", "loss scale η [-]", "Mach number [-]"),
         strict=True,
     ):
-        ax.plot(blocks["time_s"], blocks[col], ".-", lw=1)
+        t, v, se = blocks["time_s"], blocks[col], blocks[se_col]
+        ax.fill_between(t, v - se, v + se, alpha=0.3, lw=0, label="± 1 standard error")
+        ax.plot(t, v, ".-", lw=1)
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     axes[-1].set_xlabel("time [s]")
-    axes[0].set_title("Propagation parameters tracked by the wave separation")
+    axes[0].legend(loc="best", fontsize=8)
+    title = sentence or "Propagation parameters tracked by the wave separation"
+    axes[0].set_title(textwrap.fill(title, 110), fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110, format="png")
     plt.close(fig)
@@ -117,7 +124,9 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
             theta_median=np.array([th.c, th.eta, th.mach]),
         )  # fmt: skip
         write_csv(folder / "blocks.csv", sep.blocks)
-        write_atomic(folder / "blocks.png", lambda t: _plot_blocks(sep.blocks, t))
+        track = sep.track
+        words = track.sentence("°C", "±") if track is not None else ""
+        write_atomic(folder / "blocks.png", lambda t: _plot_blocks(sep.blocks, t, words))
         b = sep.blocks
         summary = {
             "duration_s": take.pressures.shape[0] / take.fs,
@@ -136,6 +145,8 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
             "temperature_se_c_median": float(np.median(b.temperature_se_c)),
             "loss_scale_se_median": float(np.median(b.loss_scale_se)),
             "warnings": sep.bound_warnings(),
+            # the model of theta over the take the data support, the take-level values
+            **({} if track is None else track.summary()),
         }
         outputs = {"reference": "reference.npz", "blocks": "blocks.csv", "plot": "blocks.png"}
         return outputs, summary

@@ -232,7 +232,8 @@ def _measurement_section(
         f"{fmt(val['temperature_c'])} °C (blocks span {fmt(t_lo)}–{fmt(t_hi)} °C), loss "
         f"scale {fmt(sep['loss_scale_median'], 3)}, Mach number {fmt(sep['mach_median'], 2)}"
         f"{'' if sep.get('theta', 'estimated') == 'estimated' else ' (' + sep['theta'] + ')'}. "
-        f"Verdict: {val['verdict'].upper()}"
+        + (f"{sep['drift_sentence']} " if sep.get("drift_sentence") else "")
+        + f"Verdict: {val['verdict'].upper()}"
         + (f" ({val['reason']})" if val.get("reason") else "")
         + "."
         + _resonance_words(resonances)
@@ -254,7 +255,10 @@ def _measurement_section(
                 root / "separation" / "blocks.png",
                 "Propagation parameters tracked "
                 "by the wave separation per block: effective temperature (°C), loss "
-                "scale η (–) and Mach number of the mean flow (–), against time (s).",
+                "scale η (–) and Mach number of the mean flow (–), against time (s), with "
+                "± 1 standard error bands: constant over the take when the data show no "
+                "drift (one value with the pooled standard error), a line or a smoothed "
+                "track when they do (the title says which).",
             ),
         ),  # fmt: skip
         _validation_tables(resonances, harmonics),

@@ -92,6 +92,20 @@ def test_full_pipeline_recovers_the_truth(finished):
         assert (run.folder / stage / "manifest.json").exists()
 
 
+def test_report_says_whether_the_temperature_drifts(finished):
+    # The virtual take's air is at a constant 20 degC: the separation's summary holds the
+    # take-level value with its pooled SE (within 3 SE of the truth), the drift in words,
+    # and the report carries that sentence beside the figure with its error bands.
+    _, run, _ = finished
+    sep = run.records["separation"].summary
+    assert sep["track_model"] in ("constant", "linear", "smooth")
+    assert sep["temperature_se_c_take"] > 0
+    assert abs(sep["temperature_c_take"] - 20.0) < 3 * sep["temperature_se_c_take"]
+    report = (run.folder / "report.html").read_text()
+    assert sep["drift_sentence"].split(";")[0] in report
+    assert "standard error bands" in report
+
+
 def test_interrupted_run_resumes_and_redoes_nothing_done(finished, take, pipeline, monkeypatch):
     import mpipe.inversion.execution as tracking  # where windows call invert_window
 

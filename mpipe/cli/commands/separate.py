@@ -225,7 +225,7 @@ def _print_summary(sep, val, paths: list[Path]) -> int:
     """Propagation parameters over the blocks and the validation; 1 when it failed."""
     b = sep.blocks
     fit = (
-        f"median chi2/term {np.nanmedian(b.residual):.2f}"
+        f"median chi2/dof {np.nanmedian(b.residual):.2f}"
         if np.any(np.isfinite(b.residual))
         else f"no residual ({b.theta.iloc[0]})"
     )
@@ -235,6 +235,8 @@ def _print_summary(sep, val, paths: list[Path]) -> int:
         f"eta {b.loss_scale.median():.3f} +- {b.loss_scale_se.median():.3f}, "
         f"M {b.mach.median():.4f} +- {b.mach_se.median():.4f}, {fit}"
     )
+    if sep.track is not None:
+        print(sep.track.sentence())
     for line in sep.bound_warnings():
         print(f"warning: {line}")
     print(val.summary())

@@ -109,7 +109,7 @@ BLOCK_COLUMNS = {
     "band_lo_hz": "lowest frequency of the bins used, Hz",
     "band_hi_hz": "highest frequency of the bins used, Hz",
     "bins": "number of bins used (signal over noise by min_snr_db, in fmin_hz..fmax_hz)",
-    "residual": "chi^2 per term at the estimate (about 1 when noise explains the misfit)",
+    "residual": "chi^2 per degree of freedom at the estimate (about 1: noise explains the misfit)",
     "kappa": "variance inflation from correlated bins",
     "snr_db": "median signal-to-noise ratio of the bins used, dB",
     "evaluations": "residual evaluations of the solver",

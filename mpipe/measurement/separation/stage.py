@@ -200,7 +200,7 @@ def _prepare_blocks(
 def _trusted_blocks(
     fitted: np.ndarray, residual: np.ndarray, adaptive: bool, config: SeparationConfig
 ) -> tuple[np.ndarray, float]:
-    """The blocks entering the smoother, and the median chi^2 per term of the fitted ones."""
+    """The blocks entering the smoother, and the median chi^2 per dof of the fitted ones."""
     if not np.any(fitted) and adaptive:
         raise ValueError(
             "no block has enough signal in the estimation band "
@@ -252,7 +252,7 @@ def _log_outcome(result: SeparationResult, median_j: float) -> None:
         log.warning("separation: %s", line)
     table = result.blocks
     log.info(
-        "separation: T %.2f..%.2f degC, eta %.3f..%.3f, M %.4f..%.4f, median chi2/term %.2f",
+        "separation: T %.2f..%.2f degC, eta %.3f..%.3f, M %.4f..%.4f, median chi2/dof %.2f",
         table.temperature_c.min(),
         table.temperature_c.max(),
         table.loss_scale.min(),

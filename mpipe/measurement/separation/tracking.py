@@ -38,7 +38,7 @@ class BlockFits:
         Shape ``(n_blocks, 4)``: the estimate (degC, -, -, m), held values where theta is
         held, and its standard errors; NaN for blocks not fitted.
     residual, kappa : ndarray
-        chi^2 per term and the variance inflation (NaN: not fitted).
+        chi^2 per degree of freedom and the variance inflation (NaN: not fitted).
     evaluations : ndarray
         Residual evaluations of the solver (int).
     at_bound : list of str

@@ -75,6 +75,35 @@ def test_a_drift_is_a_line_and_a_bend_is_smoothed():
     assert ch.model == "smooth"
 
 
+def test_take_level_value_is_not_pulled_by_the_prior_when_the_data_suffice():
+    # Prior 20 +- 5 degC, air at 23: 40 blocks of SE 2 degC know T far better than the
+    # prior, so the take's value is their plain mean (no pull); 2 blocks of SE 20 degC do
+    # not, and the prior keeps it: the posterior mean (20/25 + sum y/400) / (1/25 + 2/400).
+    import dataclasses
+
+    prior = dataclasses.replace(PRIOR, width=np.array([5.0, INF, INF, INF]))
+    rng = np.random.default_rng(8)
+    for n, sigma in ((40, 2.0), (2, 20.0)):
+        times = np.arange(n) * 0.04
+        info = np.array([[1.0 / sigma**2]])
+        est = []
+        for _ in range(n):
+            y = 23.0 + sigma * rng.standard_normal()
+            post = info[0, 0] + 1 / 25
+            v = (y * info[0, 0] + 20.0 / 25) / post  # the block's own MAP with the prior
+            est.append(
+                BlockEstimate(np.array([v, 1, 0, 0]), 1 / np.array([[post]]), info, 1, 1, (), 1)
+            )
+        ys = [(e.values[0] * (info[0, 0] + 1 / 25) - 20.0 / 25) / info[0, 0] for e in est]
+        smooth = smooth_blocks(times, est, prior, 1.0, dof=True)
+        ch = choose_track(times, est, prior, smooth, 0.0, 0.01)
+        if n == 40:
+            assert abs(ch.level[0] - np.mean(ys)) < 1e-9
+        else:
+            expected = (20.0 / 25 + np.sum(ys) / sigma**2) / (1 / 25 + n / sigma**2)
+            assert abs(ch.level[0] - expected) < 1e-9
+
+
 def test_overlap_correlation_of_hann_blocks_is_3_over_70():
     assert abs(overlap_correlation(8000, 4000) - 3 / 70) < 1e-3
     assert overlap_correlation(8000, 8000) == 0.0
