@@ -28,6 +28,7 @@ from headline import TABLE_ENV  # noqa: E402
 QUICK_ARGS = {
     "bench_bore": [],
     "bench_holes": ["--df", "0.5"],
+    "bench_fingered": ["--seeds", "1"],
     "bench_model": ["--seconds", "1", "--repeats", "3"],
     "bench_inversion": [],
     "bench_frontend": ["--duration", "1"],

@@ -12,6 +12,8 @@ radiation
     Radiation impedance of the open end.
 tone_holes
     Side holes, open or closed: T-networks with length corrections (physics.md D.3).
+measured_bore
+    A measured input impedance with its fitted equivalent bore (physics.md D.5).
 bore
     Bore geometry, its transfer matrix, input impedance and resonances (physics.md D.1).
 reflection

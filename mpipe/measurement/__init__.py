@@ -32,6 +32,8 @@ validation_result
     Its result: verdict, curves, summary and plot.
 measured_impedance
     Impedance-head files: declared layouts, read and written.
+measured_instrument
+    A measured impedance as the instrument (``bore.measured``): read, equivalent bore fitted.
 impedance_comparison
     Impedance curves compared: peaks of |Z|, resonances in cents, levels in dB.
 """

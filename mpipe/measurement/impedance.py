@@ -93,7 +93,9 @@ def impedance_curve(
         bore = replace(
             bore,
             radiation=Radiation(
-                radiation or bore.radiation.model, flange_radius or bore.radiation.flange_radius
+                radiation or bore.radiation.model,
+                flange_radius or bore.radiation.flange_radius,
+                bore.radiation.hole_model,
             ),
         )
         if bore.radiation.model == "finite-flange" and bore.radiation.flange_radius is None:

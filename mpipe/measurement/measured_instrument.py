@@ -16,12 +16,12 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from scipy import signal
 
 from mpipe.acoustics.bore import Bore, Segment, input_impedance
 from mpipe.acoustics.measured_bore import MeasuredInput, fit_equivalent_length
 from mpipe.core.config import ConfigError
 from mpipe.core.errors import UserError
+from mpipe.measurement.impedance_comparison import resonances
 from mpipe.measurement.measured_impedance import read_measured_impedance
 
 # Fewest measured frequencies, and the narrowest band (Hz), a fit is attempted with.
@@ -121,23 +121,13 @@ def attach_measured_bore(calibration, source: str | Path):
     return replace(calibration, bore=replace(bore, measured_input=measured))
 
 
-def _peak_frequencies(freqs: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """Frequencies (Hz) of the peaks of |Z| that stand 3 dB above their surroundings.
-
-    The prominence keeps a measurement's noise from making peaks of its own.
-    """
-    level = 20 * np.log10(np.abs(z))
-    idx, _ = signal.find_peaks(level, prominence=3.0)
-    idx = idx[(idx > 0) & (idx < level.size - 1)]
-    a, b, c = level[idx - 1], level[idx], level[idx + 1]
-    denom = np.where(a - 2 * b + c == 0, -1e-12, a - 2 * b + c)
-    delta = np.clip(0.5 * (a - c) / denom, -0.5, 0.5)
-    return np.interp(idx + delta, np.arange(freqs.size), freqs)
-
-
 def _resonance_cents(freqs: np.ndarray, z_measured: np.ndarray, z_model: np.ndarray) -> float:
     """Largest distance, in cents, from a model resonance to the nearest measured one."""
-    measured, model = _peak_frequencies(freqs, z_measured), _peak_frequencies(freqs, z_model)
+    # peaks 3 dB prominent: a measurement's noise makes none
+    measured, model = (
+        resonances(freqs, z, 1.0, count=200)["frequency_hz"].to_numpy()
+        for z in (z_measured, z_model)
+    )
     if not measured.size or not model.size:
         return float("nan")
     nearest = measured[np.argmin(np.abs(measured[None, :] - model[:, None]), axis=1)]

@@ -25,6 +25,7 @@ from mpipe.core.progress import stage_timer
 from mpipe.inversion.kernel import bore_kernel, table_temperature, take_temperature
 from mpipe.inversion.settings import PARAMETER_NAMES
 from mpipe.measurement.calibration import Calibration, load_calibration
+from mpipe.measurement.measured_instrument import bore_description
 from mpipe.pipeline.manifest import PARTIAL, StageRecord, run_stage
 from mpipe.pipeline.settings import PipelineConfig
 
@@ -197,6 +198,7 @@ def _stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg: Pip
             "band_error_db": float(val.band_error_db),
             "text": val.summary(),
             "temperature_c": t_eff,
+            "bore": bore_description(cal),
         }
         outputs = {"impedance": "impedance.csv", "resonances": "validation.csv",
                    "harmonics": "harmonics.csv", "plot": "impedance.png"}  # fmt: skip
@@ -432,17 +434,14 @@ def _run_take(
         stops before the inversion.
     """
     take_paths = [Path(p) for p in take_paths]
-<<<<<<< HEAD
     cal = load_calibration(cal_path, cfg.fingering)
-    name = take_name(take_paths)
-=======
-    cal = load_calibration(cal_path)
     name = name or take_name(take_paths)
->>>>>>> any-take
     root = Path(out) / name
     d = {s: root / s for s in STAGES}
     records: dict[str, StageRecord] = {}
     cal_inputs = {"calibration": cal_path}
+    if cal.bore.measured_input is not None:
+        cal_inputs["measured_impedance"] = Path(cal.bore.measured_input.source)
     for mic in cal.microphones:
         path = cal.calibration_path(mic)
         if path is not None:

@@ -99,6 +99,8 @@ def test_impedance_command_plays_a_fingering(tmp_path, capsys):
         with pytest.raises(SystemExit):
             main([command, "--help"])
         assert "--fingering NAME" in capsys.readouterr().out
+
+
 def test_every_help_shows_its_defaults():
     # Issue 19: every option of every command (and subcommand) states its default in its
     # --help text: shown by the formatter for a value, written out for one that is None.

@@ -236,6 +236,8 @@ def _number(token: str) -> bool:
 
 def _fingering_note(cal) -> str:
     """`` (fingering oxxx: hole1 open)`` for an instrument with holes, else empty."""
+    if cal.bore.measured_input is not None:
+        return f" ({cal.bore.measured_input.summary()})"
     if not cal.bore.holes:
         return ""
     opened = ", ".join(cal.bore.open_holes) or "none"

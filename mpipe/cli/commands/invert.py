@@ -16,6 +16,7 @@ from mpipe.cli.commands import add_fingering_option
 from mpipe.core.errors import UserError
 from mpipe.core.io import check_writable, write_atomic, write_text_atomic
 from mpipe.measurement.calibration import load_calibration
+from mpipe.measurement.measured_instrument import bore_description
 from mpipe.pipeline.settings import load_pipeline
 
 log = logging.getLogger(__name__)
@@ -143,6 +144,7 @@ def _run(args: argparse.Namespace) -> int:
     fs, p, u, temperature = load_mouthpiece(args.mouthpiece)
     fs, p, u = _at_inversion_rate(args.mouthpiece, fs, p, u, inv.sample_rate)
     cal = load_calibration(cfg.calibration_path, cfg.fingering)
+    log.info("%s", bore_description(cal))
     plan, take = _track(args, cfg, cal, fs, p, u, temperature)
     result, kernel, air = take.tracking, take.kernel, take.air
     table = result.table
@@ -155,6 +157,7 @@ def _run(args: argparse.Namespace) -> int:
         "pipeline": cfg.source,
         "calibration": str(cfg.calibration_path),
         "fingering": cal.fingering,
+        "bore": bore_description(cal),
         "temperature_c": take.temperature.temperature_c,
         "temperature": take.temperature.summary(),
         "zero_mean_flow": result.zero_mean,

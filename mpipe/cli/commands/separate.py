@@ -39,6 +39,7 @@ from mpipe.core.io import check_writable, write_atomic, write_csv, write_npz_ato
 from mpipe.inversion.kernel import take_temperature
 from mpipe.inversion.settings import InversionConfig
 from mpipe.measurement.calibration import load_calibration
+from mpipe.measurement.measured_instrument import bore_description
 from mpipe.measurement.separation.settings import SeparationConfig
 from mpipe.measurement.separation.stage import separate
 from mpipe.measurement.translation import (
@@ -124,6 +125,7 @@ def _run(args: argparse.Namespace) -> int:
     takes, cal_path, out, paths = _inputs(args)
     log.info("reading calibration %s", cal_path)
     cal = load_calibration(cal_path, _fingering(args))
+    log.info("%s", bore_description(cal))
     log.info("reading take %s", ", ".join(takes))
     sep_cfg, tr_cfg, val_cfg, rate = _settings(args)
     take = read_take(takes if len(takes) > 1 else takes[0], cal, fs=rate)
