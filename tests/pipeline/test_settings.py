@@ -161,3 +161,23 @@ def test_a_calibration_given_as_the_pipeline_and_back_is_named(tmp_path):
         load_pipeline(cal)
     with pytest.raises(ConfigError, match="this is a pipeline file"):
         load_calibration(pipe)
+
+
+def test_the_model_is_low_passed_with_the_measurements_filter(tmp_path):
+    import numpy as np
+
+    from mpipe.core.filters import design_lowpass
+
+    cal = (ROOT / "calibration" / "simplified_clarinet.yaml").resolve()
+    path = tmp_path / "p.yaml"
+    path.write_text(
+        f"calibration: {cal}\ntranslation:\n  lowpass_hz: 6000.0\n  transition_hz: 800.0\n"
+        "  stopband_db: 80.0\n"
+    )
+    cfg = load_pipeline(path)
+    measured = design_lowpass(1e5, 6000.0, 800.0, 80.0)
+    np.testing.assert_array_equal(cfg.inversion.lowpass.design(1e5).taps, measured.taps)
+    # the old key of the model's own low-pass is refused, naming where the filter is set
+    path.write_text(f"calibration: {cal}\ninversion:\n  lowpass_hz: 7000.0\n")
+    with pytest.raises(ConfigError, match="inversion.lowpass_hz: .* translation.lowpass_hz"):
+        load_pipeline(path)
