@@ -240,6 +240,8 @@ def test_failed_validation_stops_the_run_and_separate_exits_non_zero(
     assert main(["separate", str(take.audio), str(wrong_bore), "-o", str(tmp_path / "s")]) == 1
     out = capsys.readouterr().out
     assert "impedance validation: FAIL" in out and "validation FAILED" in out
+    # the inputs that can do this are named, the bore's first (harmonics 100 deg off)
+    assert "suspect inputs: the bore's length" in out and "microphones'" in out, out
     assert (tmp_path / "s" / "mouthpiece.npz").exists()
     with np.load(tmp_path / "s" / "mouthpiece.npz") as mp:
         assert {"u_noise_freq_hz", "u_noise_psd", "p_noise_psd"} <= set(mp.files)
