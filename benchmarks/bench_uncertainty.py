@@ -26,6 +26,20 @@ Usage::
         [--paths adaptive,fixed]
 
 The runs are resumable (``mpipe run`` skips finished stages in ``DIR``).
+
+``--coverage`` (issue 20) measures instead whether the error bars have the right width, over
+many short takes through the path users take (virtual three-microphone recording, adaptive
+wave separation, translation, conditioning, ``mpipe.invert_take`` with the shipped pipeline):
+for every SNR and kind of take (``steady``: the Table 1 reed; ``swell``: the mouth pressure
+rising 30 % over the take, a crescendo) and every seed, the ok windows' z = (estimate -
+truth) / SE in log space (the SEs the table gives, temperature share included), then per
+parameter and combination the RMS of z (1 for honest bars; the issue asks for [0.8, 1.25])
+and the fractions of windows within 1 SE (0.683) and 2 SE (0.954; asked [0.92, 0.98])::
+
+    .venv/bin/python benchmarks/bench_uncertainty.py --coverage --seeds 20 \
+        [--snrs 45,60] [--kinds steady,swell] [--duration 1.0] [--out DIR]
+
+Each take's table is kept in ``DIR/coverage/`` so an interrupted run resumes.
 """
 
 from __future__ import annotations
@@ -128,12 +142,118 @@ def report(label: str, windows: pd.DataFrame, truth: dict, z_c: float, rho: floa
     )
 
 
+#: Quantities whose coverage --coverage reports, and the ones the issue's criterion names.
+COVERAGE_NAMES = ("k", "S", "y_m", "p_m", "m", "g", "lam", "k_c", "p_M", "gamma", "zeta",
+                  "f_r", "Q_r")  # fmt: skip
+CRITERION = ("k", "y_m", "p_m", "p_M", "gamma", "zeta")
+KINDS = {"steady": 0.0, "swell": 0.3}
+
+
+def coverage_take(seed: int, snr: float, kind: str, duration: float, folder: Path):
+    """One take through the user's path: its windows table and the truth per window."""
+    from dataclasses import replace
+
+    from mpipe.cli.virtual_takes import SynthOptions, make_take
+    from mpipe.inversion.conditioning import plan_inversion
+    from mpipe.inversion.settings import ExecutorConfig
+    from mpipe.inversion.take import invert_take
+    from mpipe.measurement.separation.stage import separate
+    from mpipe.measurement.takes import read_take
+    from mpipe.measurement.translation import translate
+    from mpipe.pipeline.settings import load_pipeline
+
+    cache = folder / f"{kind}_{snr:g}dB_seed{seed}.parquet"
+    stem = folder / f"{kind}_{snr:g}dB_seed{seed}"
+    if not cache.exists():
+        for old in folder.glob(stem.name + ".*"):
+            old.unlink()
+        options = SynthOptions(duration_s=duration, snr_db=snr, seed=seed, swell=KINDS[kind])
+        files = make_take(EXAMPLE_CALIBRATION, EXAMPLE_REED, stem.with_suffix(".flac"), options)
+        pipe = load_pipeline(PIPELINE)
+        cal = load_calibration(files.calibration)
+        take = read_take(files.audio, cal, fs=pipe.inversion.sample_rate)
+        sep = separate(take.pressures, take.fs, cal, pipe.separation, take.band_limit_hz)
+        tr = translate(sep.p0, sep.u0, take.fs, cal, pipe.translation, sep.temperature_track())
+        conditioning = replace(pipe.conditioning, edge_s=min(0.3, duration / 3))
+        plan = plan_inversion(tr.p, take.fs, conditioning, pipe.inversion.window_s,
+                              pipe.inversion.hop_s, end_s=duration - 0.05)  # fmt: skip
+        starts = plan.loc[plan["invert"], "start"].tolist()
+        done = invert_take(tr.p, tr.u, take.fs, cal, pipe.inversion, ExecutorConfig(workers=1),
+                           starts=starts, temperature_c=tr.temperature_c)  # fmt: skip
+        table = done.tracking.table.copy()
+        table["take_checks"] = "; ".join(done.checks)
+        table.to_parquet(cache, index=False)
+    table = pd.read_parquet(cache)
+    with np.load(stem.with_suffix(".truth.npz")) as d:
+        truth = {k: d[k] for k in d.files}
+    return table, truth
+
+
+def coverage_table(z: dict) -> pd.DataFrame:
+    """RMS z, coverage within 1 and 2 SE and the number of windows per quantity."""
+    rows = []
+    for name, values in z.items():
+        v = np.asarray(values, dtype=float)
+        v = v[np.isfinite(v)]
+        if not v.size:
+            continue
+        rows.append({"name": name, "windows": v.size, "rms_z": float(np.sqrt(np.mean(v**2))),
+                     "within_1se": float(np.mean(np.abs(v) <= 1)),
+                     "within_2se": float(np.mean(np.abs(v) <= 2))})  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def run_coverage(args) -> int:
+    """The --coverage benchmark (see the module docstring)."""
+    folder = Path(args.out) / "coverage"
+    folder.mkdir(parents=True, exist_ok=True)
+    cal = load_calibration(EXAMPLE_CALIBRATION)
+    kernel, air = bore_kernel(cal, 100_000.0, 20.0)
+    seeds = range(21, 21 + args.seeds)
+    verdict = True
+    for snr in (float(s) for s in args.snrs.split(",")):
+        for kind in args.kinds.split(","):
+            z = {n: [] for n in COVERAGE_NAMES}
+            t0, takes, flagged = time.perf_counter(), 0, 0
+            for seed in seeds:
+                table, truth = coverage_take(seed, snr, kind, args.duration, folder)
+                takes += 1
+                flagged += bool(str(table["take_checks"].iloc[0] or ""))
+                ok = table[table["status"].astype(str) == "ok"].reset_index(drop=True)
+                t = window_truth(ok, truth, kernel.z0, air.rho)
+                for name in COVERAGE_NAMES:
+                    x = pd.to_numeric(ok[name], errors="coerce").to_numpy(dtype=float)
+                    se = pd.to_numeric(ok[f"{name}_se"], errors="coerce").to_numpy(dtype=float)
+                    z[name] += list(np.log(x / t[name]) / (se / x))
+            label = f"{kind}, {snr:g} dB, {takes} takes of {args.duration:g} s"
+            table = coverage_table(z)
+            print(f"\n[{label}] ({time.perf_counter() - t0:.0f} s; {flagged} takes flagged by "
+                  "the take-level checks)")  # fmt: skip
+            print(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+            for _, row in table[table["name"].isin(CRITERION)].iterrows():
+                good = 0.8 <= row.rms_z <= 1.25 and 0.92 <= row.within_2se <= 0.98
+                verdict &= good
+                record(f"[{label}] RMS z of {row['name']}", row.rms_z, "", target="0.8-1.25")
+                record(f"[{label}] 2-SE coverage of {row['name']}", row.within_2se, "",
+                       target="0.92-0.98")  # fmt: skip
+    print(f"\nRMS z in [0.8, 1.25] and 2-SE coverage in [0.92, 0.98] for "
+          f"{', '.join(CRITERION)}: {'yes' if verdict else 'NO'}")  # fmt: skip
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="bench_uncertainty_output")
     ap.add_argument("--paths", default="adaptive,fixed")
     ap.add_argument("--closure", action="store_true", help="also the y_c = y_m take")
+    ap.add_argument("--coverage", action="store_true", help="RMS z and coverage over seeds")
+    ap.add_argument("--seeds", type=int, default=20, help="takes per SNR and kind (--coverage)")
+    ap.add_argument("--snrs", default="45,60", help="SNRs in dB (--coverage)")
+    ap.add_argument("--kinds", default="steady,swell", help="kinds of take (--coverage)")
+    ap.add_argument("--duration", type=float, default=1.0, help="take length, s (--coverage)")
     args = ap.parse_args(argv)
+    if args.coverage:
+        return run_coverage(args)
     out = Path(args.out)
     take = example_take(out / "take")
     with np.load(take.truth) as d:

@@ -238,6 +238,8 @@ def describe_keys(cls: type, prefix: str = "") -> list[tuple[str, str, str]]:
     rows = []
     hints = typing.get_type_hints(cls)
     for f in dataclasses.fields(cls):
+        if f.metadata.get("derived"):
+            continue  # set by the loader from another key, documented there
         key = f"{prefix}{f.name}"
         rows.append((key, f.metadata.get("unit", ""), f.metadata.get("doc", "")))
         tp = hints[f.name]
@@ -308,8 +310,8 @@ def to_commented_yaml(
     lines: list[str] = []
     hints = typing.get_type_hints(type(obj))
     for f in dataclasses.fields(obj):
-        if f.name in skip or not f.init:
-            continue
+        if f.name in skip or not f.init or f.metadata.get("derived"):
+            continue  # a derived field is set by the loader from another key
         value = getattr(obj, f.name)
         unit, doc = f.metadata.get("unit", ""), f.metadata.get("doc", "")
         if dataclasses.is_dataclass(hints[f.name]) and dataclasses.is_dataclass(value):

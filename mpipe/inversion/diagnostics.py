@@ -33,6 +33,16 @@ from mpipe.inversion.settings import InversionConfig
 #: A cold start whose minimum fewer of its short local searches reached is flagged.
 MIN_AGREEING = 2
 
+#: Plausible ``|P(f0)| / (Z_c |U(f0)|)`` at the mouthpiece: a reed plays near a resonance
+#: of the bore, where |Z_in| / Z_c is about 3 to 50 (15 on the shipped instrument); a flow
+#: in L/s (x1000) or scaled by 0.001 moves it by three decades.
+IMPEDANCE_RATIO_RANGE = (0.2, 500.0)
+#: Plausible AC RMS of the mouthpiece flow, m^3/s (a clarinet: about 1e-5 to 3e-4).
+FLOW_RMS_RANGE = (1e-7, 1e-2)
+#: Plausible largest |p| at the mouthpiece, Pa (a player's mouth pressure is at most about
+#: 10 kPa; the pressure in the mouthpiece swings about it).
+PRESSURE_RANGE = (1.0, 3e4)
+
 
 def playing_difference(p: np.ndarray, p_model: np.ndarray, fs: float) -> dict[str, float]:
     """Model minus measured playing frequency (cent) and RMS level (dB) over one window.
@@ -138,4 +148,95 @@ def _median(table: pd.DataFrame, column: str) -> float:
     return float(np.median(values)) if values.size else math.nan
 
 
-__all__ = ["MIN_AGREEING", "playing_difference", "take_checks"]
+__all__ = [
+    "FLOW_RMS_RANGE",
+    "IMPEDANCE_RATIO_RANGE",
+    "MIN_AGREEING",
+    "PRESSURE_RANGE",
+    "check_plausible",
+    "impedance_ratio",
+    "playing_difference",
+    "take_checks",
+]
+
+
+def impedance_ratio(p: np.ndarray, u: np.ndarray, fs: float, z_c: float) -> float:
+    """``|P(f0)| / (Z_c |U(f0)|)`` at the playing frequency of one window (NaN: no note).
+
+    Parameters
+    ----------
+    p, u : ndarray
+        Pressure (Pa) and volume flow (m^3/s) over the window.
+    fs : float
+        Sample rate, Hz.
+    z_c : float
+        Characteristic impedance of the mouthpiece entry, Pa s/m^3.
+    """
+    period = estimate_period(p, fs)
+    if not period > 0:
+        return math.nan
+    t = np.arange(p.size) / fs
+    probe = np.exp(-2j * np.pi * (fs / period) * t) * np.hanning(p.size)
+    big_p, big_u = abs(probe @ (p - p.mean())), abs(probe @ (u - u.mean()))
+    return big_p / (z_c * big_u) if big_u > 0 else math.inf
+
+
+def check_plausible(
+    p: np.ndarray, u: np.ndarray, fs: float, starts, n: int, z_c: float, count: int = 5
+) -> None:
+    """Refuse mouthpiece signals no clarinet can produce, before any long work.
+
+    Over up to ``count`` of the planned windows: the largest |p| against
+    :data:`PRESSURE_RANGE`, the flow's AC RMS against :data:`FLOW_RMS_RANGE`, and the
+    median of :func:`impedance_ratio` against :data:`IMPEDANCE_RATIO_RANGE` (the flow's
+    scale against the pressure's: orders of magnitude off is a unit error).
+
+    Parameters
+    ----------
+    p, u : ndarray
+        Mouthpiece pressure (Pa) and volume flow (m^3/s) of the take.
+    fs : float
+        Sample rate, Hz.
+    starts : sequence of int
+        First samples of the planned windows.
+    n : int
+        Window length, samples.
+    z_c : float
+        Characteristic impedance of the mouthpiece entry, Pa s/m^3.
+    count : int
+        Windows looked at.
+
+    Raises
+    ------
+    ValueError
+        One line naming what is implausible and the likely cause.
+    """
+    starts = list(starts)
+    if not starts:
+        return
+    picked = [
+        starts[i] for i in np.unique(np.linspace(0, len(starts) - 1, count).round().astype(int))
+    ]
+    windows = [(p[s : s + n], u[s : s + n]) for s in picked]
+    peak = max(float(np.max(np.abs(pw))) for pw, _ in windows)
+    flow = float(np.median([np.std(uw) for _, uw in windows]))
+    ratio = float(np.nanmedian([impedance_ratio(pw, uw, fs, z_c) for pw, uw in windows]))
+    lo, hi = PRESSURE_RANGE
+    if not lo <= peak <= hi:
+        raise ValueError(
+            f"implausible mouthpiece pressure: largest |p| {peak:.3g} Pa, a clarinet gives "
+            f"{lo:g}-{hi:g} Pa: check the microphones' sensitivity (Pa per unit)"
+        )
+    lo, hi = FLOW_RMS_RANGE
+    if not lo <= flow <= hi:
+        raise ValueError(
+            f"implausible mouthpiece flow: AC RMS {flow:.3g} m^3/s, a clarinet gives "
+            f"{lo:g}-{hi:g} m^3/s: a unit error of the flow (m^3/s expected)?"
+        )
+    lo, hi = IMPEDANCE_RATIO_RANGE
+    if math.isfinite(ratio) and not lo <= ratio <= hi:
+        raise ValueError(
+            f"implausible flow for the pressure: |p/u| at the playing frequency is {ratio:.3g} "
+            f"Z_c of the mouthpiece entry (a reed plays at {lo:g}-{hi:g} Z_c): a unit error of "
+            "the flow (m^3/s expected) or of the entry radius"
+        )

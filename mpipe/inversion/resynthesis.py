@@ -26,7 +26,6 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from mpipe.core.filters import design_lowpass  # noqa: E402
 from mpipe.core.io import write_atomic  # noqa: E402
 from mpipe.inversion.flow_fit import flow_signals  # noqa: E402
 from mpipe.inversion.objective import (  # noqa: E402
@@ -108,7 +107,7 @@ def resynthesise(
         start=config.start,
         lead_s=config.lead_s,
         settle_s=config.settle_s,
-        lowpass=design_lowpass(fs, config.lowpass_hz) if zero_mean else None,
+        lowpass=config.lowpass.design(fs) if zero_mean else None,
     )
     for _, row in table.iterrows():
         if progress is not None:

@@ -7,13 +7,49 @@ and meaning, which ``mpipe config`` prints.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Literal
 
 from mpipe.core.config import Where, between, positive, spec
+from mpipe.core.filters import LowPass, design_lowpass
+from mpipe.measurement.translation import TranslationConfig
 
 #: Reed parameters that step 2 may optimise (physics.md I); y_c and alpha stay fixed.
 PARAMETER_NAMES = ("k", "S", "y_m", "p_m", "m", "g", "lam", "k_c")
+
+
+@dataclass(frozen=True)
+class ModelLowPass:
+    """The measurement's low-pass, applied to the model output of a zero-mean take.
+
+    Always the translation's filter (``translation.lowpass_hz``, ``transition_hz``,
+    ``stopband_db``): a model filtered otherwise than the measurement biases F2 and every
+    standard error. The pipeline file sets it from its ``translation`` section
+    (:func:`mpipe.pipeline.settings.load_pipeline`); it is not a key of its own.
+
+    Attributes
+    ----------
+    cutoff_hz : float
+        -6 dB frequency, Hz.
+    transition_hz : float
+        Width of the transition band, Hz.
+    stopband_db : float
+        Stop-band attenuation, dB.
+    """
+
+    cutoff_hz: float
+    transition_hz: float
+    stopband_db: float
+
+    @classmethod
+    def of(cls, translation: TranslationConfig) -> ModelLowPass:
+        """The low-pass of a translation's settings."""
+        return cls(translation.lowpass_hz, translation.transition_hz, translation.stopband_db)
+
+    def design(self, fs: float) -> LowPass:
+        """The FIR at sample rate ``fs`` (Hz): the translation's own."""
+        return design_lowpass(fs, self.cutoff_hz, self.transition_hz, self.stopband_db)
 
 
 def _bounds_check(value: tuple[float, ...]) -> str | None:
@@ -339,11 +375,15 @@ class InversionConfig:
         "model: flow with its mean, compared raw; auto: decide from mean(u)/rms(u)",
         default="auto",
     )
-    lowpass_hz: float = spec(
-        "Hz",
-        "cut-off of the linear-phase FIR applied to model output",
-        between(1e3, 2e4),
-        default=7250.0,
+    lowpass: ModelLowPass = dataclasses.field(
+        default=ModelLowPass.of(TranslationConfig()),
+        metadata={
+            "unit": "",
+            "doc": "the measurement's low-pass applied to model output: set from "
+            "translation.lowpass_hz, transition_hz and stopband_db (not a key of its own)",
+            "check": None,
+            "derived": True,
+        },
     )
     sample_rate: float = spec(
         "Hz",

@@ -28,7 +28,7 @@ import numpy as np
 
 from mpipe.acoustics.air import Air
 from mpipe.core.progress import ProgressBar
-from mpipe.inversion.diagnostics import take_checks
+from mpipe.inversion.diagnostics import check_plausible, take_checks
 from mpipe.inversion.kernel import bore_kernel, take_temperature
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.temperature import TemperatureFit, fit_temperature, widen_standard_errors
@@ -111,10 +111,18 @@ def invert_take(
     Returns
     -------
     TakeInversion
+
+    Raises
+    ------
+    ValueError
+        When the signals are not what a clarinet can produce (a unit error), before any
+        window is inverted (:func:`mpipe.inversion.diagnostics.check_plausible`).
     """
     config = dataclasses.replace(config, sample_rate=fs)
     carried = temperature_c is not None and np.isfinite(np.asarray(temperature_c, float)).any()
     front = take_temperature(temperature_c, calibration)
+    z_c = calibration.bore.entry_impedance(calibration.air_properties(front))
+    check_plausible(p, u, fs, starts, int(round(config.window_s * fs)), z_c)
     zero_mean = detect_zero_mean(np.asarray(u, float), config.signal, config.zero_mean_ratio)
     fit = fit_temperature(
         p, u, fs, calibration, list(starts), config, zero_mean=zero_mean, front_end_c=front,

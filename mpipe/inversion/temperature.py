@@ -13,8 +13,8 @@ estimate from 2 cm of microphone spacing is a degree wide.
 ``R(T) = sum over K windows of F2^2`` with each window's reed re-fitted at every T (warm
 started from its solution at the nearest temperature already tried), minimised by
 successive parabolas from the front end's estimate. Its standard error comes from the
-curvature of ``R`` with the residual's noise level and colour (as in
-:mod:`mpipe.inversion.uncertainty`: ``Delta chi^2 = Delta R / (sigma^2 n / n_eff) = 1``),
+curvature of ``R`` with the residual's noise level per effective degree of freedom (as the
+windows' ``residual_sigma``: ``Delta chi^2 = Delta R / (|r|^2 / (n_eff - p)) = 1``),
 and :func:`widen_standard_errors` adds the temperature's share to every ``<name>_se``:
 ``se^2 + (x * dlnx/dT * se_T)^2`` with the sensitivity measured at ``T +- h``.
 
@@ -302,7 +302,6 @@ def fit_temperature(
     chosen, groups = pick_by_segment(starts, segments, window_count(len(starts), config), steady)
     if not chosen:
         return dataclasses.replace(fallback, note="no window to fit the temperature on")
-    n = int(round(config.window_s * fs))
     lo, hi = front_end_c - config.temperature_range_c, front_end_c + config.temperature_range_c
     firsts = {g: s for s, g in reversed(list(zip(chosen, groups, strict=True)))}
     cold = functools.partial(_cold_starts, p, u, fs, firsts, zero_mean)
@@ -330,11 +329,14 @@ def fit_temperature(
             base, note=f"the fit ran to the edge of its range ({lo:.1f}..{hi:.1f} degC): not used"
         )
     rows = profile.tried[round(centre, 4)][2]
-    ratios = [n / r["n_eff"] if r.get("n_eff", 0) > 0 else math.nan for r in rows]
-    colour = float(np.nanmedian(ratios)) if np.isfinite(ratios).any() else float(n)
-    sigma2 = profile(centre) / (n * len(chosen))
-    # R(T) = R0 + a (T - T0)^2 and Delta chi^2 = Delta R / (sigma^2 n / n_eff) = 1 at 1 SE
-    se = math.sqrt(sigma2 * max(colour, 1.0) / curvature)
+    dofs = [r["dof"] if r.get("dof", 0) > 0 else math.nan for r in rows]
+    # as each window's SEs: the residual's degrees of freedom are n_eff - p (a window
+    # without them counts as one, never as white)
+    dof = float(np.nanmedian(dofs)) if np.isfinite(dofs).any() else 1.0
+    sigma2 = profile(centre) / (max(dof, 1.0) * len(chosen))
+    # R(T) = R0 + a (T - T0)^2 and Delta chi^2 = Delta R / sigma_eff^2 = 1 at 1 SE, with
+    # sigma_eff^2 = |r|^2 / (n_eff - p) per window, as the windows' residual_sigma^2
+    se = math.sqrt(sigma2 / curvature)
     # Errors of the signals that differ from window to window (the front end's, the model's)
     # move each window's own minimum; their scatter bounds the SE from below when the noise
     # alone would claim more precision than the windows agree to.

@@ -3,27 +3,36 @@
 Step 2 is a nonlinear least-squares fit of the residual vector ``r = p - p_model`` (Pa,
 one entry per sample of the window) in log parameters ``z = ln x``. Near the solution
 the model is linear in ``z`` with Jacobian ``J = dr/dz`` (shape ``(n, p)``), and the
-Gauss-Newton covariance of the estimate is
+covariance of the estimate is the sandwich
 
-    cov(z) = s^2 (J^T J)^-1,       s^2 = ||r||^2 / (n_eff - p).
+    cov(z) = A^-1 B A^-1,     A = J^T J,     B = J^T Sigma J,
 
-**Coloured residual.** The residual is not white: the measurement's 7.25 kHz low-pass
-correlates the noise over about fs / (2 f_c) ~ 7 samples at 100 kHz, and a model error
-is periodic with the note. With ``n`` correlated samples the residual carries the
-information of ``n_eff = n / tau`` independent ones, where
+with ``Sigma`` the covariance of the noise in ``r``.
 
-    tau = 1 + 2 sum_{k >= 1} rho_k
+**Coloured residual: the sandwich in the frequency domain.** The residual is far from
+white: the mouthpiece pressure's noise comes through the wave separation and the 7.25 kHz
+low-pass, and on a measured take most of its power lies below a few hundred hertz (its
+integrated autocorrelation time ``tau`` is about 100 samples at 100 kHz), while the
+Jacobian's columns live at the note's harmonics. For a stationary noise over the window
+``Sigma`` is nearly circulant, so ``B = (1/n) sum_f w_f Re(J_f^H J_f) S_f`` with ``J_f``
+the DFT of the columns, ``w_f`` the one-sided weights and ``S_f`` the residual's
+periodogram ``|R_f|^2 / n`` averaged over :data:`SPECTRUM_BINS` neighbouring bins: each
+frequency's noise is weighted by how much the parameters' signature holds there. For white
+noise of variance s^2 this is ``s^2 J^T J`` (Parseval), the Gauss-Newton covariance.
 
-is the integrated autocorrelation time of the residual (``rho_k`` its autocorrelation at
-lag k). For noise whose spectrum is flat over the band the Jacobian occupies, this makes
-``s^2 (J^T J)^-1`` equal the exact sandwich covariance ``(J^T J)^-1 J^T Sigma J
-(J^T J)^-1``. The sum is truncated by Geyer's initial positive sequence rule (sum pairs
-``rho_{2m} + rho_{2m+1}`` while they are positive), which needs no tuning and, for
-low-passed noise whose autocorrelation is a sinc, stops after its main lobe (tau is then
-about 18 % high: conservative). A periodic model error gives a large tau and so honestly
-larger standard errors. Whitening with an autoregressive model of the residual was not
-chosen: the residual has no power above the low-pass cut-off, so a whitening filter has
-an enormous gain there and the whitened Jacobian is dominated by round-off.
+The fit removes from the residual the noise along its p directions, which for a coloured
+noise are p of its ``n_eff = n / tau`` effective samples (``tau = 1 + 2 sum rho_k``, the
+integrated autocorrelation time, summed by Geyer's initial positive sequence): ``B`` is
+scaled by ``n_eff / (n_eff - p)``, the coloured analogue of ``n / (n - p)``.
+
+Why not ``s^2 (J^T J)^-1`` with ``s^2 = ||r||^2 / (n_eff - p)`` (mpipe <= 0.3): that
+inflates the noise uniformly by ``tau``, which is right only when the noise spectrum is
+flat over the Jacobian's band. On measured takes it made the SEs about twice too wide
+(RMS z 0.5 over six 1 s takes at 45 dB); the sandwich gives RMS z 1.0-1.2 on the same
+windows (``benchmarks/bench_uncertainty.py --coverage``). Whitening with an
+autoregressive model was not chosen either: the residual has no power above the low-pass
+cut-off, so a whitening filter has an enormous gain there and the whitened Jacobian is
+dominated by round-off.
 
 **Undetermined directions.** ``J`` is decomposed by SVD. A direction ``v`` in log-parameter
 space with a singular value below ``rcond`` times the largest is a null direction: the data
@@ -59,6 +68,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from mpipe.inversion.least_squares import DIFF_STEP
+
+#: Periodogram bins averaged into the residual's noise spectrum (50 Hz apart on a 20 ms
+#: window: 250 Hz, narrower than the spacing of the note's harmonics' signatures and wide
+#: enough to tame the periodogram's 100 % scatter; 3 to 9 bins change RMS z by < 3 %).
+SPECTRUM_BINS = 5
 
 #: Singular values below this fraction of the largest mark a null direction. A forward
 #: difference of step 1e-4 in log parameters leaves the Jacobian of an exactly invariant
@@ -157,21 +171,22 @@ def log_jacobian(
 
 @dataclass(frozen=True)
 class Covariance:
-    """Gauss-Newton covariance of log parameters with the residual's colour accounted for.
+    """Sandwich covariance of log parameters with the residual's spectrum accounted for.
 
     Attributes
     ----------
     names : tuple of str
         Free parameters, in the order of the Jacobian's columns.
     cov : ndarray
-        Covariance of ``ln x`` over the determined directions (pseudo-inverse), shape
-        ``(p, p)``.
+        Covariance of ``ln x`` over the determined directions (pseudo-inverse of ``J^T J``
+        in the sandwich), shape ``(p, p)``.
     null : ndarray
         Unit null directions in ln-x space, shape ``(n_null, p)``.
     singular_values : ndarray
         Singular values of ``J`` (Pa per unit ln x), largest first.
     sigma : float
-        ``s = ||r|| / sqrt(n_eff - p)``, Pa.
+        ``s = ||r|| / sqrt(n_eff - p)``, Pa: the residual's level per effective degree of
+        freedom (reported; the covariance uses the residual's spectrum).
     n : int
         Samples in the residual.
     tau : float
@@ -217,6 +232,37 @@ class Covariance:
         return np.where(np.outer(d, d) > 0, c, np.nan)
 
 
+def noise_weighted_gram(j: np.ndarray, r: np.ndarray, bins: int = SPECTRUM_BINS) -> np.ndarray:
+    """``J^T Sigma J`` with ``Sigma`` the circulant covariance of the residual's spectrum.
+
+    Parameters
+    ----------
+    j : ndarray
+        Jacobian, shape ``(n, p)``.
+    r : ndarray
+        Residual, length n; its periodogram, averaged over ``bins`` neighbouring bins
+        (mirrored at 0 and Nyquist), is the noise spectrum.
+    bins : int
+        Width of the average, bins.
+
+    Returns
+    -------
+    ndarray
+        Shape ``(p, p)``; ``s^2 J^T J`` for white noise of variance ``s^2``.
+    """
+    n = r.size
+    jf = np.fft.rfft(j, axis=0)
+    power = np.abs(np.fft.rfft(r)) ** 2 / n
+    half = bins // 2
+    padded = np.concatenate([power[1 : half + 1][::-1], power, power[-half - 1 : -1][::-1]])
+    smooth = np.convolve(padded, np.ones(bins) / bins, mode="valid")[: power.size]
+    weights = np.full(power.size, 2.0)
+    weights[0] = 1.0
+    if n % 2 == 0:
+        weights[-1] = 1.0
+    return np.real((jf.conj().T * (weights * smooth)) @ jf) / n
+
+
 def covariance(
     jacobian: np.ndarray,
     residual: np.ndarray,
@@ -256,13 +302,15 @@ def covariance(
     dof = n_eff - p
     # Below one degree of freedom the noise is not measured: one is used so the result
     # stays finite (and large), and the status says the SEs are rough.
+    inflation = n_eff / max(dof, 1.0)
     sigma = float(np.linalg.norm(r)) / math.sqrt(max(dof, 1.0))
     _, sv, vt = np.linalg.svd(j, full_matrices=False)
     keep = sv > rcond * (sv[0] if sv.size and sv[0] > 0 else 1.0)
-    inv = (vt[keep].T / sv[keep] ** 2) @ vt[keep]
+    a_inv = (vt[keep].T / sv[keep] ** 2) @ vt[keep]
+    cov = a_inv @ (inflation * noise_weighted_gram(j, r)) @ a_inv
     return Covariance(
         names=tuple(names),
-        cov=sigma**2 * inv,
+        cov=0.5 * (cov + cov.T),
         null=vt[~keep],
         singular_values=sv,
         sigma=sigma,
@@ -307,8 +355,10 @@ __all__ = [
     "DIFF_STEP",
     "RCOND",
     "SE_PARAMETERS",
+    "SPECTRUM_BINS",
     "covariance",
     "integrated_autocorrelation",
     "log_jacobian",
+    "noise_weighted_gram",
     "scale_direction",
 ]

@@ -21,7 +21,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mpipe.core.filters import design_lowpass
 from mpipe.inversion.coldstart import global_search
 from mpipe.inversion.diagnostics import playing_difference
 from mpipe.inversion.least_squares import trust_region
@@ -286,7 +285,7 @@ def _objective(
         start=config.start,
         lead_s=config.lead_s,
         settle_s=config.settle_s,
-        lowpass=design_lowpass(target.fs, config.lowpass_hz) if target.zero_mean else None,
+        lowpass=config.lowpass.design(target.fs) if target.zero_mean else None,
     )
     return F2Objective(
         kernel,

@@ -20,6 +20,7 @@ I. Theory", JASA 68(3):907-913; ISO 10534-2; physics.md B.4, E.6.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -49,6 +50,11 @@ class RelativeCalibration:
         Bins measured with enough coherence (the others are interpolated).
     method : str
         ``"switching"`` or ``"closed-tube"``.
+    near_node : int
+        Bins refused because they lie near a pressure node of the known field (closed
+        tube), interpolated from their neighbours.
+    warnings : tuple of str
+        What makes the result suspect (see :func:`switching_calibration`).
     """
 
     mic: str
@@ -56,6 +62,8 @@ class RelativeCalibration:
     h: np.ndarray
     valid: np.ndarray
     method: str
+    near_node: int = 0
+    warnings: tuple[str, ...] = ()
 
     def summary(self, band: tuple[float, float] = (100.0, 5000.0)) -> dict:
         """Median gain (dB) and phase (deg) of H_c over ``band`` and the share measured."""
@@ -67,6 +75,7 @@ class RelativeCalibration:
             "gain_db_median": float(np.median(gain)) if gain.size else float("nan"),
             "phase_deg_median": float(np.median(phase)) if phase.size else float("nan"),
             "measured_fraction": float(self.valid.mean()),
+            "near_node_fraction": self.near_node / max(self.valid.size, 1),
         }
 
     def table(self) -> pd.DataFrame:
@@ -145,10 +154,9 @@ def smooth(
         return conv(x * w) / np.maximum(conv(w), 1e-12)
 
     out = np.exp(run(np.log(np.abs(h)))) * np.exp(1j * run(np.unwrap(np.angle(h))))
-    # bins with no valid neighbour within the width keep the interpolated value
-    lonely = np.convolve(np.concatenate([np.zeros(pad), w, np.zeros(pad)]), kernel, "valid") == 0
-    out[lonely] = h[lonely]
-    return out
+    # the unusable bins are interpolated from the smoothed usable ones, not from the raw
+    # bins at a gap's edges (one noisy, possibly biased bin each)
+    return _fill(freqs, out, valid) if valid.sum() >= 2 else out
 
 
 def _fill(freqs: np.ndarray, h: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -229,7 +237,39 @@ def switching_calibration(
     field = h1[low] / h[low] if low.any() else h1[valid][:5] / h[valid][:5]
     if np.median(field.real) < 0:
         h = -h
-    return RelativeCalibration(mic, f, h, valid, "switching")
+    result = RelativeCalibration(mic, f, h, valid, "switching")
+    return dataclasses.replace(result, warnings=_switch_warnings(result, h1 / h2, valid))
+
+
+#: Median |ln(H_I / H_II)| below which the two recordings are the same (not swapped).
+SAME_RECORDINGS = 1e-3
+#: A relative calibration beyond these medians (dB, deg) is implausible for two
+#: microphones of one type on matched channels.
+PLAUSIBLE_GAIN_DB, PLAUSIBLE_PHASE_DEG = 6.0, 30.0
+
+
+def _switch_warnings(result: RelativeCalibration, field2: np.ndarray, valid: np.ndarray):
+    """Why a switching result is suspect: the same recording twice, or an implausible H_c."""
+    warnings = []
+    # H_I / H_II is the field ratio squared: 1 only when nothing was swapped
+    if np.median(np.abs(np.log(field2[valid]))) < SAME_RECORDINGS:
+        warnings.append(
+            f"{result.mic}: the two recordings give the same transfer function: the "
+            "microphones were not swapped between them (or one file was given twice); H_c "
+            "then holds the sound field, not the microphones"
+        )
+    s = result.summary()
+    if (
+        abs(s["gain_db_median"]) > PLAUSIBLE_GAIN_DB
+        or abs(s["phase_deg_median"]) > PLAUSIBLE_PHASE_DEG
+    ):
+        warnings.append(
+            f"{result.mic}: H_c {s['gain_db_median']:+.2f} dB, {s['phase_deg_median']:+.1f} deg is "
+            f"implausible for matched microphones (expected within {PLAUSIBLE_GAIN_DB:g} dB "
+            f"and {PLAUSIBLE_PHASE_DEG:g} deg): check the recordings, the channels and the "
+            "sensitivities"
+        )
+    return tuple(warnings)
 
 
 def closed_tube_ratio(
@@ -281,6 +321,7 @@ def closed_tube_calibration(
     min_coherence: float = 0.95,
     max_node_db: float = 10.0,
     smooth_hz: float = 100.0,
+    max_change: float = 0.1,
 ) -> RelativeCalibration:
     """Relative calibration of microphone m against a known field (a rigidly closed tube).
 
@@ -310,20 +351,30 @@ def closed_tube_calibration(
         error of H_c) are interpolated too.
     smooth_hz : float
         Width of the running mean applied to H_c, Hz (0: none); see :func:`smooth`.
+    max_change : float
+        Bins where the theoretical ratio changes by more than this fraction over one
+        ``resolution_hz`` (the flanks of a pressure node) are interpolated too: the
+        spectral estimate averages the field over its resolution, so there it is biased
+        against the ratio at the bin's centre (0.45 dB and 2 deg with the cap at 0.45 m
+        and 10 Hz resolution, without this test).
 
     Returns
     -------
     RelativeCalibration
+        ``near_node`` counts the bins refused near the tube's pressure nodes.
     """
     f, h, coh = transfer_estimate(recording[:, 0], recording[:, 1], fs, resolution_hz)
     sel = _band(f, band)
     f, h, coh = f[sel], h[sel], coh[sel]
     theory = np.interp(f, ratio_freqs, ratio.real) + 1j * np.interp(f, ratio_freqs, ratio.imag)
     level = 20 * np.log10(np.maximum(np.abs(theory), 1e-300))
-    valid = (coh >= min_coherence) & (np.abs(level) <= max_node_db)
+    log_theory = np.log(np.where(np.abs(theory) > 0, theory, 1e-300))
+    change = np.abs(np.gradient(log_theory.real + 1j * np.unwrap(log_theory.imag), f))
+    node = (np.abs(level) > max_node_db) | (change * resolution_hz > max_change)
+    valid = (coh >= min_coherence) & ~node
     _require(valid, mic, min_coherence)
     hc = smooth(f, h / np.where(valid, theory, 1.0), smooth_hz, valid)
-    return RelativeCalibration(mic, f, hc, valid, "closed-tube")
+    return RelativeCalibration(mic, f, hc, valid, "closed-tube", int(node.sum()))
 
 
 def _band(f: np.ndarray, band: tuple[float, float]) -> np.ndarray:

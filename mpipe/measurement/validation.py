@@ -25,6 +25,7 @@ Chatziioannou & van Walstijn 2012, section 4 and Fig. 10; physics.md D.1 and F.3
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass
 
@@ -266,6 +267,8 @@ def validate(
         + int(harmonics.compared.sum() if len(harmonics) else 0),
         min_checks=config.min_checks,
     )
+    if result.failures:
+        result = dataclasses.replace(result, suspects=suspect_inputs(result, calibration))
     log.info("validation: %s (%s)", result.verdict, result.reason)
     return result
 
@@ -315,6 +318,53 @@ def _harmonic_bins(freqs: np.ndarray, s_uu: np.ndarray, f0: float) -> tuple[np.n
     width = max(int(f0 / df), 3)
     local = ndimage.median_filter(s_uu, size=width, mode="nearest")
     return at & (s_uu > 100 * local), k
+
+
+def suspect_inputs(result: ValidationResult, calibration: Calibration) -> tuple[str, ...]:
+    """The inputs that can make a validation FAIL the way ``result`` does, most likely first.
+
+    Resonances at the wrong frequency, harmonics tens of degrees or a band several dB off
+    point at the bore's length or the air temperature first; smaller level and phase
+    errors at the right frequencies at what scales P against U: the
+    microphones' relative calibration tables (H_c off by 0.1 dB / 0.5 deg moves the measured
+    impedance by far more near its minima), their positions and the entry radius.
+
+    Parameters
+    ----------
+    result : ValidationResult
+        A failed validation.
+    calibration : Calibration
+        The calibration used (its microphone tables are named).
+
+    Returns
+    -------
+    tuple of str
+    """
+    text = "; ".join(result.failures)
+    tables = [
+        str(calibration.calibration_path(m).name)
+        for m in calibration.microphones
+        if calibration.calibration_path(m) is not None
+    ]
+    scale = []
+    if tables:
+        scale.append(
+            "the microphones' relative calibration tables ("
+            + ", ".join(tables)
+            + "): re-measure them (mpipe calibrate closed or switch)"
+        )
+    else:
+        scale.append("the microphones' mismatch (no relative calibration table is given)")
+    scale.append("the microphones' positions and the bore's entry radius")
+    frequency = ["the bore's length and geometry", "the air temperature"]
+    # a misplaced resonance, tens of degrees or several dB are more than a table's error
+    phases = result.harmonics["error_deg"] if "error_deg" in result.harmonics else []
+    gross = (
+        "cents" in text
+        or result.band_error_db > 3.0
+        or bool(np.any(np.abs(np.asarray(phases, dtype=float)) > 20.0))
+    )
+    return tuple(frequency + scale if gross else scale + frequency)
 
 
 def _failures(

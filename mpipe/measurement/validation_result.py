@@ -53,6 +53,9 @@ class ValidationResult:
         Number of quantities compared (measured resonances and coherent harmonics).
     min_checks : int
         Fewest compared quantities for a PASS.
+    suspects : tuple of str
+        On a FAIL, the inputs that can produce such errors, most likely first (see
+        :func:`mpipe.measurement.validation.suspect_inputs`).
     """
 
     freqs: np.ndarray
@@ -70,6 +73,7 @@ class ValidationResult:
     failures: tuple[str, ...] = field(default_factory=tuple)
     checks: int = 0
     min_checks: int = 1
+    suspects: tuple[str, ...] = field(default_factory=tuple)
 
     @property
     def passed(self) -> bool:
@@ -87,7 +91,8 @@ class ValidationResult:
     def reason(self) -> str:
         """One line saying why the verdict is what it is."""
         if self.failures:
-            return "; ".join(self.failures)
+            suspects = f"; suspect inputs: {', '.join(self.suspects)}" if self.suspects else ""
+            return "; ".join(self.failures) + suspects
         what = f"{self.checks} quantit{'y' if self.checks == 1 else 'ies'} compared"
         if self.verdict == "pass":
             return f"{what}, all within tolerance"
@@ -140,6 +145,7 @@ class ValidationResult:
             + (f"; note f0 {self.f0_hz:.2f} Hz" if np.isfinite(self.f0_hz) else "")
         )
         lines.extend(f"  fail: {f}" for f in self.failures)
+        lines.extend(f"  suspect: {x}" for x in (self.suspects if self.failures else ()))
         return "\n".join(lines)
 
 

@@ -28,6 +28,7 @@ from mpipe.inversion.settings import (
     ConditioningConfig,
     ExecutorConfig,
     InversionConfig,
+    ModelLowPass,
     ParameterBounds,
     ResynthesisConfig,
 )
@@ -135,7 +136,16 @@ def load_pipeline(path: str | Path, check_calibration: bool = True) -> PipelineC
     if "source" in data:
         raise ConfigError(f"{path}: source: this key is set by the loader, remove it")
     data["source"] = str(Path(path).resolve())
+    inversion = data.get("inversion")
+    for key in ("lowpass_hz", "lowpass"):
+        if isinstance(inversion, dict) and key in inversion:
+            raise ConfigError(
+                f"{path}: inversion.{key}: the model is low-passed with the measurement's "
+                "filter: set translation.lowpass_hz, transition_hz and stopband_db instead"
+            )
     cfg = build(PipelineConfig, data, Where(str(path)))
+    # one low-pass for both sides: the model's is the translation's
+    cfg = replace(cfg, inversion=replace(cfg.inversion, lowpass=ModelLowPass.of(cfg.translation)))
     if check_calibration and not cfg.calibration_path.is_file():
         raise ConfigError(f"{path}: calibration: no such file {cfg.calibration_path}")
     _check_window(cfg, path)

@@ -2,8 +2,14 @@
 
 import numpy as np
 import pandas as pd
+import pytest
 
-from mpipe.inversion.diagnostics import playing_difference, take_checks
+from mpipe.inversion.diagnostics import (
+    check_plausible,
+    impedance_ratio,
+    playing_difference,
+    take_checks,
+)
 from mpipe.inversion.settings import InversionConfig
 from mpipe.pipeline.report import overall_verdict
 
@@ -76,3 +82,20 @@ def test_windows_not_ok_do_not_count_in_the_medians():
     table = _windows(model_level_db=[0.0, 0.0, 0.0, 9.0, 9.0])
     table.loc[3:, "status"] = "at-bound"
     assert take_checks(table, CFG, temperature_source="fit") == []
+
+
+def test_impedance_ratio_and_the_plausibility_of_the_flows_scale():
+    z_c = 2.3e6  # Pa s/m^3, about the shipped entry's
+    u = _tone(147.0, 2e-5)
+    p = 15 * z_c * u  # a reed playing near a resonance: |p/u| = 15 Z_c
+    assert impedance_ratio(p, u, FS, z_c) == pytest.approx(15.0, rel=1e-6)
+    starts, n = [0, 1000], 2000
+    p_long, u_long = np.tile(p, 2), np.tile(u, 2)
+    check_plausible(p_long, u_long, FS, starts, n, z_c)  # no error
+    # a flow 250x too large but within the flow's own range: |p/u| gives it away
+    with pytest.raises(ValueError, match=r"\|p/u\| .* 0\.06 Z_c .* unit error"):
+        check_plausible(p_long, 250 * u_long, FS, starts, n, z_c)
+    with pytest.raises(ValueError, match="implausible mouthpiece flow"):
+        check_plausible(p_long, 1000 * u_long * 1000, FS, starts, n, z_c)
+    with pytest.raises(ValueError, match="implausible mouthpiece pressure"):
+        check_plausible(1e3 * p_long, u_long, FS, starts, n, z_c)

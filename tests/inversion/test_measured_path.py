@@ -61,7 +61,10 @@ def test_the_seeds_land_in_the_right_basin(results):
         result = done.tracking
         t = result.table
         assert result.zero_mean and len(t) >= 1
-        assert (t["status"] == "ok").all(), (seed, t["status_reason"].tolist())
+        # ok, or (at 70 dB the residual is mostly a periodic model error, with few
+        # effective samples) low-dof: never a bound, a failed search or a high residual
+        assert set(t["status"]) <= {"ok", "low-dof"}, (seed, t["status_reason"].tolist())
+        assert (t["status"] == "ok").any(), seed
         for name in ("k", "y_m", "p_m", "lam"):
             err = float(t[name].median()) / TRUTH[name] - 1
             assert abs(err) < 0.1, (seed, name, err)  # never a wrong basin
@@ -93,3 +96,25 @@ def test_the_kernel_temperature_is_fitted_to_the_playing(results):
         assert fit.source == "fit", (seed, fit.note)
         assert abs(fit.temperature_c - 20.0) < 0.3, (seed, fit.line())
         assert abs(fit.temperature_c - 20.0) < 4 * fit.se_c + 0.05, (seed, fit.line())
+
+
+def test_the_error_bars_are_neither_too_wide_nor_too_narrow(results):
+    # z = (estimate - truth) / SE in log space over every ok window of the five seeds,
+    # pooled over k, y_m, p_m, p_M and gamma: honest bars give RMS z = 1. The bars of
+    # mpipe <= 0.3 (residual inflated uniformly by its autocorrelation time) were about
+    # twice too wide: RMS z < 0.6 fails. At 70 dB the noise's share is small and the front
+    # end's own error of each take (not in the SEs) shows: 1.69 measured on these five
+    # seeds (about 45 pairs), so bars more than 2x too narrow fail: [0.6, 2.0].
+    from mpipe.inversion.combinations import combination_values
+
+    z = []
+    for done in results.values():
+        t = done.tracking.table
+        ok = t[t["status"] == "ok"]
+        truth = {**TRUTH, **combination_values(TRUTH, done.kernel.z0, done.air.rho)}
+        for name in ("k", "y_m", "p_m", "p_M", "gamma"):
+            x, se = ok[name].to_numpy(float), ok[f"{name}_se"].to_numpy(float)
+            z += list(np.log(x / truth[name]) / (se / x))
+    rms = float(np.sqrt(np.mean(np.square(z))))
+    print(f"RMS z over {len(z)} (window, quantity) pairs: {rms:.2f}")
+    assert 0.6 <= rms <= 2.0, rms

@@ -88,6 +88,52 @@ def test_coverage_on_lowpassed_noise_matches_monte_carlo():
     assert np.all(np.mean(np.abs(est) <= 2 * naive, axis=0) < 0.75)
 
 
+def test_linear_gaussian_limit_bars_neither_too_wide_nor_too_narrow():
+    """A linear model whose true covariance is known, under the noise of a measured take.
+
+    The columns are the note's harmonics (147 Hz and up, as a reed's signature); the noise
+    is mostly below 300 Hz (a strongly correlated AR(1), tau ~ 100 samples, as the
+    mouthpiece pressure's noise through the wave separation) plus a white floor. The true
+    covariance is ``(J^T J)^-1 J^T Sigma J (J^T J)^-1`` with Sigma from the AR(1) and the
+    floor. Over 150 noise draws the RMS of z = (estimate - truth) / SE must lie in
+    [0.85, 1.15] and 2 SE must cover the truth in 0.92-0.98 of the draws, for every
+    parameter; the predicted SE must match the true one within 15 % (median). The uniform
+    inflation by tau (mpipe <= 0.3) fails this test: its bars on the upper harmonics are
+    more than 2x too wide.
+    """
+    n, phi, floor = 2000, 0.98, 0.3
+    t = np.arange(n) / FS
+    j = np.column_stack(
+        [np.sin(2 * np.pi * 147.0 * h * t + h) for h in (1, 2, 3, 5)]
+        + [np.cos(2 * np.pi * 147.0 * t)]
+    )
+    lag = np.abs(np.subtract.outer(np.arange(n), np.arange(n)))
+    sigma = phi**lag / (1 - phi**2) + floor**2 * np.eye(n)
+    a_inv = np.linalg.inv(j.T @ j)
+    true_se = np.sqrt(np.diag(a_inv @ j.T @ sigma @ j @ a_inv))
+    chol = np.linalg.cholesky(sigma)
+    rng = np.random.default_rng(11)
+    z, z_tau, ratio = [], [], []
+    for _ in range(150):
+        e = chol @ rng.standard_normal(n)
+        theta = a_inv @ j.T @ e  # the least-squares estimate; the truth is 0
+        r = e - j @ theta  # the residual at the estimate
+        cov = covariance(-j, r, [f"x{i}" for i in range(j.shape[1])])
+        se = np.sqrt(np.diag(cov.cov))
+        z.append(theta / se)
+        ratio.append(se / true_se)
+        z_tau.append(theta / (cov.sigma * np.sqrt(np.diag(a_inv))))
+    z, z_tau = np.array(z), np.array(z_tau)
+    rms = np.sqrt(np.mean(z**2, axis=0))
+    coverage = np.mean(np.abs(z) < 2, axis=0)
+    assert np.all((rms > 0.85) & (rms < 1.15)), rms
+    assert np.all((coverage >= 0.92) & (coverage <= 0.98)), coverage
+    assert np.all(np.abs(np.median(ratio, axis=0) - 1) < 0.15), np.median(ratio, axis=0)
+    # the uniform inflation by tau fails the first check: its bars on the harmonics that sit
+    # above the noise are > 2x too wide
+    assert np.min(np.sqrt(np.mean(z_tau**2, axis=0))) < 0.5
+
+
 def test_null_direction_gives_infinite_se_but_invariant_combinations_stay_finite():
     rng = np.random.default_rng(0)
     base = rng.standard_normal((500, 2))

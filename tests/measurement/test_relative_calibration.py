@@ -65,7 +65,7 @@ def test_switching_resolves_the_square_root_branch_of_a_swapped_polarity(shipped
     assert np.median(np.abs(phase)) < 0.5
 
 
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [0, 1, 2])
 def test_closed_tube_recovers_the_mismatch_against_the_known_field(shipped_calibration, seed):
     # both seeds must pass
     cal = shipped_calibration
@@ -79,8 +79,33 @@ def test_closed_tube_recovers_the_mismatch_against_the_known_field(shipped_calib
     ratio = closed_tube_ratio(x, cap, cal.main_radius, freqs, cal.air_properties())
     result = closed_tube_calibration(rec, FS, ratio[:, 1], freqs, "mic2")
     gain, phase = _errors(result)
-    assert abs(np.median(gain)) < 0.05 and abs(np.median(phase)) < 0.2
-    assert np.mean(np.abs(gain) < 0.1) > 0.8 and np.mean(np.abs(phase) < 0.5) > 0.8
+    # every bin of the table within 0.05 dB and 0.2 deg over 20-7250 Hz at the defaults
+    # (0.041 dB, 0.18 deg measured); the bins on the flanks of the tube's pressure nodes,
+    # where the spectral estimate is biased against the field at the bin's centre, are
+    # refused and interpolated, and counted
+    assert np.max(np.abs(gain)) < 0.05 and np.max(np.abs(phase)) < 0.2
+    assert 0.2 < result.summary()["near_node_fraction"] < 0.6
+
+
+def test_switching_warns_when_nothing_was_swapped_and_when_h_c_is_implausible(
+    shipped_calibration,
+):
+    cal = shipped_calibration
+    x1, x2 = cal.microphones[0].position, cal.microphones[1].position
+    g = complex_gain([0.0, GAIN_DB], [0.0, PHASE_DEG])
+    first = simulate_calibration_recording(
+        cal, (x1, x2), g, duration_s=2, fs=FS, snr_db=SNR, seed=5
+    )
+    second = simulate_calibration_recording(
+        cal, (x2, x1), g, duration_s=2, fs=FS, snr_db=SNR, seed=6
+    )
+    assert switching_calibration(first, second, FS, "mic2").warnings == ()
+    same = switching_calibration(first, first, FS, "mic2")
+    assert any("not swapped" in w for w in same.warnings), same.warnings
+    assert any("implausible" in w for w in same.warnings), same.warnings
+    # a channel 10 dB hotter than its sensitivity says: swapped, but implausible
+    hot = switching_calibration(first * [1, 3.16], second * [1, 3.16], FS, "mic2")
+    assert len(hot.warnings) == 1 and "implausible" in hot.warnings[0]
 
 
 def test_closed_tube_ratio_limit_cases(shipped_air):

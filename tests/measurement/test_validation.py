@@ -58,6 +58,19 @@ def test_perturbed_bore_fails():
     res = validate(p, u, FS, CAL, ValidationConfig())
     assert not res.passed
     assert any("band error" in f for f in res.failures)
+    # resonances off in frequency: the bore's geometry is named first, the tables after it
+    assert "bore's length" in res.suspects[0] and "suspect inputs" in res.reason
+    assert any("microphones' mismatch" in x for x in res.suspects)  # no table is given
+
+
+def test_a_level_error_points_at_the_microphone_tables_first():
+    # P scaled by 2 dB against U (what a wrong table of a microphone can do): the right
+    # frequencies, the wrong levels
+    p, u = _broadband(int(4 * FS))
+    res = validate(p * 10 ** (2 / 20), u, FS, CAL, ValidationConfig())
+    assert not res.passed, res.reason
+    assert "microphones' mismatch" in res.suspects[0], res.suspects
+    assert "suspect: " in res.summary()
 
 
 def test_harmonics_only_for_a_played_note():

@@ -281,6 +281,8 @@ def test_failed_validation_stops_the_run_and_separate_exits_non_zero(
     assert main(["separate", str(take.audio), str(wrong_bore), "-o", str(tmp_path / "s")]) == 1
     out = capsys.readouterr().out
     assert "impedance validation: FAIL" in out and "validation FAILED" in out
+    # the inputs that can do this are named, the bore's first (harmonics 100 deg off)
+    assert "suspect inputs: the bore's length" in out and "microphones'" in out, out
     assert (tmp_path / "s" / "mouthpiece.npz").exists()
     with np.load(tmp_path / "s" / "mouthpiece.npz") as mp:
         assert {"u_noise_freq_hz", "u_noise_psd", "p_noise_psd"} <= set(mp.files)
@@ -304,3 +306,22 @@ def test_failed_validation_stops_the_run_and_separate_exits_non_zero(
     code = main(["run", str(pipe), str(take.audio), "-o", str(tmp_path / "r"),
                  "--accept-failed-validation"])  # fmt: skip
     assert reached and "inverting despite the FAILED validation" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("scale", [1000.0, 0.001])
+def test_a_flow_in_the_wrong_unit_is_refused_in_one_line(
+    finished, pipeline, tmp_path, capsys, scale
+):
+    # the user's path: the mouthpiece file of `mpipe run` with its flow in L/s (x1000) or
+    # scaled by 0.001, given to `mpipe invert`: no window inverted, one line saying why
+    out, run, _ = finished
+    assert run.records["inversion"].summary["take_checks"] == []  # the right unit passes
+    with np.load(run.folder / "translation" / "mouthpiece.npz") as mp:
+        data = {k: mp[k] for k in mp.files}
+    data["u"] = data["u"] * scale
+    bad = tmp_path / "mouthpiece.npz"
+    np.savez(bad, **data)
+    code = main(["invert", str(bad), "--pipeline", pipeline.source, "-o", str(tmp_path / "i")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and not (tmp_path / "i" / "windows.csv").exists()
+    assert "implausible" in err and "m^3/s expected" in err and len(err.splitlines()) == 1, err

@@ -179,3 +179,23 @@ def test_the_config_placeholder_does_not_block_a_given_calibration(tmp_path, cap
     argv = ["run", str(tmp_path / "my.yaml"), str(tmp_path / "none.wav"), "-o", str(tmp_path)]
     assert main([*argv, "--calibration", str(cal)]) == 2
     assert "none.wav: no such take file" in capsys.readouterr().err
+
+
+def test_the_model_is_low_passed_with_the_measurements_filter(tmp_path):
+    import numpy as np
+
+    from mpipe.core.filters import design_lowpass
+
+    cal = (ROOT / "calibration" / "simplified_clarinet.yaml").resolve()
+    path = tmp_path / "p.yaml"
+    path.write_text(
+        f"calibration: {cal}\ntranslation:\n  lowpass_hz: 6000.0\n  transition_hz: 800.0\n"
+        "  stopband_db: 80.0\n"
+    )
+    cfg = load_pipeline(path)
+    measured = design_lowpass(1e5, 6000.0, 800.0, 80.0)
+    np.testing.assert_array_equal(cfg.inversion.lowpass.design(1e5).taps, measured.taps)
+    # the old key of the model's own low-pass is refused, naming where the filter is set
+    path.write_text(f"calibration: {cal}\ninversion:\n  lowpass_hz: 7000.0\n")
+    with pytest.raises(ConfigError, match="inversion.lowpass_hz: .* translation.lowpass_hz"):
+        load_pipeline(path)

@@ -133,10 +133,18 @@ def _finish(args, result) -> int:
     write_csv(args.output, result.table())
     read_mic_calibration(args.output, band=None)  # what the take reader will accept
     s = result.summary()
+    for warning in result.warnings:
+        sys.stderr.write(f"warning: {warning}\n")
+    near = (
+        f", {100 * s['near_node_fraction']:.0f} % refused near the tube's pressure nodes, "
+        "where the known field cannot be trusted to 0.05 dB"
+        if result.near_node
+        else ""
+    )
     sys.stdout.write(
         f"{args.mic}: H_c median {s['gain_db_median']:+.3f} dB, {s['phase_deg_median']:+.2f} "
-        f"deg over 100-5000 Hz; {100 * s['measured_fraction']:.0f} % of the bins measured "
-        f"(the rest interpolated); written to {args.output}\n"
+        f"deg over 100-5000 Hz; {100 * s['measured_fraction']:.0f} % of the bins measured"
+        f"{near} (the rest interpolated); written to {args.output}\n"
         f"add to microphone {args.mic} in {args.calibration}: calibration: {args.output}\n"
     )
     return 0
