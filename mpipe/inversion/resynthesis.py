@@ -276,7 +276,8 @@ def plot_tracks(table: pd.DataFrame, path: str | Path) -> Path:
     from mpipe.inversion.combinations import COMBINATIONS
 
     t = (0.5 * (table["t_start_s"] + table["t_end_s"])).to_numpy(dtype=float)
-    names = [*PARAMETER_NAMES, "y_c", *(c.name for c in COMBINATIONS), "relative_residual"]
+    names = [*PARAMETER_NAMES, "y_c", *(c.name for c in COMBINATIONS), "h_mean",
+             "closed_fraction", "relative_residual"]  # fmt: skip
     names = [n for n in names if n in table]
     ncol = 4
     nrow = -(-len(names) // ncol)

@@ -228,7 +228,8 @@ def assign_windows(
 #: Per-window columns of the plan carried into the windows table (what was played).
 PLAYED_COLUMNS = ("phase", "f0_hz", "pitch_cents", "regime", "rms_pa", "spl_db")
 #: Quantities summarised per segment.
-SUMMARISED = ("p_m", "p_M", "gamma", "zeta", "k", "S", "y_m", "lam", "m", "g", "k_c")
+SUMMARISED = ("p_m", "p_M", "gamma", "zeta", "k", "S", "y_m", "lam", "m", "g", "k_c",
+              "h_mean", "closed_fraction")  # fmt: skip
 
 
 def with_played(table: pd.DataFrame, plan: pd.DataFrame) -> pd.DataFrame:
@@ -288,6 +289,62 @@ def segment_summary(segments: pd.DataFrame, table: pd.DataFrame) -> pd.DataFrame
     return out
 
 
+def reed_openings(table: pd.DataFrame, p: np.ndarray, fs: float) -> tuple[pd.DataFrame, np.ndarray]:
+    """The fitted reed's opening in every window, driven by the measured pressure.
+
+    Each window's reed (its row's parameters) is driven by the mouthpiece pressure from
+    5 ms before the window (:func:`mpipe.reed.opening.opening`); the fit matches that
+    pressure to a fraction of a per cent, so this is the fitted model's opening.
+
+    Returns
+    -------
+    (columns, h)
+        ``columns``: ``h_mean``, ``h_min`` (m) and ``closed_fraction`` (fraction of the
+        window, so of each period, the reed is shut) per row of ``table``; ``h``: the
+        opening at every sample of the take (m), NaN outside the windows with an estimate.
+    """
+    from mpipe.inversion.settings import PARAMETER_NAMES
+    from mpipe.reed.opening import opening, opening_summary
+    from mpipe.reed.parameters import ReedParameters
+
+    p = np.asarray(p, dtype=float)
+    h_all = np.full(p.size, np.nan)
+    rows = []
+    for _, row in table.iterrows():
+        i0, i1 = int(round(row["t_start_s"] * fs)), int(round(row["t_end_s"] * fs))
+        try:
+            reed = ReedParameters(**{k: float(row[k]) for k in (*PARAMETER_NAMES, "y_c", "alpha")})
+            h = opening(reed, p, fs, i0, i1 - i0)
+        except (ValueError, TypeError, KeyError):  # no estimate in this window
+            rows.append(opening_summary(np.array([np.nan])))
+            continue
+        h_all[i0:i1] = h
+        rows.append(opening_summary(h))
+    return pd.DataFrame(
+        rows, index=table.index, columns=["h_mean", "h_min", "closed_fraction"]
+    ), h_all
+
+
+def segment_lines(summary: pd.DataFrame) -> list[str]:
+    """One console line per note: when, what was played, ok windows, medians +- SE."""
+    lines = []
+    for _, r in note_segments(summary).iterrows():
+        parts = []
+        for name, unit in (("p_m", " Pa"), ("p_M", " Pa"), ("gamma", ""), ("zeta", "")):
+            med, se = r.get(f"{name}_median", math.nan), r.get(f"{name}_median_se", math.nan)
+            if np.isfinite(med):
+                parts.append(f"{name} {med:.4g}" + (f" +- {se:.2g}" if np.isfinite(se) else "")
+                             + unit)  # fmt: skip
+        what = ", ".join(x for x in (str(r.get("note") or ""), str(r.get("regime") or "")) if x)
+        lines.append(
+            f"note {int(r['segment'])} at {r['start_s']:.3f} s ({r['duration_s']:.2f} s"
+            f"{', ' + what if what else ''}, {r['spl_db']:.0f} dB SPL): "
+            f"{int(r.get('ok_windows', 0))} of {int(r.get('windows', 0))} windows ok"
+            + (": " + ", ".join(parts) if parts else "")
+        )
+    return lines
+
+
 def note_segments(summary: pd.DataFrame) -> pd.DataFrame:
     """The note rows of a segment table (silences left out)."""
     return summary[summary["label"] == "note"].reset_index(drop=True)
@@ -295,4 +352,4 @@ def note_segments(summary: pd.DataFrame) -> pd.DataFrame:
 
 __all__ = ["P_REF_PA", "PLAYED_COLUMNS", "SEGMENT_COLUMNS", "SUMMARISED", "assign_windows",
            "level_envelope", "note_segments", "segment_summary", "segment_take",
-           "sounding_runs", "spl_db", "with_played"]  # fmt: skip
+           "reed_openings", "segment_lines", "sounding_runs", "spl_db", "with_played"]  # fmt: skip

@@ -225,7 +225,7 @@ def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig)
 
 def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: PipelineConfig, client):
     from mpipe.inversion import resynthesis as rs
-    from mpipe.inversion.segments import segment_summary, with_played
+    from mpipe.inversion.segments import segment_lines, segment_summary, with_played
     from mpipe.inversion.status import count as count_status
     from mpipe.inversion.status import summary_line
     from mpipe.inversion.tables import write_correlations, write_table
@@ -300,6 +300,7 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
             "temperature_c": take.temperature.temperature_c,
             "temperature": take.temperature.summary(),
             "temperature_line": take.temperature.line(),
+            "segment_lines": segment_lines(per_segment),
         }
         return outputs, summary
 
@@ -309,6 +310,7 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
 def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
     from mpipe.core.progress import ProgressBar
     from mpipe.inversion import resynthesis as rs
+    from mpipe.inversion.segments import reed_openings
 
     def work(folder: Path):
         mp = _load_npz(mouthpiece)
@@ -322,7 +324,8 @@ def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
             res = rs.resynthesise(table, p, u, fs, kernel, cfg.inversion, zero_mean, bar)
         finally:
             bar.close()
-        write_npz_atomic(folder / "resynthesis.npz", fs=np.float64(fs), p=res.p, u=res.u)
+        _, h = reed_openings(table, p, fs)  # the fitted reed's opening, m
+        write_npz_atomic(folder / "resynthesis.npz", fs=np.float64(fs), p=res.p, u=res.u, h=h)
         filled = np.nan_to_num(res.p)
         rs.write_wav(folder / "resynthesis.wav", filled, fs, cfg.resynthesis.wav_full_scale_pa)
         outputs = {"signals": "resynthesis.npz", "wav": "resynthesis.wav"}
@@ -469,6 +472,8 @@ def _run_take(
     inv = stage(5, "inversion", inv_inputs, cfg.inversion,
                 _stage_inversion(mouthpiece, plan, cal, cfg, client))  # fmt: skip
     say(f"[{name}]     {inv.summary['temperature_line']}")
+    for line in inv.summary.get("segment_lines", []):
+        say(f"[{name}]     {line}")
     say(f"[{name}]     {inv.summary['status_line']}")
     if not inv.summary["status_counts"]["ok"]:
         say(f"[{name}]     no window has status ok: see inversion/windows.csv, status_reason")
