@@ -225,7 +225,12 @@ def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig)
 
 def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: PipelineConfig, client):
     from mpipe.inversion import resynthesis as rs
-    from mpipe.inversion.segments import segment_lines, segment_summary, with_played
+    from mpipe.inversion.segments import (
+        segment_lines,
+        segment_summary,
+        why_no_window,
+        with_played,
+    )
     from mpipe.inversion.status import count as count_status
     from mpipe.inversion.status import summary_line
     from mpipe.inversion.tables import write_correlations, write_table
@@ -243,18 +248,7 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
         chosen = table_plan[table_plan["invert"]]
         starts = chosen["start"].astype(int).tolist()
         if not starts:
-            reasons = table_plan["reason"].fillna("").astype(str).value_counts()
-            why = ", ".join(f"{n} {r or 'steady'}" for r, n in reasons.items())
-            hint = (
-                f"; silent means below conditioning.min_rms_pa = {cfg.conditioning.min_rms_pa:g} "
-                "Pa: check the microphones' sensitivity (Pa per unit) in the calibration"
-                if "silent" in reasons
-                else ""
-            )
-            raise ValueError(
-                f"no sounding window to invert ({len(table_plan)} windows: {why}{hint}; "
-                "see conditioning/plan.csv)"
-            )
+            raise ValueError(why_no_window(table_plan, cfg.conditioning.min_rms_pa))
         bar = ProgressBar(len(starts))
         try:
             take = invert_take(
