@@ -251,7 +251,9 @@ def fit_temperature(
         return dataclasses.replace(fallback, note="no window to fit the temperature on")
     n = int(round(config.window_s * fs))
     lo, hi = front_end_c - config.temperature_range_c, front_end_c + config.temperature_range_c
-    firsts = {g: s for s, g in reversed(list(zip(chosen, groups, strict=True)))}
+    firsts: dict[int, int] = {}  # each segment's first fitted window, in time order
+    for s, g in zip(chosen, groups, strict=True):
+        firsts.setdefault(g, s)
     cold = functools.partial(_cold_starts, p, u, fs, firsts, zero_mean)
     solve = functools.partial(_solve, p, u, fs, calibration, chosen, config, zero_mean)
     runs, error = _profiles(solve, cold, calibration, fs, config, groups, front_end_c, lo, hi)

@@ -34,6 +34,29 @@ def test_pick_windows_spreads_over_the_take():
     assert pick_windows([5, 7], 6) == [5, 7]
 
 
+def test_the_fit_spreads_over_every_note_and_grows_with_the_take():
+    from mpipe.inversion.segments import pick_by_segment, window_count
+    from mpipe.inversion.settings import InversionConfig
+
+    cfg = InversionConfig()  # 6 windows at least, 1 per second, 24 at most; hop 20 ms
+    assert window_count(100, cfg) == 6  # a 2 s take
+    assert window_count(1000, cfg) == 20  # 20 s: 20 windows
+    assert window_count(5000, cfg) == 24
+    # three notes of 30, 10 and 20 windows: every note at least one, shares by length
+    starts = list(range(60))
+    segs = [1] * 30 + [3] * 10 + [5] * 20
+    chosen, groups = pick_by_segment(starts, segs, 6)
+    assert sorted(set(groups)) == [1, 3, 5] and groups.count(1) == 3 and groups.count(5) == 2
+    assert chosen == sorted(chosen)
+    # steady windows are preferred; a note without enough takes its central half
+    steady = [i % 2 == 0 for i in range(30)] + [False] * 30
+    chosen, groups = pick_by_segment(starts, segs, 6, steady)
+    first = [s for s, g in zip(chosen, groups, strict=True) if g == 1]
+    assert all(s % 2 == 0 for s in first)
+    third = [s for s, g in zip(chosen, groups, strict=True) if g == 5]
+    assert all(45 <= s < 55 for s in third)  # windows 5..14 of the note's 20
+
+
 def _quadratic_profile(t_true: float, noise: float = 0.0, seed: int = 0):
     rng = np.random.default_rng(seed)
 
