@@ -415,6 +415,51 @@ def why_no_window(plan: pd.DataFrame, min_rms_pa: float) -> str:
     )
 
 
+def plot_segments(segments: pd.DataFrame, tracks: dict, path, a4_hz: float = 440.0):
+    """What was played: the level with its silence threshold, and the pitch, notes shaded.
+
+    Parameters
+    ----------
+    segments : pandas.DataFrame
+        :func:`segment_take`'s table.
+    tracks : dict
+        Its tracks (level, threshold, f0).
+    path : str or Path
+        PNG file (written atomically).
+    a4_hz : float
+        Reference of the pitch axis, Hz.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from mpipe.core.io import write_atomic
+
+    fig, (ax_l, ax_p) = plt.subplots(2, 1, sharex=True, figsize=(10, 5))
+    ax_l.plot(tracks["t_level_s"], spl_db(np.maximum(tracks["level_pa"], 1e-9)), lw=0.8)
+    ax_l.axhline(spl_db(tracks["threshold_pa"]), color="tab:red", lw=0.8, ls="--",
+                 label="silence threshold")  # fmt: skip
+    ax_l.set_ylabel("level [dB re 20 µPa]")
+    ax_l.legend(loc="lower right", fontsize=8)
+    ax_p.plot(tracks["t_f0_s"], pitch_cents(tracks["f0_hz"], a4_hz), ".", ms=2, color="k")
+    ax_p.set_ylabel(f"pitch [cent re A4 = {a4_hz:g} Hz]")
+    ax_p.set_xlabel("time [s]")
+    for _, s in segments[segments["label"] == "note"].iterrows():
+        for ax in (ax_l, ax_p):
+            ax.axvspan(s["start_s"], s["end_s"], color="tab:green", alpha=0.12, lw=0)
+            ax.axvline(s["start_s"], color="tab:green", lw=0.6)
+        ax_p.annotate(f"{int(s['segment'])}: {s['note']}", (s["start_s"], 1.0),
+                      xycoords=("data", "axes fraction"), va="top", fontsize=7)  # fmt: skip
+    for ax in (ax_l, ax_p):
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    try:
+        return write_atomic(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    finally:
+        plt.close(fig)
+
+
 def note_segments(summary: pd.DataFrame) -> pd.DataFrame:
     """The note rows of a segment table (silences left out)."""
     return summary[summary["label"] == "note"].reset_index(drop=True)
@@ -430,6 +475,7 @@ __all__ = [
     "note_segments",
     "pick_by_segment",
     "pick_windows",
+    "plot_segments",
     "reed_openings",
     "segment_lines",
     "segment_summary",

@@ -196,6 +196,7 @@ def _stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg: Pip
 
 def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig):
     from mpipe.inversion.conditioning import bore_resonances, plan_take
+    from mpipe.inversion.segments import plot_segments
     from mpipe.inversion.tracking import detect_zero_mean
 
     inv = cfg.inversion
@@ -203,10 +204,15 @@ def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig)
     def work(folder: Path):
         mp = _load_npz(mouthpiece)
         fs = float(mp["fs"])
-        table, segments = plan_take(mp["p"], fs, cfg.conditioning, inv.window_s, inv.hop_s,
-                                    resonances_hz=bore_resonances(cal))  # fmt: skip
+        tracks: dict = {}
+        table, segments = plan_take(
+            mp["p"], fs, cfg.conditioning, inv.window_s, inv.hop_s,
+            resonances_hz=bore_resonances(cal), tracks_out=tracks,
+        )  # fmt: skip
         write_csv(folder / "plan.csv", table)
         write_csv(folder / "segments.csv", segments)
+        plot_segments(segments, tracks, folder / "segments.png",
+                      cfg.conditioning.a4_hz)  # fmt: skip
         f0 = table["f0_hz"].to_numpy(dtype=float)
         summary = {
             "windows": len(table),
@@ -218,7 +224,7 @@ def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig)
             if np.isfinite(f0).any()
             else float("nan"),
         }
-        return {"plan": "plan.csv", "segments": "segments.csv"}, summary
+        return {"plan": "plan.csv", "segments": "segments.csv", "plot": "segments.png"}, summary
 
     return work
 

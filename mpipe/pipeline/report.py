@@ -352,7 +352,9 @@ def _parameters_section(root: Path, records: dict, windows: pd.DataFrame) -> Sec
     inv_root = root / "inversion"
     captions = {
         "tracks.png": "Reed parameters per window from step 2 against time (s); each panel "
-        "in its SI unit (k Pa/m, S m², y_m m, p_m Pa, λ m, m kg/m², g 1/s, k_c Pa/m²).",
+        "in its SI unit (k Pa/m, S m², y_m m, p_m Pa, λ m, m kg/m², g 1/s, k_c Pa/m²), with "
+        "the fitted reed's mean opening h_mean (m) and the fraction of the time it is shut; "
+        "lines break between notes, bands are ±2 SE in log space.",
         "flow_pressure.png": "First inverted window: volume flow u (m³/s) against the "
         "pressure difference Δp = p_m − p (Pa), with the step-1 fits of the closing and "
         "opening branches (paper Fig. 8).",
@@ -362,6 +364,14 @@ def _parameters_section(root: Path, records: dict, windows: pd.DataFrame) -> Sec
     inv_figs = tuple(
         Figure(inv_root / f, c) for f, c in captions.items() if (inv_root / f).exists()
     )
+    played = root / "conditioning" / "segments.png"
+    if played.exists():
+        inv_figs = (
+            Figure(played, "What was played: the mouthpiece level (dB re 20 µPa) with the "
+                   "silence threshold, and the pitch (cents re A4) against time (s); the "
+                   "notes found are shaded and numbered as in segments.csv."),
+            *inv_figs,
+        )  # fmt: skip
     show = [c for c in WINDOW_COLUMNS if c in windows.columns]
     return Section(
         "Reed parameters over time",
