@@ -197,3 +197,8 @@ def test_each_note_gets_its_own_cold_start_and_its_own_answer(take):
         assert abs(ok["p_m"].median() / truth - 1) < 0.03, (g, ok["p_m"].median())
         medians.append(ok["p_m"].median())
     assert abs(medians[1] / medians[0] / (2000 / 1800) - 1) < 0.02  # each note its own
+    # one answer per worker count: the notes' cold starts run in parallel, same table
+    two = track(sim.p, sim.u, FS, kernel, rho, LIGHT, ExecutorConfig(workers=2),
+                starts=chosen["start"].tolist(), segments=chosen["segment"].tolist())  # fmt: skip
+    cols = ["t_start_s", "segment", "status", "p_m", "k", "f2", "warm"]
+    pd.testing.assert_frame_equal(two.table[cols], t[cols])
