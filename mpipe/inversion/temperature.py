@@ -91,6 +91,9 @@ class TemperatureFit:
     anchors : dict
         Segment -> its first fitted window's reed at the fitted temperature: the start of
         every window of that segment (a segment missing here gets its own cold start).
+    per_segment_c : dict
+        Segment -> the temperature its own fitted windows point at (the mean of their
+        minima of F2^2 in T), degC: whether one temperature holds over the take's notes.
     """
 
     temperature_c: float
@@ -104,6 +107,7 @@ class TemperatureFit:
     anchor: ReedParameters | None = None
     cold_starts_agreeing: int | None = None
     anchors: Mapping[int, ReedParameters] = dataclasses.field(default_factory=dict)
+    per_segment_c: Mapping[int, float] = dataclasses.field(default_factory=dict)
 
     def summary(self) -> dict:
         """JSON-ready record for manifests and the report."""
@@ -116,6 +120,7 @@ class TemperatureFit:
             "evaluations": [[t, r if math.isfinite(r) else None] for t, r in self.evaluations],
             "note": self.note,
             "cold_starts_agreeing": self.cold_starts_agreeing,
+            "per_segment_c": {str(g): t for g, t in self.per_segment_c.items()},
         }
 
     def line(self) -> str:
@@ -126,9 +131,14 @@ class TemperatureFit:
                 f"kernel temperature {self.temperature_c:.2f} degC ({self.source}; not fitted: "
                 f"{why}); the standard errors leave out the temperature's uncertainty"
             )
+        notes = (
+            "; each note's own: " + ", ".join(f"{t:.2f}" for t in self.per_segment_c.values())
+            if len(self.per_segment_c) > 1
+            else ""
+        )
         return (
             f"kernel temperature {self.temperature_c:.2f} +- {self.se_c:.2f} degC, fitted on "
-            f"{self.windows} windows (front end {self.front_end_c:.2f} degC)"
+            f"{self.windows} windows (front end {self.front_end_c:.2f} degC){notes}"
             + (f"; {self.note}" if self.note else "")
         )
 
@@ -307,6 +317,7 @@ def fit_temperature(
     return TemperatureFit(
         best, se, "fit", front_end_c, _sensitivity(lower, upper, FINE_C), len(chosen),
         evaluations, note, reeds[0], _agreeing(first.row), anchors,
+        _per_segment(profile, centre, groups),
     )  # fmt: skip
 
 
@@ -360,19 +371,37 @@ def _profiles(solve, cold, calibration, fs, config, groups, t_cold, lo, hi):
     return runs, error
 
 
-def _scatter_se(profile: _Profile, centre: float) -> float:
-    """Standard error of the mean of the windows' own minima in T, degC (0 for < 3 windows)."""
+def _window_minima(profile: _Profile, centre: float) -> list[float]:
+    """Each fitted window's own minimum of F2^2 in T (degC; NaN where it has none)."""
     triple = [profile.tried[round(centre + d, 4)][2] for d in (-FINE_C, 0.0, FINE_C)]
     minima = []
     for rows in zip(*triple, strict=True):
         vertex, _ = _parabola_vertex(
             (centre - FINE_C, centre, centre + FINE_C), [r["f2"] ** 2 for r in rows]
         )
-        if math.isfinite(vertex):
-            minima.append(min(max(vertex, centre - 4 * COARSE_C), centre + 4 * COARSE_C))
+        minima.append(
+            min(max(vertex, centre - 4 * COARSE_C), centre + 4 * COARSE_C)
+            if math.isfinite(vertex)
+            else math.nan
+        )
+    return minima
+
+
+def _scatter_se(profile: _Profile, centre: float) -> float:
+    """Standard error of the mean of the windows' own minima in T, degC (0 for < 3 windows)."""
+    minima = [m for m in _window_minima(profile, centre) if math.isfinite(m)]
     if len(minima) < 3:
         return 0.0
     return float(np.std(minima, ddof=1) / math.sqrt(len(minima)))
+
+
+def _per_segment(profile: _Profile, centre: float, groups: Sequence[int]) -> dict[int, float]:
+    """Each note's own temperature: the mean of its fitted windows' minima, degC."""
+    out: dict[int, list[float]] = {}
+    for g, m in zip(groups, _window_minima(profile, centre), strict=True):
+        if math.isfinite(m):
+            out.setdefault(int(g), []).append(m)
+    return {g: float(np.mean(v)) for g, v in out.items()}
 
 
 def _agreeing(row: Mapping) -> int | None:

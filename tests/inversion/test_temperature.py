@@ -198,3 +198,21 @@ def test_settle_returns_a_fine_triple_that_was_evaluated(seed):
         _, _, centre = settled
         for d in (-FINE_C, 0.0, FINE_C):
             assert round(centre + d, 4) in profile.tried
+
+
+def test_each_notes_own_temperature_is_its_windows_minimum():
+    # three windows of two notes whose residuals are parabolas in T with minima at 19.9,
+    # 20.1 (note 1) and 20.6 (note 4): each note's own temperature is its windows' mean
+    from mpipe.inversion.temperature import _per_segment
+
+    minima = (19.9, 20.1, 20.6)
+
+    def solve(t, warm):
+        rows = [{"f2": math.sqrt(1e4 * (t - m) ** 2 + 1.0)} for m in minima]
+        return sum(r["f2"] ** 2 for r in rows), list(warm), rows
+
+    profile = _Profile(solve, [None] * 3)
+    for t in (20.0 - FINE_C, 20.0, 20.0 + FINE_C):
+        profile(t)
+    own = _per_segment(profile, 20.0, [1, 1, 4])
+    assert own == pytest.approx({1: 20.0, 4: 20.6}, abs=1e-9)
