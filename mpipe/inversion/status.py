@@ -13,7 +13,10 @@ sanity checks. Otherwise, in order of precedence:
 ``high-residual``
     The relative residual ||p - p_model|| / ||p|| exceeds ``residual_factor`` times the
     take's best: the model fits this window far worse than others of the same take, so it
-    probably sits in another local minimum or the window is not steady.
+    probably sits in another local minimum or the window is not steady. For a window softer
+    than the best one (an attack, a release, a diminuendo) the take's best is taken at the
+    noise floor: its smallest residual in Pa (``f2``) over the window's own ||p||, when that
+    is larger, so a window is not flagged for being soft.
 
 ``status_reason`` lists every check that failed, so a window can be both not converged and
 at a bound.
@@ -143,19 +146,36 @@ def classify(table: pd.DataFrame, config: InversionConfig) -> pd.DataFrame:
     status = [s for s, _ in provisional]
     reasons = [r for _, r in provisional]
     rr = pd.to_numeric(out["relative_residual"], errors="coerce").to_numpy(dtype=float)
+    f2 = (
+        pd.to_numeric(out["f2"], errors="coerce").to_numpy(dtype=float)
+        if "f2" in out
+        else np.full(rr.size, np.nan)
+    )
     clean = np.array([s == "ok" for s in status])
-    pool = rr[clean] if clean.any() else rr[np.array([s != "failed" for s in status])]
-    pool = pool[np.isfinite(pool)]
+    use = clean if clean.any() else np.array([s != "failed" for s in status])
+    pool = rr[use][np.isfinite(rr[use])]
+    floor = f2[use][np.isfinite(f2[use])]
     if pool.size:
-        limit = config.residual_factor * float(pool.min())
+        best = float(pool.min())
+        # the residual a window may have: the take's best relative residual at its own level,
+        # and never less than the take's smallest residual in Pa (the noise floor: a soft
+        # window of an attack or a release is not worse for being soft)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            norm_p = f2 / rr
+        allowed = np.where(
+            np.isfinite(norm_p) & (floor.size > 0),
+            np.maximum(best, (floor.min() if floor.size else 0.0) / norm_p),
+            best,
+        )
         for i, value in enumerate(rr):
-            if status[i] != "failed" and value > limit:
+            if status[i] != "failed" and value > config.residual_factor * allowed[i]:
+                floor_note = "" if allowed[i] == best else " (its noise floor at this level)"
                 reasons[i] = "; ".join(
                     r
                     for r in (
                         reasons[i],
                         f"relative residual {value:.3g} > {config.residual_factor:g} x the "
-                        f"take's best {pool.min():.3g}",
+                        f"take's best {allowed[i]:.3g}{floor_note}",
                     )
                     if r
                 )
