@@ -38,6 +38,7 @@ QUICK_ARGS = {
     "bench_uncertainty": ["--paths", "adaptive"],
     "bench_playing": ["--seeds", "1", "--skip-long"],
     "bench_openwind": ["--duration", "1"],
+    "bench_segments": ["--seeds", "0"],
 }
 
 #: Units where a smaller value is better (the ratio shown is then baseline / value).

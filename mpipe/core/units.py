@@ -54,6 +54,10 @@ UNITS = {
     "z_theory_re": "–",
     "z_theory_im": "–",
     "fs": "Hz",
+    "h": "m",
+    "h_mean": "m",
+    "h_min": "m",
+    "closed_fraction": "–",
 }
 
 #: Name suffixes that carry a unit (longest first).

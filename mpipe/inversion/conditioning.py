@@ -344,6 +344,7 @@ def plan_take(
     start_s: float | None = None,
     end_s: float | None = None,
     resonances_hz: Sequence[float] = (),
+    tracks_out: dict | None = None,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """The take's segments, its windows and which of them are inverted: one rule everywhere.
 
@@ -374,6 +375,9 @@ def plan_take(
         Span analysed, s.
     resonances_hz : sequence of float
         The bore's resonances, Hz (the regime of each note; empty: not named).
+    tracks_out : dict, optional
+        Filled with the level and f0 tracks of the segmentation (for
+        :func:`mpipe.inversion.segments.plot_segments`).
 
     Returns
     -------
@@ -402,6 +406,8 @@ def plan_take(
         p, fs, starts, window_n, c.steady_tolerance, c.f0_min_hz, c.f0_max_hz, c.min_rms_pa
     )
     segments, tracks = segment_take(p, fs, c, resonances_hz)
+    if tracks_out is not None:
+        tracks_out.update(tracks)
     if len(table):
         table = assign_windows(table, segments, c, tracks)
     else:

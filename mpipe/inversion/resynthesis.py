@@ -252,8 +252,11 @@ def plot_tracks(table: pd.DataFrame, path: str | Path) -> Path:
     """Every parameter and identifiable combination against window time, with error bands.
 
     The band is the estimate plus or minus two standard errors (``<name>_se`` columns,
-    where present). Windows where a quantity is undetermined (relative standard error above
-    the limit, or infinite) are drawn as open circles, determined ones as filled dots;
+    where present), taken in log space for a positive estimate (``x exp(+-2 se / x)``, which
+    never crosses zero); the lines break between segments (notes) and across gaps, so no
+    line is drawn through a silence. Windows where a quantity is undetermined (relative
+    standard error above the limit, or infinite) are drawn as open circles, determined ones
+    as filled dots;
     a panel whose quantity is undetermined in most windows says so in its title. Windows
     whose status is not ok are drawn in grey.
 
@@ -272,7 +275,8 @@ def plot_tracks(table: pd.DataFrame, path: str | Path) -> Path:
     from mpipe.inversion.combinations import COMBINATIONS
 
     t = (0.5 * (table["t_start_s"] + table["t_end_s"])).to_numpy(dtype=float)
-    names = [*PARAMETER_NAMES, "y_c", *(c.name for c in COMBINATIONS), "relative_residual"]
+    names = [*PARAMETER_NAMES, "y_c", *(c.name for c in COMBINATIONS), "h_mean",
+             "closed_fraction", "relative_residual"]  # fmt: skip
     names = [n for n in names if n in table]
     ncol = 4
     nrow = -(-len(names) // ncol)
@@ -282,6 +286,7 @@ def plot_tracks(table: pd.DataFrame, path: str | Path) -> Path:
         if "status" in table
         else np.ones(len(t), bool)
     )
+    brk = _breaks(table, t)
     for ax, name in zip(axes.ravel(), names, strict=False):
         x = pd.to_numeric(table[name], errors="coerce").to_numpy(dtype=float)
         title = f"{name} [{unit_of(name) or '-'}]"
@@ -289,8 +294,10 @@ def plot_tracks(table: pd.DataFrame, path: str | Path) -> Path:
         if se_col in table:
             se = pd.to_numeric(table[se_col], errors="coerce").to_numpy(dtype=float)
             band = np.isfinite(se) & ok
+            lo, hi = _band(x, se)
             ax.fill_between(
-                t, np.where(band, x - 2 * se, np.nan), np.where(band, x + 2 * se, np.nan),
+                _split(t, brk), _split(np.where(band, lo, np.nan), brk),
+                _split(np.where(band, hi, np.nan), brk),
                 color="tab:blue", alpha=0.25, lw=0, label="±2 SE",
             )  # fmt: skip
             det = table[det_col].astype(str).str.lower().isin(("true", "1")).to_numpy()
@@ -301,7 +308,7 @@ def plot_tracks(table: pd.DataFrame, path: str | Path) -> Path:
                 title += " UNDETERMINED"
         else:
             det = np.ones(len(t), bool)
-        ax.plot(t, x, "-", color="0.6", lw=0.6)
+        ax.plot(_split(t, brk), _split(x, brk), "-", color="0.6", lw=0.6)
         ax.plot(t[ok & det], x[ok & det], "k.", ms=5)
         ax.plot(t[ok & ~det], x[ok & ~det], "o", mfc="none", mec="tab:red", ms=4)
         ax.plot(t[~ok], x[~ok], ".", color="0.7", ms=4)
@@ -312,10 +319,41 @@ def plot_tracks(table: pd.DataFrame, path: str | Path) -> Path:
     for ax in axes[-1]:
         ax.set_xlabel("time [s]")
     fig.suptitle(
-        "estimate (dots: determined; open red: undetermined; grey: status not ok), band ±2 SE",
+        "estimate (dots: determined; open red: undetermined; grey: status not ok), band ±2 SE "
+        "(in log space for positive quantities); lines break between notes and at gaps",
         fontsize=9,
     )
     return _save(fig, path)
+
+
+def _breaks(table: pd.DataFrame, t: np.ndarray) -> np.ndarray:
+    """Indices before which a track breaks: a new segment, or a gap over 1.5 hops."""
+    if len(t) < 2:
+        return np.array([], dtype=int)
+    step = np.diff(t)
+    gap = step > 1.5 * np.median(step)
+    if "segment" in table:
+        seg = pd.to_numeric(table["segment"], errors="coerce").to_numpy(dtype=float)
+        gap |= np.diff(seg) != 0
+    return np.flatnonzero(gap) + 1
+
+
+def _split(x: np.ndarray, breaks: np.ndarray) -> np.ndarray:
+    """``x`` with a NaN inserted at each break (matplotlib draws no line across it)."""
+    return np.insert(np.asarray(x, dtype=float), breaks, np.nan)
+
+
+def _band(x: np.ndarray, se: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The ±2 SE band; for a positive estimate in log space, ``x exp(±2 se / x)``.
+
+    A positive quantity (a stiffness, an area, a pressure) has a positive band whatever its
+    standard error: the linear band ``x - 2 se`` would cross zero for a relative SE over 50 %.
+    """
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        rel = np.where(x > 0, se / x, np.nan)
+        lo = np.where(x > 0, x * np.exp(-2 * rel), x - 2 * se)
+        hi = np.where(x > 0, x * np.exp(2 * rel), x + 2 * se)
+    return lo, hi
 
 
 def write_wav(path: str | Path, p: np.ndarray, fs: float, full_scale: float | None = None) -> Path:

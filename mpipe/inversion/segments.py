@@ -228,7 +228,8 @@ def assign_windows(
 #: Per-window columns of the plan carried into the windows table (what was played).
 PLAYED_COLUMNS = ("phase", "f0_hz", "pitch_cents", "regime", "rms_pa", "spl_db")
 #: Quantities summarised per segment.
-SUMMARISED = ("p_m", "p_M", "gamma", "zeta", "k", "S", "y_m", "lam", "m", "g", "k_c")
+SUMMARISED = ("p_m", "p_M", "gamma", "zeta", "k", "S", "y_m", "lam", "m", "g", "k_c",
+              "h_mean", "closed_fraction")  # fmt: skip
 
 
 def with_played(table: pd.DataFrame, plan: pd.DataFrame) -> pd.DataFrame:
@@ -288,11 +289,200 @@ def segment_summary(segments: pd.DataFrame, table: pd.DataFrame) -> pd.DataFrame
     return out
 
 
+def reed_openings(table: pd.DataFrame, p: np.ndarray, fs: float) -> tuple[pd.DataFrame, np.ndarray]:
+    """The fitted reed's opening in every window, driven by the measured pressure.
+
+    Each window's reed (its row's parameters) is driven by the mouthpiece pressure from
+    5 ms before the window (:func:`mpipe.reed.opening.opening`); the fit matches that
+    pressure to a fraction of a per cent, so this is the fitted model's opening.
+
+    Returns
+    -------
+    (columns, h)
+        ``columns``: ``h_mean``, ``h_min`` (m) and ``closed_fraction`` (fraction of the
+        window, so of each period, the reed is shut) per row of ``table``; ``h``: the
+        opening at every sample of the take (m), NaN outside the windows with an estimate.
+    """
+    from mpipe.inversion.settings import PARAMETER_NAMES
+    from mpipe.reed.opening import opening, opening_summary
+    from mpipe.reed.parameters import ReedParameters
+
+    p = np.asarray(p, dtype=float)
+    h_all = np.full(p.size, np.nan)
+    rows = []
+    for _, row in table.iterrows():
+        i0, i1 = int(round(row["t_start_s"] * fs)), int(round(row["t_end_s"] * fs))
+        try:
+            reed = ReedParameters(**{k: float(row[k]) for k in (*PARAMETER_NAMES, "y_c", "alpha")})
+            h = opening(reed, p, fs, i0, i1 - i0)
+        except (ValueError, TypeError, KeyError):  # no estimate in this window
+            rows.append(opening_summary(np.array([np.nan])))
+            continue
+        h_all[i0:i1] = h
+        rows.append(opening_summary(h))
+    return pd.DataFrame(
+        rows, index=table.index, columns=["h_mean", "h_min", "closed_fraction"]
+    ), h_all
+
+
+def segment_lines(summary: pd.DataFrame) -> list[str]:
+    """One console line per note: when, what was played, ok windows, medians +- SE."""
+    lines = []
+    for _, r in note_segments(summary).iterrows():
+        parts = []
+        for name, unit in (("p_m", " Pa"), ("p_M", " Pa"), ("gamma", ""), ("zeta", "")):
+            med, se = r.get(f"{name}_median", math.nan), r.get(f"{name}_median_se", math.nan)
+            if np.isfinite(med):
+                parts.append(f"{name} {med:.4g}" + (f" +- {se:.2g}" if np.isfinite(se) else "")
+                             + unit)  # fmt: skip
+        what = ", ".join(x for x in (str(r.get("note") or ""), str(r.get("regime") or "")) if x)
+        lines.append(
+            f"note {int(r['segment'])} at {r['start_s']:.3f} s ({r['duration_s']:.2f} s"
+            f"{', ' + what if what else ''}, {r['spl_db']:.0f} dB SPL): "
+            f"{int(r.get('ok_windows', 0))} of {int(r.get('windows', 0))} windows ok"
+            + (": " + ", ".join(parts) if parts else "")
+        )
+    return lines
+
+
+def pick_windows(starts: Sequence[int], count: int) -> list[int]:
+    """``count`` window starts spread evenly over ``starts`` (all of them when fewer)."""
+    starts = list(starts)
+    if len(starts) <= count:
+        return starts
+    idx = np.unique(np.round(np.linspace(0, len(starts) - 1, count)).astype(int))
+    return [starts[i] for i in idx]
+
+
+def window_count(n_windows: int, config) -> int:
+    """How many windows the fit uses: growing with the inverted playing time.
+
+    ``temperature_windows_per_s`` per second of the ``n_windows`` inverted windows (every
+    ``hop_s``), at least ``temperature_windows`` and at most ``temperature_windows_max``.
+    """
+    grown = int(round(config.temperature_windows_per_s * n_windows * config.hop_s))
+    return max(config.temperature_windows, min(grown, config.temperature_windows_max))
+
+
+def pick_by_segment(
+    starts: Sequence[int],
+    segments: Sequence[int],
+    count: int,
+    steady: Sequence[bool] | None = None,
+) -> tuple[list[int], list[int]]:
+    """Window starts for the fit, spread over every segment in proportion to its windows.
+
+    Each segment gets at least one window (its cold start is made in the fit), the rest
+    are shared out by the segments' numbers of windows. Within a segment the steady
+    windows are taken when it has enough (the fit's R(T) holds the reed fixed over each
+    window, and an attack's growing oscillation pulls the temperature), else its central
+    half.
+
+    Returns
+    -------
+    (starts, segments) of the chosen windows, in time order.
+    """
+    steady = [True] * len(starts) if steady is None else [bool(x) for x in steady]
+    groups: dict[int, list[tuple[int, bool]]] = {}
+    for s, g, st in zip(starts, segments, steady, strict=True):
+        groups.setdefault(int(g), []).append((int(s), st))
+    total = sum(len(v) for v in groups.values())
+    chosen = []
+    for g, members in groups.items():
+        quota = max(1, int(round(count * len(members) / max(total, 1))))
+        pool = [s for s, st in members if st]
+        if len(pool) < quota:
+            n = len(members)
+            pool = [s for s, _ in members[n // 4 : max(n - n // 4, n // 4 + 1)]]
+        chosen += [(s, g) for s in pick_windows(pool, quota)]
+    chosen.sort()
+    return [s for s, _ in chosen], [g for _, g in chosen]
+
+
+def why_no_window(plan: pd.DataFrame, min_rms_pa: float) -> str:
+    """Why no window of a plan is inverted, with a hint when the take reads as silent."""
+    reasons = plan["reason"].fillna("").astype(str).value_counts()
+    why = ", ".join(f"{n} {r or 'steady'}" for r, n in reasons.items())
+    hint = (
+        f"; silent means below conditioning.min_rms_pa = {min_rms_pa:g} Pa: check the "
+        "microphones' sensitivity (Pa per unit) in the calibration"
+        if "silent" in reasons
+        else ""
+    )
+    return (
+        f"no sounding window to invert ({len(plan)} windows: {why}{hint}; "
+        "see conditioning/plan.csv)"
+    )
+
+
+def plot_segments(segments: pd.DataFrame, tracks: dict, path, a4_hz: float = 440.0):
+    """What was played: the level with its silence threshold, and the pitch, notes shaded.
+
+    Parameters
+    ----------
+    segments : pandas.DataFrame
+        :func:`segment_take`'s table.
+    tracks : dict
+        Its tracks (level, threshold, f0).
+    path : str or Path
+        PNG file (written atomically).
+    a4_hz : float
+        Reference of the pitch axis, Hz.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from mpipe.core.io import write_atomic
+
+    fig, (ax_l, ax_p) = plt.subplots(2, 1, sharex=True, figsize=(10, 5))
+    ax_l.plot(tracks["t_level_s"], spl_db(np.maximum(tracks["level_pa"], 1e-9)), lw=0.8)
+    ax_l.axhline(spl_db(tracks["threshold_pa"]), color="tab:red", lw=0.8, ls="--",
+                 label="silence threshold")  # fmt: skip
+    ax_l.set_ylabel("level [dB re 20 µPa]")
+    ax_l.legend(loc="lower right", fontsize=8)
+    ax_p.plot(tracks["t_f0_s"], pitch_cents(tracks["f0_hz"], a4_hz), ".", ms=2, color="k")
+    ax_p.set_ylabel(f"pitch [cent re A4 = {a4_hz:g} Hz]")
+    ax_p.set_xlabel("time [s]")
+    for _, s in segments[segments["label"] == "note"].iterrows():
+        for ax in (ax_l, ax_p):
+            ax.axvspan(s["start_s"], s["end_s"], color="tab:green", alpha=0.12, lw=0)
+            ax.axvline(s["start_s"], color="tab:green", lw=0.6)
+        ax_p.annotate(f"{int(s['segment'])}: {s['note']}", (s["start_s"], 1.0),
+                      xycoords=("data", "axes fraction"), va="top", fontsize=7)  # fmt: skip
+    for ax in (ax_l, ax_p):
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    try:
+        return write_atomic(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    finally:
+        plt.close(fig)
+
+
 def note_segments(summary: pd.DataFrame) -> pd.DataFrame:
     """The note rows of a segment table (silences left out)."""
     return summary[summary["label"] == "note"].reset_index(drop=True)
 
 
-__all__ = ["P_REF_PA", "PLAYED_COLUMNS", "SEGMENT_COLUMNS", "SUMMARISED", "assign_windows",
-           "level_envelope", "note_segments", "segment_summary", "segment_take",
-           "sounding_runs", "spl_db", "with_played"]  # fmt: skip
+__all__ = [
+    "P_REF_PA",
+    "PLAYED_COLUMNS",
+    "SEGMENT_COLUMNS",
+    "SUMMARISED",
+    "assign_windows",
+    "level_envelope",
+    "note_segments",
+    "pick_by_segment",
+    "pick_windows",
+    "plot_segments",
+    "reed_openings",
+    "segment_lines",
+    "segment_summary",
+    "segment_take",
+    "sounding_runs",
+    "spl_db",
+    "why_no_window",
+    "window_count",
+    "with_played",
+]

@@ -20,9 +20,13 @@ sanity checks. Otherwise, in order of precedence:
 ``high-residual``
     The relative residual ||p - p_model|| / ||p|| exceeds ``residual_factor`` times the
     take's best: the model fits this window far worse than others of the same take, so it
-    probably sits in another local minimum or the window is not steady; or it exceeds
-    ``residual_limit`` whatever the take's best: the model does not play what was played
-    (a whole take in a wrong basin has no better window to compare with).
+    probably sits in another local minimum or the window is not steady. For a window softer
+    than the best one (an attack, a release, a diminuendo) the take's best is taken at the
+    noise floor: its smallest residual in Pa (``f2``) over the window's own ||p||, when that
+    is larger, so a window is not flagged for being soft. A window is high-residual too when
+    its relative residual exceeds ``residual_limit`` whatever the take's best: the model
+    does not play what was played (a whole take in a wrong basin has no better window to
+    compare with).
 
 ``status_reason`` lists every check that failed, so a window can be both not converged and
 at a bound.
@@ -172,10 +176,26 @@ def classify(table: pd.DataFrame, config: InversionConfig) -> pd.DataFrame:
     status = [s for s, _ in provisional]
     reasons = [r for _, r in provisional]
     rr = pd.to_numeric(out["relative_residual"], errors="coerce").to_numpy(dtype=float)
+    f2 = (
+        pd.to_numeric(out["f2"], errors="coerce").to_numpy(dtype=float)
+        if "f2" in out
+        else np.full(rr.size, np.nan)
+    )
     clean = np.array([s == "ok" for s in status])
-    pool = rr[clean] if clean.any() else rr[np.array([s != "failed" for s in status])]
-    pool = pool[np.isfinite(pool)]
+    use = clean if clean.any() else np.array([s != "failed" for s in status])
+    pool = rr[use][np.isfinite(rr[use])]
+    floor = f2[use][np.isfinite(f2[use])]
     best = float(pool.min()) if pool.size else math.nan
+    # the residual a window may have: the take's best relative residual at its own level,
+    # and never less than the take's smallest residual in Pa (the noise floor: a soft
+    # window of an attack or a release is not worse for being soft)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        norm_p = f2 / rr
+    allowed = np.where(
+        np.isfinite(norm_p) & (floor.size > 0),
+        np.maximum(best, (floor.min() if floor.size else 0.0) / norm_p),
+        best,
+    )
     for i, value in enumerate(rr):
         if status[i] == "failed":
             continue
@@ -185,10 +205,11 @@ def classify(table: pd.DataFrame, config: InversionConfig) -> pd.DataFrame:
                 f"relative residual {value:.3g} > inversion.residual_limit "
                 f"{config.residual_limit:g}: the model does not play what was played"
             )
-        elif value > config.residual_factor * best:
+        elif value > config.residual_factor * allowed[i]:
+            floor_note = "" if allowed[i] == best else " (its noise floor at this level)"
             why = (
                 f"relative residual {value:.3g} > {config.residual_factor:g} x the take's "
-                f"best {best:.3g}"
+                f"best {allowed[i]:.3g}{floor_note}"
             )
         if why:
             reasons[i] = "; ".join(r for r in (reasons[i], why) if r)

@@ -14,7 +14,9 @@ table whichever is used:
 4. the temperature's share added to every standard error
    (:func:`mpipe.inversion.temperature.widen_standard_errors`);
 5. the take-level checks (:func:`mpipe.inversion.diagnostics.take_checks`): each reason
-   in :attr:`TakeInversion.checks` and in the table's ``take_checks`` column.
+   in :attr:`TakeInversion.checks` and in the table's ``take_checks`` column;
+6. the fitted reed's opening in every window: ``h_mean``, ``h_min`` (m) and
+   ``closed_fraction`` (:func:`mpipe.inversion.segments.reed_openings`).
 """
 
 from __future__ import annotations
@@ -25,11 +27,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from mpipe.acoustics.air import Air
 from mpipe.core.progress import ProgressBar
 from mpipe.inversion.diagnostics import check_plausible, take_checks
 from mpipe.inversion.kernel import bore_kernel, take_temperature
+from mpipe.inversion.segments import reed_openings
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.temperature import TemperatureFit, fit_temperature, widen_standard_errors
 from mpipe.inversion.tracking import Tracking, detect_zero_mean, track
@@ -136,6 +140,8 @@ def invert_take(
         segments=segments,
     )  # fmt: skip
     table = widen_standard_errors(result.table, fit, config.determined_limit)
+    openings, _ = reed_openings(table, p, fs)  # what the reed did: h(t), time shut
+    table = pd.concat([table, openings], axis=1)
     if fit.anchor is not None and len(table):
         # the take's cold start was the fit's, on the first window: its agreement goes there
         table.loc[table.index[0], "cold_starts_agreeing"] = fit.cold_starts_agreeing

@@ -37,6 +37,7 @@ import pandas as pd
 
 from mpipe.inversion.combinations import COMBINATION_NAMES, combination_values
 from mpipe.inversion.kernel import bore_kernel
+from mpipe.inversion.segments import pick_by_segment, pick_windows, window_count
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
 from mpipe.inversion.uncertainty import SE_PARAMETERS
 from mpipe.inversion.window import invert_window
@@ -90,6 +91,9 @@ class TemperatureFit:
     anchors : dict
         Segment -> its first fitted window's reed at the fitted temperature: the start of
         every window of that segment (a segment missing here gets its own cold start).
+    per_segment_c : dict
+        Segment -> the temperature its own fitted windows point at (the mean of their
+        minima of F2^2 in T), degC: whether one temperature holds over the take's notes.
     """
 
     temperature_c: float
@@ -103,6 +107,7 @@ class TemperatureFit:
     anchor: ReedParameters | None = None
     cold_starts_agreeing: int | None = None
     anchors: Mapping[int, ReedParameters] = dataclasses.field(default_factory=dict)
+    per_segment_c: Mapping[int, float] = dataclasses.field(default_factory=dict)
 
     def summary(self) -> dict:
         """JSON-ready record for manifests and the report."""
@@ -115,6 +120,7 @@ class TemperatureFit:
             "evaluations": [[t, r if math.isfinite(r) else None] for t, r in self.evaluations],
             "note": self.note,
             "cold_starts_agreeing": self.cold_starts_agreeing,
+            "per_segment_c": {str(g): t for g, t in self.per_segment_c.items()},
         }
 
     def line(self) -> str:
@@ -125,65 +131,16 @@ class TemperatureFit:
                 f"kernel temperature {self.temperature_c:.2f} degC ({self.source}; not fitted: "
                 f"{why}); the standard errors leave out the temperature's uncertainty"
             )
+        notes = (
+            "; each note's own: " + ", ".join(f"{t:.2f}" for t in self.per_segment_c.values())
+            if len(self.per_segment_c) > 1
+            else ""
+        )
         return (
             f"kernel temperature {self.temperature_c:.2f} +- {self.se_c:.2f} degC, fitted on "
-            f"{self.windows} windows (front end {self.front_end_c:.2f} degC)"
+            f"{self.windows} windows (front end {self.front_end_c:.2f} degC){notes}"
             + (f"; {self.note}" if self.note else "")
         )
-
-
-def pick_windows(starts: Sequence[int], count: int) -> list[int]:
-    """``count`` window starts spread evenly over ``starts`` (all of them when fewer)."""
-    starts = list(starts)
-    if len(starts) <= count:
-        return starts
-    idx = np.unique(np.round(np.linspace(0, len(starts) - 1, count)).astype(int))
-    return [starts[i] for i in idx]
-
-
-def window_count(n_windows: int, config: InversionConfig) -> int:
-    """How many windows the fit uses: growing with the inverted playing time.
-
-    ``temperature_windows_per_s`` per second of the ``n_windows`` inverted windows (every
-    ``hop_s``), at least ``temperature_windows`` and at most ``temperature_windows_max``.
-    """
-    grown = int(round(config.temperature_windows_per_s * n_windows * config.hop_s))
-    return max(config.temperature_windows, min(grown, config.temperature_windows_max))
-
-
-def pick_by_segment(
-    starts: Sequence[int],
-    segments: Sequence[int],
-    count: int,
-    steady: Sequence[bool] | None = None,
-) -> tuple[list[int], list[int]]:
-    """Window starts for the fit, spread over every segment in proportion to its windows.
-
-    Each segment gets at least one window (its cold start is made in the fit), the rest
-    are shared out by the segments' numbers of windows. Within a segment the steady
-    windows are taken when it has enough (the fit's R(T) holds the reed fixed over each
-    window, and an attack's growing oscillation pulls the temperature), else its central
-    half.
-
-    Returns
-    -------
-    (starts, segments) of the chosen windows, in time order.
-    """
-    steady = [True] * len(starts) if steady is None else [bool(x) for x in steady]
-    groups: dict[int, list[tuple[int, bool]]] = {}
-    for s, g, st in zip(starts, segments, steady, strict=True):
-        groups.setdefault(int(g), []).append((int(s), st))
-    total = sum(len(v) for v in groups.values())
-    chosen = []
-    for g, members in groups.items():
-        quota = max(1, int(round(count * len(members) / max(total, 1))))
-        pool = [s for s, st in members if st]
-        if len(pool) < quota:
-            n = len(members)
-            pool = [s for s, _ in members[n // 4 : max(n - n // 4, n // 4 + 1)]]
-        chosen += [(s, g) for s in pick_windows(pool, quota)]
-    chosen.sort()
-    return [s for s, _ in chosen], [g for _, g in chosen]
 
 
 @dataclass
@@ -303,7 +260,9 @@ def fit_temperature(
     if not chosen:
         return dataclasses.replace(fallback, note="no window to fit the temperature on")
     lo, hi = front_end_c - config.temperature_range_c, front_end_c + config.temperature_range_c
-    firsts = {g: s for s, g in reversed(list(zip(chosen, groups, strict=True)))}
+    firsts: dict[int, int] = {}  # each segment's first fitted window, in time order
+    for s, g in zip(chosen, groups, strict=True):
+        firsts.setdefault(g, s)
     cold = functools.partial(_cold_starts, p, u, fs, firsts, zero_mean)
     solve = functools.partial(_solve, p, u, fs, calibration, chosen, config, zero_mean)
     runs, error = _profiles(solve, cold, calibration, fs, config, groups, front_end_c, lo, hi)
@@ -360,6 +319,7 @@ def fit_temperature(
     return TemperatureFit(
         best, se, "fit", front_end_c, _sensitivity(lower, upper, FINE_C), len(chosen),
         evaluations, note, reeds[0], _agreeing(first.row), anchors,
+        _per_segment(profile, centre, groups),
     )  # fmt: skip
 
 
@@ -413,19 +373,37 @@ def _profiles(solve, cold, calibration, fs, config, groups, t_cold, lo, hi):
     return runs, error
 
 
-def _scatter_se(profile: _Profile, centre: float) -> float:
-    """Standard error of the mean of the windows' own minima in T, degC (0 for < 3 windows)."""
+def _window_minima(profile: _Profile, centre: float) -> list[float]:
+    """Each fitted window's own minimum of F2^2 in T (degC; NaN where it has none)."""
     triple = [profile.tried[round(centre + d, 4)][2] for d in (-FINE_C, 0.0, FINE_C)]
     minima = []
     for rows in zip(*triple, strict=True):
         vertex, _ = _parabola_vertex(
             (centre - FINE_C, centre, centre + FINE_C), [r["f2"] ** 2 for r in rows]
         )
-        if math.isfinite(vertex):
-            minima.append(min(max(vertex, centre - 4 * COARSE_C), centre + 4 * COARSE_C))
+        minima.append(
+            min(max(vertex, centre - 4 * COARSE_C), centre + 4 * COARSE_C)
+            if math.isfinite(vertex)
+            else math.nan
+        )
+    return minima
+
+
+def _scatter_se(profile: _Profile, centre: float) -> float:
+    """Standard error of the mean of the windows' own minima in T, degC (0 for < 3 windows)."""
+    minima = [m for m in _window_minima(profile, centre) if math.isfinite(m)]
     if len(minima) < 3:
         return 0.0
     return float(np.std(minima, ddof=1) / math.sqrt(len(minima)))
+
+
+def _per_segment(profile: _Profile, centre: float, groups: Sequence[int]) -> dict[int, float]:
+    """Each note's own temperature: the mean of its fitted windows' minima, degC."""
+    out: dict[int, list[float]] = {}
+    for g, m in zip(groups, _window_minima(profile, centre), strict=True):
+        if math.isfinite(m):
+            out.setdefault(int(g), []).append(m)
+    return {g: float(np.mean(v)) for g, v in out.items()}
 
 
 def _agreeing(row: Mapping) -> int | None:

@@ -159,6 +159,9 @@ def plot_impedance(
 ) -> None:
     """Draw the paper's Fig. 10: |z| in dB, theory and measurement, coherence below (PNG).
 
+    For a played note the measurement is drawn as points at its harmonics (filled where
+    compared, hollow where masked), not as a dense curve that holds only there.
+
     Uses the Agg canvas directly, so no global pyplot state is touched.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -171,7 +174,21 @@ def plot_impedance(
     FigureCanvasAgg(fig)
     ax1, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
     ax1.plot(f, db(result.z_theory[sel]), "k-", lw=1.2, label="theory")
-    ax1.plot(f, db(result.z_measured[sel]), "r--", lw=1.0, label="measured (H1)")
+    h = result.harmonics
+    if np.isfinite(result.f0_hz) and len(h):
+        # A played note measures Z only at its harmonics (between them the ratio is leakage):
+        # the measured points there, filled where compared, hollow where the coherence or the
+        # line's level masked them.
+        fh = h["frequency_hz"].to_numpy(float)
+        z_at = np.interp(fh, result.freqs, db(result.z_measured))
+        used = h["compared"].astype(bool).to_numpy() & (fh <= fmax)
+        ax1.plot(fh[used], z_at[used], "ro", ms=5, label="measured at compared harmonics")
+        masked = ~h["compared"].astype(bool).to_numpy() & (fh <= fmax)
+        if masked.any():
+            ax1.plot(fh[masked], z_at[masked], "o", mfc="none", mec="0.5", ms=5,
+                     label="harmonic masked (low coherence or level)")  # fmt: skip
+    else:
+        ax1.plot(f, db(result.z_measured[sel]), "r--", lw=1.0, label="measured (H1)")
     ax1.set_ylabel("|Z / Z0| (dB)")
     ax1.set_title(f"Input impedance ({result.verdict}, T = {result.temperature_c:.2f} degC)")
     ax1.legend(loc="upper right")

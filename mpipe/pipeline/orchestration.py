@@ -209,6 +209,7 @@ def _stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg: Pip
 
 def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig):
     from mpipe.inversion.conditioning import bore_resonances, plan_take
+    from mpipe.inversion.segments import plot_segments
     from mpipe.inversion.tracking import detect_zero_mean
 
     inv = cfg.inversion
@@ -216,10 +217,15 @@ def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig)
     def work(folder: Path):
         mp = _load_npz(mouthpiece)
         fs = float(mp["fs"])
-        table, segments = plan_take(mp["p"], fs, cfg.conditioning, inv.window_s, inv.hop_s,
-                                    resonances_hz=bore_resonances(cal))  # fmt: skip
+        tracks: dict = {}
+        table, segments = plan_take(
+            mp["p"], fs, cfg.conditioning, inv.window_s, inv.hop_s,
+            resonances_hz=bore_resonances(cal), tracks_out=tracks,
+        )  # fmt: skip
         write_csv(folder / "plan.csv", table)
         write_csv(folder / "segments.csv", segments)
+        plot_segments(segments, tracks, folder / "segments.png",
+                      cfg.conditioning.a4_hz)  # fmt: skip
         f0 = table["f0_hz"].to_numpy(dtype=float)
         summary = {
             "windows": len(table),
@@ -231,14 +237,19 @@ def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig)
             if np.isfinite(f0).any()
             else float("nan"),
         }
-        return {"plan": "plan.csv", "segments": "segments.csv"}, summary
+        return {"plan": "plan.csv", "segments": "segments.csv", "plot": "segments.png"}, summary
 
     return work
 
 
 def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: PipelineConfig, client):
     from mpipe.inversion import resynthesis as rs
-    from mpipe.inversion.segments import segment_summary, with_played
+    from mpipe.inversion.segments import (
+        segment_lines,
+        segment_summary,
+        why_no_window,
+        with_played,
+    )
     from mpipe.inversion.status import count as count_status
     from mpipe.inversion.status import summary_line
     from mpipe.inversion.tables import write_correlations, write_table
@@ -256,18 +267,7 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
         chosen = table_plan[table_plan["invert"]]
         starts = chosen["start"].astype(int).tolist()
         if not starts:
-            reasons = table_plan["reason"].fillna("").astype(str).value_counts()
-            why = ", ".join(f"{n} {r or 'steady'}" for r, n in reasons.items())
-            hint = (
-                f"; silent means below conditioning.min_rms_pa = {cfg.conditioning.min_rms_pa:g} "
-                "Pa: check the microphones' sensitivity (Pa per unit) in the calibration"
-                if "silent" in reasons
-                else ""
-            )
-            raise ValueError(
-                f"no sounding window to invert ({len(table_plan)} windows: {why}{hint}; "
-                "see conditioning/plan.csv)"
-            )
+            raise ValueError(why_no_window(table_plan, cfg.conditioning.min_rms_pa))
         bar = ProgressBar(len(starts))
         try:
             take = invert_take(
@@ -314,6 +314,7 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
             "temperature": take.temperature.summary(),
             "temperature_line": take.temperature.line(),
             "take_checks": list(take.checks),
+            "segment_lines": segment_lines(per_segment),
         }
         return outputs, summary
 
@@ -323,6 +324,7 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
 def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
     from mpipe.core.progress import ProgressBar
     from mpipe.inversion import resynthesis as rs
+    from mpipe.inversion.segments import reed_openings
 
     def work(folder: Path):
         mp = _load_npz(mouthpiece)
@@ -336,7 +338,8 @@ def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
             res = rs.resynthesise(table, p, u, fs, kernel, cfg.inversion, zero_mean, bar)
         finally:
             bar.close()
-        write_npz_atomic(folder / "resynthesis.npz", fs=np.float64(fs), p=res.p, u=res.u)
+        _, h = reed_openings(table, p, fs)  # the fitted reed's opening, m
+        write_npz_atomic(folder / "resynthesis.npz", fs=np.float64(fs), p=res.p, u=res.u, h=h)
         filled = np.nan_to_num(res.p)
         rs.write_wav(folder / "resynthesis.wav", filled, fs, cfg.resynthesis.wav_full_scale_pa)
         outputs = {"signals": "resynthesis.npz", "wav": "resynthesis.wav"}
@@ -494,6 +497,8 @@ def _run_take(
     inv = stage(5, "inversion", inv_inputs, cfg.inversion,
                 _stage_inversion(mouthpiece, plan, cal, cfg, client))  # fmt: skip
     say(f"[{name}]     {inv.summary['temperature_line']}")
+    for line in inv.summary.get("segment_lines", []):
+        say(f"[{name}]     {line}")
     say(f"[{name}]     {inv.summary['status_line']}")
     for reason in inv.summary.get("take_checks", []):
         say(f"[{name}]     CHECK: {reason}")

@@ -149,7 +149,9 @@ def write_take_report(
     resonances = _read_csv(root / "validation" / "validation.csv")
     harmonics = _read_csv(root / "validation" / "harmonics.csv")
     plan = _read_csv(root / "conditioning" / "plan.csv")
-    summary = _summary_section(records, windows)
+    seg_path = root / "inversion" / "segments.csv"
+    segments = _read_csv(seg_path) if seg_path.exists() else pd.DataFrame()
+    summary = _summary_section(records, windows, segments)
     sections = [
         _measurement_section(root, records, resonances, harmonics),
         _parameters_section(root, records, windows),
@@ -159,8 +161,52 @@ def write_take_report(
     return write_report(root / "report.html", f"mpipe report: {name}", when, sections, summary)
 
 
-def _summary_section(records: dict, windows: pd.DataFrame) -> Section:
-    """Verdict, validation and residual in words, parameters, uncertainty, flagged windows."""
+#: Quantities of the per-segment summary, in this order.
+SEGMENT_QUANTITIES = ("p_m", "p_M", "gamma", "zeta", "k", "S", "y_m", "lam")
+
+
+def segment_tables(segments: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The notes of a take: what was played, and each note's medians with their SEs.
+
+    Returns
+    -------
+    (played, parameters)
+        ``played``: segment, start, duration, note, f0, regime, SPL, ok windows of windows;
+        ``parameters``: segment and ``"median ± SE"`` of :data:`SEGMENT_QUANTITIES` over the
+        note's ok windows (SE of the median over the windows, see
+        :func:`mpipe.inversion.segments.segment_summary`).
+    """
+    notes = segments[segments["label"] == "note"] if "label" in segments else segments
+    played = pd.DataFrame({
+        "segment": notes["segment"].astype(int).to_numpy(),
+        "start_s": notes["start_s"].to_numpy(float),
+        "duration_s": notes["duration_s"].to_numpy(float),
+        "note": notes["note"].fillna("").astype(str).to_numpy(),
+        "f0_hz": notes["f0_hz"].to_numpy(float),
+        "regime": notes["regime"].fillna("").astype(str).to_numpy(),
+        "spl_db": notes["spl_db"].to_numpy(float),
+        "ok_windows": [f"{int(a)} of {int(b)}" for a, b in zip(notes["ok_windows"],
+                                                             notes["windows"], strict=True)],
+    })  # fmt: skip
+    params = {"segment": played["segment"]}
+    for name in SEGMENT_QUANTITIES:
+        if f"{name}_median" not in notes:
+            continue
+        med, se = notes[f"{name}_median"].to_numpy(float), notes[f"{name}_median_se"]
+        unit = unit_of(name)
+        header = f"{name} [{unit}]" if unit and unit != "–" else name
+        params[header] = [f"{fmt(m, 4)} ± {fmt(e, 2)}" if np.isfinite(e) else fmt(m, 4)
+                          for m, e in zip(med, se.to_numpy(float), strict=True)]  # fmt: skip
+    return played, pd.DataFrame(params)
+
+
+def _summary_section(
+    records: dict, windows: pd.DataFrame, segments: pd.DataFrame | None = None
+) -> Section:
+    """Verdict, each note's result, words, take-level parameters, uncertainty, flags.
+
+    The take-level parameter table is given for a take of one note only.
+    """
     val = records["validation"].summary
     inv = records["inversion"].summary
     flags = flag_windows(windows)
@@ -184,8 +230,28 @@ def _summary_section(records: dict, windows: pd.DataFrame) -> Section:
     uncertainty = uncertainty_summary(windows)
     if len(uncertainty):
         uncertainty.insert(1, "unit", [unit_of(n) for n in uncertainty["name"]])
-    summary_tables = [
-        ("Reed parameters over the take (ok windows): median, interquartile spread.", params),
+    segments = pd.DataFrame() if segments is None else segments
+    notes = segments[segments["label"] == "note"] if "label" in segments else segments
+    summary_tables = []
+    if len(notes):
+        played, per_note = segment_tables(segments)
+        summary_tables += [
+            ("What was played, note by note: start (s), duration (s), nearest note and its "
+             "deviation (cents), playing frequency (Hz), regime (from the bore's resonances), "
+             "sound pressure level in the mouthpiece (dB re 20 µPa), ok windows.", played),
+            ("Each note's own result: median ± standard error of the median over the note's "
+             "ok windows (the SE includes the playing's own change over the note).", per_note),
+        ]  # fmt: skip
+    if len(notes) > 1:
+        summary_text += (
+            f"\n\nThe take holds {len(notes)} notes: each has its own result above; a median "
+            "over the whole take would describe none of them and is not given."
+        )
+    else:
+        summary_tables.append(
+            ("Reed parameters over the take (ok windows): median, interquartile spread.", params)
+        )
+    summary_tables += [
         (
             "Uncertainty (ok windows): median, spread over windows (1.4826 × median absolute "
             "deviation), median standard error of one window, and the fraction of windows "
@@ -299,7 +365,9 @@ def _parameters_section(root: Path, records: dict, windows: pd.DataFrame) -> Sec
     inv_root = root / "inversion"
     captions = {
         "tracks.png": "Reed parameters per window from step 2 against time (s); each panel "
-        "in its SI unit (k Pa/m, S m², y_m m, p_m Pa, λ m, m kg/m², g 1/s, k_c Pa/m²).",
+        "in its SI unit (k Pa/m, S m², y_m m, p_m Pa, λ m, m kg/m², g 1/s, k_c Pa/m²), with "
+        "the fitted reed's mean opening h_mean (m) and the fraction of the time it is shut; "
+        "lines break between notes, bands are ±2 SE in log space.",
         "flow_pressure.png": "First inverted window: volume flow u (m³/s) against the "
         "pressure difference Δp = p_m − p (Pa), with the step-1 fits of the closing and "
         "opening branches (paper Fig. 8).",
@@ -309,6 +377,14 @@ def _parameters_section(root: Path, records: dict, windows: pd.DataFrame) -> Sec
     inv_figs = tuple(
         Figure(inv_root / f, c) for f, c in captions.items() if (inv_root / f).exists()
     )
+    played = root / "conditioning" / "segments.png"
+    if played.exists():
+        inv_figs = (
+            Figure(played, "What was played: the mouthpiece level (dB re 20 µPa) with the "
+                   "silence threshold, and the pitch (cents re A4) against time (s); the "
+                   "notes found are shaded and numbered as in segments.csv."),
+            *inv_figs,
+        )  # fmt: skip
     show = [c for c in WINDOW_COLUMNS if c in windows.columns]
     return Section(
         "Reed parameters over time",

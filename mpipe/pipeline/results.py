@@ -54,7 +54,8 @@ class RunData:
         ``segments`` (notes and silences, each note's medians); those the run got to.
     signals : Mapping[str, ndarray]
         ``mouthpiece.p`` (Pa), ``mouthpiece.u`` (m^3/s), ``reference.p0``,
-        ``reference.u0``, ``resynthesis.p``, ``resynthesis.u``, ... (see :attr:`units`).
+        ``reference.u0``, ``resynthesis.p``, ``resynthesis.u``, ``resynthesis.h`` (the fitted
+        reed's opening, m), ... (see :attr:`units`).
     units : Mapping[str, str]
         Unit of every table column (``"windows.k"``) and signal (``"mouthpiece.p"``).
     manifests : Mapping[str, dict]

@@ -130,3 +130,22 @@ def test_invert_command_bad_npz(tmp_path, capsys):
     pipe = ROOT / "pipelines" / "simplified_clarinet.yaml"
     assert main(["invert", str(npz), "--pipeline", str(pipe), "-o", str(tmp_path / "o")]) == 2
     assert "missing key 'u'" in capsys.readouterr().err
+
+
+def test_track_bands_stay_positive_and_lines_break_between_notes():
+    import pandas as pd
+
+    from mpipe.inversion.resynthesis import _band, _breaks, _split
+
+    x = np.array([1.0, 2.0, 4.0])
+    se = np.array([0.001, 2.0, 40.0])  # relative SE 0.1 %, 100 %, 1000 %
+    lo, hi = _band(x, se)
+    assert np.all(lo > 0)  # a linear band would reach -2, -76
+    np.testing.assert_allclose([lo[0], hi[0]], [1 - 0.002, 1 + 0.002], rtol=1e-5)  # linear
+    np.testing.assert_allclose(lo * hi, x**2)  # symmetric in log space
+    neg_lo, _ = _band(np.array([-1.0]), np.array([0.1]))
+    assert neg_lo[0] == pytest.approx(-1.2)  # not positive: the linear band
+    table = pd.DataFrame({"segment": [1, 1, 1, 3, 3, 3]})
+    t = np.array([0.1, 0.12, 0.14, 0.5, 0.52, 0.58])
+    np.testing.assert_array_equal(_breaks(table, t), [3, 5])  # a new note; a 60 ms gap
+    assert np.isnan(_split(t, _breaks(table, t))[[3, 6]]).all()

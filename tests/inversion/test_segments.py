@@ -87,6 +87,16 @@ def test_plan_inverts_no_window_in_a_silence_and_waits_for_the_onset():
     assert (first.loc[first["phase"] == "release", "t_end_s"] > 0.5 - 0.03 - 0.015).all()
 
 
+def test_the_segments_figure_is_drawn(tmp_path):
+    from mpipe.inversion.segments import plot_segments
+
+    x, _ = phrase(2)
+    tracks: dict = {}
+    _, segs = plan_take(x, FS, COND, 0.02, 0.02, tracks_out=tracks)
+    assert set(tracks) == {"t_level_s", "level_pa", "t_f0_s", "f0_hz", "threshold_pa"}
+    assert plot_segments(segs, tracks, tmp_path / "s.png").stat().st_size > 10_000
+
+
 def test_steady_selection_keeps_the_papers_rule():
     x, _ = phrase(1)
     cond = ConditioningConfig(select="steady")

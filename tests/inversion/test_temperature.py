@@ -35,6 +35,29 @@ def test_pick_windows_spreads_over_the_take():
     assert pick_windows([5, 7], 6) == [5, 7]
 
 
+def test_the_fit_spreads_over_every_note_and_grows_with_the_take():
+    from mpipe.inversion.segments import pick_by_segment, window_count
+    from mpipe.inversion.settings import InversionConfig
+
+    cfg = InversionConfig()  # 6 windows at least, 1 per second, 24 at most; hop 20 ms
+    assert window_count(100, cfg) == 6  # a 2 s take
+    assert window_count(1000, cfg) == 20  # 20 s: 20 windows
+    assert window_count(5000, cfg) == 24
+    # three notes of 30, 10 and 20 windows: every note at least one, shares by length
+    starts = list(range(60))
+    segs = [1] * 30 + [3] * 10 + [5] * 20
+    chosen, groups = pick_by_segment(starts, segs, 6)
+    assert sorted(set(groups)) == [1, 3, 5] and groups.count(1) == 3 and groups.count(5) == 2
+    assert chosen == sorted(chosen)
+    # steady windows are preferred; a note without enough takes its central half
+    steady = [i % 2 == 0 for i in range(30)] + [False] * 30
+    chosen, groups = pick_by_segment(starts, segs, 6, steady)
+    first = [s for s, g in zip(chosen, groups, strict=True) if g == 1]
+    assert all(s % 2 == 0 for s in first)
+    third = [s for s, g in zip(chosen, groups, strict=True) if g == 5]
+    assert all(45 <= s < 55 for s in third)  # windows 5..14 of the note's 20
+
+
 def _quadratic_profile(t_true: float, noise: float = 0.0, seed: int = 0):
     rng = np.random.default_rng(seed)
 
@@ -209,3 +232,21 @@ def test_scatter_se_is_the_standard_error_of_the_windows_own_minima():
     for d in (-FINE_C, 0.0, FINE_C):
         few(centre + d)
     assert _scatter_se(few, centre) == 0.0
+
+
+def test_each_notes_own_temperature_is_its_windows_minimum():
+    # three windows of two notes whose residuals are parabolas in T with minima at 19.9,
+    # 20.1 (note 1) and 20.6 (note 4): each note's own temperature is its windows' mean
+    from mpipe.inversion.temperature import _per_segment
+
+    minima = (19.9, 20.1, 20.6)
+
+    def solve(t, warm):
+        rows = [{"f2": math.sqrt(1e4 * (t - m) ** 2 + 1.0)} for m in minima]
+        return sum(r["f2"] ** 2 for r in rows), list(warm), rows
+
+    profile = _Profile(solve, [None] * 3)
+    for t in (20.0 - FINE_C, 20.0, 20.0 + FINE_C):
+        profile(t)
+    own = _per_segment(profile, 20.0, [1, 1, 4])
+    assert own == pytest.approx({1: 20.0, 4: 20.6}, abs=1e-9)

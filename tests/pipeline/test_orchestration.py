@@ -232,7 +232,24 @@ def test_load_run_gives_tables_and_signals_with_units(finished):
     data = mpipe.load_run(out)
     assert data.folder == run.folder and data.fs == 100_000.0
     assert data.verdict == "pass"
-    assert set(data.tables) == {"blocks", "impedance", "resonances", "harmonics", "plan", "windows"}
+    assert set(data.tables) == {"blocks", "impedance", "resonances", "harmonics", "plan",
+                                "windows", "segments"}  # fmt: skip
+    # what was played: one note (the virtual take), its windows carry their phase, pitch,
+    # level and the fitted reed's opening; the reed's opening signal is in the outputs
+    notes = data.tables["segments"][data.tables["segments"]["label"] == "note"]
+    assert len(notes) == 1 and notes["ok_windows"].iloc[0] >= 1
+    w = data.tables["windows"]
+    assert set(w["phase"]) <= {"onset", "sustain", "release"}
+    assert (w["segment"] == notes["segment"].iloc[0]).all()
+    assert w["spl_db"].between(130, 175).all() and np.isfinite(w["pitch_cents"]).all()
+    ok = w[w["status"] == "ok"]
+    assert (ok["h_mean"] > 0).all() and (ok["h_mean"] < ok["y_m"]).all()
+    assert ok["closed_fraction"].between(0, 1).all()
+    assert data.unit("windows.h_mean") == "m" and data.unit("segments.p_m_median") == "Pa"
+    assert data.unit("windows.spl_db") == "dB" and data.unit("windows.pitch_cents") == "cent"
+    h = data.signals["resynthesis.h"]
+    assert h.size == data.signals["mouthpiece.p"].size and np.nanmax(h) < ok["y_m"].max()
+    assert data.unit("resynthesis.h") == "m"
     assert data.unit("windows.k") == "Pa/m" and data.unit("windows.t_start_s") == "s"
     assert data.unit("mouthpiece.p") == "Pa" and data.unit("mouthpiece.u") == "m³/s"
     assert data.unit("blocks.temperature_c") == "°C" and data.unit("plan.f0_hz") == "Hz"

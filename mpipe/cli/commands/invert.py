@@ -229,7 +229,7 @@ def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
 def _write_results(out: Path, plan, result, p, u, fs: float, kernel, air, inv) -> None:
     """Tables, the resynthesis (plots and WAV) and the parameter tracks into ``out``."""
     from mpipe.inversion import resynthesis as rs
-    from mpipe.inversion.segments import segment_summary, with_played
+    from mpipe.inversion.segments import segment_lines, segment_summary, with_played
     from mpipe.inversion.tables import write_correlations, write_table
 
     plan, segments = plan
@@ -237,6 +237,8 @@ def _write_results(out: Path, plan, result, p, u, fs: float, kernel, air, inv) -
     write_atomic(out / "plan.csv", lambda tmp: plan.to_csv(tmp, index=False))
     summary = segment_summary(segments, table)
     write_atomic(out / "segments.csv", lambda tmp: summary.to_csv(tmp, index=False))
+    for line in segment_lines(summary):
+        sys.stdout.write(line + "\n")
     write_table(table, out)
     write_correlations(result.correlations, out)
     res = rs.resynthesise(table, p, u, fs, kernel, inv, result.zero_mean)
