@@ -17,6 +17,7 @@ table whichever is used:
 from __future__ import annotations
 
 import dataclasses
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +26,7 @@ import numpy as np
 
 from mpipe.acoustics.air import Air
 from mpipe.core.progress import ProgressBar
+from mpipe.inversion.execution import stage_workers
 from mpipe.inversion.kernel import bore_kernel, take_temperature
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.temperature import TemperatureFit, fit_temperature, widen_standard_errors
@@ -100,10 +102,15 @@ def invert_take(
     carried = temperature_c is not None and np.isfinite(np.asarray(temperature_c, float)).any()
     front = take_temperature(temperature_c, calibration)
     zero_mean = detect_zero_mean(np.asarray(u, float), config.signal, config.zero_mean_ratio)
-    fit = fit_temperature(
-        p, u, fs, calibration, list(starts), config, zero_mean=zero_mean, front_end_c=front,
-        source="front end" if carried else "calibration",
-    )  # fmt: skip
+    executor = executor or ExecutorConfig()
+    workers = executor.workers or os.cpu_count() or 1
+    p, u = np.asarray(p, dtype=float), np.asarray(u, dtype=float)
+    # the fit's cold start and its windows spread over the workers (the same answer)
+    with stage_workers((p, u), executor, workers, client):
+        fit = fit_temperature(
+            p, u, fs, calibration, list(starts), config, zero_mean=zero_mean, front_end_c=front,
+            source="front end" if carried else "calibration",
+        )  # fmt: skip
     kernel, air = bore_kernel(calibration, fs, fit.temperature_c)
     result = track(
         p, u, fs, kernel, air.rho, config, executor, progress=progress, client=client,

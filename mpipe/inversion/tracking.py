@@ -30,7 +30,7 @@ import pandas as pd
 
 from mpipe.core.progress import ProgressBar  # the bar drawn by the commands (tqdm)
 from mpipe.inversion.conditioning import is_zero_mean
-from mpipe.inversion.execution import Job, dispatch, run_windows
+from mpipe.inversion.execution import Job, dispatch, run_windows, stage_workers
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.status import classify
 from mpipe.inversion.tables import histories_and_correlations, window_table
@@ -238,8 +238,10 @@ def _cold_then_warm(job: Job, starts: list[int], update, *, executor, workers, c
     """The first window cold-started, every other one from its result; sorted by time."""
     from mpipe.inversion.resynthesis import reed_from_row
 
-    # One cold start per take, shared by every other window.
-    results = run_windows(job, [(starts[0], None)], None, update)
+    # One cold start per take, shared by every other window; its independent parts
+    # (design points, short local searches) spread over the workers.
+    with stage_workers((job.p, job.u), executor, workers, client):
+        results = run_windows(job, [(starts[0], None)], None, update)
     anchor = None if results[0][0].get("error") else reed_from_row(results[0][0])
     items = [(s, None) for s in starts[1:]]
     results += dispatch(job, items, anchor, executor, workers, client, update)
