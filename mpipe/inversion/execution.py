@@ -174,6 +174,9 @@ def _track_processes(job, groups, warm, workers, update):
 
     from mpipe.core.workers import manager as worker_manager
     from mpipe.core.workers import process_pool
+    from mpipe.inversion.sensitivities import load_compiled
+
+    load_compiled()  # once here: the forked workers inherit the loaded compiled code
 
     # workers (and the queue's server) end with this process, whatever ends it
     with contextlib.ExitStack() as stack:
@@ -257,7 +260,9 @@ def stage_workers(shared, executor: ExecutorConfig, workers: int, client=None) -
             yield
         return
     from mpipe.core.workers import process_pool
+    from mpipe.inversion.sensitivities import load_compiled
 
+    load_compiled()  # once here: the forked workers inherit it
     with process_pool(workers, initializer=_init_stage, initargs=(shared,)) as pool:
 
         def mapper(fn, items):

@@ -228,3 +228,38 @@ class SensitivityEvaluator:
 
 
 __all__ = ["SensitivityEvaluator"]
+
+
+def load_compiled() -> None:
+    """Load (or compile) the inversion's compiled code in this process, on a tiny window.
+
+    Worker processes forked after this call inherit the loaded code instead of each loading
+    numba's cache again (about as long as a few hundred model runs per process).
+    """
+    import types
+
+    from mpipe.core.filters import design_lowpass
+    from mpipe.inversion.least_squares import _broyden_update, _normal_equations
+    from mpipe.inversion.objective import ObjectiveSettings, TargetWindow
+    from mpipe.reed.bore_kernel import prepare_bore
+
+    fs = 100_000.0
+    h = np.zeros(1100)
+    h[1:] = -0.5 * np.exp(-np.arange(1, 1100) / 100.0) / 100.0
+    kernel = prepare_bore(
+        types.SimpleNamespace(h=h, fs=fs, z0=1.0e6), types.SimpleNamespace(rho=1.2)
+    )
+    t = np.arange(2400) / fs
+    p = 1000.0 * np.sin(2 * np.pi * 150.0 * t)
+    u = 1e-4 * np.cos(2 * np.pi * 150.0 * t)
+    target = TargetWindow(p[-400:], u[-400:], p[:-400], u[:-400], fs, True)
+    ev = WindowEvaluator(kernel, target, ObjectiveSettings(lowpass=design_lowpass(fs)))
+    reed = ReedParameters(
+        k=8.66e6, S=7.62e-5, y_m=4e-4, p_m=1800.0, lam=0.013, m=0.05, g=3000.0, k_c=8.23e10
+    )
+    names = ("k", "S")
+    r, jac = np.empty(400), np.empty((400, len(names)))
+    ev.residuals_into(reed, r)
+    SensitivityEvaluator(ev, names, False).jacobian_into(reed, r, jac)
+    _normal_equations(jac, r)
+    _broyden_update(jac.copy(), r, np.ones(len(names)))
