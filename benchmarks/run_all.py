@@ -6,7 +6,7 @@ Each ``bench_*.py`` runs in its own process with the arguments below (short runs
 the benchmark's own defaults with ``--full``); its report goes to the console as it runs, and
 the figures it records (:mod:`headline`) are gathered into one table at the end: value,
 baseline measured in the same run, their ratio, and the target where an issue sets one.
-Exit status 1 when a benchmark fails.
+Exit status 1 when a benchmark fails or a figure misses its target.
 """
 
 from __future__ import annotations
@@ -34,7 +34,15 @@ QUICK_ARGS = {
     "bench_frontend": ["--duration", "1"],
     "bench_crb": ["--seeds", "3", "--rates", "100000"],
     "bench_microphones": ["--seeds", "2"],
-    "bench_realtime": ["--duration", "2", "--repeats", "1", "--skip-before"],
+    "bench_realtime": [
+        "--duration",
+        "2",
+        "--repeats",
+        "1",
+        "--skip-before",
+        "--compare-every",
+        "30",
+    ],
     "bench_uncertainty": ["--paths", "adaptive"],
     "bench_playing": ["--seeds", "1", "--skip-long"],
     "bench_openwind": ["--duration", "1"],
@@ -126,8 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     print("\nwall time per benchmark: " + ", ".join(f"{n} {t:.0f} s" for n, t in walls.items()))
     if failed:
         print("FAILED: " + ", ".join(failed))
-        return 1
-    return 0
+    return 1 if failed or missed else 0
 
 
 if __name__ == "__main__":

@@ -49,3 +49,17 @@ def test_unknown_benchmark_is_refused_in_one_line():
         text=True,
     )
     assert out.returncode == 2 and "no such benchmark: bench_nonsense" in out.stderr
+
+
+def test_a_missed_target_makes_the_run_fail(tmp_path, monkeypatch, capsys):
+    # one benchmark meets its target, one misses it: make bench exits 1 and names it
+    run_all = _run_all()
+    (tmp_path / "headline.py").write_text((BENCH / "headline.py").read_text())
+    for name, value in (("bench_good", 3.0), ("bench_slow", 0.5)):
+        (tmp_path / f"{name}.py").write_text(
+            f"from headline import record\nrecord('speed', {value}, '', target='>= 1')\n"
+        )
+    monkeypatch.setattr(run_all, "HERE", tmp_path)
+    assert run_all.main(["--only", "good"]) == 0
+    assert run_all.main([]) == 1
+    assert "miss their target: bench_slow: speed" in capsys.readouterr().out

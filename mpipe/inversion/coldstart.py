@@ -29,9 +29,11 @@ and Niederreiter-Xing points", J. Complexity 14(4):466-489, 1998.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import dataclasses
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,6 +45,54 @@ from mpipe.inversion.rosenbrock import SearchResult
 #: A local search that ends within this log distance (every parameter within about 5 %) of
 #: the polished minimum found the same minimum.
 AGREEMENT = 0.05
+
+
+#: How independent tasks of the cold start and the temperature fit are run: None (one by
+#: one, here) or ``mapper(fn, items) -> [fn(shared, item) ...]`` in the order of ``items``
+#: (a worker pool: :func:`mpipe.inversion.execution.stage_workers`).
+_MAPPER: contextvars.ContextVar = contextvars.ContextVar("mpipe_stage_mapper", default=None)
+
+
+@contextlib.contextmanager
+def spread_over(mapper: Callable | None) -> Iterator[None]:
+    """Run the independent tasks of cold starts and temperature fits with ``mapper`` here."""
+    token = _MAPPER.set(mapper)
+    try:
+        yield
+    finally:
+        _MAPPER.reset(token)
+
+
+def map_tasks(fn: Callable, items: Sequence, shared=None) -> list:
+    """``[fn(shared, item) for item in items]``, on the workers of :func:`spread_over`.
+
+    Each task depends only on its item (and ``shared``, which the workers hold as given
+    when the pool was made), and results come in the order of ``items``: the answer does
+    not depend on the number of workers.
+    """
+    mapper = _MAPPER.get()
+    if mapper is None or len(items) < 2:
+        return [fn(shared, item) for item in items]
+    return mapper(fn, list(items))
+
+
+def _design_task(_shared, item) -> list[float]:
+    objective, points = item
+    return [float(objective(x)) for x in points]
+
+
+def _local_task(_shared, item) -> SearchResult:
+    residuals, jacobian, x0, lower, upper, budget, infeasible_at = item
+    return trust_region(
+        residuals,
+        x0,
+        lower=lower,
+        upper=upper,
+        x_tolerance=1e-3,
+        max_evaluations=budget,
+        infeasible_norm=infeasible_at,
+        jacobian=jacobian,
+    )
 
 
 @dataclass(frozen=True)
@@ -105,6 +155,7 @@ def global_search(
     local_evaluations: int = 300,
     infeasible_at: float = math.inf,
     seed: int = 0,
+    jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray] | None] | None = None,
 ) -> ColdStart:
     """Find the global basin of F2 inside bounds and polish its minimum.
 
@@ -130,6 +181,12 @@ def global_search(
         F2 at or above this marks an infeasible candidate.
     seed : int
         Scrambling seed of the design (fixed: one answer per input).
+    jacobian : callable, optional
+        ``jacobian(x) -> (r, J)`` for the short local searches (see
+        :func:`mpipe.inversion.least_squares.trust_region`).
+
+    The design's points and the short local searches are independent tasks: they run on
+    the workers of :func:`spread_over` when there are some (the same answer either way).
 
     Returns
     -------
@@ -139,7 +196,9 @@ def global_search(
     upper = np.asarray(upper, float)
     seeds = [np.clip(np.asarray(s, float), lower, upper) for s in seeds]
     design = sobol_design(lower, upper, design_points, seed)
-    values = np.array([objective(x) for x in design])
+    chunks = [c for c in np.array_split(design, 8) if len(c)] if len(design) else []
+    parts = map_tasks(_design_task, [(objective, c) for c in chunks])
+    values = np.array([v for part in parts for v in part])
     trace = list(np.minimum.accumulate(values)) if values.size else []
     feasible = np.flatnonzero(values < infeasible_at)
     starts = list(seeds)
@@ -149,18 +208,13 @@ def global_search(
         # distinct from the starts already chosen: more than 5 % apart in some parameter
         if all(np.max(np.abs(np.log(design[i] / s))) > 0.05 for s in starts):
             starts.append(design[i])
-    local = [
-        trust_region(
-            residuals,
-            x0,
-            lower=lower,
-            upper=upper,
-            x_tolerance=1e-3,
-            max_evaluations=local_evaluations,
-            infeasible_norm=infeasible_at,
-        )
-        for x0 in starts
-    ]
+    local = map_tasks(
+        _local_task,
+        [
+            (residuals, jacobian, x0, lower, upper, local_evaluations, infeasible_at)
+            for x0 in starts
+        ],
+    )
     local_f = np.array([r.f for r in local])
     for r in local:
         trace.extend(np.minimum(r.history, trace[-1] if trace else math.inf))
@@ -178,4 +232,4 @@ def global_search(
     return ColdStart(search, local_f, agreeing, int(values.size))
 
 
-__all__ = ["AGREEMENT", "ColdStart", "global_search", "sobol_design"]
+__all__ = ["AGREEMENT", "ColdStart", "global_search", "map_tasks", "sobol_design", "spread_over"]

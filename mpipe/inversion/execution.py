@@ -10,12 +10,14 @@ back instead of recomputed.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+import contextlib
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from mpipe.inversion.coldstart import spread_over
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.tables import load_checkpoint, save_checkpoint
 from mpipe.inversion.window import invert_window
@@ -174,6 +176,9 @@ def _track_processes(job, groups, warm, workers, update):
 
     from mpipe.core.workers import manager as worker_manager
     from mpipe.core.workers import process_pool
+    from mpipe.inversion.sensitivities import load_compiled
+
+    load_compiled()  # once here: the forked workers inherit the loaded compiled code
 
     # workers (and the queue's server) end with this process, whatever ends it
     with contextlib.ExitStack() as stack:
@@ -226,4 +231,47 @@ def _dask_windows(job, items, warm):
     return run_windows(job, items, warm)
 
 
-__all__ = ["Job", "dispatch", "run_windows", "split_chains"]
+# The signals of the take in a worker of :func:`stage_workers` (set once per worker).
+_STAGE_SHARED: list = []
+
+
+def _init_stage(shared) -> None:
+    _STAGE_SHARED[:] = [shared]
+
+
+def _stage_task(args):
+    # Top-level function: picklable for process pools.
+    fn, item = args
+    with _one_blas_thread():
+        return fn(_STAGE_SHARED[0], item)
+
+
+@contextlib.contextmanager
+def stage_workers(shared, executor: ExecutorConfig, workers: int, client=None) -> Iterator[None]:
+    """Spread the independent tasks of cold starts and temperature fits over workers.
+
+    Inside the block, :func:`mpipe.inversion.coldstart.map_tasks` runs its tasks (the cold
+    start's design points and short local searches, the temperature fit's windows) on a
+    pool of ``workers`` local processes that hold ``shared`` (the take's p and u, shipped
+    once per worker). Results come in the order of the tasks, each task depends only on
+    its own inputs: the same answer as one worker. With one worker, or a Dask executor
+    (whose windows already spread over the cluster), the tasks run here, one by one.
+    """
+    if executor.kind != "local" or client is not None or workers < 2:
+        with spread_over(None):
+            yield
+        return
+    from mpipe.core.workers import process_pool
+    from mpipe.inversion.sensitivities import load_compiled
+
+    load_compiled()  # once here: the forked workers inherit it
+    with process_pool(workers, initializer=_init_stage, initargs=(shared,)) as pool:
+
+        def mapper(fn, items):
+            return list(pool.map(_stage_task, [(fn, item) for item in items]))
+
+        with spread_over(mapper):
+            yield
+
+
+__all__ = ["Job", "dispatch", "run_windows", "split_chains", "stage_workers"]

@@ -24,6 +24,7 @@ relative); the reference still computes the model flow for plots and the ``rest`
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -32,7 +33,7 @@ from numba import njit
 from mpipe.inversion.history_start import pad_history
 from mpipe.inversion.objective import ObjectiveSettings, TargetWindow
 from mpipe.reed.block_fft import _fft_tables, _irfft_last_half, _rfft_lean
-from mpipe.reed.bore_kernel import BoreKernel
+from mpipe.reed.bore_kernel import BoreKernel, prepare_lean
 from mpipe.reed.kernels import _run_pressure
 from mpipe.reed.parameters import ReedParameters, check_stability
 from mpipe.reed.scheme import reed_coefficients
@@ -75,25 +76,45 @@ def _missing_flow(ylead, p_lead, u_lead, rho, fs, s_area, y_m, p_m, lam):
 
 
 @njit(cache=True)
-def _load_history(x, n0, ph, uh, z0, missing, base, ones, f):
-    """Forward-wave history into ``x[:n0]`` and its block spectra ``f = base + c ones``.
-
-    The spectra are affine in the missing mean flow (c = Z0 missing / 2).
-    """
-    n_hist = ph.size
-    start = n0 - n_hist
-    for j in range(start):
-        x[j] = 0.0
-    for j in range(n_hist):
-        x[start + j] = 0.5 * (ph[j] + z0 * (uh[j] + missing))
-    cshift = 0.5 * z0 * missing
-    for lvl in range(4):
+def _history_share(q_ext, q_base, q_ones, shift, f):
+    """``q_ext = q_base + shift q_ones`` (the history's share, Pa) and zero spectra ``f``."""
+    for i in range(q_ext.size):
+        q_ext[i] = q_base[i] + shift * q_ones[i]
+    for lvl in range(len(f)):
         fl = f[lvl]
-        bl = base[lvl]
-        ol = ones[lvl]
         for s in range(fl.shape[0]):
             for j in range(fl.shape[1]):
-                fl[s, j] = bl[s, j] + cshift * ol[s, j]
+                fl[s, j] = 0.0
+
+
+def history_term(h: np.ndarray, history: np.ndarray, n: int) -> np.ndarray:
+    """The history's share of the bore's history term over the next ``n`` samples, Pa.
+
+    ``q(i) = sum_{j > i} h_j x(i - j)`` for i = 0..n-1, with ``x(-1)`` the last sample of
+    ``history`` (p+, Pa): the part of ``q = sum_{j>=1} h_j p+(i - j)`` that a run started
+    at sample 0 does not compute itself (FFT convolution, float64).
+    """
+    from scipy.signal import fftconvolve
+
+    full = fftconvolve(np.asarray(history, dtype=float), np.asarray(h, dtype=float))
+    out = np.zeros(n)
+    tail = full[history.size : history.size + n]
+    out[: tail.size] = tail
+    return out
+
+
+def run_kernel(kernel: BoreKernel, n_run: int):
+    """The lean kernel of a run of ``n_run`` samples from a zero history (r_f cut to it).
+
+    Lags of ``n_run`` samples or more reach only the history, which :func:`history_term`
+    convolves; made once per (kernel, length) and kept on the kernel.
+    """
+    cache = kernel.__dict__.setdefault("_run_kernels", {})
+    length = max(min(kernel.n_taps, n_run), 2)
+    if length not in cache:
+        cut = dataclasses.replace(kernel, h=kernel.h[:length])
+        cache[length] = prepare_lean(cut)
+    return cache[length]
 
 
 @njit(cache=True)
@@ -168,15 +189,16 @@ def _residual(out_r, target_p, target_std, p_mod, filt, p_ctx, fir, fir_work, bu
 # module), delete the stale caches (mpipe/**/__pycache__/*.nb*), which keep the old code.
 @njit(cache=True)
 def _evaluate(
-    out_r, target_p, target_std, p_lead, u_lead, filt, rho, fs, ph, uh, x, n0, z0,
-    base, ones, f, head, h0, level1, level2, work1, work2, fut, work, p_mod, p_ctx, fir,
+    out_r, target_p, target_std, p_lead, u_lead, filt, rho, fs, q_base, q_ones, q_ext, x,
+    n0, z0, f, head, h0, level1, level2, work1, work2, fut, work, p_mod, p_ctx, fir,
     fir_work, buf, n_taps_fir, k, s_area, y_m, p_m, lam, y_c, alpha, a1, a2, a3, b1,
 ):  # fmt: skip
     """Residual of one candidate into ``out_r``; returns a status code (OK, DIVERGED, SILENT).
 
-    Mirrors :func:`mpipe.inversion.objective.run_model` with the history start. ``base``,
-    ``ones`` and ``f`` are 4-tuples (level-1 re, im, level-2 re, im) of the history
-    spectra with no mean-flow shift, of the shift's indicator, and the ones to fill.
+    Mirrors :func:`mpipe.inversion.objective.run_model` with the history start. The
+    history's share of the history term is ``q_base + (Z0 c / 2) q_ones`` (c the missing
+    mean flow; :func:`history_term`); ``x`` holds a zero history and ``f`` the 4-tuple
+    (level-1 re, im, level-2 re, im) of its delay-line spectra (zeroed before each run).
     """
     n_lead = p_lead.size
     ylead = work[0, :n_lead]
@@ -184,14 +206,14 @@ def _evaluate(
     missing = 0.0
     if filt:
         missing = _missing_flow(ylead, p_lead, u_lead, rho, fs, s_area, y_m, p_m, lam)
-    _load_history(x, n0, ph, uh, z0, missing, base, ones, f)
+    _history_share(q_ext, q_base, q_ones, 0.5 * z0 * missing, f)
     y = ylead[n_lead - 1]
     y_prev = ylead[n_lead - 2]
     dp0 = p_m - p_lead[n_lead - 1]
     _run_pressure(
         x, n0, p_mod.size, head, h0, z0, rho, a1, a2, a3, b1, y_m, y_c, alpha, lam,
         s_area * fs, p_m, y, y_prev, dp0, level1, f[0], f[1], work1, level2, f[2], f[3],
-        work2, fut, p_mod,
+        work2, fut, p_mod, q_ext,
     )  # fmt: skip
     return _residual(
         out_r, target_p, target_std, p_mod, filt, p_ctx, fir, fir_work, buf, n_taps_fir
@@ -241,27 +263,27 @@ class WindowEvaluator:
         self.target_std = float(np.std(self.target_p))
         self.p_lead = np.ascontiguousarray(p_hist[-n_lead:])
         self.u_lead = np.ascontiguousarray(u_hist[-n_lead:])
-        lean = kernel.lean
+        n_pad = lp.delay + 1 if self.filt else 0
+        n_run = n + n_pad
+        # The history's share of the bore's history term is the same for every candidate
+        # but for the missing mean flow c, in which it is affine: convolved here once.
+        # The kernel then runs on a zero history with r_f cut to the run's length.
+        ph = p_hist[-(n_taps - 1) :]
+        uh = u_hist[-(n_taps - 1) :]
+        self.q_base = history_term(kernel.h, 0.5 * (ph + kernel.z0 * uh), n_run)
+        self.q_ones = history_term(kernel.h, np.ones(ph.size), n_run)
+        self.q_ext = np.empty(n_run)
+        lean = run_kernel(kernel, n_run)
         self.lean = lean
         self.n0 = lean.n0
-        self.ph = np.ascontiguousarray(p_hist[-(n_taps - 1) :])
-        self.uh = np.ascontiguousarray(u_hist[-(n_taps - 1) :])
-        n_pad = lp.delay + 1 if self.filt else 0
-        self.x = np.zeros(self.n0 + n + n_pad)
-        # spectra of the history with c = 0 and of its indicator (the part c multiplies)
-        base = np.zeros(self.n0)
-        base[self.n0 - self.ph.size :] = 0.5 * (self.ph + kernel.z0 * self.uh)
-        ones = np.zeros(self.n0)
-        ones[self.n0 - self.ph.size :] = 1.0
-        self.base = lean.history_spectra(base)
-        self.ones = lean.history_spectra(ones)
-        self.f = tuple(np.empty_like(a) for a in self.base)
+        self.x = np.zeros(self.n0 + n_run)
+        self.f = lean.history_spectra(self.x)
         self.work1 = np.zeros((5, lean.block1 + 1))
         self.work2 = np.zeros((5, lean.block2 + 1))
         width = max(n_lead, n + 2 * n_pad + 2)
         self.work = np.zeros((2, width))
-        self.p_mod = np.empty(n + n_pad)
-        self.fut = np.empty(n + n_pad + lean.head.size)
+        self.p_mod = np.empty(n_run)
+        self.fut = np.empty(n_run + lean.head.size)
         if self.filt:
             taps = np.asarray(lp.taps, dtype=float)
             # segments of 2M samples give M outputs each once the L taps fit: L - 1 <= M
@@ -307,8 +329,8 @@ class WindowEvaluator:
         with np.errstate(all="ignore"):
             code = _evaluate(
                 out, self.target_p, self.target_std, self.p_lead, self.u_lead, self.filt,
-                self.rho, self.fs, self.ph, self.uh, self.x, self.n0, k.z0, self.base,
-                self.ones, self.f, self.lean.head, self.lean.h0, self.lean.level1,
+                self.rho, self.fs, self.q_base, self.q_ones, self.q_ext, self.x, self.n0, k.z0,
+                self.f, self.lean.head, self.lean.h0, self.lean.level1,
                 self.lean.level2, self.work1, self.work2, self.fut, self.work, self.p_mod,
                 self.p_ctx, self.fir, self.fir_work, self.buf, self.n_taps_fir, reed.k, reed.S,
                 reed.y_m, reed.p_m, reed.lam, reed.y_c, reed.alpha, a1, a2, a3, b1,

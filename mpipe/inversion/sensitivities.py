@@ -7,8 +7,8 @@ of the history start is differentiated forward alongside the pressure,
 
 * the reed lead-in driven by the measured pressure (its recursion's tangent);
 * the missing mean flow over the lead-in, which shifts the forward-wave history by
-  ``Z0 c / 2``, so the history's tangent is ``Z0 dc / 2`` over the measured span (the same
-  block spectra as the shift: ``ones``);
+  ``Z0 c / 2``, so the tangent of the history's share of the history term is
+  ``(Z0 dc / 2) q_ones`` (the window's precomputed convolution of the shift);
 * the model run itself with the tangents of every parameter
   (:func:`mpipe.reed.sensitivity._run_pressure_tangent`);
 * the measurement's low-pass, which is linear: each tangent goes through the same FIR
@@ -34,8 +34,8 @@ from mpipe.inversion.fastpath import (
     OK,
     REASONS,
     WindowEvaluator,
+    _history_share,
     _lead_in,
-    _load_history,
     _lowpass,
     _missing_flow,
     _residual,
@@ -87,29 +87,22 @@ def _missing_tangent(dmiss, dyl, ylead, p_lead, d, rho, fs, s_area, y_m, p_m, la
 
 
 @njit(cache=True)
-def _tangent_history(xt, ft, n0, n_hist, z0, dmiss, ones):
-    """Tangent of the forward-wave history (``Z0 dc / 2`` over the measured span) and spectra."""
-    start = n0 - n_hist
-    for j in range(dmiss.size):
-        shift = 0.5 * z0 * dmiss[j]
-        for i in range(start):
-            xt[j, i] = 0.0
-        for i in range(start, n0):
-            xt[j, i] = shift
-        for lvl in range(4):
-            fl = ft[lvl][j]
-            ol = ones[lvl]
-            for s in range(fl.shape[0]):
-                for b in range(fl.shape[1]):
-                    fl[s, b] = shift * ol[s, b]
+def _zero_spectra(ft):
+    """Zero the tangents' delay-line spectra (their history is zero: its share is q_ones')."""
+    for lvl in range(len(ft)):
+        a = ft[lvl]
+        for j in range(a.shape[0]):
+            for s in range(a.shape[1]):
+                for b in range(a.shape[2]):
+                    a[j, s, b] = 0.0
 
 
 # Long on purpose: the compiled Jacobian of F2's residual, kept in one numba frame (see
 # fastpath._evaluate about the on-disk cache of functions that call other modules' code).
 @njit(cache=True)
 def _evaluate_jacobian(
-    out_r, out_j, target_p, target_std, p_lead, u_lead, filt, rho, fs, ph, uh, x, n0, z0,
-    base, ones, f, head, h0, level1, level2, work1, work2, fut, work, p_mod, p_ctx, fir,
+    out_r, out_j, target_p, target_std, p_lead, u_lead, filt, rho, fs, q_base, q_ones, q_ext,
+    x, n0, z0, f, head, h0, level1, level2, work1, work2, fut, work, p_mod, p_ctx, fir,
     fir_work, buf, n_taps_fir, k, s_area, y_m, p_m, lam, y_c, alpha, a1, a2, a3, b1, d,
     tw, xt, ft, wt1, wt2, fut_t, dp_mod, ctx0, col,
 ):  # fmt: skip
@@ -131,8 +124,9 @@ def _evaluate_jacobian(
     if filt:
         missing = _missing_flow(ylead, p_lead, u_lead, rho, fs, s_area, y_m, p_m, lam)
         _missing_tangent(dmiss, dyl, ylead, p_lead, d, rho, fs, s_area, y_m, p_m, lam)
-    _load_history(x, n0, ph, uh, z0, missing, base, ones, f)
-    _tangent_history(xt, ft, n0, ph.size, z0, dmiss, ones)
+    _history_share(q_ext, q_base, q_ones, 0.5 * z0 * missing, f)
+    c_t = 0.5 * z0 * dmiss
+    _zero_spectra(ft)
     dy = dyl[:, n_lead - 1].copy()
     dy_prev = dyl[:, n_lead - 2].copy()
     ddp = d[7].copy()
@@ -140,7 +134,7 @@ def _evaluate_jacobian(
         x, n0, p_mod.size, head, h0, z0, rho, a1, a2, a3, b1, y_m, y_c, alpha, lam,
         s_area * fs, p_m, ylead[n_lead - 1], ylead[n_lead - 2], p_m - p_lead[n_lead - 1],
         level1, f[0], f[1], work1, level2, f[2], f[3], work2, fut, p_mod, d, dy, dy_prev,
-        ddp, xt, ft[0], ft[1], wt1, ft[2], ft[3], wt2, fut_t, dp_mod,
+        ddp, xt, ft[0], ft[1], wt1, ft[2], ft[3], wt2, fut_t, dp_mod, q_ext, q_ones, c_t,
     )  # fmt: skip
     code = _residual(
         out_r, target_p, target_std, p_mod, filt, p_ctx, fir, fir_work, buf, n_taps_fir
@@ -185,7 +179,7 @@ class SensitivityEvaluator:
         n = ev.target_p.size
         self.tw = np.zeros((n_par, ev.work.shape[1]))
         self.xt = np.zeros((n_par, ev.x.size))
-        self.ft = tuple(np.zeros((n_par, *a.shape)) for a in ev.base)
+        self.ft = tuple(np.zeros((n_par, *a.shape)) for a in ev.f)
         self.wt1 = np.zeros((n_par, 5, lean.block1 + 1))
         self.wt2 = np.zeros((n_par, 5, lean.block2 + 1))
         self.fut_t = np.empty((n_par, ev.fut.size))
@@ -223,7 +217,7 @@ class SensitivityEvaluator:
         with np.errstate(all="ignore"):
             code = _evaluate_jacobian(
                 out_r, out_j, ev.target_p, ev.target_std, ev.p_lead, ev.u_lead, ev.filt, ev.rho,
-                ev.fs, ev.ph, ev.uh, ev.x, ev.n0, k.z0, ev.base, ev.ones, ev.f, ev.lean.head,
+                ev.fs, ev.q_base, ev.q_ones, ev.q_ext, ev.x, ev.n0, k.z0, ev.f, ev.lean.head,
                 ev.lean.h0, ev.lean.level1, ev.lean.level2, ev.work1, ev.work2, ev.fut,
                 ev.work, ev.p_mod, ev.p_ctx, ev.fir, ev.fir_work, ev.buf, ev.n_taps_fir,
                 reed.k, reed.S, reed.y_m, reed.p_m, reed.lam, reed.y_c, reed.alpha, a1, a2,
@@ -234,3 +228,38 @@ class SensitivityEvaluator:
 
 
 __all__ = ["SensitivityEvaluator"]
+
+
+def load_compiled() -> None:
+    """Load (or compile) the inversion's compiled code in this process, on a tiny window.
+
+    Worker processes forked after this call inherit the loaded code instead of each loading
+    numba's cache again (about as long as a few hundred model runs per process).
+    """
+    import types
+
+    from mpipe.core.filters import design_lowpass
+    from mpipe.inversion.least_squares import _broyden_update, _normal_equations
+    from mpipe.inversion.objective import ObjectiveSettings, TargetWindow
+    from mpipe.reed.bore_kernel import prepare_bore
+
+    fs = 100_000.0
+    h = np.zeros(1100)
+    h[1:] = -0.5 * np.exp(-np.arange(1, 1100) / 100.0) / 100.0
+    kernel = prepare_bore(
+        types.SimpleNamespace(h=h, fs=fs, z0=1.0e6), types.SimpleNamespace(rho=1.2)
+    )
+    t = np.arange(2400) / fs
+    p = 1000.0 * np.sin(2 * np.pi * 150.0 * t)
+    u = 1e-4 * np.cos(2 * np.pi * 150.0 * t)
+    target = TargetWindow(p[-400:], u[-400:], p[:-400], u[:-400], fs, True)
+    ev = WindowEvaluator(kernel, target, ObjectiveSettings(lowpass=design_lowpass(fs)))
+    reed = ReedParameters(
+        k=8.66e6, S=7.62e-5, y_m=4e-4, p_m=1800.0, lam=0.013, m=0.05, g=3000.0, k_c=8.23e10
+    )
+    names = ("k", "S")
+    r, jac = np.empty(400), np.empty((400, len(names)))
+    ev.residuals_into(reed, r)
+    SensitivityEvaluator(ev, names, False).jacobian_into(reed, r, jac)
+    _normal_equations(jac, r)
+    _broyden_update(jac.copy(), r, np.ones(len(names)))

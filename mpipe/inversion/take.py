@@ -22,6 +22,7 @@ table whichever is used:
 from __future__ import annotations
 
 import dataclasses
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +33,7 @@ import pandas as pd
 from mpipe.acoustics.air import Air
 from mpipe.core.progress import ProgressBar
 from mpipe.inversion.diagnostics import check_plausible, take_checks
+from mpipe.inversion.execution import stage_workers
 from mpipe.inversion.kernel import bore_kernel, take_temperature
 from mpipe.inversion.segments import reed_openings
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
@@ -128,11 +130,16 @@ def invert_take(
     z_c = calibration.bore.entry_impedance(calibration.air_properties(front))
     check_plausible(p, u, fs, starts, int(round(config.window_s * fs)), z_c)
     zero_mean = detect_zero_mean(np.asarray(u, float), config.signal, config.zero_mean_ratio)
-    fit = fit_temperature(
-        p, u, fs, calibration, list(starts), config, zero_mean=zero_mean, front_end_c=front,
-        source="front end" if carried else "calibration", segments=segments,
-        steady=steady,
-    )  # fmt: skip
+    executor = executor or ExecutorConfig()
+    workers = executor.workers or os.cpu_count() or 1
+    p, u = np.asarray(p, dtype=float), np.asarray(u, dtype=float)
+    # the fit's cold start and its windows spread over the workers (the same answer)
+    with stage_workers((p, u), executor, workers, client):
+        fit = fit_temperature(
+            p, u, fs, calibration, list(starts), config, zero_mean=zero_mean, front_end_c=front,
+            source="front end" if carried else "calibration", segments=segments,
+            steady=steady,
+        )  # fmt: skip
     kernel, air = bore_kernel(calibration, fs, fit.temperature_c)
     result = track(
         p, u, fs, kernel, air.rho, config, executor, progress=progress, client=client,

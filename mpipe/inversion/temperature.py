@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from mpipe.inversion.coldstart import map_tasks
 from mpipe.inversion.combinations import COMBINATION_NAMES, combination_values
 from mpipe.inversion.kernel import bore_kernel
 from mpipe.inversion.segments import pick_by_segment, pick_windows, window_count
@@ -337,14 +338,24 @@ def _solve(p, u, fs, calibration, chosen, config, zero_mean, t: float, warm: Seq
     """``R(T)`` (Pa^2), the windows' reeds and rows at kernel temperature ``t`` (degC)."""
     kernel, air = bore_kernel(calibration, fs, t)
     reeds, rows, total = [], [], 0.0
-    for start, w in zip(chosen, warm, strict=True):
-        out = invert_window(p, u, fs, start, kernel, air.rho, config, zero_mean=zero_mean, warm=w)
+    # the windows are independent: spread over the workers when there are some
+    items = [
+        (fs, s, kernel, air.rho, config, zero_mean, w) for s, w in zip(chosen, warm, strict=True)
+    ]
+    for out in map_tasks(_window_task, items, shared=(p, u)):
         if out.reed is None or not math.isfinite(out.row["f2"]):
             return math.inf, list(warm), rows
         reeds.append(out.reed)
         rows.append({**out.row, **_combinations(out.reed, kernel.z0, air.rho)})
         total += float(out.row["f2"]) ** 2
     return total, reeds, rows
+
+
+def _window_task(shared, item):
+    """One window at one kernel temperature (a task of :func:`_solve`); ``shared`` = (p, u)."""
+    p, u = shared
+    fs, start, kernel, rho, config, zero_mean, warm = item
+    return invert_window(p, u, fs, start, kernel, rho, config, zero_mean=zero_mean, warm=warm)
 
 
 def _profiles(solve, cold, calibration, fs, config, groups, t_cold, lo, hi):

@@ -30,7 +30,7 @@ import pandas as pd
 
 from mpipe.core.progress import ProgressBar  # the bar drawn by the commands (tqdm)
 from mpipe.inversion.conditioning import is_zero_mean
-from mpipe.inversion.execution import Job, dispatch, run_windows
+from mpipe.inversion.execution import Job, dispatch, run_windows, stage_workers
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.status import classify
 from mpipe.inversion.tables import histories_and_correlations, window_table
@@ -271,10 +271,14 @@ def _cold_then_warm(
     for s, g in zip(starts, segments, strict=True):
         if g not in anchors and g not in firsts and loud[s] >= 0.9 * peak[g]:
             firsts[g] = s
-    # One cold start per segment (in parallel when there are several), shared by its windows.
-    colds = dispatch(job, [(s, None) for s in firsts.values()], None, executor, workers,
-                     client, update) if len(firsts) > 1 else (
-        run_windows(job, [(s, None) for s in firsts.values()], None, update))  # fmt: skip
+    # One cold start per segment: several go to the workers one each; a single one spreads
+    # its independent parts (design points, short local searches) over the workers.
+    cold_items = [(s, None) for s in firsts.values()]
+    if len(firsts) > 1:
+        colds = dispatch(job, cold_items, None, executor, workers, client, update)
+    else:
+        with stage_workers((job.p, job.u), executor, workers, client):
+            colds = run_windows(job, cold_items, None, update)
     by_start = {int(round(r[0]["t_start_s"] * job.fs)): r for r in colds}
     for g, s in firsts.items():
         row = by_start[s][0]

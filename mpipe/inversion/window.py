@@ -104,6 +104,13 @@ def start_point(
     return ReedParameters(**values, y_c=config.y_c, alpha=config.alpha)
 
 
+def _jacobian(objective: F2Objective, config: InversionConfig):
+    """The objective's sensitivity Jacobian when configured and available, else None."""
+    if objective.has_jacobian and config.jacobian == "sensitivities":
+        return objective.jacobian
+    return None
+
+
 def local_search(
     objective: F2Objective,
     x0: np.ndarray,
@@ -131,11 +138,7 @@ def local_search(
             max_evaluations=budget,
             infeasible_norm=objective.penalty,
             secant=not cold and config.warm_secant,
-            jacobian=(
-                objective.jacobian
-                if objective.has_jacobian and config.jacobian == "sensitivities"
-                else None
-            ),
+            jacobian=_jacobian(objective, config),
         )
     return minimise(
         objective,
@@ -326,6 +329,7 @@ def _search(
         local_evaluations=config.local_evaluations,
         infeasible_at=objective.penalty,
         seed=config.design_seed,
+        jacobian=_jacobian(objective, config),
     )
     return found.search, found.agreeing
 

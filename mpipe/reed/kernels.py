@@ -265,7 +265,7 @@ def _fdl_tail(x, n0, blk, level, f_re, f_im, work):
 @njit(cache=True)
 def _run_pressure(
     x, n0, n, head, h0, z0, rho, a1, a2, a3, b1, y_m, y_c, alpha, lam, s_fs, p_m, y,
-    y_prev, dp, level1, f1_re, f1_im, work1, level2, f2_re, f2_im, work2, fut, out_p,
+    y_prev, dp, level1, f1_re, f1_im, work1, level2, f2_re, f2_im, work2, fut, out_p, q_ext,
 ):  # fmt: skip
     """The scheme of :func:`_run` for a constant mouth pressure, pressure output only.
 
@@ -275,8 +275,10 @@ def _run_pressure(
     :class:`mpipe.reed.bore_kernel.LeanKernel`. Each level's history spectra ``f*_re,
     f*_im`` come precomputed (:func:`history_spectra`; overwritten here) and the scratch
     ``work*`` (shape ``(5, B + 1)``) and ``fut`` (the direct part's pending sums, at least
-    ``n + B1`` samples) are the caller's, so a run allocates nothing. Returns the final
-    (y, y_prev, dp).
+    ``n + B1`` samples) are the caller's, so a run allocates nothing. ``q_ext`` (n
+    samples, Pa) is added to the history term: the share of p+ history that the caller
+    convolved itself (the inversion's, :mod:`mpipe.inversion.fastpath`), zeros otherwise.
+    Returns the final (y, y_prev, dp).
     """
     _seed(fut, n, x, n0, head)
     blk1 = level1[2].size
@@ -303,6 +305,7 @@ def _run_pressure(
             q += tail1[r1]
         if on2:
             q += tail2[r2]
+        q += q_ext[i]
         y_new, _, _, _, _, pp, p = _step(q, p_m, y, y_prev, dp, reed, bore)
         x[m] = pp
         _spread(fut, i, pp, head)

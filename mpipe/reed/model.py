@@ -446,5 +446,6 @@ def simulate_pressure(
         reed.y_m, reed.y_c, reed.alpha, reed.lam, reed.S * kernel.fs, reed.p_m, y, y_prev,
         dp, lean.level1, f1_re, f1_im, np.zeros((5, lean.block1 + 1)), lean.level2, f2_re,
         f2_im, np.zeros((5, lean.block2 + 1)), np.empty(n_samples + lean.head.size), out,
+        np.zeros(n_samples),
     )  # fmt: skip
     return out

@@ -144,7 +144,8 @@ def _step_tangent(d, j, dq, p_m, y, dy, y_prev, dy_prev, dp, ddp, q, y_new, hh, 
 def _run_pressure_tangent(
     x, n0, n, head, h0, z0, rho, a1, a2, a3, b1, y_m, y_c, alpha, lam, s_fs, p_m, y,
     y_prev, dp, level1, f1_re, f1_im, work1, level2, f2_re, f2_im, work2, fut, out_p, d,
-    dy, dy_prev, ddp, xt, ft1_re, ft1_im, wt1, ft2_re, ft2_im, wt2, fut_t, out_dp,
+    dy, dy_prev, ddp, xt, ft1_re, ft1_im, wt1, ft2_re, ft2_im, wt2, fut_t, out_dp, q_ext,
+    q_ones, c_t,
 ):  # fmt: skip
     """:func:`mpipe.reed.kernels._run_pressure` with the tangents of every parameter column.
 
@@ -154,7 +155,10 @@ def _run_pressure_tangent(
     the tangent of p+ in ``xt[j]`` (its history before ``n0`` given), the tangent delay
     lines ``ft*_re[j], ft*_im[j]`` (history spectra given) with their scratch ``wt*[j]``,
     the direct part's pending sums ``fut_t[j]``, and the output ``out_dp[j]`` (d p / d
-    theta_j, Pa per the parameter's unit). Returns the final (y, y_prev, dp).
+    theta_j, Pa per the parameter's unit). ``q_ext`` is added to the history term as in
+    ``_run_pressure``, and ``c_t[j] q_ones`` to its tangent (a history shift whose
+    convolution the caller made: the inversion's missing mean flow).
+    Returns the final (y, y_prev, dp).
     """
     n_par = d.shape[1]
     _seed(fut, n, x, n0, head)
@@ -186,6 +190,7 @@ def _run_pressure_tangent(
             q += work1[4, r1]
         if on2:
             q += work2[4, r2]
+        q += q_ext[i]
         y_new, hh, ur, uf, _, pp, p = _step(q, p_m, y, y_prev, dp, reed, bore)
         x[m] = pp
         _spread(fut, i, pp, head)
@@ -196,6 +201,7 @@ def _run_pressure_tangent(
                 dq += wt1[j, 4, r1]
             if on2:
                 dq += wt2[j, 4, r2]
+            dq += c_t[j] * q_ones[i]
             dy_new, dpp, dpo = _step_tangent(
                 d, j, dq, p_m, y, dy[j], y_prev, dy_prev[j], dp, ddp[j], q, y_new, hh, ur, uf,
                 reed, bore,
@@ -280,6 +286,6 @@ def pressure_sensitivities(
         np.zeros(n_par), np.zeros(n_par), ddp, np.zeros((n_par, x.size)), zeros[0], zeros[1],
         np.zeros((n_par, 5, lean.block1 + 1)), zeros[2], zeros[3],
         np.zeros((n_par, 5, lean.block2 + 1)), np.empty((n_par, n_samples + lean.head.size)),
-        out_dp,
+        out_dp, np.zeros(n_samples), np.zeros(n_samples), np.zeros(n_par),
     )  # fmt: skip
     return out, out_dp

@@ -9,6 +9,7 @@ import dataclasses
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from mpipe.inversion.kernel import bore_kernel
@@ -77,3 +78,18 @@ def test_the_calibrations_temperature_biases_what_the_fit_does_not(played):
     assert fit.source == "calibration" and fit.temperature_c == 21.5 and math.isnan(fit.se_c)
     # a bore 0.26 % too fast: S is off by far more than the fit's few per cent
     assert abs(np.median(table["S"]) / TABLE1.S - 1) > 0.2
+
+
+def test_two_workers_give_the_same_take(played):
+    # the temperature fit's cold start (design points, short local searches) and its
+    # windows run on 2 worker processes: the fit and every column but the timing are
+    # those of 1 worker
+    from mpipe.inversion.tables import COLUMNS
+
+    p, u, cal = played
+    one = _run(played, CONFIG)
+    two = invert_take(p, u, FS, cal, CONFIG, ExecutorConfig(workers=2), starts=STARTS)
+    assert two.temperature.temperature_c == one.temperature.temperature_c
+    assert two.temperature.evaluations == one.temperature.evaluations
+    same = [c for c in COLUMNS if c != "wall_time_s"]
+    pd.testing.assert_frame_equal(one.tracking.table[same], two.tracking.table[same])
