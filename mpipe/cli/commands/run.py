@@ -69,10 +69,11 @@ def run(args: argparse.Namespace) -> int:
         check_output_folder(Path(args.output) / take_name(t))
     client = None
     if cfg.executor.kind == "dask":
-        from distributed import Client
+        from mpipe.inversion.execution import connect
 
-        # one client for every take of this call: the takes share the cluster
-        client = Client(cfg.executor.scheduler)
+        # one client for every take of this call: the takes share the cluster; an
+        # unreachable scheduler is one line (exit 2) before any work
+        client = connect(cfg.executor.scheduler)
     failed = []
     try:
         for t in takes:
