@@ -218,7 +218,7 @@ def _track_dask(job, groups, warm, executor, client, update):
             client.close()
 
 
-def connect(scheduler: str, timeout_s: float = CONNECT_TIMEOUT_S):
+def connect(scheduler: str, timeout_s: float | None = None):
     """A Dask client of ``scheduler``, or one clear line when it cannot be used.
 
     Checked before any work: the scheduler answers within ``timeout_s``, and every worker
@@ -229,8 +229,8 @@ def connect(scheduler: str, timeout_s: float = CONNECT_TIMEOUT_S):
     ----------
     scheduler : str
         Address of the scheduler, e.g. ``tcp://10.0.0.5:8786``.
-    timeout_s : float
-        Time allowed for the connection, s.
+    timeout_s : float, optional
+        Time allowed for the connection, s (default ``CONNECT_TIMEOUT_S``).
 
     Returns
     -------
@@ -246,6 +246,7 @@ def connect(scheduler: str, timeout_s: float = CONNECT_TIMEOUT_S):
     from mpipe import __version__
     from mpipe.core.errors import UserError
 
+    timeout_s = CONNECT_TIMEOUT_S if timeout_s is None else timeout_s
     try:
         client = Client(scheduler, timeout=f"{timeout_s:g}s", set_as_default=False)
     except (OSError, TimeoutError) as exc:

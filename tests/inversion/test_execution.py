@@ -1,5 +1,7 @@
 """Where windows run: contiguous chunks of windows; nothing to run, nothing dispatched."""
 
+import os
+import signal
 from pathlib import Path
 
 import pandas as pd
@@ -15,7 +17,7 @@ from mpipe.measurement.calibration import load_calibration
 from mpipe.reed.bore_kernel import prepare_bore
 from mpipe.reed.model import simulate
 from mpipe.reed.parameters import ReedParameters
-from tests.inversion.cluster_helpers import real_cluster
+from tests.inversion.cluster_helpers import free_port, real_cluster, start_worker
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -91,3 +93,55 @@ def test_repeated_runs_on_a_real_cluster_equal_the_local_run(take, cluster):
 
 def _rows(results):
     return pd.DataFrame([row for row, _ in results]).drop(columns="wall_time_s")
+
+
+class _KillOnFirstResult:
+    """A progress bar that kills a worker with windows in flight when a first group ends.
+
+    (The take's cold-started window runs in this process: when it ends, nothing is in
+    flight yet.)
+    """
+
+    def __init__(self, client):
+        self.client = client
+        self.pids = client.run(os.getpid)
+        self.killed = None
+
+    def update(self, n=1):
+        if self.killed is None:
+            busy = [w for w, keys in self.client.processing().items() if keys]
+            if not busy:
+                return
+            self.killed = busy[0]
+            os.kill(self.pids[busy[0]], signal.SIGKILL)
+
+
+def test_a_worker_killed_mid_run_changes_nothing(take, cluster):
+    client, address, workers = cluster
+    local = _track(take, ExecutorConfig(workers=1))
+    bar = _KillOnFirstResult(client)
+    try:
+        result = _track(take, ExecutorConfig(kind="dask", scheduler=address, chunks=8),
+                        client=client, progress=bar)  # fmt: skip
+        assert bar.killed is not None
+        pd.testing.assert_frame_equal(local.table[SAME], result.table[SAME])
+    finally:  # the cluster gets its second worker back for the tests after this one
+        workers.append(start_worker(address))
+        client.wait_for_workers(2, timeout=120)
+
+
+def test_an_unreachable_scheduler_is_one_line_before_any_work(tmp_path, monkeypatch, capsys):
+    from mpipe.cli.main import main
+    from mpipe.inversion import execution
+
+    monkeypatch.setattr(execution, "CONNECT_TIMEOUT_S", 1.0)
+    pipe = tmp_path / "pipe.yaml"
+    cal = ROOT / "calibration" / "simplified_clarinet.yaml"
+    address = f"tcp://127.0.0.1:{free_port()}"  # nothing listens there
+    pipe.write_text(f"calibration: {cal}\nexecutor: {{kind: dask, scheduler: '{address}'}}\n")
+    take_file = tmp_path / "take.wav"
+    take_file.write_bytes(b"")  # never read: the scheduler is checked first
+    assert main(["run", str(pipe), str(take_file), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and address in err[0] and "cannot reach" in err[0], err
+    assert not list((tmp_path / "out").rglob("*.*"))  # no work done, not even a lock
