@@ -48,7 +48,8 @@ def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe run``."""
     from mpipe.core.io import check_output_folder
     from mpipe.core.progress import write
-    from mpipe.pipeline.orchestration import ValidationFailed, run_take, take_name, usable
+    from mpipe.pipeline.batch import run_takes, summary_lines
+    from mpipe.pipeline.orchestration import ValidationFailed, take_name, usable
 
     cfg = load_pipeline(args.pipeline)
     cal_path = Path(args.calibration) if args.calibration else cfg.calibration_path
@@ -75,33 +76,32 @@ def run(args: argparse.Namespace) -> int:
         # unreachable scheduler is one line (exit 2) before any work
         client = connect(cfg.executor.scheduler)
     failed = []
+    outcomes = []
     try:
-        for t in takes:
-            try:
-                result = run_take(
-                    cfg,
-                    cal_path,
-                    t,
-                    args.output,
-                    args.force,
-                    client,
-                    say=write,
-                    accept_failed_validation=args.accept_failed_validation,
-                )
-                if not usable(result):
-                    failed.append(t[0])
-                    write(f"[{t[0].stem}] failed: no window has status ok (no usable result)")
-            except ValidationFailed as exc:  # a result (the measurement is not sound): 1
+        for t, result, wall in run_takes(
+            cfg, cal_path, takes, args.output, args.force, client, say=write,
+            accept_failed_validation=args.accept_failed_validation,
+        ):  # fmt: skip
+            outcomes.append((t, result, wall))
+            if isinstance(result, ValidationFailed):  # a result (the measurement is not sound): 1
                 failed.append(t[0])
-                print(f"mpipe run: {exc}", file=sys.stderr)
-            except (ValueError, OSError, UserError) as exc:
-                if isinstance(exc, ConfigError | UserError) and len(takes) == 1:
-                    raise
+                print(f"mpipe run: {result}", file=sys.stderr)
+            elif isinstance(result, Exception):
+                if isinstance(result, ConfigError | UserError) and len(takes) == 1:
+                    raise result
                 failed.append(t[0])
-                print(f"[{t[0].stem}] failed: {exc}")
+                print(f"[{t[0].stem}] failed: {result}")
+            elif not usable(result):
+                failed.append(t[0])
+                write(f"[{t[0].stem}] failed: no window has status ok (no usable result)")
     finally:
         if client is not None:
             client.close()
+    if len(takes) > 1:
+        order = {str(t[0]): i for i, t in enumerate(takes)}
+        outcomes.sort(key=lambda o: order[str(o[0][0])])
+        print(f"{len(takes)} takes:")
+        print("\n".join(summary_lines(outcomes)))
     if failed:
         print(f"{len(failed)} of {len(takes)} takes failed: {', '.join(map(str, failed))}")
         return 1
