@@ -259,8 +259,8 @@ def connect(scheduler: str, timeout_s: float | None = None):
     except Exception as exc:  # a worker that cannot even import this function
         client.close()
         raise UserError(
-            f"{scheduler}: a Dask worker cannot run mpipe ({type(exc).__name__}: {exc}); "
-            f"install mpipe {__version__} on every worker"
+            f"{scheduler}: a Dask worker cannot run this mpipe ({type(exc).__name__}: {exc}); "
+            f"install mpipe {__version__} on every worker and restart the workers"
         ) from None
     other = {w: v for w, v in versions.items() if v != __version__}
     if other:

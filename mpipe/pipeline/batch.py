@@ -80,11 +80,16 @@ def run_takes(
         for t in takes:
             locks.enter_context(folder_lock(Path(out) / take_name(t)))
         one = dataclasses.replace(cfg, executor=ExecutorConfig(kind="local", workers=1))
-        args = (one, cal_path, out, force, accept_failed_validation)
+        # absolute paths: a worker's working folder is not this process's
+        args = (one, Path(cal_path).resolve(), Path(out).resolve(), force,
+                accept_failed_validation)  # fmt: skip
+        paths = [[Path(p).resolve() for p in t] for t in takes]
         if client is not None:
-            yield from _on_dask(client, takes, args, say)
+            done = _on_dask(client, paths, args, say)
         else:
-            yield from _on_processes(n, takes, args, say)
+            done = _on_processes(n, paths, args, say)
+        for i, result, wall in done:
+            yield takes[i], result, wall
 
 
 def _take_task(take_paths, cfg, cal_path, out, force, accept_failed_validation):
@@ -130,7 +135,7 @@ def _on_processes(n: int, takes, args, say):
     bar = ProgressBar(len(takes), desc="takes")
     try:
         with process_pool(n) as pool:
-            futures = {pool.submit(_take_task, t, *args): t for t in takes}
+            futures = {pool.submit(_take_task, t, *args): i for i, t in enumerate(takes)}
             for f in as_completed(futures):
                 result, lines, wall = f.result()
                 for line in lines:
@@ -150,7 +155,8 @@ def _on_dask(client, takes, args, say):
     bar = ProgressBar(len(takes), desc="takes")
     try:
         futures = {
-            client.submit(_take_task, t, *args, pure=False, retries=1): t for t in takes
+            client.submit(_take_task, t, *args, pure=False, retries=1): i
+            for i, t in enumerate(takes)
         }  # fmt: skip
         for f in as_completed(list(futures), loop=client.loop):
             result, lines, wall = f.result()

@@ -17,7 +17,7 @@ from mpipe.measurement.calibration import load_calibration
 from mpipe.reed.bore_kernel import prepare_bore
 from mpipe.reed.model import simulate
 from mpipe.reed.parameters import ReedParameters
-from tests.inversion.cluster_helpers import free_port, real_cluster, start_worker
+from tests.inversion.cluster_helpers import free_port, start_worker
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -58,11 +58,9 @@ def take():
     return kernel, air.rho, sim
 
 
-@pytest.fixture(scope="module")
-def cluster():
-    pytest.importorskip("distributed")
-    with real_cluster(2) as c:
-        yield c
+@pytest.fixture
+def cluster(dask_cluster):
+    return dask_cluster
 
 
 def _track(take, executor, **kw):

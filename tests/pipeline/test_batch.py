@@ -32,15 +32,17 @@ def takes(tmp_path_factory):
     return made
 
 
-def _pipeline(folder: Path, take, workers: int) -> Path:
+def _pipeline(folder: Path, take, workers: int, scheduler: str | None = None) -> Path:
     data = yaml.safe_load((ROOT / "pipelines" / "simplified_clarinet.yaml").read_text())
     data["calibration"] = str(take.calibration)
     data["executor"] = {"kind": "local", "workers": workers}
+    if scheduler is not None:
+        data["executor"] = {"kind": "dask", "scheduler": scheduler}
     data["conditioning"] = {"edge_s": 0.25}
     data["inversion"]["hop_s"] = 0.04  # three windows between 0.25 s and 0.37 s
     # light inversion: the executors are tested here, the estimator elsewhere
     data["inversion"].update(design_points=16, local_starts=2, temperature="front-end")
-    path = folder / f"pipeline{workers}.yaml"
+    path = folder / f"pipeline{workers}{'dask' if scheduler else ''}.yaml"
     path.write_text(yaml.safe_dump(data))
     return path
 
@@ -50,11 +52,18 @@ def _windows(folder: Path) -> pd.DataFrame:
     return table.drop(columns="wall_time_s")
 
 
-def test_a_batch_side_by_side_gives_each_take_its_own_table(takes, tmp_path, capsys):
-    # the takes share one calibration copy (same rig); each also run alone, one worker
-    alone = load_pipeline(_pipeline(tmp_path, takes[0], 1))
+@pytest.fixture(scope="module")
+def alone(takes, tmp_path_factory):
+    """Each take run alone, in this process: ``OUT/<take>`` of every take."""
+    folder = tmp_path_factory.mktemp("alone")
+    # the takes share one calibration copy (same rig)
+    cfg = load_pipeline(_pipeline(folder, takes[0], 1))
     for t in takes:
-        run_take(alone, takes[0].calibration, [t.audio], tmp_path / "alone", say=lambda s: None)
+        run_take(cfg, takes[0].calibration, [t.audio], folder, say=lambda s: None)
+    return folder
+
+
+def test_a_batch_side_by_side_gives_each_take_its_own_table(takes, alone, tmp_path, capsys):
     pipe = _pipeline(tmp_path, takes[0], 2)
     assert batch_workers(load_pipeline(pipe), len(takes)) == 2
     bad = tmp_path / "empty.flac"
@@ -66,9 +75,7 @@ def test_a_batch_side_by_side_gives_each_take_its_own_table(takes, tmp_path, cap
     assert "3 takes:" in out and "  empty: failed" in out
     for t in takes:
         name = t.audio.stem
-        pd.testing.assert_frame_equal(
-            _windows(tmp_path / "alone" / name), _windows(tmp_path / "batch" / name)
-        )
+        pd.testing.assert_frame_equal(_windows(alone / name), _windows(tmp_path / "batch" / name))
         assert f"[{name}] 5/6 inversion: done" in out and f"  {name}: ok;" in out
     # resumable as a single run: everything skipped the second time
     assert main(["run", str(pipe), *good, "-o", str(tmp_path / "batch")]) == 0
@@ -82,3 +89,16 @@ def test_one_take_or_one_worker_is_not_a_batch(takes, tmp_path):
     assert batch_workers(one, 5) == 1
     lines = summary_lines([([tmp_path / "x.flac"], ValueError("broken\nmore"), 1.0)])
     assert lines == ["  x: failed (1.0 s): broken"]
+
+
+def test_a_batch_on_a_real_cluster_gives_each_take_its_own_table(
+    takes, alone, tmp_path, capsys, dask_cluster
+):
+    pipe = _pipeline(tmp_path, takes[0], 0, scheduler=dask_cluster[1])
+    argv = ["run", str(pipe), *[str(t.audio) for t in takes], "-o", str(tmp_path / "b")]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    for t in takes:
+        name = t.audio.stem
+        pd.testing.assert_frame_equal(_windows(alone / name), _windows(tmp_path / "b" / name))
+        assert f"  {name}: ok;" in out
