@@ -33,6 +33,7 @@ QUICK_ARGS = {
     "bench_microphones": ["--seeds", "2"],
     "bench_realtime": ["--duration", "2", "--repeats", "1", "--skip-before"],
     "bench_uncertainty": ["--paths", "adaptive"],
+    "bench_dask": ["--runs", "2", "--batch", "2", "--duration", "1"],
 }
 
 #: Units where a smaller value is better (the ratio shown is then baseline / value).
