@@ -18,3 +18,13 @@ def shipped_calibration():
 @pytest.fixture(scope="session")
 def shipped_air(shipped_calibration):
     return shipped_calibration.air_properties()
+
+
+@pytest.fixture(scope="session")
+def dask_cluster():
+    """A scheduler and two worker processes of their own: ``(client, address, workers)``."""
+    pytest.importorskip("distributed")
+    from tests.inversion.cluster_helpers import real_cluster
+
+    with real_cluster(2) as cluster:
+        yield cluster

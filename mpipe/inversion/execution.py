@@ -11,6 +11,7 @@ back instead of recomputed.
 from __future__ import annotations
 
 import contextlib
+import logging
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +24,16 @@ from mpipe.inversion.tables import load_checkpoint, save_checkpoint
 from mpipe.inversion.window import invert_window
 from mpipe.reed.bore_kernel import BoreKernel
 from mpipe.reed.parameters import ReedParameters
+
+log = logging.getLogger(__name__)
+
+#: Time allowed to reach a Dask scheduler, s.
+CONNECT_TIMEOUT_S = 10.0
+#: Reruns of a Dask task whose window search raised (a worker killed mid-task is rerun by
+#: the scheduler, up to its ``distributed.scheduler.allowed-failures``).
+TASK_RETRIES = 2
+#: Times the take's data are scattered again when every worker holding them died.
+LOST_DATA_ATTEMPTS = 3
 
 
 @dataclass(frozen=True)
@@ -152,8 +163,7 @@ def dispatch(
     """Run windows on the configured executor; the grouping does not change any result.
 
     ``items`` and ``warm`` as in :func:`run_windows`; ``client`` is a Dask client or None.
-    Results come in the order of ``items`` for the local executors and in completion order
-    for Dask: the caller sorts them.
+    Results come in the order of ``items`` whatever the executor.
     """
     if not items:
         return []
@@ -204,27 +214,143 @@ def _track_processes(job, groups, warm, workers, update):
 
 
 def _track_dask(job, groups, warm, executor, client, update):
-    from distributed import Client
-    from distributed import as_completed as dask_completed
-
     own = client is None
     if own:
-        client = Client(executor.scheduler)
+        client = connect(executor.scheduler)
     try:
-        # Scatter the shared data once instead of shipping it with every task. The
-        # checkpoint folder must be reachable from the workers (a shared file system).
-        job_f = client.scatter(job, broadcast=True)
-        futures = [client.submit(_dask_windows, job_f, g, warm, pure=False) for g in groups]
-        results = []
-        for f in dask_completed(futures):
-            part = f.result()
-            results.extend(part)
-            if update is not None:
-                update(len(part))
-        return results
+        parts = gather_in_order(client, job, groups, warm, update)
+        return [r for part in parts for r in part]
     finally:
         if own:
             client.close()
+
+
+def connect(scheduler: str, timeout_s: float | None = None):
+    """A Dask client of ``scheduler``, or one clear line when it cannot be used.
+
+    Checked before any work: the scheduler answers within ``timeout_s``, and every worker
+    runs the same mpipe version as this process (a worker with another version could give
+    other numbers, one without mpipe cannot run a window).
+
+    Parameters
+    ----------
+    scheduler : str
+        Address of the scheduler, e.g. ``tcp://10.0.0.5:8786``.
+    timeout_s : float, optional
+        Time allowed for the connection, s (default ``CONNECT_TIMEOUT_S``).
+
+    Returns
+    -------
+    distributed.Client
+
+    Raises
+    ------
+    UserError
+        When the scheduler cannot be reached or a worker runs another mpipe version.
+    """
+    from distributed import Client
+
+    from mpipe import __version__
+    from mpipe.core.errors import UserError
+
+    timeout_s = CONNECT_TIMEOUT_S if timeout_s is None else timeout_s
+    try:
+        client = Client(scheduler, timeout=f"{timeout_s:g}s", set_as_default=False)
+    except (OSError, TimeoutError) as exc:
+        raise UserError(
+            f"executor.scheduler: cannot reach the Dask scheduler at {scheduler} within "
+            f"{timeout_s:g} s ({type(exc).__name__}); start it (dask scheduler) or fix the address"
+        ) from None
+    try:
+        versions = client.run(_mpipe_version)
+    except Exception as exc:  # a worker that cannot even import this function
+        client.close()
+        raise UserError(
+            f"{scheduler}: a Dask worker cannot run this mpipe ({type(exc).__name__}: {exc}); "
+            f"install mpipe {__version__} on every worker and restart the workers"
+        ) from None
+    other = {w: v for w, v in versions.items() if v != __version__}
+    if other:
+        client.close()
+        worker, version = next(iter(other.items()))
+        raise UserError(
+            f"{scheduler}: {len(other)} Dask worker(s) run mpipe {version} ({worker}), this is "
+            f"{__version__}; install the same version on every worker"
+        )
+    return client
+
+
+def _mpipe_version() -> str:
+    from mpipe import __version__
+
+    return __version__
+
+
+def gather_in_order(client, job: Job, groups, warm, update=None) -> list:
+    """Run each group of windows as one Dask task; the groups' results in their order.
+
+    The take's shared data are scattered to every worker under a key of their own
+    (``hash=False``) and held until every group has finished. (A content-hashed key, the
+    default, is the same for the same take in two consecutive calls, such as the warm
+    windows and then their cold retries: the release of the first call's copy could reach
+    the scheduler after the second scatter and delete it, and the tasks waiting on it were
+    cancelled with "lost dependencies".) A task that raised is retried (``TASK_RETRIES``);
+    a task whose worker died is rerun on another worker by the scheduler; when the data
+    themselves were lost (every worker holding them died), they are scattered again and the
+    groups not yet finished are resubmitted, up to ``LOST_DATA_ATTEMPTS`` times.
+
+    Parameters
+    ----------
+    client : distributed.Client
+    job : Job
+    groups : sequence of sequence of (int, dict or None)
+        Windows per task, as ``items`` of :func:`run_windows`.
+    warm : ReedParameters or None
+        The start of every window.
+    update : callable, optional
+        Called with the number of windows of each finished group.
+
+    Returns
+    -------
+    list
+        One list of ``(row, history)`` per group, in the order of ``groups``.
+    """
+    from concurrent.futures import CancelledError
+
+    from distributed import as_completed
+
+    parts: list = [None] * len(groups)
+    todo = list(range(len(groups)))
+    for attempt in range(1, LOST_DATA_ATTEMPTS + 1):
+        job_f = client.scatter(job, broadcast=True, hash=False)
+        futures = {
+            client.submit(
+                _dask_windows, job_f, groups[i], warm, pure=False, retries=TASK_RETRIES
+            ): i
+            for i in todo
+        }
+        lost = []
+        for f in as_completed(list(futures), loop=client.loop):
+            try:
+                parts[futures[f]] = f.result()
+            except CancelledError as exc:  # its data were lost with their workers
+                lost.append(futures[f])
+                reason = exc
+                continue
+            if update is not None:
+                update(len(groups[futures[f]]))
+        del job_f, futures  # released only now: every task that needs the data has finished
+        if not lost:
+            return parts
+        log.warning(
+            "%d of %d window groups lost their data on the cluster (%s); scattering again "
+            "(attempt %d of %d)", len(lost), len(groups), reason, attempt, LOST_DATA_ATTEMPTS,
+        )  # fmt: skip
+        todo = sorted(lost)
+    raise RuntimeError(
+        f"{len(todo)} window groups lost their data on the Dask cluster "
+        f"{LOST_DATA_ATTEMPTS} times (workers dying?): {reason}"
+    )
 
 
 def _dask_windows(job, items, warm):
@@ -274,4 +400,12 @@ def stage_workers(shared, executor: ExecutorConfig, workers: int, client=None) -
             yield
 
 
-__all__ = ["Job", "dispatch", "run_windows", "split_chains", "stage_workers"]
+__all__ = [
+    "Job",
+    "connect",
+    "dispatch",
+    "gather_in_order",
+    "run_windows",
+    "split_chains",
+    "stage_workers",
+]

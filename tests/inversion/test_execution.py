@@ -1,7 +1,25 @@
 """Where windows run: contiguous chunks of windows; nothing to run, nothing dispatched."""
 
-from mpipe.inversion.execution import dispatch, split_chains
-from mpipe.inversion.settings import ExecutorConfig
+import os
+import signal
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from mpipe.acoustics.reflection import reflection_function
+from mpipe.inversion.execution import Job, dispatch, split_chains
+from mpipe.inversion.resynthesis import reed_from_row
+from mpipe.inversion.settings import ExecutorConfig, InversionConfig
+from mpipe.inversion.tables import COLUMNS
+from mpipe.inversion.tracking import track
+from mpipe.measurement.calibration import load_calibration
+from mpipe.reed.bore_kernel import prepare_bore
+from mpipe.reed.model import simulate
+from mpipe.reed.parameters import ReedParameters
+from tests.inversion.cluster_helpers import free_port, start_worker
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_split_chains_contiguous():
@@ -13,3 +31,115 @@ def test_split_chains_contiguous():
 
 def test_dispatch_of_no_windows_starts_no_worker():
     assert dispatch(None, [], None, ExecutorConfig(workers=2), 2, None, None) == []
+
+
+# --- a real cluster: a scheduler and two worker processes of their own (issue 25) ---------
+
+FS = 100_000.0
+TABLE1 = ReedParameters(
+    k=8.66e6, S=7.62e-5, y_m=4e-4, p_m=1800.0, lam=0.013, m=0.05, g=3000.0, k_c=8.23e10
+)
+# cheap windows: only p_m searched, small budgets (the executors, not the estimator, are
+# tested here; the estimator is tested with one worker in test_tracking and test_take); the
+# warm windows stop before converging, so they are dispatched again for their cold retries
+CHEAP = InversionConfig(
+    free=("p_m",), max_evaluations=60, warm_max_evaluations=3, design_points=16, local_starts=2
+)
+#: Columns that must not depend on the executor (all but the timing).
+SAME = [c for c in COLUMNS if c != "wall_time_s"]
+
+
+@pytest.fixture(scope="module")
+def take():
+    cal = load_calibration(ROOT / "calibration" / "simplified_clarinet.yaml")
+    air = cal.air_properties()
+    kernel = prepare_bore(reflection_function(cal.bore, air, fs=FS), air)
+    sim = simulate(TABLE1, kernel, 50000)
+    return kernel, air.rho, sim
+
+
+@pytest.fixture
+def cluster(dask_cluster):
+    return dask_cluster
+
+
+def _track(take, executor, **kw):
+    kernel, rho, sim = take
+    return track(sim.p, sim.u, FS, kernel, rho, CHEAP, executor, start_s=0.26, **kw)
+
+
+def test_repeated_runs_on_a_real_cluster_equal_the_local_run(take, cluster):
+    # Issue 25: two of six runs lost their scattered data ("lost dependencies") when a take
+    # was dispatched twice (warm windows, then cold retries) under the same content key.
+    client, address, _ = cluster
+    local = _track(take, ExecutorConfig(workers=1))
+    assert len(local.table) == 12 and local.table["retried_cold"].any()  # two dispatches
+    dask_cfg = ExecutorConfig(kind="dask", scheduler=address, chunks=4)
+    result = _track(take, dask_cfg, client=client)
+    pd.testing.assert_frame_equal(local.table[SAME], result.table[SAME])
+    # the same take's data dispatched back to back, as the tracking does between its calls
+    kernel, rho, sim = take
+    job = Job(sim.p, sim.u, FS, kernel, rho, CHEAP, False, None)
+    items = [(int(s), None) for s in local.table["t_start_s"].to_numpy()[1:] * FS]
+    warm = reed_from_row(local.table.iloc[0].to_dict())
+    first = _rows(dispatch(job, items, warm, dask_cfg, 2, client, None))
+    for _ in range(5):
+        again = _rows(dispatch(job, items, warm, dask_cfg, 2, client, None))
+        pd.testing.assert_frame_equal(again, first)
+    assert first["t_start_s"].is_monotonic_increasing  # in the order of the items
+
+
+def _rows(results):
+    return pd.DataFrame([row for row, _ in results]).drop(columns="wall_time_s")
+
+
+class _KillOnFirstResult:
+    """A progress bar that kills a worker with windows in flight when a first group ends.
+
+    (The take's cold-started window runs in this process: when it ends, nothing is in
+    flight yet.)
+    """
+
+    def __init__(self, client):
+        self.client = client
+        self.pids = client.run(os.getpid)
+        self.killed = None
+
+    def update(self, n=1):
+        if self.killed is None:
+            busy = [w for w, keys in self.client.processing().items() if keys]
+            if not busy:
+                return
+            self.killed = busy[0]
+            os.kill(self.pids[busy[0]], signal.SIGKILL)
+
+
+def test_a_worker_killed_mid_run_changes_nothing(take, cluster):
+    client, address, workers = cluster
+    local = _track(take, ExecutorConfig(workers=1))
+    bar = _KillOnFirstResult(client)
+    try:
+        result = _track(take, ExecutorConfig(kind="dask", scheduler=address, chunks=8),
+                        client=client, progress=bar)  # fmt: skip
+        assert bar.killed is not None
+        pd.testing.assert_frame_equal(local.table[SAME], result.table[SAME])
+    finally:  # the cluster gets its second worker back for the tests after this one
+        workers.append(start_worker(address))
+        client.wait_for_workers(2, timeout=120)
+
+
+def test_an_unreachable_scheduler_is_one_line_before_any_work(tmp_path, monkeypatch, capsys):
+    from mpipe.cli.main import main
+    from mpipe.inversion import execution
+
+    monkeypatch.setattr(execution, "CONNECT_TIMEOUT_S", 1.0)
+    pipe = tmp_path / "pipe.yaml"
+    cal = ROOT / "calibration" / "simplified_clarinet.yaml"
+    address = f"tcp://127.0.0.1:{free_port()}"  # nothing listens there
+    pipe.write_text(f"calibration: {cal}\nexecutor: {{kind: dask, scheduler: '{address}'}}\n")
+    take_file = tmp_path / "take.wav"
+    take_file.write_bytes(b"")  # never read: the scheduler is checked first
+    assert main(["run", str(pipe), str(take_file), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and address in err[0] and "cannot reach" in err[0], err
+    assert not list((tmp_path / "out").rglob("*.*"))  # no work done, not even a lock

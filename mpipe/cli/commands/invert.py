@@ -213,16 +213,23 @@ def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
             f"{args.mouthpiece}: no sounding window to invert ({len(plan)} windows in the "
             f"span, none inside a note; see conditioning in {args.pipeline})"
         )
+    client = None
+    if cfg.executor.kind == "dask":  # an unreachable scheduler: one line before any work
+        from mpipe.inversion.execution import connect
+
+        client = connect(cfg.executor.scheduler)
     bar = ProgressBar(len(starts))
     try:
         take = invert_take(p, u, fs, cal, inv, cfg.executor, starts=starts,
-                           temperature_c=temperature, progress=bar,
+                           temperature_c=temperature, progress=bar, client=client,
                            segments=chosen["segment"].astype(int).tolist(),
                            steady=chosen["steady"].astype(bool).tolist())  # fmt: skip
     except ValueError as exc:
         raise UserError(f"{args.mouthpiece}: {exc}") from None
     finally:
         bar.close()
+        if client is not None:
+            client.close()
     return (plan, segments), take
 
 

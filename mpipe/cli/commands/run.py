@@ -124,7 +124,8 @@ def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe run``."""
     from mpipe.core.io import check_output_folder
     from mpipe.core.progress import write
-    from mpipe.pipeline.orchestration import ValidationFailed, run_take, usable
+    from mpipe.pipeline.batch import run_takes, summary_lines
+    from mpipe.pipeline.orchestration import ValidationFailed, usable
 
     cfg = load_pipeline(args.pipeline, check_calibration=args.calibration is None)
     if args.fingering is not None:
@@ -141,39 +142,40 @@ def run(args: argparse.Namespace) -> int:
         check_output_folder(Path(args.output) / name)
     client = None
     if cfg.executor.kind == "dask":
-        from distributed import Client
+        from mpipe.inversion.execution import connect
 
-        # one client for every take of this call: the takes share the cluster
-        client = Client(cfg.executor.scheduler)
+        # one client for every take of this call: the takes share the cluster; an
+        # unreachable scheduler is one line (exit 2) before any work
+        client = connect(cfg.executor.scheduler)
     failed = []
+    outcomes = []
     try:
-        for t, name in zip(takes, names, strict=True):
-            try:
-                result = run_take(
-                    cfg,
-                    cal_path,
-                    t,
-                    args.output,
-                    args.force,
-                    client,
-                    say=write,
-                    accept_failed_validation=args.accept_failed_validation,
-                    name=name,
-                )
-                if not usable(result):
-                    failed.append(t[0])
-                    write(f"[{name}] failed: no window has status ok (no usable result)")
-            except ValidationFailed as exc:  # a result (the measurement is not sound): 1
+        name_of = {id(t): name for t, name in zip(takes, names, strict=True)}
+        for t, result, wall in run_takes(
+            cfg, cal_path, takes, args.output, args.force, client, say=write,
+            accept_failed_validation=args.accept_failed_validation, names=names,
+        ):  # fmt: skip
+            outcomes.append((t, result, wall))
+            name = name_of[id(t)]
+            if isinstance(result, ValidationFailed):  # a result (the measurement is not sound): 1
                 failed.append(t[0])
-                print(f"mpipe run: {exc}", file=sys.stderr)
-            except (ValueError, OSError, UserError) as exc:
-                if isinstance(exc, ConfigError | UserError) and len(takes) == 1:
-                    raise
+                print(f"mpipe run: {result}", file=sys.stderr)
+            elif isinstance(result, Exception):
+                if isinstance(result, ConfigError | UserError) and len(takes) == 1:
+                    raise result
                 failed.append(t[0])
-                print(f"[{name}] failed: {exc}")
+                print(f"[{name}] failed: {result}")
+            elif not usable(result):
+                failed.append(t[0])
+                write(f"[{name}] failed: no window has status ok (no usable result)")
     finally:
         if client is not None:
             client.close()
+    if len(takes) > 1:
+        order = {id(t): i for i, t in enumerate(takes)}
+        outcomes.sort(key=lambda o: order[id(o[0])])
+        print(f"{len(takes)} takes:")
+        print("\n".join(summary_lines(outcomes, [names[order[id(o[0])]] for o in outcomes])))
     if failed:
         print(f"{len(failed)} of {len(takes)} takes failed: {', '.join(map(str, failed))}")
         return 1

@@ -1,0 +1,229 @@
+"""A batch of takes side by side: each take's stages on a worker of its own.
+
+``mpipe run PIPE take1 ... takeN`` with several takes and several workers runs whole takes
+in parallel: locally one worker process per take at a time (``executor.workers``), on a
+Dask cluster one task per take (``executor.kind: dask``). Inside a take the windows then
+run one after the other on its worker, so a batch keeps every worker busy with whole takes
+instead of spreading one take's windows. One take alone (or one worker) runs as before,
+its windows spread over the workers. Every window's answer depends only on its own data
+and the take's cold start, so each take's table is the one it gets run alone.
+
+The output folders are those of single runs (``OUT/<take>/<stage>/``), resumable, replaced
+only with ``--force``; this process holds every take's folder lock for the whole batch, so
+a second run on one of them stops at once. On Dask the workers write the outputs: the
+output folder, the takes and the calibration must be on a file system every worker sees
+under the same paths (checked before any work).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import os
+import sys
+import time
+import uuid
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+
+from mpipe.core.errors import UserError
+from mpipe.inversion.settings import ExecutorConfig
+from mpipe.pipeline.orchestration import TakeRun, ValidationFailed, run_take, take_name
+from mpipe.pipeline.settings import PipelineConfig
+
+#: Errors that end one take of a batch (reported per take; the other takes go on).
+TAKE_ERRORS = (ValidationFailed, ValueError, OSError, UserError)
+
+
+def batch_workers(cfg: PipelineConfig, n_takes: int, client=None) -> int:
+    """How many takes run side by side: 1 for one take, else one per worker (at most N)."""
+    if n_takes < 2:
+        return 1
+    if client is not None:
+        return min(n_takes, max(1, len(client.scheduler_info()["workers"])))
+    return min(n_takes, cfg.executor.workers or os.cpu_count() or 1)
+
+
+def run_takes(
+    cfg: PipelineConfig,
+    cal_path: Path,
+    takes: Sequence[Sequence[Path]],
+    out: str | Path,
+    force: bool = False,
+    client=None,
+    say: Callable[[str], None] = print,
+    accept_failed_validation: bool = False,
+    names: Sequence[str] | None = None,
+) -> Iterator[tuple[Sequence[Path], TakeRun | Exception, float]]:
+    """Run every take; yield ``(take paths, TakeRun or the error that ended it, wall s)``.
+
+    ``names`` are the takes' folders under ``out`` (default: :func:`take_name` of each).
+
+    One take, or one worker: one take after the other, as :func:`run_take` (its windows
+    spread over the workers or the cluster). Several: whole takes side by side, yielded in
+    the order they finish, each take's stage lines said when it finishes.
+    """
+    names = [take_name(t) for t in takes] if names is None else list(names)
+    n = batch_workers(cfg, len(takes), client)
+    if n < 2:
+        for t, name in zip(takes, names, strict=True):
+            t0 = time.perf_counter()
+            try:
+                result = run_take(
+                    cfg, cal_path, t, out, force, client, say, accept_failed_validation, name
+                )
+            except TAKE_ERRORS as exc:
+                result = exc
+            yield t, result, time.perf_counter() - t0
+        return
+    from mpipe.core.io import folder_lock
+
+    # every take's folder locked by this process for the whole batch: a run on one of them
+    # elsewhere stops at once; the workers write under these locks
+    with contextlib.ExitStack() as locks:
+        for name in names:
+            locks.enter_context(folder_lock(Path(out) / name))
+        one = dataclasses.replace(cfg, executor=ExecutorConfig(kind="local", workers=1))
+        # absolute paths: a worker's working folder is not this process's
+        args = (one, Path(cal_path).resolve(), Path(out).resolve(), force,
+                accept_failed_validation)  # fmt: skip
+        paths = [
+            ([Path(p).resolve() for p in t], name) for t, name in zip(takes, names, strict=True)
+        ]
+        if client is not None:
+            done = _on_dask(client, paths, args, say)
+        else:
+            done = _on_processes(n, paths, args, say)
+        for i, result, wall in done:
+            yield takes[i], result, wall
+
+
+def _take_task(take, cfg, cal_path, out, force, accept_failed_validation):
+    """One take on a worker (the caller holds its folder lock); its lines are returned."""
+    from mpipe.pipeline.orchestration import _run_take
+
+    take_paths, name = take
+    lines: list[str] = []
+    t0 = time.perf_counter()
+    # no bars from the workers: the batch's one progress view is the caller's
+    with contextlib.redirect_stderr(_NotATerminal(sys.stderr)):
+        try:
+            result = _run_take(
+                cfg, cal_path, take_paths, out, force, None, lines.append,
+                accept_failed_validation, name,
+            )  # fmt: skip
+        except TAKE_ERRORS as exc:
+            result = exc
+    return result, lines, time.perf_counter() - t0
+
+
+class _NotATerminal:
+    """A stream that writes through to another but is never a terminal (no bars drawn)."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        return self._stream.write(text)
+
+    def flush(self) -> None:
+        self._stream.flush()
+
+    def isatty(self) -> bool:
+        return False
+
+
+def _on_processes(n: int, takes, args, say):
+    from concurrent.futures import as_completed
+
+    from mpipe.core.progress import ProgressBar
+    from mpipe.core.workers import process_pool
+
+    bar = ProgressBar(len(takes), desc="takes")
+    try:
+        with process_pool(n) as pool:
+            futures = {pool.submit(_take_task, t, *args): i for i, t in enumerate(takes)}
+            for f in as_completed(futures):
+                result, lines, wall = f.result()
+                for line in lines:
+                    say(line)
+                bar.update()
+                yield futures[f], result, wall
+    finally:
+        bar.close()
+
+
+def _on_dask(client, takes, args, say):
+    from distributed import as_completed
+
+    from mpipe.core.progress import ProgressBar
+
+    check_shared_files(client, takes, args[1], args[2])
+    bar = ProgressBar(len(takes), desc="takes")
+    try:
+        futures = {
+            client.submit(_take_task, t, *args, pure=False, retries=1): i
+            for i, t in enumerate(takes)
+        }  # fmt: skip
+        for f in as_completed(list(futures), loop=client.loop):
+            result, lines, wall = f.result()
+            for line in lines:
+                say(line)
+            bar.update()
+            yield futures[f], result, wall
+    finally:
+        bar.close()
+
+
+def check_shared_files(client, takes, cal_path: Path, out: str | Path) -> None:
+    """Raise a one-line UserError unless every Dask worker sees the batch's files.
+
+    The workers read the takes and the calibration and write into ``out``: a file written
+    here into ``out`` must be visible to each worker under the same path.
+    """
+    probe = Path(out) / f".mpipe-probe-{uuid.uuid4().hex}"
+    probe.write_text("mpipe\n")
+    paths = [str(probe.resolve()), str(Path(cal_path).resolve())]
+    paths += [str(Path(p).resolve()) for t, _ in takes for p in t]
+    try:
+        seen = client.run(_missing, paths)
+    finally:
+        probe.unlink()
+    for worker, missing in seen.items():
+        if missing:
+            what = "the output folder" if missing[0] == paths[0] else missing[0]
+            raise UserError(
+                f"{worker}: this Dask worker does not see {what} ({len(missing)} of "
+                f"{len(paths)} paths missing); a batch on a cluster needs the takes, the "
+                f"calibration and {out} on a file system shared under the same paths"
+            )
+
+
+def _missing(paths: list[str]) -> list[str]:
+    return [p for p in paths if not os.path.exists(p)]
+
+
+def summary_lines(
+    outcomes: Sequence[tuple[Sequence[Path], TakeRun | Exception, float]],
+    names: Sequence[str] | None = None,
+) -> list:
+    """One line per take: its verdict, its windows, its wall time; or why it failed."""
+    from mpipe.pipeline.orchestration import usable
+
+    lines = []
+    for i, (t, result, wall) in enumerate(outcomes):
+        name = take_name(t) if names is None else names[i]
+        if isinstance(result, Exception):
+            first = str(result).splitlines()[0] if str(result) else type(result).__name__
+            lines.append(f"  {name}: failed ({wall:.1f} s): {first}")
+            continue
+        inv = result.records["inversion"].summary
+        verdict = result.records["validation"].summary.get("verdict", "?").upper()
+        state = "ok" if usable(result) else "failed: no window has status ok"
+        lines.append(
+            f"  {name}: {state}; validation {verdict}; {inv.get('status_line', '')} ({wall:.1f} s)"
+        )
+    return lines
+
+
+__all__ = ["TAKE_ERRORS", "batch_workers", "check_shared_files", "run_takes", "summary_lines"]

@@ -1,0 +1,104 @@
+"""A batch of takes side by side: each take's table is the one it gets run alone."""
+
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import yaml
+
+from mpipe.cli.main import main
+from mpipe.cli.virtual_takes import SynthOptions, make_take
+from mpipe.pipeline.batch import batch_workers, summary_lines
+from mpipe.pipeline.orchestration import run_take
+from mpipe.pipeline.settings import load_pipeline
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def takes(tmp_path_factory):
+    """Two short takes of different players (mouth pressures) and noise."""
+    folder = tmp_path_factory.mktemp("takes")
+    reed = yaml.safe_load((ROOT / "calibration" / "reed_table1.yaml").read_text())
+    made = []
+    for i, p_m in enumerate((1700.0, 1950.0)):
+        path = folder / f"reed{i}.yaml"
+        path.write_text(yaml.safe_dump({**reed, "p_m": p_m}))
+        options = SynthOptions(duration_s=0.62, snr_db=60.0, seed=11 + i)
+        made.append(
+            make_take(ROOT / "calibration" / "simplified_clarinet.yaml", path,
+                      folder / f"take{i}.flac", options)
+        )  # fmt: skip
+    return made
+
+
+def _pipeline(folder: Path, take, workers: int, scheduler: str | None = None) -> Path:
+    data = yaml.safe_load((ROOT / "pipelines" / "simplified_clarinet.yaml").read_text())
+    data["calibration"] = str(take.calibration)
+    data["executor"] = {"kind": "local", "workers": workers}
+    if scheduler is not None:
+        data["executor"] = {"kind": "dask", "scheduler": scheduler}
+    data["conditioning"] = {"edge_s": 0.25}
+    data["inversion"]["hop_s"] = 0.04  # three windows between 0.25 s and 0.37 s
+    # light inversion: the executors are tested here, the estimator elsewhere
+    data["inversion"].update(design_points=16, local_starts=2, temperature="front-end")
+    path = folder / f"pipeline{workers}{'dask' if scheduler else ''}.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def _windows(folder: Path) -> pd.DataFrame:
+    table = pd.read_csv(folder / "inversion" / "windows.csv", keep_default_na=False)
+    return table.drop(columns="wall_time_s")
+
+
+@pytest.fixture(scope="module")
+def alone(takes, tmp_path_factory):
+    """Each take run alone, in this process: ``OUT/<take>`` of every take."""
+    folder = tmp_path_factory.mktemp("alone")
+    # the takes share one calibration copy (same rig)
+    cfg = load_pipeline(_pipeline(folder, takes[0], 1))
+    for t in takes:
+        run_take(cfg, takes[0].calibration, [t.audio], folder, say=lambda s: None)
+    return folder
+
+
+def test_a_batch_side_by_side_gives_each_take_its_own_table(takes, alone, tmp_path, capsys):
+    pipe = _pipeline(tmp_path, takes[0], 2)
+    assert batch_workers(load_pipeline(pipe), len(takes)) == 2
+    bad = tmp_path / "empty.flac"
+    bad.write_bytes(b"not audio")
+    good = [str(t.audio) for t in takes]
+    argv = ["run", str(pipe), str(bad), *good, "-o", str(tmp_path / "batch")]
+    assert main(argv) == 1  # the bad take fails, the others go on
+    out = capsys.readouterr().out
+    assert "3 takes:" in out and "  empty: failed" in out
+    for t in takes:
+        name = t.audio.stem
+        pd.testing.assert_frame_equal(_windows(alone / name), _windows(tmp_path / "batch" / name))
+        assert f"[{name}] 5/6 inversion: done" in out and f"  {name}: ok;" in out
+    # resumable as a single run: everything skipped the second time
+    assert main(["run", str(pipe), *good, "-o", str(tmp_path / "batch")]) == 0
+    assert capsys.readouterr().out.count("already done") == 12
+
+
+def test_one_take_or_one_worker_is_not_a_batch(takes, tmp_path):
+    pipe = load_pipeline(_pipeline(tmp_path, takes[0], 2))
+    assert batch_workers(pipe, 1) == 1
+    one = load_pipeline(_pipeline(tmp_path, takes[0], 1))
+    assert batch_workers(one, 5) == 1
+    lines = summary_lines([([tmp_path / "x.flac"], ValueError("broken\nmore"), 1.0)])
+    assert lines == ["  x: failed (1.0 s): broken"]
+
+
+def test_a_batch_on_a_real_cluster_gives_each_take_its_own_table(
+    takes, alone, tmp_path, capsys, dask_cluster
+):
+    pipe = _pipeline(tmp_path, takes[0], 0, scheduler=dask_cluster[1])
+    argv = ["run", str(pipe), *[str(t.audio) for t in takes], "-o", str(tmp_path / "b")]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    for t in takes:
+        name = t.audio.stem
+        pd.testing.assert_frame_equal(_windows(alone / name), _windows(tmp_path / "b" / name))
+        assert f"  {name}: ok;" in out
