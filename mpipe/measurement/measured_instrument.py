@@ -141,9 +141,9 @@ def bore_description(calibration) -> str:
         return "the bore is measured: " + measured.summary()
     holes = calibration.bore.holes
     if not holes:
-        return "the bore is the theory of the calibration's geometry (no tone holes)"
+        return "the bore is the theory of the calibration's geometry, without tone holes"
     opened = ", ".join(calibration.bore.open_holes) or "none"
     return (
-        f"the bore is the theory of the calibration's geometry ({len(holes)} tone holes, "
-        f"fingering {calibration.fingering or 'none: every hole closed'}, open: {opened})"
+        f"the bore is the theory of the calibration's geometry with {len(holes)} tone holes, "
+        f"fingering {calibration.fingering or 'none (every hole closed)'}, open holes: {opened}"
     )
