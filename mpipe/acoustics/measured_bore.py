@@ -87,9 +87,9 @@ class MeasuredInput:
         return (
             f"measured input impedance {self.source} ({lo:g}-{hi:g} Hz at "
             f"{self.temperature_c:g} degC), extended outside the band by an equivalent bore of "
-            f"length {self.equivalent_length:.4f} m (in-band misfit {self.misfit_rms_db:.2f} dB "
-            f"rms, {self.misfit_max_db:.2f} dB max, resonances within {self.misfit_cents:.1f} "
-            "cents)"
+            f"length {self.equivalent_length:.4f} m whose in-band misfit is "
+            f"{self.misfit_rms_db:.2f} dB rms, {self.misfit_max_db:.2f} dB max, resonances "
+            f"within {self.misfit_cents:.1f} cents"
         )
 
     def blend(self, omega: np.ndarray, air: Air, z_equivalent: np.ndarray) -> np.ndarray:

@@ -14,6 +14,7 @@ import pandas as pd
 from mpipe.acoustics.bore import Radiation, Resonance, find_resonances, input_impedance
 from mpipe.core.io import write_atomic
 from mpipe.measurement.calibration import Calibration
+from mpipe.measurement.impedance_comparison import resonances
 
 
 @dataclass(frozen=True)
@@ -32,6 +33,9 @@ class ImpedanceCurve:
         Air temperature used, degC.
     radiation : str
         Termination model used.
+    measured : bool
+        The curve is a measurement (``bore.measured``): its peaks must stand 3 dB out of
+        the curve, so that its noise makes none.
     """
 
     freqs_hz: np.ndarray
@@ -39,10 +43,19 @@ class ImpedanceCurve:
     z0: float
     temperature_c: float
     radiation: str
+    measured: bool = False
 
     def resonances(self, count: int = 5) -> list[Resonance]:
         """The first ``count`` peaks of |Z|."""
-        return find_resonances(self.freqs_hz, self.z, self.z0, count)
+        if not self.measured:
+            return find_resonances(self.freqs_hz, self.z, self.z0, count)
+        peaks = resonances(self.freqs_hz, self.z, self.z0, count)
+        return [
+            Resonance(float(f), float(lvl), float(f / bw) if bw > 0 else float("nan"))
+            for f, lvl, bw in zip(
+                peaks["frequency_hz"], peaks["level_db"], peaks["bandwidth_hz"], strict=True
+            )
+        ]
 
     def table(self) -> pd.DataFrame:
         """CSV layout: ``frequency_hz, z_real, z_imag`` (Pa s/m^3) and ``zc`` (real Z0)."""
@@ -104,7 +117,12 @@ def impedance_curve(
     freqs = np.arange(fmin, fmax + df / 2, df)
     z = input_impedance(bore, 2 * np.pi * freqs, air)
     return ImpedanceCurve(
-        freqs, z, bore.entry_impedance(air), air.temperature_c, bore.radiation.model
+        freqs,
+        z,
+        bore.entry_impedance(air),
+        air.temperature_c,
+        bore.radiation.model,
+        bore.measured_input is not None,
     )
 
 

@@ -140,6 +140,10 @@ def bore_description(calibration) -> str:
     if measured is not None:
         return "the bore is measured: " + measured.summary()
     holes = calibration.bore.holes
+    if not holes:
+        return "the bore is the theory of the calibration's geometry, without tone holes"
     opened = ", ".join(calibration.bore.open_holes) or "none"
-    fingering = f", fingering {calibration.fingering} (open: {opened})" if holes else ""
-    return f"the bore is the calibration's geometry ({len(holes)} tone holes{fingering})"
+    return (
+        f"the bore is the theory of the calibration's geometry with {len(holes)} tone holes, "
+        f"fingering {calibration.fingering or 'none (every hole closed)'}, open holes: {opened}"
+    )

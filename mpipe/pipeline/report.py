@@ -294,8 +294,8 @@ def _measurement_section(
     return Section(
         "Measurement: impedance validation",
         f"The measured input impedance P/(Z0 U) at the mouthpiece is compared with the "
-        f"calibration's bore: {val.get('bore', 'its geometry')}. Effective temperature from "
-        "the wave separation "
+        f"calibration's bore ({val.get('bore', 'the theory of its geometry')}). Effective "
+        "temperature from the wave separation "
         f"{fmt(val['temperature_c'])} °C (blocks span {fmt(t_lo)}–{fmt(t_hi)} °C), loss "
         f"scale {fmt(sep['loss_scale_median'], 3)}, Mach number {fmt(sep['mach_median'], 2)}"
         f"{'' if sep.get('theta', 'estimated') == 'estimated' else ' (' + sep['theta'] + ')'}. "

@@ -123,3 +123,13 @@ def test_the_measured_bore_inverts_a_take_like_the_geometry(measured):
         g, m = (np.median(t[name]) for t in tables)
         se = np.hypot(*(np.median(t[f"{name}_se"]) for t in tables))
         assert abs(m - g) <= 2 * se, (name, m / g - 1, se / g)
+
+
+def test_the_impedance_table_of_a_measured_bore_has_no_noise_peaks(measured):
+    from mpipe.measurement.impedance import impedance_curve
+
+    theory = impedance_curve(load_calibration(SHIPPED), 20.0, 2000.0, 0.5).resonances(6)
+    noisy = impedance_curve(measured, 20.0, 2000.0, 0.5).resonances(6)
+    assert len(noisy) == len(theory) == 6
+    for a, b in zip(noisy, theory, strict=True):
+        assert abs(1200 * np.log2(a.frequency_hz / b.frequency_hz)) < 5.0
