@@ -65,15 +65,26 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True))
 
 
-def sounding_runs(t: np.ndarray, level: np.ndarray, threshold: float, conditioning):
-    """Sounding stretches ``(start s, end s)`` of a level envelope, gaps and blips removed."""
+def sounding_runs(
+    t: np.ndarray, level: np.ndarray, threshold: float, conditioning, duration: float | None = None
+):
+    """Sounding stretches ``(start s, end s)`` of a level envelope, gaps and blips removed.
+
+    A stretch still sounding at the last sample ends at ``duration`` (s; default the last
+    envelope time plus one step).
+    """
     c = conditioning
     step = float(t[1] - t[0]) if t.size > 1 else 1e-3
     mask = level >= threshold
     for a, b in _runs(~mask):  # short silences inside a note do not split it
         if a > 0 and b < mask.size and (b - a) * step < c.min_silence_s:
             mask[a:b] = True
-    return [(t[a], t[b - 1] + step) for a, b in _runs(mask) if (b - a) * step >= c.min_note_s]
+    last = t[-1] + step if duration is None else duration
+    return [
+        (t[a], last if b == mask.size else t[b - 1] + step)
+        for a, b in _runs(mask)
+        if (b - a) * step >= c.min_note_s
+    ]
 
 
 def _split_on_pitch(start: float, end: float, centres, cents, conditioning) -> list[float]:
@@ -130,7 +141,7 @@ def segment_take(
     (segments, tracks)
         ``segments``: one row per segment in time order, columns :data:`SEGMENT_COLUMNS`,
         covering the whole take; ``tracks``: ``t_level_s, level_pa, t_f0_s, f0_hz,
-        threshold_pa`` (the tracks the boundaries come from).
+        threshold_pa, frame_s`` (the tracks the boundaries come from, and the f0 frame).
     """
     c = conditioning
     p = np.asarray(p, dtype=float)
@@ -143,7 +154,7 @@ def segment_take(
     cents = pitch_cents(f0, c.a4_hz) if f0.size else np.array([])
     bounds: list[tuple[float, float, str]] = []
     edge = 0.0
-    for start, end in sounding_runs(t_lev, level, threshold, c):
+    for start, end in sounding_runs(t_lev, level, threshold, c, duration):
         if start > edge:
             bounds.append((edge, start, "silence"))
         cuts = _split_on_pitch(start, end, centres, cents, c) if centres.size > 3 else []
@@ -156,7 +167,7 @@ def segment_take(
             for i, (a, b, label) in enumerate(bounds)]  # fmt: skip
     table = pd.DataFrame(rows, columns=list(SEGMENT_COLUMNS))
     tracks = {"t_level_s": t_lev, "level_pa": level, "t_f0_s": centres, "f0_hz": f0,
-              "threshold_pa": threshold}  # fmt: skip
+              "threshold_pa": threshold, "frame_s": frame}  # fmt: skip
     return table, tracks
 
 
@@ -186,7 +197,8 @@ def assign_windows(
     A window belongs to the segment holding its centre. Its phase is ``onset`` when it
     starts within ``onset_s`` of its note's start, ``release`` when it ends within
     ``release_s`` of its end, ``sustain`` otherwise, and ``silence`` in a silence. Its f0
-    is the median of the YIN frames centred inside it.
+    is the median of the YIN frames centred inside it (at a take's edge, where none is, the
+    nearest frame that overlaps it).
 
     Returns
     -------
@@ -214,8 +226,12 @@ def assign_windows(
     out["inside"] = note & (t0 >= s0 + skip - 1e-9) & (t1 <= s1 + 1e-9)
     cf, f0 = tracks["t_f0_s"], tracks["f0_hz"]
     med = []
+    reach = 0.5 * tracks.get("frame_s", 0.0)
     for a, b in zip(t0, t1, strict=True):
         sel = f0[(cf >= a) & (cf <= b)]
+        if not sel.size and cf.size:  # at a take's edge no frame is centred inside
+            near = int(np.argmin(np.abs(cf - 0.5 * (a + b))))
+            sel = f0[[near]] if a - reach <= cf[near] <= b + reach else sel
         sel = sel[np.isfinite(sel)]
         med.append(float(np.median(sel)) if sel.size else math.nan)
     out["f0_hz"] = med

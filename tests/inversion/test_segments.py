@@ -93,7 +93,7 @@ def test_the_segments_figure_is_drawn(tmp_path):
     x, _ = phrase(2)
     tracks: dict = {}
     _, segs = plan_take(x, FS, COND, 0.02, 0.02, tracks_out=tracks)
-    assert set(tracks) == {"t_level_s", "level_pa", "t_f0_s", "f0_hz", "threshold_pa"}
+    assert set(tracks) == {"t_level_s", "level_pa", "t_f0_s", "f0_hz", "threshold_pa", "frame_s"}
     assert plot_segments(segs, tracks, tmp_path / "s.png").stat().st_size > 10_000
 
 
