@@ -358,5 +358,9 @@ def write_mouthpiece_wav(path, p: np.ndarray, u: np.ndarray, fs: float) -> None:
     """
     import soundfile as sf
 
-    data = np.column_stack([p / WAV_PRESSURE_SCALE_PA, u / WAV_FLOW_SCALE_M3_S])
-    sf.write(path, data.astype(np.float32), int(round(fs)), subtype="FLOAT", format="WAV")
+    with sf.SoundFile(path, "w", int(round(fs)), 2, subtype="FLOAT", format="WAV") as f:
+        for a in range(0, p.size, 2**18):  # in blocks: memory does not grow with the take
+            block = np.empty((min(2**18, p.size - a), 2), dtype=np.float32)
+            block[:, 0] = p[a : a + block.shape[0]] / WAV_PRESSURE_SCALE_PA
+            block[:, 1] = u[a : a + block.shape[0]] / WAV_FLOW_SCALE_M3_S
+            f.write(block)
