@@ -124,11 +124,11 @@ def main(argv: list[str] | None = None) -> int:
         if exc.errno not in _WRITE_ERRORS:
             raise
         where = f"{exc.filename}: " if exc.filename else ""
-        print(
-            f"mpipe {args.command}: error: {where}cannot write: {exc.strerror or exc}; "
-            "no file was left half-written",
-            file=sys.stderr,
-        )
+        if exc.errno == errno.EACCES:
+            what = "permission denied"
+        else:
+            what = f"cannot write: {exc.strerror or exc}; no file was left half-written"
+        print(f"mpipe {args.command}: error: {where}{what}", file=sys.stderr)
         return 2
 
 

@@ -77,6 +77,10 @@ def design_lowpass(
     return LowPass(taps=taps, fs=float(fs), cutoff_hz=float(cutoff_hz))
 
 
+#: Samples per block of :func:`apply_lowpass`.
+_LOWPASS_BLOCK = 2**18
+
+
 def apply_lowpass(x: np.ndarray, lp: LowPass, axis: int = -1) -> np.ndarray:
     """Filter with ``lp`` and remove its delay, so the output is aligned with the input.
 
@@ -97,10 +101,19 @@ def apply_lowpass(x: np.ndarray, lp: LowPass, axis: int = -1) -> np.ndarray:
     ndarray
         Same shape as ``x``.
     """
-    x = np.asarray(x, dtype=float)
-    d = lp.delay
-    padded = np.pad(np.moveaxis(x, axis, -1), [(0, 0)] * (x.ndim - 1) + [(d, d)], mode="edge")
-    y = signal.fftconvolve(padded, lp.taps.reshape((1,) * (x.ndim - 1) + (-1,)), mode="valid")
+    x = np.moveaxis(np.asarray(x, dtype=float), axis, -1)
+    d, n = lp.delay, x.shape[-1]
+    taps = lp.taps.reshape((1,) * (x.ndim - 1) + (-1,))
+    y = np.empty_like(x)
+    # in blocks of _LOWPASS_BLOCK samples (memory bounded by the block, not the signal),
+    # each convolved with d samples of context on either side
+    for a in range(0, n, _LOWPASS_BLOCK):
+        b = min(a + _LOWPASS_BLOCK, n)
+        seg = x[..., max(a - d, 0) : min(b + d, n)]
+        before, after = max(d - a, 0), max(b + d - n, 0)
+        if before or after:
+            seg = np.pad(seg, [(0, 0)] * (x.ndim - 1) + [(before, after)], mode="edge")
+        y[..., a:b] = signal.oaconvolve(seg, taps, mode="valid", axes=-1)
     return np.moveaxis(y, -1, axis)
 
 

@@ -4,14 +4,19 @@
 chain of transfer matrices of the bore segments between the mouthpiece entry and the
 reference plane, evaluated with the air at the effective temperature that the wave
 separation found. The elements of ``T`` contain ``exp(+Gamma L)``, a time *advance* of
-L/c, and the transform also has long low-frequency tails, so the whole take is processed
-with one long FFT zero-padded by more than 2L/c at both ends (never short circular blocks).
+L/c, and the transform also has long low-frequency tails, so the take is processed in
+long FFT blocks (at least 2^17 samples) by overlap-save: each block carries ``pad`` (more
+than 2L/c, 50 ms by default) of context on each side, the signal's own samples inside the
+take and zeros beyond its ends, as one long zero-padded FFT has them; only the block's
+centre is kept. Memory is then bounded by the block, not the take, and every output sample
+sees the same context as in one FFT of the whole take (never short circular blocks).
 The result is then low-passed with the linear-phase FIR of physics.md F.2, delay
 compensated, identical for P and U.
 
 A temperature that drifts over the take is handled without seams: the translation is
 computed for a few node temperatures (at most ``temperature_step_c`` apart), each over the
-whole take, and the outputs are interpolated linearly in temperature sample by sample.
+blocks whose temperatures it brackets, and the outputs are interpolated linearly in
+temperature sample by sample.
 Since the translation is linear in the signals and smooth in temperature, this equals
 translating with the local temperature up to a second-order interpolation error.
 
@@ -128,6 +133,32 @@ def _nodes(temps: np.ndarray, step: float) -> np.ndarray:
     return np.linspace(lo, hi, int(np.ceil((hi - lo) / step)) + 1)
 
 
+#: Shortest FFT block of the translation, samples (at least 4 contexts long, so that at
+#: most half of each FFT is context), and the context on each side of a block, in pads.
+_MIN_BLOCK = 2**17
+_CONTEXT = 4
+
+
+def _block_spectra(p0: np.ndarray, u0: np.ndarray, a: int, b: int, pad: int, nfft: int):
+    """Spectra of samples ``a..b`` of p0, u0 with ``pad`` samples of context on each side.
+
+    Outside the take the context is zero, as the one long zero-padded FFT had it.
+    """
+    buf = np.zeros((2, nfft))
+    lo, hi = max(a - pad, 0), min(b + pad, p0.size)
+    buf[0, lo - (a - pad) : hi - (a - pad)] = p0[lo:hi]
+    buf[1, lo - (a - pad) : hi - (a - pad)] = u0[lo:hi]
+    return np.fft.rfft(buf, axis=1)
+
+
+def _node_weight(temps: np.ndarray, nodes: np.ndarray, k: int) -> np.ndarray:
+    """Weight of node ``k`` at each sample: the hat function of linear interpolation."""
+    if nodes.size == 1:
+        return np.ones(temps.size)
+    step = nodes[1] - nodes[0]
+    return np.clip(1.0 - np.abs(temps - nodes[k]) / step, 0.0, 1.0)
+
+
 def translate(
     p0: np.ndarray,
     u0: np.ndarray,
@@ -183,41 +214,39 @@ def translate(
     # The transfer matrix advances by L/c and has dispersive tails on both sides; four
     # times the length over c leaves margin beyond the 2L/c of physics.md F.1.
     pad = int(np.ceil(max(config.pad_s, 4 * calibration.reference_plane / c_min) * fs))
-    nfft = sfft.next_fast_len(n + 2 * pad, real=True)
+    # Each block carries _CONTEXT pads of the take on each side: the transform's
+    # low-frequency tails outlast the pad that guards the take's ends.
+    context = _CONTEXT * pad
+    nfft = sfft.next_fast_len(max(4 * context, _MIN_BLOCK), real=True)
     freqs = np.fft.rfftfreq(nfft, 1 / fs)
     # Above the FIR's stop-band edge the output is discarded by the low-pass anyway, so the
     # transfer matrices are evaluated only below it (the Bessel functions dominate the cost).
     band = freqs <= min(fs / 2, config.lowpass_hz + config.transition_hz)
-    buf = np.zeros((2, nfft))
-    buf[0, pad : pad + n] = p0
-    buf[1, pad : pad + n] = u0
-    spec_ = np.fft.rfft(buf, axis=1)[:, band]
-
     nodes = _nodes(temps, config.temperature_step_c)
     log.info(
-        "translation: %.4f m to the mouthpiece at %s degC, FFT of %d samples",
+        "translation: %.4f m to the mouthpiece at %s degC, FFT blocks of %d samples",
         calibration.reference_plane,
         f"{nodes[0]:.2f}" if nodes.size == 1 else f"{nodes[0]:.2f}..{nodes[-1]:.2f}",
         nfft,
     )
-    p = np.zeros(n)
-    u = np.zeros(n)
-    for t_node in nodes:
-        t = reference_to_mouthpiece(freqs[band], calibration, float(t_node))
-        out = np.zeros((2, freqs.size), dtype=complex)
-        out[0, band] = t[:, 0, 0] * spec_[0] + t[:, 0, 1] * spec_[1]
-        out[1, band] = t[:, 1, 0] * spec_[0] + t[:, 1, 1] * spec_[1]
-        # DC must stay real; U at DC follows from U0 = 0 there (unmeasurable, E.4).
-        out[:, 0] = out[:, 0].real
-        y = np.fft.irfft(out, nfft, axis=1)[:, pad : pad + n]
-        if nodes.size == 1:
-            weight = np.ones(n)
-        else:
-            # hat function of temperature around this node: linear interpolation
-            step = nodes[1] - nodes[0]
-            weight = np.clip(1.0 - np.abs(temps - t_node) / step, 0.0, 1.0)
-        p += weight * y[0]
-        u += weight * y[1]
+    matrices = [reference_to_mouthpiece(freqs[band], calibration, float(t)) for t in nodes]
+    p, u = np.zeros(n), np.zeros(n)
+    hop = nfft - 2 * context
+    for a in range(0, n, hop):
+        b = min(a + hop, n)
+        spec_ = _block_spectra(p0, u0, a, b, context, nfft)[:, band]
+        for k, t in enumerate(matrices):
+            weight = _node_weight(temps[a:b], nodes, k)
+            if not np.any(weight):
+                continue
+            out = np.zeros((2, freqs.size), dtype=complex)
+            out[0, band] = t[:, 0, 0] * spec_[0] + t[:, 0, 1] * spec_[1]
+            out[1, band] = t[:, 1, 0] * spec_[0] + t[:, 1, 1] * spec_[1]
+            # DC must stay real; U at DC follows from U0 = 0 there (unmeasurable, E.4).
+            out[:, 0] = out[:, 0].real
+            y = np.fft.irfft(out, nfft, axis=1)[:, context : context + b - a]
+            p[a:b] += weight * y[0]
+            u[a:b] += weight * y[1]
     return TranslationResult(
         fs=float(fs),
         p=apply_lowpass(p, lp),
@@ -329,5 +358,9 @@ def write_mouthpiece_wav(path, p: np.ndarray, u: np.ndarray, fs: float) -> None:
     """
     import soundfile as sf
 
-    data = np.column_stack([p / WAV_PRESSURE_SCALE_PA, u / WAV_FLOW_SCALE_M3_S])
-    sf.write(path, data.astype(np.float32), int(round(fs)), subtype="FLOAT", format="WAV")
+    with sf.SoundFile(path, "w", int(round(fs)), 2, subtype="FLOAT", format="WAV") as f:
+        for a in range(0, p.size, 2**18):  # in blocks: memory does not grow with the take
+            block = np.empty((min(2**18, p.size - a), 2), dtype=np.float32)
+            block[:, 0] = p[a : a + block.shape[0]] / WAV_PRESSURE_SCALE_PA
+            block[:, 1] = u[a : a + block.shape[0]] / WAV_FLOW_SCALE_M3_S
+            f.write(block)

@@ -141,14 +141,49 @@ def measured_impedance(
     coherence : ndarray
         Squared coherence (dimensionless).
     """
-    kw = {"fs": fs, "nperseg": nperseg, "window": "hann", "detrend": "constant"}
-    freqs, s_uu = signal.welch(u, **kw)
-    _, s_pp = signal.welch(p, **kw)
-    # scipy's csd(x, y) is E[conj(X) Y]: S_UP with U first.
-    _, s_up = signal.csd(u, p, **kw)
+    freqs, s_uu, s_pp, s_up = welch_spectra(p, u, fs, nperseg)
     z = s_up / np.maximum(s_uu, 1e-300)
     coh = np.abs(s_up) ** 2 / np.maximum(s_uu * s_pp, 1e-300)
     return freqs, z, coh
+
+
+#: Welch segments averaged per chunk by :func:`welch_spectra` (memory bounded by the chunk).
+_SEGMENTS_PER_CHUNK = 256
+
+
+def welch_spectra(
+    p: np.ndarray, u: np.ndarray, fs: float, nperseg: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Welch spectra ``S_UU``, ``S_PP`` and ``S_UP = E[conj(U) P]`` (Hann, 50 % overlap).
+
+    The same numbers as ``scipy.signal.welch`` and ``csd`` over the whole signals (mean of
+    the periodograms of every full segment), computed chunk by chunk of
+    ``_SEGMENTS_PER_CHUNK`` segments so that memory does not grow with the take.
+
+    Returns
+    -------
+    freqs : ndarray
+        Hz.
+    s_uu, s_pp, s_up : ndarray
+        One-sided (cross) spectral densities, (m^3/s)^2/Hz, Pa^2/Hz and Pa m^3/s/Hz.
+    """
+    kw = {"fs": fs, "nperseg": nperseg, "window": "hann", "detrend": "constant"}
+    hop = nperseg - nperseg // 2
+    n_seg = max((p.size - nperseg) // hop + 1, 1)
+    sums, count, freqs = None, 0, None
+    for first in range(0, n_seg, _SEGMENTS_PER_CHUNK):
+        k = min(_SEGMENTS_PER_CHUNK, n_seg - first)
+        a = first * hop
+        b = a + (k - 1) * hop + nperseg
+        freqs, s_uu = signal.welch(u[a:b], **kw)
+        _, s_pp = signal.welch(p[a:b], **kw)
+        # scipy's csd(x, y) is E[conj(X) Y]: S_UP with U first.
+        _, s_up = signal.csd(u[a:b], p[a:b], **kw)
+        part = [k * s_uu, k * s_pp, k * s_up]
+        sums = part if sums is None else [x + y for x, y in zip(sums, part, strict=True)]
+        count += k
+    assert sums is not None and freqs is not None
+    return freqs, sums[0] / count, sums[1] / count, sums[2] / count
 
 
 def _f0(p: np.ndarray, fs: float, freqs: np.ndarray, s_uu: np.ndarray) -> float:
@@ -297,9 +332,9 @@ def _measured(
     p: np.ndarray, u: np.ndarray, fs: float, nperseg: int, z0: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Frequencies (DC excluded), ``z = Z / z0``, coherence and the spectra of P and U."""
-    freqs, z_abs, coh = measured_impedance(p, u, fs, nperseg)
-    _, s_pp = signal.welch(p, fs=fs, nperseg=nperseg)
-    _, s_uu = signal.welch(u, fs=fs, nperseg=nperseg)
+    freqs, s_uu, s_pp, s_up = welch_spectra(p, u, fs, nperseg)
+    z_abs = s_up / np.maximum(s_uu, 1e-300)
+    coh = np.abs(s_up) ** 2 / np.maximum(s_uu * s_pp, 1e-300)
     keep = freqs > 0
     freqs, z_abs, coh, s_pp, s_uu = freqs[keep], z_abs[keep], coh[keep], s_pp[keep], s_uu[keep]
     return freqs, z_abs / z0, coh, s_pp, s_uu

@@ -120,3 +120,22 @@ def test_translation_of_every_length_and_rate(duration_s, fs, extra):
     a, b = np.linalg.lstsq(basis, res.p[inner], rcond=None)[0]
     got = a + 1j * b
     assert abs(got - want_p) < 0.01 * abs(want_p)
+
+
+def test_a_take_of_several_blocks_has_no_seams():
+    # Issue 19: the translation runs in FFT blocks (bounded memory); over a 4 s take (four
+    # blocks) a sine comes out as the transfer matrix at its frequency says at every sample
+    # away from the ends, the block seams included
+    from mpipe.measurement.translation import reference_to_mouthpiece
+
+    fs, f = 100_000.0, 310.0
+    t = np.arange(400_000) / fs
+    z0 = CAL.air_properties(20.0).impedance(np.pi * CAL.main_radius**2)
+    res = translate(
+        np.cos(2 * np.pi * f * t), np.cos(2 * np.pi * f * t + 0.3) / z0, fs, CAL,
+        TranslationConfig(), 20.0,
+    )  # fmt: skip
+    m = reference_to_mouthpiece(np.array([f]), CAL, 20.0)[0]
+    want = np.real((m[0, 0] + m[0, 1] * np.exp(0.3j) / z0) * np.exp(2j * np.pi * f * t))
+    inner = slice(10_000, -10_000)
+    assert np.max(np.abs(res.p - want)[inner]) < 2e-3 * np.max(np.abs(want))

@@ -178,3 +178,21 @@ def test_played_note_f0_is_not_its_octave_or_twelfth(factor, tmp_path):
         assert np.all(np.abs(compared - np.round(compared / f0) * f0) <= 0.51 * bin_hz)
     plot_impedance(res, tmp_path / "z.png", 2000.0)  # the measured points at the harmonics
     assert (tmp_path / "z.png").stat().st_size > 1000
+
+
+@pytest.mark.parametrize("n", [300, 256 * 64 + 31, 3 * 256 * 64 + 100])
+def test_chunked_welch_spectra_equal_the_whole_signal_ones(n):
+    # Issue 19: the spectra are averaged chunk by chunk (bounded memory); the second method
+    # is scipy's Welch and CSD over the whole signals
+    from scipy import signal
+
+    from mpipe.measurement.validation import welch_spectra
+
+    rng = np.random.default_rng(n)
+    p, u = rng.normal(size=n), rng.normal(size=n) + 0.3
+    kw = {"fs": FS, "nperseg": 128}
+    f, s_uu, s_pp, s_up = welch_spectra(p, u, FS, 128)
+    np.testing.assert_allclose(s_uu, signal.welch(u, **kw)[1], rtol=1e-10)
+    np.testing.assert_allclose(s_pp, signal.welch(p, **kw)[1], rtol=1e-10)
+    np.testing.assert_allclose(s_up, signal.csd(u, p, **kw)[1], rtol=1e-10, atol=1e-18)
+    assert f.size == 65

@@ -135,18 +135,20 @@ def _run(args: argparse.Namespace) -> int:
                 f"--fixed-mach: expected a value in [-0.05, 0.1], got {args.fixed_mach}"
             )
         sep_cfg = dataclasses.replace(sep_cfg, mach=args.fixed_mach)
+    fs = take.fs
     try:
         log.info("stage 1/3: wave separation")
-        sep = separate(take.pressures, take.fs, cal, sep_cfg, take.band_limit_hz)
+        sep = separate(take.pressures, fs, cal, sep_cfg, take.band_limit_hz)
+        del take  # the microphone pressures are not needed past the separation (memory)
         log.info("stage 2/3: translation to the mouthpiece entry")
-        tr = translate(sep.p0, sep.u0, take.fs, cal, tr_cfg, sep.temperature_track())
+        tr = translate(sep.p0, sep.u0, fs, cal, tr_cfg, sep.temperature_track())
         log.info("stage 3/3: impedance validation")
         t_eff = take_temperature(tr.temperature_c, cal)
-        val = validate(tr.p, tr.u, take.fs, cal, val_cfg, t_eff)
-        noise = mouthpiece_noise(take.fs, cal, sep.noise_psd, sep.median_theta(), t_eff, sep_cfg)
+        val = validate(tr.p, tr.u, fs, cal, val_cfg, t_eff)
+        noise = mouthpiece_noise(fs, cal, sep.noise_psd, sep.median_theta(), t_eff, sep_cfg)
     except ValueError as exc:
         raise UserError(f"{takes[0]}: {exc}") from None
-    _write_outputs(out, take.fs, sep, tr, val, noise)
+    _write_outputs(out, fs, sep, tr, val, noise)
     return _print_summary(sep, val, paths)
 
 
