@@ -57,10 +57,13 @@ def run_takes(
     """Run every take; yield ``(take paths, TakeRun or the error that ended it, wall s)``.
 
     One take, or one worker: one take after the other, as :func:`run_take` (its windows
-    spread over the workers or the cluster). Several: whole takes side by side, yielded in
-    the order they finish, each take's stage lines said when it finishes.
+    spread over the workers or the cluster), and takes of one name (one output folder).
+    Several: whole takes side by side, yielded in the order they finish, each take's stage
+    lines said when it finishes.
     """
     n = batch_workers(cfg, len(takes), client)
+    if len({take_name(t) for t in takes}) < len(takes):
+        n = 1  # two takes of one name write one folder: one after the other, as before
     if n < 2:
         for t in takes:
             t0 = time.perf_counter()
