@@ -11,6 +11,7 @@ back instead of recomputed.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -218,11 +219,45 @@ def _track_dask(job, groups, warm, executor, client, update):
     if own:
         client = connect(executor.scheduler)
     try:
-        parts = gather_in_order(client, job, groups, warm, update)
-        return [r for part in parts for r in part]
+        if job.checkpoint is None:
+            parts = gather_in_order(client, job, groups, warm, update)
+            return [r for part in parts for r in part]
+        return _dask_checkpointed(client, job, groups, warm, update)
     finally:
         if own:
             client.close()
+
+
+def _dask_checkpointed(client, job: Job, groups, warm, update) -> list:
+    """:func:`gather_in_order` with the checkpoint folder kept by this process.
+
+    Windows saved there are read back here; the others run on the cluster without a
+    checkpoint folder and are saved here as their group arrives: the workers need not see
+    this process's file system.
+    """
+    items = [item for g in groups for item in g]
+    results: list = [None] * len(items)
+    todo = []
+    for i, (s, previous) in enumerate(items):
+        saved = load_checkpoint(job.checkpoint, s)
+        if saved is not None and (previous is None or saved[0].get("retried_cold")):
+            results[i] = saved
+        else:
+            todo.append(i)
+    if update is not None and len(todo) < len(items):
+        update(len(items) - len(todo))
+    chunks = split_chains(todo, len(groups)) if todo else []
+
+    def keep(k: int, part: list) -> None:
+        for i, (row, hist) in zip(chunks[k], part, strict=True):
+            save_checkpoint(job.checkpoint, items[i][0], row, hist)
+            results[i] = (row, hist)
+
+    if chunks:
+        remote = dataclasses.replace(job, checkpoint=None)
+        groups = [[items[i] for i in c] for c in chunks]
+        gather_in_order(client, remote, groups, warm, update, keep)
+    return results
 
 
 def connect(scheduler: str, timeout_s: float | None = None):
@@ -286,7 +321,7 @@ def _mpipe_version() -> str:
     return __version__
 
 
-def gather_in_order(client, job: Job, groups, warm, update=None) -> list:
+def gather_in_order(client, job: Job, groups, warm, update=None, done=None) -> list:
     """Run each group of windows as one Dask task; the groups' results in their order.
 
     The take's shared data are scattered to every worker under a key of their own
@@ -309,6 +344,8 @@ def gather_in_order(client, job: Job, groups, warm, update=None) -> list:
         The start of every window.
     update : callable, optional
         Called with the number of windows of each finished group.
+    done : callable, optional
+        Called with the index of each finished group and its results, as they arrive.
 
     Returns
     -------
@@ -337,6 +374,8 @@ def gather_in_order(client, job: Job, groups, warm, update=None) -> list:
                 lost.append(futures[f])
                 reason = exc
                 continue
+            if done is not None:
+                done(futures[f], parts[futures[f]])
             if update is not None:
                 update(len(groups[futures[f]]))
         del job_f, futures  # released only now: every task that needs the data has finished

@@ -60,11 +60,14 @@ def run_takes(
     ``names`` are the takes' folders under ``out`` (default: :func:`take_name` of each).
 
     One take, or one worker: one take after the other, as :func:`run_take` (its windows
-    spread over the workers or the cluster). Several: whole takes side by side, yielded in
-    the order they finish, each take's stage lines said when it finishes.
+    spread over the workers or the cluster), and takes of one name (one output folder).
+    Several: whole takes side by side, yielded in the order they finish, each take's stage
+    lines said when it finishes.
     """
     names = [take_name(t) for t in takes] if names is None else list(names)
     n = batch_workers(cfg, len(takes), client)
+    if len({take_name(t) for t in takes}) < len(takes):
+        n = 1  # two takes of one name write one folder: one after the other, as before
     if n < 2:
         for t, name in zip(takes, names, strict=True):
             t0 = time.perf_counter()
@@ -136,36 +139,31 @@ class _NotATerminal:
 def _on_processes(n: int, takes, args, say):
     from concurrent.futures import as_completed
 
-    from mpipe.core.progress import ProgressBar
     from mpipe.core.workers import process_pool
 
-    bar = ProgressBar(len(takes), desc="takes")
-    try:
-        with process_pool(n) as pool:
-            futures = {pool.submit(_take_task, t, *args): i for i, t in enumerate(takes)}
-            for f in as_completed(futures):
-                result, lines, wall = f.result()
-                for line in lines:
-                    say(line)
-                bar.update()
-                yield futures[f], result, wall
-    finally:
-        bar.close()
+    with process_pool(n) as pool:
+        futures = {pool.submit(_take_task, t, *args): i for i, t in enumerate(takes)}
+        yield from _as_they_end(futures, as_completed(futures), say)
 
 
 def _on_dask(client, takes, args, say):
     from distributed import as_completed
 
+    check_shared_files(client, takes, args[1], args[2])
+    futures = {
+        client.submit(_take_task, t, *args, pure=False, retries=1): i
+        for i, t in enumerate(takes)
+    }  # fmt: skip
+    yield from _as_they_end(futures, as_completed(list(futures), loop=client.loop), say)
+
+
+def _as_they_end(futures: dict, completed, say):
+    """Yield ``(take index, result, wall s)`` as takes end; one bar over the takes."""
     from mpipe.core.progress import ProgressBar
 
-    check_shared_files(client, takes, args[1], args[2])
-    bar = ProgressBar(len(takes), desc="takes")
+    bar = ProgressBar(len(futures), desc="takes", unit="take")
     try:
-        futures = {
-            client.submit(_take_task, t, *args, pure=False, retries=1): i
-            for i, t in enumerate(takes)
-        }  # fmt: skip
-        for f in as_completed(list(futures), loop=client.loop):
+        for f in completed:
             result, lines, wall = f.result()
             for line in lines:
                 say(line)

@@ -143,3 +143,26 @@ def test_an_unreachable_scheduler_is_one_line_before_any_work(tmp_path, monkeypa
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and address in err[0] and "cannot reach" in err[0], err
     assert not list((tmp_path / "out").rglob("*.*"))  # no work done, not even a lock
+
+
+def test_on_dask_this_process_keeps_the_checkpoints(take, cluster, tmp_path):
+    # the workers get no checkpoint folder (they need not see this file system): the
+    # windows are saved here as they arrive, and read back here when the run resumes
+    import json
+
+    client, address, _ = cluster
+    dask_cfg = ExecutorConfig(kind="dask", scheduler=address, chunks=4)
+    ckpt = tmp_path / "windows.d"
+    first = _track(take, dask_cfg, client=client, checkpoint=ckpt, end_s=0.40)
+    files = sorted(ckpt.glob("w*.json"))
+    assert len(files) == len(first.table) == 7
+    # a saved window is read back, not recomputed: a mark put in its file comes back
+    record = json.loads(files[3].read_text())
+    record["row"]["n_evaluations"] = 12345
+    files[3].write_text(json.dumps(record))
+    files[5].unlink()  # lost with an interruption: recomputed
+    again = _track(take, dask_cfg, client=client, checkpoint=ckpt, end_s=0.40)
+    assert again.table["n_evaluations"].iloc[3] == 12345
+    same = [c for c in SAME if c != "n_evaluations"]
+    pd.testing.assert_frame_equal(first.table[same], again.table[same])
+    assert len(list(ckpt.glob("w*.json"))) == 7
