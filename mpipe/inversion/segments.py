@@ -341,26 +341,6 @@ def reed_openings(table: pd.DataFrame, p: np.ndarray, fs: float) -> tuple[pd.Dat
     ), h_all
 
 
-def segment_lines(summary: pd.DataFrame) -> list[str]:
-    """One console line per note: when, what was played, ok windows, medians +- SE."""
-    lines = []
-    for _, r in note_segments(summary).iterrows():
-        parts = []
-        for name, unit in (("p_m", " Pa"), ("p_M", " Pa"), ("gamma", ""), ("zeta", "")):
-            med, se = r.get(f"{name}_median", math.nan), r.get(f"{name}_median_se", math.nan)
-            if np.isfinite(med):
-                parts.append(f"{name} {med:.4g}" + (f" +- {se:.2g}" if np.isfinite(se) else "")
-                             + unit)  # fmt: skip
-        what = ", ".join(x for x in (str(r.get("note") or ""), str(r.get("regime") or "")) if x)
-        lines.append(
-            f"note {int(r['segment'])} at {r['start_s']:.3f} s ({r['duration_s']:.2f} s"
-            f"{', ' + what if what else ''}, {r['spl_db']:.0f} dB SPL): "
-            f"{int(r.get('ok_windows', 0))} of {int(r.get('windows', 0))} windows ok"
-            + (": " + ", ".join(parts) if parts else "")
-        )
-    return lines
-
-
 def pick_windows(starts: Sequence[int], count: int) -> list[int]:
     """``count`` window starts spread evenly over ``starts`` (all of them when fewer)."""
     starts = list(starts)
@@ -413,22 +393,6 @@ def pick_by_segment(
         chosen += [(s, g) for s in pick_windows(pool, quota)]
     chosen.sort()
     return [s for s, _ in chosen], [g for _, g in chosen]
-
-
-def why_no_window(plan: pd.DataFrame, min_rms_pa: float) -> str:
-    """Why no window of a plan is inverted, with a hint when the take reads as silent."""
-    reasons = plan["reason"].fillna("").astype(str).value_counts()
-    why = ", ".join(f"{n} {r or 'steady'}" for r, n in reasons.items())
-    hint = (
-        f"; silent means below conditioning.min_rms_pa = {min_rms_pa:g} Pa: check the "
-        "microphones' sensitivity (Pa per unit) in the calibration"
-        if "silent" in reasons
-        else ""
-    )
-    return (
-        f"no sounding window to invert ({len(plan)} windows: {why}{hint}; "
-        "see conditioning/plan.csv)"
-    )
 
 
 def plot_segments(segments: pd.DataFrame, tracks: dict, path, a4_hz: float = 440.0):
@@ -493,12 +457,10 @@ __all__ = [
     "pick_windows",
     "plot_segments",
     "reed_openings",
-    "segment_lines",
     "segment_summary",
     "segment_take",
     "sounding_runs",
     "spl_db",
-    "why_no_window",
     "window_count",
     "with_played",
 ]

@@ -23,10 +23,11 @@ sanity checks. Otherwise, in order of precedence:
     probably sits in another local minimum or the window is not steady. For a window softer
     than the best one (an attack, a release, a diminuendo) the take's best is taken at the
     noise floor: its smallest residual in Pa (``f2``) over the window's own ||p||, when that
-    is larger, so a window is not flagged for being soft. A window is high-residual too when
-    its relative residual exceeds ``residual_limit`` whatever the take's best: the model
-    does not play what was played (a whole take in a wrong basin has no better window to
-    compare with).
+    is larger (at most ``residual_factor`` times the best), so a window is not flagged for
+    being soft, while one that holds little but noise still is. A window is high-residual
+    too when its relative residual exceeds ``residual_limit`` whatever the take's best: the
+    model does not play what was played (a whole take in a wrong basin has no better window
+    to compare with).
 
 ``status_reason`` lists every check that failed, so a window can be both not converged and
 at a bound.
@@ -196,6 +197,9 @@ def classify(table: pd.DataFrame, config: InversionConfig) -> pd.DataFrame:
         np.maximum(best, (floor.min() if floor.size else 0.0) / norm_p),
         best,
     )
+    # at most residual_factor x the best: a window so soft that noise is all it holds
+    # (the first periods of an attack) determines nothing and is not ok
+    allowed = np.minimum(allowed, config.residual_factor * best)
     for i, value in enumerate(rr):
         if status[i] == "failed":
             continue

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 from pathlib import Path
 
 import numpy as np
@@ -182,12 +183,52 @@ def write_correlations(
     )
 
 
+def segment_lines(summary: pd.DataFrame) -> list[str]:
+    """One console line per note: when, what was played, ok windows, medians +- SE."""
+    lines = []
+    from mpipe.inversion.segments import note_segments
+
+    for _, r in note_segments(summary).iterrows():
+        parts = []
+        for name, unit in (("p_m", " Pa"), ("p_M", " Pa"), ("gamma", ""), ("zeta", "")):
+            med, se = r.get(f"{name}_median", math.nan), r.get(f"{name}_median_se", math.nan)
+            if np.isfinite(med):
+                parts.append(f"{name} {med:.4g}" + (f" +- {se:.2g}" if np.isfinite(se) else "")
+                             + unit)  # fmt: skip
+        what = ", ".join(x for x in (str(r.get("note") or ""), str(r.get("regime") or "")) if x)
+        lines.append(
+            f"note {int(r['segment'])} at {r['start_s']:.3f} s ({r['duration_s']:.2f} s"
+            f"{', ' + what if what else ''}, {r['spl_db']:.0f} dB SPL): "
+            f"{int(r.get('ok_windows', 0))} of {int(r.get('windows', 0))} windows ok"
+            + (": " + ", ".join(parts) if parts else "")
+        )
+    return lines
+
+
+def why_no_window(plan: pd.DataFrame, min_rms_pa: float) -> str:
+    """Why no window of a plan is inverted, with a hint when the take reads as silent."""
+    reasons = plan["reason"].fillna("").astype(str).value_counts()
+    why = ", ".join(f"{n} {r or 'steady'}" for r, n in reasons.items())
+    hint = (
+        f"; silent means below conditioning.min_rms_pa = {min_rms_pa:g} Pa: check the "
+        "microphones' sensitivity (Pa per unit) in the calibration"
+        if "silent" in reasons
+        else ""
+    )
+    return (
+        f"no sounding window to invert ({len(plan)} windows: {why}{hint}; "
+        "see conditioning/plan.csv)"
+    )
+
+
 __all__ = [
     "COLUMNS",
     "blank_row",
     "histories_and_correlations",
     "load_checkpoint",
     "save_checkpoint",
+    "segment_lines",
+    "why_no_window",
     "window_table",
     "write_correlations",
     "write_table",

@@ -244,15 +244,10 @@ def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig)
 
 def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: PipelineConfig, client):
     from mpipe.inversion import resynthesis as rs
-    from mpipe.inversion.segments import (
-        segment_lines,
-        segment_summary,
-        why_no_window,
-        with_played,
-    )
+    from mpipe.inversion.segments import segment_summary, with_played
     from mpipe.inversion.status import count as count_status
     from mpipe.inversion.status import summary_line
-    from mpipe.inversion.tables import write_correlations, write_table
+    from mpipe.inversion.tables import segment_lines, why_no_window, write_correlations, write_table
     from mpipe.inversion.take import invert_take
     from mpipe.inversion.tracking import ProgressBar
 

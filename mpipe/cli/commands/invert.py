@@ -236,8 +236,8 @@ def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
 def _write_results(out: Path, plan, result, p, u, fs: float, kernel, air, inv) -> None:
     """Tables, the resynthesis (plots and WAV) and the parameter tracks into ``out``."""
     from mpipe.inversion import resynthesis as rs
-    from mpipe.inversion.segments import segment_lines, segment_summary, with_played
-    from mpipe.inversion.tables import write_correlations, write_table
+    from mpipe.inversion.segments import segment_summary, with_played
+    from mpipe.inversion.tables import segment_lines, write_correlations, write_table
 
     plan, segments = plan
     table = with_played(result.table, plan)
