@@ -13,6 +13,7 @@ from typing import Literal
 
 from mpipe.core.config import Where, between, positive, spec
 from mpipe.core.filters import LowPass, design_lowpass
+from mpipe.inversion.conditioning_settings import ConditioningConfig as ConditioningConfig
 from mpipe.measurement.translation import TranslationConfig
 
 #: Reed parameters that step 2 may optimise (physics.md I); y_c and alpha stay fixed.
@@ -440,92 +441,6 @@ class ExecutorConfig:
     def _check(self, where: Where) -> None:
         if self.kind == "dask" and not self.scheduler:
             raise where.error("scheduler", "executor kind 'dask' needs a scheduler address")
-
-
-@dataclass(frozen=True)
-class ConditioningConfig:
-    """Segments of a take (notes, silences) and the windows that are inverted (docs/playing.md)."""
-
-    steady_tolerance: float = spec(
-        "",
-        "largest relative change of the playing period and of the RMS pressure from one "
-        "window to the next for a window to count as steady",
-        between(0.0, 1.0),
-        default=0.02,
-    )
-    f0_min_hz: float = spec(
-        "Hz", "lowest playing frequency searched", between(20.0, 5000.0), default=60.0
-    )
-    f0_max_hz: float = spec(
-        "Hz", "highest playing frequency searched", between(20.0, 5000.0), default=2000.0
-    )
-    min_rms_pa: float = spec("Pa", "windows quieter than this are silent", positive, default=50.0)
-    edge_s: float = spec(
-        "s",
-        "time left out at both ends of the take (filter edges)",
-        between(0.0, 10.0),
-        default=0.05,
-    )
-    invert_transients: bool = spec(
-        "",
-        "with select: steady, invert the unsteady sounding windows too",
-        default=False,
-    )
-    select: Literal["sounding", "steady"] = spec(
-        "",
-        "windows inverted: every sounding window of a note after its first periods "
-        "(sounding), or the paper's steady windows only (steady)",
-        default="sounding",
-    )
-    silence_db: float = spec(
-        "dB",
-        "level below the take's loud level (99th percentile of the RMS envelope) that counts "
-        "as silence (min_rms_pa is the absolute floor)",
-        between(3.0, 120.0),
-        default=30.0,
-    )
-    level_frame_s: float = spec(
-        "s", "length of the moving RMS giving the level envelope", between(1e-3, 0.1), default=0.01
-    )
-    frame_hop_s: float = spec(
-        "s", "hop of the level and f0 tracks that place segment boundaries",
-        between(1e-4, 0.05), default=0.005,
-    )  # fmt: skip
-    min_silence_s: float = spec(
-        "s", "shorter silences inside a note do not split it", between(0.0, 1.0), default=0.01
-    )
-    min_note_s: float = spec(
-        "s", "shorter sounding stretches are not notes (nor new regimes)",
-        between(0.0, 1.0), default=0.03,
-    )  # fmt: skip
-    pitch_jump_cents: float = spec(
-        "cent",
-        "an f0 change larger than this within 10 ms of a note starts a new segment (a new "
-        "note played legato, a register change, a squeak)",
-        between(10.0, 2400.0),
-        default=80.0,
-    )
-    onset_periods: float = spec(
-        "",
-        "periods of the playing frequency after a segment's start before windows are inverted",
-        between(0.0, 100.0),
-        default=2.0,
-    )
-    onset_s: float = spec(
-        "s", "windows starting this soon after a note's start are in its onset phase",
-        between(0.0, 10.0), default=0.05,
-    )  # fmt: skip
-    release_s: float = spec(
-        "s", "windows ending this close to a note's end are in its release phase",
-        between(0.0, 10.0), default=0.03,
-    )  # fmt: skip
-    a4_hz: float = spec(
-        "Hz", "reference pitch A4 for pitches in cents", between(300.0, 600.0), default=440.0
-    )
-
-    def _check(self, where: Where) -> None:
-        if self.f0_max_hz <= self.f0_min_hz:
-            raise where.error("f0_max_hz", "expected f0_max_hz > f0_min_hz")
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ from mpipe.inversion.settings import PARAMETER_NAMES
 from mpipe.measurement.calibration import Calibration, load_calibration
 from mpipe.measurement.measured_instrument import bore_description
 from mpipe.pipeline.manifest import PARTIAL, StageRecord, run_stage
+from mpipe.pipeline.report import plot_blocks
 from mpipe.pipeline.settings import PipelineConfig
 
 log = logging.getLogger(__name__)
@@ -78,36 +79,6 @@ def _load_npz(path: Path) -> dict:
         return {k: data[k] for k in data.files}
 
 
-def _plot_blocks(blocks: pd.DataFrame, path: Path, sentence: str = "") -> None:
-    import textwrap
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(8, 6))
-    for ax, col, se_col, label in zip(
-        axes,
-        ("temperature_c", "loss_scale", "mach"),
-        ("temperature_se_c", "loss_scale_se", "mach_se"),
-        ("effective temperature [°C]", "loss scale η [-]", "Mach number [-]"),
-        strict=True,
-    ):
-        t, v, se = blocks["time_s"], blocks[col], blocks[se_col]
-        ax.fill_between(t, v - se, v + se, alpha=0.3, lw=0, label="± 1 standard error")
-        ax.plot(t, v, ".-", lw=1)
-        ax.set_ylabel(label)
-        ax.grid(alpha=0.3)
-    axes[-1].set_xlabel("time [s]")
-    axes[0].legend(loc="best", fontsize=8)
-    title = sentence or "Propagation parameters tracked by the wave separation"
-    axes[0].set_title(textwrap.fill(title, 110), fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110, format="png")
-    plt.close(fig)
-
-
 def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
     from mpipe.measurement.separation.stage import separate
     from mpipe.measurement.takes import read_take
@@ -127,7 +98,7 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
         write_csv(folder / "blocks.csv", sep.blocks)
         track = sep.track
         words = track.sentence("°C", "±") if track is not None else ""
-        write_atomic(folder / "blocks.png", lambda t: _plot_blocks(sep.blocks, t, words))
+        write_atomic(folder / "blocks.png", lambda t: plot_blocks(sep.blocks, t, words))
         b = sep.blocks
         summary = {
             "duration_s": take.pressures.shape[0] / take.fs,

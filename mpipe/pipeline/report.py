@@ -428,4 +428,45 @@ def _run_section(records: dict, take_paths, cal_path, version: str, plan) -> Sec
     )
 
 
-__all__ = ["flag_windows", "overall_verdict", "parameter_summary", "write_take_report"]
+def plot_blocks(blocks: pd.DataFrame, path: Path, sentence: str = "") -> None:
+    """The separation's propagation tracks (T, eta, Mach) with their 1-SE bands, as a PNG.
+
+    ``blocks`` is the separation's ``blocks.csv`` table; ``sentence`` titles the figure
+    (whether the data show a drift).
+    """
+    import textwrap
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(8, 6))
+    for ax, col, se_col, label in zip(
+        axes,
+        ("temperature_c", "loss_scale", "mach"),
+        ("temperature_se_c", "loss_scale_se", "mach_se"),
+        ("effective temperature [°C]", "loss scale η [-]", "Mach number [-]"),
+        strict=True,
+    ):
+        t, v, se = blocks["time_s"], blocks[col], blocks[se_col]
+        ax.fill_between(t, v - se, v + se, alpha=0.3, lw=0, label="± 1 standard error")
+        ax.plot(t, v, ".-", lw=1)
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("time [s]")
+    axes[0].legend(loc="best", fontsize=8)
+    title = sentence or "Propagation parameters tracked by the wave separation"
+    axes[0].set_title(textwrap.fill(title, 110), fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, format="png")
+    plt.close(fig)
+
+
+__all__ = [
+    "flag_windows",
+    "overall_verdict",
+    "parameter_summary",
+    "plot_blocks",
+    "write_take_report",
+]

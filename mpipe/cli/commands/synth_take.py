@@ -52,7 +52,8 @@ def add_parser(sub) -> None:
         "--score",
         metavar="SCORE.yaml",
         help="notes, silences and control curves to play (p_m, y_m, k, ..., vibrato, "
-        "tonguing); examples in examples/scores/",
+        "tonguing); examples in examples/scores/ (default: none, one steady note of "
+        "--duration)",
     )
     p.add_argument(
         "--chunk",
@@ -137,8 +138,8 @@ def _add_player(p) -> None:
         type=float,
         default=None,
         metavar="FRACTION",
-        help="relative rise of the mouth pressure over the take (0.1 = +10 %%; 0); not "
-        "with --score",
+        help="relative rise of the mouth pressure over the take (0.1 = +10 %%; default: 0); "
+        "not with --score",
     )
     p.add_argument(
         "--breath-noise",
@@ -152,8 +153,8 @@ def _add_player(p) -> None:
         type=float,
         default=None,
         metavar="S",
-        help="raised-cosine rise time of the mouth pressure, s (0.01); not with --score "
-        "(each note has its attack)",
+        help="raised-cosine rise time of the mouth pressure, s (default: 0.01); not with "
+        "--score (each note has its attack)",
     )
 
 
