@@ -96,9 +96,14 @@ def prepared(ref: Path, out: Path) -> Path:
 
 
 class Killer(threading.Thread):
-    """Kills (SIGKILL) one worker once it has had windows in flight for ``after_s``."""
+    """Kills (SIGKILL) one worker once it has had windows in flight for ``after_s``.
 
-    def __init__(self, client, after_s: float = 1.0):
+    The windows of a short take spend well under a second on the cluster (the cold start
+    and temperature fit run in the ``mpipe run`` process): by default the first worker
+    seen with windows in flight is killed.
+    """
+
+    def __init__(self, client, after_s: float = 0.0):
         super().__init__(daemon=True)
         self.client, self.after_s = client, after_s
         self.pids = client.run(os.getpid)
@@ -110,7 +115,7 @@ class Killer(threading.Thread):
         since = {}
         while not self.stop.wait(0.05) and self.killed is None:
             for worker, keys in self.client.processing().items():
-                if any("_dask_windows" in str(k) for k in keys):
+                if any("_dask_windows" in str(k) for k in keys):  # windows, not a take
                     since.setdefault(worker, time.perf_counter())
                     if time.perf_counter() - since[worker] > self.after_s:
                         os.kill(self.pids[worker], signal.SIGKILL)
