@@ -58,6 +58,10 @@ UNITS = {
     "h_mean": "m",
     "h_min": "m",
     "closed_fraction": "–",
+    "mic_position_m": "m",
+    "p_noise_psd": "Pa²/Hz",
+    "mic_noise_psd": "Pa²/Hz",
+    "u_noise_psd": "(m³/s)²/Hz",
 }
 
 #: Name suffixes that carry a unit (longest first).
@@ -90,6 +94,8 @@ def unit_of(name: str) -> str:
     """
     if name in UNITS:
         return UNITS[name]
+    if name.startswith(("determined_", "n_")):
+        return ""  # flags and counts (determined_k_c is no temperature)
     if name.endswith("_se") and name[: -len("_se")] in UNITS:
         return UNITS[name[: -len("_se")]]  # a standard error has its quantity's unit
     for stat in ("_median_se", "_window_se", "_median"):  # a segment's summary of a quantity

@@ -188,7 +188,7 @@ def segment_lines(summary: pd.DataFrame) -> list[str]:
     lines = []
     from mpipe.inversion.segments import note_segments
 
-    for _, r in note_segments(summary).iterrows():
+    for number, (_, r) in enumerate(note_segments(summary).iterrows(), start=1):
         parts = []
         for name, unit in (("p_m", " Pa"), ("p_M", " Pa"), ("gamma", ""), ("zeta", "")):
             med, se = r.get(f"{name}_median", math.nan), r.get(f"{name}_median_se", math.nan)
@@ -197,7 +197,8 @@ def segment_lines(summary: pd.DataFrame) -> list[str]:
                              + unit)  # fmt: skip
         what = ", ".join(x for x in (str(r.get("note") or ""), str(r.get("regime") or "")) if x)
         lines.append(
-            f"note {int(r['segment'])} at {r['start_s']:.3f} s ({r['duration_s']:.2f} s"
+            f"note {number} (segment {int(r['segment'])}) at {r['start_s']:.3f} s "
+            f"({r['duration_s']:.2f} s"
             f"{', ' + what if what else ''}, {r['spl_db']:.0f} dB SPL): "
             f"{int(r.get('ok_windows', 0))} of {int(r.get('windows', 0))} windows ok"
             + (": " + ", ".join(parts) if parts else "")

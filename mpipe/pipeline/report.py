@@ -178,17 +178,18 @@ def segment_tables(segments: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     """
     notes = segments[segments["label"] == "note"] if "label" in segments else segments
     played = pd.DataFrame({
+        "note": np.arange(1, len(notes) + 1),
         "segment": notes["segment"].astype(int).to_numpy(),
         "start_s": notes["start_s"].to_numpy(float),
         "duration_s": notes["duration_s"].to_numpy(float),
-        "note": notes["note"].fillna("").astype(str).to_numpy(),
+        "pitch": notes["note"].fillna("").astype(str).to_numpy(),
         "f0_hz": notes["f0_hz"].to_numpy(float),
         "regime": notes["regime"].fillna("").astype(str).to_numpy(),
         "spl_db": notes["spl_db"].to_numpy(float),
         "ok_windows": [f"{int(a)} of {int(b)}" for a, b in zip(notes["ok_windows"],
                                                              notes["windows"], strict=True)],
     })  # fmt: skip
-    params = {"segment": played["segment"]}
+    params = {"note": played["note"], "segment": played["segment"]}
     for name in SEGMENT_QUANTITIES:
         if f"{name}_median" not in notes:
             continue
@@ -245,8 +246,14 @@ def _summary_section(
     if len(notes) > 1:
         summary_text += (
             f"\n\nThe take holds {len(notes)} notes: each has its own result above; a median "
-            "over the whole take would describe none of them and is not given."
+            "over the whole take would describe none of them and is not given (the "
+            "uncertainty table below gives only each quantity's typical standard error of "
+            "one window)."
         )
+        if len(uncertainty):
+            uncertainty = uncertainty.drop(
+                columns=[c for c in ("median", "spread") if c in uncertainty]
+            )
     else:
         summary_tables.append(
             ("Reed parameters over the take (ok windows): median, interquartile spread.", params)

@@ -20,3 +20,10 @@ def test_suffixes_give_the_unit_and_counts_have_none():
 def test_labels_drop_the_suffix_and_show_the_unit():
     assert label("t_start_s") == "t_start [s]" and label("k") == "k [Pa/m]"
     assert label("status") == "status"
+
+
+def test_flags_ending_like_a_temperature_have_no_unit():
+    # determined_k_c ends in "_c" like a temperature, but it is a flag: a new user read "°C"
+    assert unit_of("determined_k_c") == "" and unit_of("determined_y_c") == ""
+    assert unit_of("p_noise_psd") == "Pa²/Hz" and unit_of("u_noise_psd") == "(m³/s)²/Hz"
+    assert unit_of("mic_position_m") == "m"

@@ -76,14 +76,16 @@ class TrackChoice:
         head = f"Effective temperature {t:.2f} {pm} {se:.2f} {deg} over the take"
         if self.model == "constant":
             return (
-                f"{head}; the data show no drift (change over {self.span_s:.1f} s "
-                f"{dt:+.2f} {pm} {dse:.2f} {deg}, p = {self.p_drift:.2g}): one value for the "
-                "take."
+                f"{head}; the data do not show a drift (change over {self.span_s:.1f} s "
+                f"{dt:+.2f} {pm} {dse:.2f} {deg}; joint test of temperature, losses and Mach "
+                f"p = {self.p_drift:.2g}, a drift needs p below separation.drift_level): one "
+                "value for the take."
             )
         shape = "linear" if self.model == "linear" else "not linear (smoothed track)"
         return (
             f"{head}; the data show a drift of {dt:+.2f} {pm} {dse:.2f} {deg} over "
-            f"{self.span_s:.1f} s (p = {self.p_drift:.2g}), {shape}."
+            f"{self.span_s:.1f} s (joint test of temperature, losses and Mach p = "
+            f"{self.p_drift:.2g}), {shape}."
         )
 
     def summary(self) -> dict:
