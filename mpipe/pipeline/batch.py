@@ -66,7 +66,7 @@ def run_takes(
     """
     names = [take_name(t) for t in takes] if names is None else list(names)
     n = batch_workers(cfg, len(takes), client)
-    if len({take_name(t) for t in takes}) < len(takes):
+    if len(set(names)) < len(names):
         n = 1  # two takes of one name write one folder: one after the other, as before
     if n < 2:
         for t, name in zip(takes, names, strict=True):

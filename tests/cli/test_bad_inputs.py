@@ -275,6 +275,13 @@ def test_run_takes_file_names_with_commas_and_tells_equal_names_apart(tmp_path):
     assert take_names(same) == ["x_take", "y_take", "a,b"]
     one_folder = [[tmp_path / "take.wav"], [tmp_path / "take.flac"]]
     assert take_names(one_folder) == ["take_wav", "take_flac"]
+    # still alike after the folder (a/x/take.wav, b/x/take.wav): numbered, never one folder
+    alike = []
+    for top in ("a", "b"):
+        (tmp_path / top / "x").mkdir(parents=True)
+        alike.append([tmp_path / top / "x" / "take.wav"])
+        alike[-1][0].write_bytes(b"")
+    assert take_names(alike) == ["x_take_1", "x_take_2"]
     from mpipe.core.errors import UserError
 
     with pytest.raises(UserError, match="given twice"):

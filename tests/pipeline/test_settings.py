@@ -179,6 +179,16 @@ def test_the_config_placeholder_does_not_block_a_given_calibration(tmp_path, cap
     argv = ["run", str(tmp_path / "my.yaml"), str(tmp_path / "none.wav"), "-o", str(tmp_path)]
     assert main([*argv, "--calibration", str(cal)]) == 2
     assert "none.wav: no such take file" in capsys.readouterr().err
+    # mpipe separate names its own calibration: the placeholder does not block it either
+    sep = [
+        "separate",
+        str(tmp_path / "none.wav"),
+        str(cal),
+        "--pipeline",
+        str(tmp_path / "my.yaml"),
+    ]
+    assert main([*sep, "-o", str(tmp_path / "sep")]) == 2
+    assert "CALIBRATION.yaml" not in capsys.readouterr().err
 
 
 def test_the_model_is_low_passed_with_the_measurements_filter(tmp_path):

@@ -198,9 +198,10 @@ def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
 
     inv = cfg.inversion
     # The same windows and the same bore kernel as `mpipe run` (one answer per take).
+    resonances = bore_resonances(cal)
     try:
         plan, segments = plan_take(p, fs, cfg.conditioning, inv.window_s, inv.hop_s,
-                                   args.start, args.end, bore_resonances(cal))  # fmt: skip
+                                   args.start, args.end, resonances)  # fmt: skip
     except ValueError as exc:
         msg = str(exc)
         raise UserError(

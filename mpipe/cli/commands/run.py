@@ -72,7 +72,7 @@ def take_names(takes: Sequence[Sequence[str | Path]]) -> list[str]:
 
     A take's name is its file's stem; when several takes of the run share it, each is
     named ``<folder>_<stem>`` after its file's folder, or ``<stem>_<suffix>`` when they lie
-    in one folder (``take.wav`` and ``take.flac``).
+    in one folder (``take.wav`` and ``take.flac``); names still alike get ``_1``, ``_2``, ...
 
     Raises
     ------
@@ -99,7 +99,9 @@ def take_names(takes: Sequence[Sequence[str | Path]]) -> list[str]:
             names.append(f"{stem}_{first.suffix.lstrip('.')}")
         else:
             names.append(f"{first.resolve().parent.name}_{stem}")
-    return names
+    # still alike (a/x/take.wav and b/x/take.wav): numbered, so no two takes share a folder
+    return [f"{n}_{names[:i].count(n) + 1}" if names.count(n) > 1 else n
+            for i, n in enumerate(names)]  # fmt: skip
 
 
 def _check_lengths(takes: list[list[Path]], cfg) -> None:
@@ -133,6 +135,10 @@ def run(args: argparse.Namespace) -> int:
     cal_path = Path(args.calibration) if args.calibration else cfg.calibration_path
     if not cal_path.is_file():
         raise UserError(f"{cal_path}: no such calibration file")
+    from mpipe.measurement.calibration import load_calibration
+
+    # a bad calibration or fingering: one line before any work, not one per take
+    load_calibration(cal_path, cfg.fingering)
     takes = [_take_files(t) for t in args.takes]
     names = take_names(takes)
     _check_lengths(takes, cfg)

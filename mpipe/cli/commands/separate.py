@@ -257,4 +257,5 @@ def _fingering(args: argparse.Namespace) -> str | None:
         return args.fingering
     from mpipe.pipeline.settings import load_pipeline
 
-    return load_pipeline(args.pipeline).fingering
+    # its calibration key is not used here (the command names its own): not checked
+    return load_pipeline(args.pipeline, check_calibration=False).fingering
