@@ -63,6 +63,11 @@ def spread_over(mapper: Callable | None) -> Iterator[None]:
         _MAPPER.reset(token)
 
 
+def run_tasks_here() -> None:
+    """From now on in this context, :func:`map_tasks` runs its tasks here, one by one."""
+    _MAPPER.set(None)
+
+
 def map_tasks(fn: Callable, items: Sequence, shared=None) -> list:
     """``[fn(shared, item) for item in items]``, on the workers of :func:`spread_over`.
 
@@ -232,4 +237,12 @@ def global_search(
     return ColdStart(search, local_f, agreeing, int(values.size))
 
 
-__all__ = ["AGREEMENT", "ColdStart", "global_search", "map_tasks", "sobol_design", "spread_over"]
+__all__ = [
+    "AGREEMENT",
+    "ColdStart",
+    "global_search",
+    "map_tasks",
+    "run_tasks_here",
+    "sobol_design",
+    "spread_over",
+]

@@ -401,7 +401,12 @@ _STAGE_SHARED: list = []
 
 
 def _init_stage(shared) -> None:
+    from mpipe.inversion.coldstart import run_tasks_here
+
     _STAGE_SHARED[:] = [shared]
+    # a forked worker inherits the parent's mapper, whose pool no thread serves here: a
+    # nested map_tasks inside a task would wait for ever; in a worker tasks run in place
+    run_tasks_here()
 
 
 def _stage_task(args):

@@ -166,3 +166,14 @@ def test_on_dask_this_process_keeps_the_checkpoints(take, cluster, tmp_path):
     same = [c for c in SAME if c != "n_evaluations"]
     pd.testing.assert_frame_equal(first.table[same], again.table[same])
     assert len(list(ckpt.glob("w*.json"))) == 7
+
+
+def test_a_stage_worker_runs_nested_tasks_in_place():
+    # a forked worker must not inherit the parent's pool mapper (no thread serves it there:
+    # a nested map_tasks would wait for ever); after the worker's initializer it is unset
+    from mpipe.inversion import coldstart
+    from mpipe.inversion.execution import _init_stage
+
+    with coldstart.spread_over(lambda fn, items: 1 / 0):  # a mapper that must not be used
+        _init_stage((None, None))
+        assert coldstart.map_tasks(lambda shared, item: item + 1, [1, 2]) == [2, 3]
