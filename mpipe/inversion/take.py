@@ -162,9 +162,18 @@ def invert_take(
 
 
 def _first_agreeing(table) -> int | None:
-    """The agreement of the take's own cold start (its first cold window), if it had one."""
-    values = table["cold_starts_agreeing"].dropna() if "cold_starts_agreeing" in table else ()
-    return int(values.iloc[0]) if len(values) else None
+    """The least agreement of the take's own cold starts (one per note), if it had any.
+
+    Only the notes' cold starts count: not a window's own cold retry (``retried_cold``).
+    """
+    if "cold_starts_agreeing" not in table:
+        return None
+    own = pd.Series(True, index=table.index)
+    for flag in ("warm", "retried_cold"):
+        if flag in table:
+            own &= table[flag].eq(False)
+    values = table.loc[own, "cold_starts_agreeing"].dropna()
+    return int(values.min()) if len(values) else None
 
 
 __all__ = ["TakeInversion", "invert_take"]

@@ -374,7 +374,9 @@ def _profiles(solve, cold, calibration, fs, config, groups, t_cold, lo, hi):
         if failed:
             error = failed[0].row["error"]
             break
-        first = next(iter(colds.values()))
+        # the take's agreement is its least agreed note's: one poorly agreed cold start
+        # is enough to doubt the take (the first note alone would hide the others)
+        first = min(colds.values(), key=lambda c: _agreeing(c.row) or math.inf)
         profile = _Profile(solve, [colds[g].reed for g in groups])
         settled = _settle(profile, t_cold, lo, hi, config.temperature_evaluations)
         runs.append((profile, settled, first, t_cold))

@@ -93,3 +93,18 @@ def test_two_workers_give_the_same_take(played):
     assert two.temperature.evaluations == one.temperature.evaluations
     same = [c for c in COLUMNS if c != "wall_time_s"]
     pd.testing.assert_frame_equal(one.tracking.table[same], two.tracking.table[same])
+
+
+def test_the_takes_agreement_is_its_least_agreed_notes_own_cold_start():
+    # two notes cold-started (warm False): agreement 6 and 1; an attack window's own cold
+    # retry (agreement 0) does not count, nor do warm windows
+    from mpipe.inversion.take import _first_agreeing
+
+    table = pd.DataFrame({
+        "warm": [False, True, True, False, True],
+        "retried_cold": [False, False, True, False, False],
+        "cold_starts_agreeing": [6.0, np.nan, 0.0, 1.0, np.nan],
+    })  # fmt: skip
+    assert _first_agreeing(table) == 1
+    assert _first_agreeing(table.iloc[:3]) == 6  # one note: its own cold start
+    assert _first_agreeing(table.drop(columns="cold_starts_agreeing")) is None
