@@ -6,7 +6,9 @@ Each ``bench_*.py`` runs in its own process with the arguments below (short runs
 the benchmark's own defaults with ``--full``); its report goes to the console as it runs, and
 the figures it records (:mod:`headline`) are gathered into one table at the end: value,
 baseline measured in the same run, their ratio, and the target where an issue sets one.
-Exit status 1 when a benchmark fails or a figure misses its target.
+Exit status 1 when a benchmark fails; a figure that misses its target is listed at the end
+(an open issue's target is a measurement, not a failure of the run), and fails the run only
+with ``--strict``.
 """
 
 from __future__ import annotations
@@ -101,6 +103,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--full", action="store_true", help="each benchmark's own (long) defaults")
     ap.add_argument("--only", default="", help="comma-separated benchmark names")
+    ap.add_argument(
+        "--strict", action="store_true", help="exit 1 also when a figure misses its target"
+    )
     args = ap.parse_args(argv)
     names = sorted(p.stem for p in HERE.glob("bench_*.py"))
     if args.only:
@@ -135,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
     print("\nwall time per benchmark: " + ", ".join(f"{n} {t:.0f} s" for n, t in walls.items()))
     if failed:
         print("FAILED: " + ", ".join(failed))
-    return 1 if failed or missed else 0
+    return 1 if failed or (args.strict and missed) else 0
 
 
 if __name__ == "__main__":
