@@ -3,8 +3,15 @@
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
 
 from mpipe.measurement.calibration import load_calibration
+
+# Property tests draw the same examples on every run (a test passes every time);
+# `pytest --hypothesis-profile=explore` draws new ones to look for failures.
+settings.register_profile("default", derandomize=True)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile("default")
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ROOT / "calibration" / "simplified_clarinet.yaml"

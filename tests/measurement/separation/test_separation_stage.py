@@ -90,7 +90,9 @@ def _check_separation(n, fs):
     assert np.all(np.isfinite(res.p0)) and np.all(np.isfinite(res.u0))
     # Away from the ends (where the periodic field meets the zero padding), the fixed-theta
     # separation of every length rebuilds the true p0 and u0.
-    edge = int(0.05 * fs)
+    # u0's filter rises from u_highpass_hz / 2 (physics.md E.4): its impulse response, and so
+    # the reach of the ends' zero padding into the take, lasts about 2 / u_highpass_hz.
+    edge = int(2.0 / SeparationConfig().u_highpass_hz * fs)
     if n > 4 * edge:
         inner = slice(edge, n - edge)
         scale_p, scale_u = np.std(p0), np.std(u0)
