@@ -1,8 +1,10 @@
 """The pipeline file: loading, defaults and error messages naming the key."""
 
+import dataclasses
 from pathlib import Path
 
 import pytest
+import yaml
 
 from mpipe.core.config import ConfigError
 from mpipe.inversion.settings import PARAMETER_NAMES
@@ -94,48 +96,149 @@ def _leaf_keys(data, prefix=""):
     return keys
 
 
-def test_shipped_pipeline_shows_every_setting_of_every_stage():
-    import dataclasses
-
-    import yaml
-
-    from mpipe.core.config import describe_keys
+def _every_leaf():
+    """Every key of a pipeline file, from the classes the loader builds."""
+    from mpipe.core.config import settings_of
     from mpipe.pipeline.settings import PipelineConfig
 
-    expected = set()
-    for key, _, doc in describe_keys(PipelineConfig):
-        assert doc, f"{key}: every setting needs a one-line meaning"
-        expected.add(key)
-    # sections are not leaves, and `source` is set by the loader
-    sections = {f.name for f in dataclasses.fields(PipelineConfig)} - {"calibration", "source"}
-    expected -= sections | {"source", "inversion.bounds"}
-    shipped = _leaf_keys(yaml.safe_load(SHIPPED.read_text()))
-    assert not expected - shipped, f"missing from {SHIPPED.name}: {sorted(expected - shipped)}"
+    rows = settings_of(PipelineConfig)
+    for row in rows:
+        assert row.doc, f"{row.key}: every setting needs a one-line meaning"
+    return {r.key for r in rows if not r.section} - {"source"}
+
+
+def test_every_user_tier_key_names_a_setting():
+    # a renamed or removed setting must leave the user tier too (else the tier lists a ghost)
+    from mpipe.pipeline.settings import USER_SETTINGS, PipelineConfig
+
+    sections = {f.name for f in dataclasses.fields(PipelineConfig)}
+    every = _every_leaf()
+    for section, keys in USER_SETTINGS.items():
+        assert not section or section in sections, section
+        for key in keys:
+            path = f"{section}.{key}" if section else key
+            assert any(k == path or k.startswith(path + ".") for k in every), path
+
+
+def test_shipped_pipeline_shows_the_user_tier_each_key_explained():
+    from mpipe.pipeline.settings import is_user_setting
+
+    text = SHIPPED.read_text()
+    shipped = _leaf_keys(yaml.safe_load(text))
+    user = {k for k in _every_leaf() if is_user_setting(k)}
+    assert shipped == user
+    assert 20 <= len(shipped) <= 40  # issue 23: the 20-40 settings a user changes
+    assert len(_every_leaf()) > 2 * len(user)  # the rest stay out of the way
+    # every key line follows its own comment (unit and meaning)
+    lines = text.splitlines()
+    for i, line in enumerate(lines):
+        if line.strip() and not line.lstrip().startswith("#") and not line.endswith(":"):
+            if "#" not in line:  # a section line carries its comment on the same line
+                assert lines[i - 1].lstrip().startswith("#"), f"{line!r} has no comment"
+
+
+def test_shipped_pipeline_is_the_defaults_but_for_the_calibration():
+    from mpipe.pipeline.settings import PipelineConfig
+
+    cfg = load_pipeline(SHIPPED)
+    default = PipelineConfig(calibration="../calibration/simplified_clarinet.yaml")
+    assert dataclasses.replace(cfg, source="") == default
 
 
 def test_printed_defaults_read_back_as_the_defaults(tmp_path):
-    import dataclasses
-
     from mpipe.pipeline.settings import PipelineConfig, pipeline_yaml
 
     (tmp_path / "cal.yaml").write_text("name: x\n")
     path = tmp_path / "pipe.yaml"
-    path.write_text(pipeline_yaml(calibration="cal.yaml"))
-    cfg = load_pipeline(path)
-    assert dataclasses.replace(cfg, source="") == PipelineConfig(calibration="cal.yaml")
+    for every in (False, True):
+        path.write_text(pipeline_yaml(calibration="cal.yaml", every=every))
+        cfg = load_pipeline(path)
+        assert dataclasses.replace(cfg, source="") == PipelineConfig(calibration="cal.yaml")
+        printed = _leaf_keys(yaml.safe_load(path.read_text()))
+        assert (printed == _every_leaf()) if every else (len(printed) <= 40)
     # a changed value is written and flagged against its default
     changed = dataclasses.replace(cfg, inversion=dataclasses.replace(cfg.inversion, hop_s=0.01))
     text = pipeline_yaml(changed)
     assert "hop_s: 0.01" in text and "(default 0.02)" in text
 
 
-@pytest.mark.parametrize("value", [1e-5, 0.1, 1 / 3, 8.23e10, -0.01, 2.4e-4, 1e300, 123456.0])
-def test_floats_are_written_so_that_yaml_reads_them_back_exactly(value):
-    import yaml
+def test_an_advanced_key_set_in_a_file_works_and_is_shown(tmp_path):
+    from mpipe.pipeline.settings import is_user_setting, pipeline_yaml
 
-    from mpipe.core.config import _yaml_scalar
+    path = write(
+        tmp_path,
+        "calibration: cal.yaml\ninversion:\n  design_points: 16\n  local_starts: 8\n"
+        "separation: {smooth_s: 2.0}\n",
+    )
+    cfg = load_pipeline(path)
+    assert cfg.inversion.design_points == 16 and cfg.separation.smooth_s == 2.0
+    assert not is_user_setting("inversion.design_points")
+    text = pipeline_yaml(cfg)
+    printed = _leaf_keys(yaml.safe_load(text))
+    user = {k for k in _every_leaf() if is_user_setting(k)}
+    # the user tier, and the advanced keys whose value is not the default (local_starts: 8
+    # is the default: it changes nothing and is not shown)
+    assert printed == user | {"inversion.design_points", "separation.smooth_s"}
+    assert "design_points: 16" in text and "(default 256)" in text
+    # what is printed reads back into the same configuration
+    again = write(tmp_path, text)
+    assert dataclasses.replace(load_pipeline(again), source="") == dataclasses.replace(
+        cfg, source=""
+    )
 
-    assert yaml.safe_load(f"x: {_yaml_scalar(value)}")["x"] == value
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "calibration: cal.yaml\ninversion: {desing_points: 16}\n",
+        "calibration: cal.yaml\nseparation: {smoth_s: 1}\n",
+        "calibration: cal.yaml\ninversion: {bounds: {q: [1, 2]}}\n",
+    ],
+)
+def test_an_unknown_key_is_a_one_line_error(tmp_path, text):
+    with pytest.raises(ConfigError) as info:
+        load_pipeline(write(tmp_path, text))
+    message = str(info.value)
+    assert "\n" not in message and "pipe.yaml" in message and "unknown key" in message
+    # the list of keys the section accepts names the advanced keys too
+    assert "design_points" in message or "smooth_s" in message or "y_m" in message
+
+
+def test_the_settings_page_is_in_sync():
+    # docs/settings.md is generated from the settings' specs: regenerate and compare
+    from mpipe.pipeline.settings import settings_markdown
+
+    page = (ROOT / "docs" / "settings.md").read_text(encoding="utf-8")
+    assert page == settings_markdown(), (
+        "docs/settings.md is out of date: run "
+        "`mpipe config --all --markdown -o docs/settings.md --force`"
+    )
+
+
+def test_the_settings_page_documents_every_key_with_its_tier():
+    # read the tables back: every key once, its tier, its default as the loader reads it
+    from mpipe.pipeline.settings import PipelineConfig, is_user_setting, settings_markdown
+
+    rows, section = {}, ""
+    for line in settings_markdown().splitlines():
+        if line.startswith("## "):
+            section = line.split("`")[1] + "." if "`" in line else ""
+        elif line.startswith("| `"):
+            cells = [c.strip() for c in line.strip("|").split(" | ")]
+            key = section + cells[0].strip("`")
+            assert key not in rows, f"{key} documented twice"
+            rows[key] = cells
+    assert set(rows) == _every_leaf()
+    defaults = PipelineConfig(calibration="x")
+    for key, (_, tier, unit, default, meaning) in rows.items():
+        assert tier == ("user" if is_user_setting(key) else "advanced"), key
+        assert meaning and unit, key
+        if default != "(required)":
+            value = defaults
+            for part in key.split("."):
+                value = getattr(value, part)
+            read = yaml.safe_load(f"x: {default.strip('`')}")["x"]
+            assert read == (list(value) if isinstance(value, tuple) else value), key
 
 
 def test_config_command_prints_and_refuses_to_overwrite(tmp_path, capsys):
