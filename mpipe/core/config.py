@@ -14,6 +14,7 @@ nested configuration dataclasses and ``tuple[X, ...]`` of any of these.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import re
 import types
@@ -142,9 +143,10 @@ def build(cls: type, data: Any, where: Where):
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     unknown = [k for k in data if k not in fields]
     if unknown:
-        raise where.error(
-            str(unknown[0]), f"unknown key; expected one of: {', '.join(sorted(fields))}"
-        )
+        keys = sorted(n for n, f in fields.items() if not f.metadata.get("derived"))
+        close = difflib.get_close_matches(str(unknown[0]), keys, n=1)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        raise where.error(str(unknown[0]), f"unknown key{hint}; expected one of: {', '.join(keys)}")
     values = {}
     for name, f in fields.items():
         if name not in data:

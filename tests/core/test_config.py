@@ -97,7 +97,12 @@ def test_an_unknown_key_is_one_line_naming_file_and_key():
         _build("name: x\ninner: {widht_m: 0.1}\n")
     message = str(info.value)
     assert message.startswith("f.yaml: inner.widht_m: unknown key") and "\n" not in message
-    assert "width_m" in message
+    assert "(did you mean width_m?)" in message and message.endswith(
+        "expected one of: pair, width_m"
+    )
+    # nothing close: no guess, the list only
+    with pytest.raises(ConfigError, match=r"zzz: unknown key; expected one of: count, inner"):
+        _build("name: x\nzzz: 1\n")
 
 
 def test_a_value_out_of_range_names_the_key_and_unit():
