@@ -3,6 +3,8 @@
 import dataclasses
 from pathlib import Path
 
+import hypothesis
+import hypothesis.strategies as st
 import pytest
 import yaml
 
@@ -312,3 +314,53 @@ def test_the_model_is_low_passed_with_the_measurements_filter(tmp_path):
     path.write_text(f"calibration: {cal}\ninversion:\n  lowpass_hz: 7000.0\n")
     with pytest.raises(ConfigError, match="inversion.lowpass_hz: .* translation.lowpass_hz"):
         load_pipeline(path)
+
+
+def _tweakable():
+    from mpipe.core.config import settings_of
+    from mpipe.pipeline.settings import PipelineConfig
+
+    return sorted(
+        r.key
+        for r in settings_of(PipelineConfig)
+        if not r.section and type(r.default) in (float, int, bool)
+    )
+
+
+@hypothesis.settings(max_examples=60, deadline=None)
+@hypothesis.given(
+    changes=st.dictionaries(st.sampled_from(_tweakable()), st.floats(0.5, 2.0), max_size=5),
+    every=st.booleans(),
+)
+def test_what_config_prints_reads_back_into_the_same_pipeline(changes, every):
+    # any mix of user-tier and advanced keys away from their defaults: the printed text
+    # (user tier, or --all) holds every changed key and reads back into the same pipeline
+    from mpipe.core.config import Where, build
+    from mpipe.pipeline.settings import PipelineConfig, is_user_setting, pipeline_yaml
+
+    defaults = PipelineConfig(calibration="cal.yaml")
+    data: dict = {"calibration": "cal.yaml"}
+    for key, factor in changes.items():
+        section, name = key.split(".", 1)
+        default = getattr(getattr(defaults, section), name)
+        if isinstance(default, bool):
+            value = not default
+        elif isinstance(default, int):
+            value = max(1, round(default * factor))
+        else:
+            value = default * factor if default else factor - 0.5
+        data.setdefault(section, {})[name] = value
+    try:
+        cfg = build(PipelineConfig, data, Where("pipe.yaml"))
+    except ConfigError:
+        hypothesis.reject()  # a change outside its allowed range: refused, as it must be
+    text = pipeline_yaml(cfg, every=every)
+    printed = yaml.safe_load(text)
+    assert build(PipelineConfig, printed, Where("printed")) == cfg
+    leaves = _leaf_keys(printed)
+    for key in changes:
+        section, name = key.split(".", 1)
+        if getattr(getattr(cfg, section), name) != getattr(getattr(defaults, section), name):
+            assert key in leaves
+    if not every:
+        assert all(is_user_setting(k) or k in changes for k in leaves)
