@@ -17,6 +17,7 @@ import dataclasses
 import difflib
 import math
 import re
+import textwrap
 import types
 import typing
 from collections.abc import Callable, Mapping
@@ -362,8 +363,6 @@ def to_commented_yaml(
     str
         The YAML text ("" when ``show`` picks no key).
     """
-    import textwrap
-
     pad = " " * indent
     lines: list[str] = []
     hints = typing.get_type_hints(type(obj))
