@@ -14,8 +14,10 @@ nested configuration dataclasses and ``tuple[X, ...]`` of any of these.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import re
+import textwrap
 import types
 import typing
 from collections.abc import Callable, Mapping
@@ -142,9 +144,10 @@ def build(cls: type, data: Any, where: Where):
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     unknown = [k for k in data if k not in fields]
     if unknown:
-        raise where.error(
-            str(unknown[0]), f"unknown key; expected one of: {', '.join(sorted(fields))}"
-        )
+        keys = sorted(n for n, f in fields.items() if not f.metadata.get("derived"))
+        close = difflib.get_close_matches(str(unknown[0]), keys, n=1)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        raise where.error(str(unknown[0]), f"unknown key{hint}; expected one of: {', '.join(keys)}")
     values = {}
     for name, f in fields.items():
         if name not in data:
@@ -230,10 +233,35 @@ def _describe(value: Any) -> str:
     return f"{type(value).__name__} {value!r}"
 
 
-def describe_keys(cls: type, prefix: str = "") -> list[tuple[str, str, str]]:
-    """List ``(key path, unit, meaning)`` for every key of a configuration class.
+@dataclasses.dataclass(frozen=True)
+class Setting:
+    """One key of a configuration class, as documentation shows it.
 
-    Used to document configuration files from the code that reads them.
+    Attributes
+    ----------
+    key : str
+        Key path, e.g. ``inversion.bounds.k`` (``[]`` marks the items of a list of sections).
+    unit : str
+        SI unit ("" for dimensionless or non-numeric).
+    doc : str
+        One-line meaning.
+    default : Any
+        Default value; :data:`dataclasses.MISSING` for a required key, and for a section.
+    section : bool
+        True for a key holding a nested configuration class (its keys follow it).
+    """
+
+    key: str
+    unit: str
+    doc: str
+    default: Any
+    section: bool
+
+
+def settings_of(cls: type, prefix: str = "") -> list[Setting]:
+    """Every key of a configuration class, sections followed by their keys, in order.
+
+    Fields set by a loader from another key (metadata ``derived``) are left out.
     """
     rows = []
     hints = typing.get_type_hints(cls)
@@ -241,19 +269,38 @@ def describe_keys(cls: type, prefix: str = "") -> list[tuple[str, str, str]]:
         if f.metadata.get("derived"):
             continue  # set by the loader from another key, documented there
         key = f"{prefix}{f.name}"
-        rows.append((key, f.metadata.get("unit", ""), f.metadata.get("doc", "")))
         tp = hints[f.name]
         inner = [a for a in (typing.get_args(tp) or (tp,)) if dataclasses.is_dataclass(a)]
+        default = dataclasses.MISSING if inner else _default(f)
+        unit, doc = f.metadata.get("unit", ""), f.metadata.get("doc", "")
+        rows.append(Setting(key, unit, doc, default, bool(inner)))
         if inner:
             sub = "[]." if typing.get_origin(tp) is tuple else "."
-            rows.extend(describe_keys(inner[0], key + sub))
+            rows.extend(settings_of(inner[0], key + sub))
     return rows
 
 
-def _yaml_scalar(value: Any) -> str:
+def describe_keys(cls: type, prefix: str = "") -> list[tuple[str, str, str]]:
+    """List ``(key path, unit, meaning)`` for every key of a configuration class.
+
+    Used to document configuration files from the code that reads them.
+    """
+    return [(s.key, s.unit, s.doc) for s in settings_of(cls, prefix)]
+
+
+def _default(f: dataclasses.Field) -> Any:
+    """A field's default value (:data:`dataclasses.MISSING` when it has none)."""
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return dataclasses.MISSING
+
+
+def yaml_scalar(value: Any) -> str:
     """One scalar or flat list in YAML that PyYAML (YAML 1.1) reads back unchanged."""
     if isinstance(value, tuple | list):
-        return "[" + ", ".join(_yaml_scalar(v) for v in value) + "]"
+        return "[" + ", ".join(yaml_scalar(v) for v in value) + "]"
     if value is None:
         return "null"
     if isinstance(value, bool):
@@ -281,13 +328,18 @@ def _yaml_scalar(value: Any) -> str:
 
 
 def to_commented_yaml(
-    obj: Any, indent: int = 0, skip: tuple[str, ...] = (), width: int = 96
+    obj: Any,
+    indent: int = 0,
+    skip: tuple[str, ...] = (),
+    width: int = 96,
+    show: Callable[[str, bool], bool] | None = None,
+    prefix: str = "",
 ) -> str:
     """Write a configuration dataclass as YAML, each key commented with unit and meaning.
 
-    Every field is written, defaults included, so the text shows every setting; a value
-    that differs from the default says so in its comment. :func:`build` reads the text
-    back into an equal object.
+    Every field is written (defaults included) unless ``show`` says otherwise; a value that
+    differs from the default says so in its comment. :func:`build` reads the text back into
+    an equal object when every key left out holds its default.
 
     Parameters
     ----------
@@ -299,35 +351,45 @@ def to_commented_yaml(
         Top-level field names to leave out (e.g. fields set by a loader).
     width : int
         Comment lines are wrapped to this many characters.
+    show : callable, optional
+        ``show(key path, changed) -> bool`` picks the keys written, given the dotted path
+        (``inversion.bounds.k``) and whether the value differs from its default; a section
+        is written when one of its keys is. Default: every key.
+    prefix : str
+        Key path of ``obj`` itself, ending in a dot ("" at the top level).
 
     Returns
     -------
     str
+        The YAML text ("" when ``show`` picks no key).
     """
-    import textwrap
-
     pad = " " * indent
     lines: list[str] = []
     hints = typing.get_type_hints(type(obj))
     for f in dataclasses.fields(obj):
         if f.name in skip or not f.init or f.metadata.get("derived"):
             continue  # a derived field is set by the loader from another key
-        value = getattr(obj, f.name)
+        value, key = getattr(obj, f.name), prefix + f.name
         unit, doc = f.metadata.get("unit", ""), f.metadata.get("doc", "")
         if dataclasses.is_dataclass(hints[f.name]) and dataclasses.is_dataclass(value):
-            if indent == 0:
-                lines.append("")
-            lines.append(f"{pad}{f.name}:" + (f"  # {doc}" if doc else ""))
-            lines.append(to_commented_yaml(value, indent + 2, (), width).rstrip("\n"))
+            body = to_commented_yaml(value, indent + 2, (), width, show, key + ".")
+            if body:
+                lines.extend([""] if indent == 0 else [])
+                lines.append(f"{pad}{f.name}:" + (f"  # {doc}" if doc else ""))
+                lines.append(body.rstrip("\n"))
+            continue
+        default = _default(f)
+        changed = default is dataclasses.MISSING or value != default
+        if show is not None and not show(key, changed):
             continue
         note = f"[{unit}] {doc}" if unit else doc
-        if f.default is not dataclasses.MISSING and value != f.default:
-            note += f" (default {_yaml_scalar(f.default)})"
+        if default is not dataclasses.MISSING and changed:
+            note += f" (default {yaml_scalar(default)})"
         if note:
             lines.extend(
                 textwrap.wrap(
                     note, width - indent, initial_indent=f"{pad}# ", subsequent_indent=f"{pad}#   "
                 )  # fmt: skip
             )
-        lines.append(f"{pad}{f.name}: {_yaml_scalar(value)}")
-    return "\n".join(lines) + "\n"
+        lines.append(f"{pad}{f.name}: {yaml_scalar(value)}")
+    return "\n".join(lines) + "\n" if lines else ""

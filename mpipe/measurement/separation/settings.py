@@ -42,7 +42,11 @@ class SeparationConfig:
         default=0.04,
     )
     fmin_hz: float = spec(
-        "Hz", "lower edge of the band used to estimate theta", between(1.0, 1e5), default=100.0
+        "Hz",
+        "lower edge of the band used to estimate theta = (T, eta, M): the effective air "
+        "temperature, the scale of the wall losses and the Mach number of the mean flow",
+        between(1.0, 1e5),
+        default=100.0,
     )
     fmax_hz: float = spec(
         "Hz",
