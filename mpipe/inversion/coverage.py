@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 
 from mpipe.inversion.combinations import COMBINATION_NAMES
+from mpipe.inversion.records import flags
 from mpipe.inversion.uncertainty import SE_PARAMETERS
 
 
@@ -55,7 +56,7 @@ def summary(
         se = pd.to_numeric(sel[f"{name}_se"], errors="coerce").to_numpy(dtype=float)
         if not np.isfinite(se).any() and not np.isinf(se).any():
             continue  # a fixed parameter
-        det = sel[f"determined_{name}"].astype(str).str.lower().isin(("true", "1"))
+        det = flags(sel, f"determined_{name}")
         med = float(np.nanmedian(x)) if x.size else math.nan
         row = {
             "name": name,
@@ -63,7 +64,7 @@ def summary(
             "spread": float(1.4826 * np.nanmedian(np.abs(x - med))) if x.size else math.nan,
             "median_se": float(np.median(se)) if se.size else math.nan,
             "median_rel_se": float(np.median(se / np.abs(x))) if x.size else math.nan,
-            "determined_fraction": float(det.mean()) if len(det) else math.nan,
+            "determined_fraction": float(det.mean()) if det.size else math.nan,
         }
         if truth is not None and name in truth:
             t = np.broadcast_to(np.asarray(truth[name], dtype=float), np.shape(table[name]))

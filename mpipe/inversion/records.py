@@ -263,6 +263,24 @@ def _missing(value) -> bool:
     return value is None or value is pd.NA or (isinstance(value, float) and np.isnan(value))
 
 
+def flags(table: pd.DataFrame, name: str) -> np.ndarray:
+    """The boolean column ``name`` of a per-window table, as a bool array.
+
+    Raises
+    ------
+    TypeError
+        When the column is not boolean (a table read without its schema holds the text
+        "True"/"False", which no reader should parse: use :func:`read_windows`).
+    """
+    column = table[name]
+    if not pd.api.types.is_bool_dtype(column.dtype):
+        raise TypeError(
+            f"column {name!r} is {column.dtype}, not bool: read the table with "
+            "mpipe.inversion.records.read_windows (or mpipe.load_run)"
+        )
+    return column.to_numpy(dtype=bool)
+
+
 def window_frame(records: Sequence[Mapping]) -> pd.DataFrame:
     """The typed table of window records, columns :data:`RECORD_COLUMNS` in order."""
     rows = [dict(r) for r in records]
@@ -320,6 +338,7 @@ __all__ = [
     "Column",
     "Correlation",
     "WindowRecord",
+    "flags",
     "read_windows",
     "typed",
     "window_frame",

@@ -16,6 +16,8 @@ import numpy as np
 import pandas as pd
 
 from mpipe.core.units import unit_of
+from mpipe.inversion.coverage import summary as uncertainty_summary
+from mpipe.inversion.records import read_windows
 from mpipe.pipeline.html_report import Figure, Section, fmt, write_report
 
 #: Reed parameters summarised at the top of a take's report, in this order.
@@ -145,7 +147,7 @@ def write_take_report(
     -------
     Path
     """
-    windows = _read_csv(root / "inversion" / "windows.csv")
+    windows = read_windows(root / "inversion" / "windows.csv")
     resonances = _read_csv(root / "validation" / "validation.csv")
     harmonics = _read_csv(root / "validation" / "harmonics.csv")
     plan = _read_csv(root / "conditioning" / "plan.csv")
@@ -226,8 +228,6 @@ def _summary_section(
         summary_text += "\n\nValidation failures: " + "; ".join(val["failures"]) + "."
     if inv.get("take_checks"):
         summary_text += "\n\nTake-level checks: " + "; ".join(inv["take_checks"]) + "."
-    from mpipe.inversion.coverage import summary as uncertainty_summary
-
     uncertainty = uncertainty_summary(windows)
     if len(uncertainty):
         uncertainty.insert(1, "unit", [unit_of(n) for n in uncertainty["name"]])

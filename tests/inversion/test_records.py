@@ -42,9 +42,7 @@ def _tables(draw):
         st.lists(st.sampled_from([c.name for c in WINDOW_SCHEMA]), min_size=1, unique=True)
     )
     n = draw(st.integers(0, 4))
-    data = {
-        name: [draw(_VALUES[SCHEMA_BY_NAME[name].dtype]) for _ in range(n)] for name in names
-    }
+    data = {name: [draw(_VALUES[SCHEMA_BY_NAME[name].dtype]) for _ in range(n)] for name in names}
     return typed(pd.DataFrame(data, columns=names))
 
 
@@ -67,8 +65,8 @@ def test_a_take_of_records_round_trips_with_its_dtypes(tmp_path, suffix):
     config = InversionConfig()
     rows = [blank_row(s, 2000, 100_000.0, config, cold=s == 0) for s in (0, 2000, 4000)]
     rows[1].update(k=8.66e6, k_se=np.inf, determined_k=True, n_evaluations=np.int64(34),
-                   status="ok", error="", warm=np.bool_(True), at_bound="m=lower;y_m=y_c")  # fmt: skip
-    rows[2].update(error="RuntimeError: silent, \"no\" feasible point\nat all")
+                   status="ok", warm=np.bool_(True), at_bound="m=lower;y_m=y_c")  # fmt: skip
+    rows[2].update(error='RuntimeError: silent, "no" feasible point\nat all')
     table = window_frame(rows)
     assert list(table.columns) == list(RECORD_COLUMNS)
     write_windows(table, tmp_path / f"w{suffix}")
