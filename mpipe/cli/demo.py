@@ -34,7 +34,7 @@ PARAMETERS = (
     ("m", "m", "kg/m^2"),
     ("g", "g", "1/s"),
     ("lam", "lambda", "m"),
-    ("k_c", "k_c", "Pa/m^α"),
+    ("k_c", "k_c", "Pa/m^alpha"),
 )
 
 

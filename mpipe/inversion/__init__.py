@@ -48,7 +48,7 @@ combinations
 window_errors
     The uncertainty columns of a window's row (standard errors, determined, notes).
 coverage
-    Summary of a take's uncertainty: spread, median SE, determined, 2-SE coverage.
+    Summary of a take's uncertainty: MAD sigma, median SE, determined, 2-SE coverage.
 resynthesis
     The model driven by each window's estimates, and its figures.
 

@@ -1,8 +1,9 @@
-"""Summary of a take's uncertainty: median, spread, median SE, determined, coverage.
+"""Summary of a take's uncertainty: median, MAD sigma, median SE, determined, coverage.
 
 Over the windows of one status, per parameter and combination: the median estimate, its
-spread between windows, the median standard error, the fraction of windows where it is
-determined and, given the truth, the coverage of the 2-SE interval.
+scatter between windows (``mad_sigma``: 1.4826 times the median absolute deviation, the
+standard deviation of a normal scatter), the median standard error, the fraction of windows
+where it is determined and, given the truth, the coverage of the 2-SE interval.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ def summary(
     truth: Mapping[str, np.ndarray | float] | None = None,
     status: str = "ok",
 ) -> pd.DataFrame:
-    """Per parameter and combination: median, spread, median SE, determined, coverage.
+    """Per parameter and combination: median, MAD sigma, median SE, determined, coverage.
 
     Parameters
     ----------
@@ -41,10 +42,10 @@ def summary(
     Returns
     -------
     pandas.DataFrame
-        Columns ``name, median, spread, median_se, median_rel_se, determined_fraction``
-        (and ``truth_median, coverage_2se`` with a truth). ``spread`` is 1.4826 times the
-        median absolute deviation over the windows (the standard deviation for a normal
-        spread).
+        Columns ``name, median, mad_sigma, median_se, median_rel_se, determined_fraction``
+        (and ``truth_median, coverage_2se`` with a truth). ``mad_sigma`` is 1.4826 times
+        the median absolute deviation over the windows (the standard deviation of a normal
+        scatter), in the quantity's unit.
     """
     mask = table["status"].astype(str) == status if "status" in table else slice(None)
     sel = table[mask]
@@ -61,7 +62,7 @@ def summary(
         row = {
             "name": name,
             "median": med,
-            "spread": float(1.4826 * np.nanmedian(np.abs(x - med))) if x.size else math.nan,
+            "mad_sigma": float(1.4826 * np.nanmedian(np.abs(x - med))) if x.size else math.nan,
             "median_se": float(np.median(se)) if se.size else math.nan,
             "median_rel_se": float(np.median(se / np.abs(x))) if x.size else math.nan,
             "determined_fraction": float(det.mean()) if det.size else math.nan,
