@@ -7,8 +7,10 @@ and, as a typed field beside them, the correlation matrix of its free parameters
 
 The table files are written and read with the schema (:func:`write_windows`,
 :func:`read_windows`): booleans come back as booleans, counts as integers (missing
-allowed), text as text ("" when empty) and floats exactly (NaN and +-inf included), from
-CSV as from Parquet. No reader parses "True" from text.
+allowed), text as text ("" when empty) and floats as floats (NaN and +-inf included), from
+CSV as from Parquet; no reader parses "True" from text. Parquet keeps every float exactly;
+CSV, which people read, keeps 10 significant digits (:data:`mpipe.core.io.CSV_FLOAT_FORMAT`)
+and gives them back exactly.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
-from mpipe.core.io import write_atomic
+from mpipe.core.io import CSV_FLOAT_FORMAT, write_atomic
 from mpipe.core.units import unit_of
 from mpipe.inversion.combinations import COMBINATIONS
 from mpipe.inversion.settings import PARAMETER_NAMES
@@ -290,14 +292,16 @@ def window_frame(records: Sequence[Mapping]) -> pd.DataFrame:
 def write_windows(table: pd.DataFrame, path: str | Path) -> Path:
     """Write a per-window table as CSV or Parquet (by suffix), atomically, in schema dtypes.
 
-    CSV floats are written in their shortest exact form, so :func:`read_windows` gives
-    back the same values.
+    Parquet keeps every value exactly; CSV floats are written to 10 significant digits
+    (the CSV is read by people; :func:`read_windows` gives back those digits exactly).
     """
     path = Path(path)
     table = typed(table)
     if path.suffix == ".parquet":
         return write_atomic(path, lambda tmp: table.to_parquet(tmp, index=False))
-    return write_atomic(path, lambda tmp: table.to_csv(tmp, index=False))
+    return write_atomic(
+        path, lambda tmp: table.to_csv(tmp, index=False, float_format=CSV_FLOAT_FORMAT)
+    )
 
 
 def read_windows(path: str | Path) -> pd.DataFrame:

@@ -135,7 +135,7 @@ def load_checkpoint(
 
 
 def write_table(table: pd.DataFrame, directory: str | Path, stem: str = "windows") -> list[Path]:
-    """Write the per-window table as CSV and Parquet, in the schema's dtypes, values exact.
+    """Write the per-window table as CSV (10 significant digits) and Parquet (exact), typed.
 
     Parameters
     ----------
