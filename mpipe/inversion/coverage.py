@@ -47,7 +47,7 @@ def summary(
         the median absolute deviation over the windows (the standard deviation of a normal
         scatter), in the quantity's unit.
     """
-    mask = table["status"].astype(str) == status if "status" in table else slice(None)
+    mask = table["status"] == status if "status" in table else slice(None)
     sel = table[mask]
     rows = []
     for name in (*SE_PARAMETERS, *COMBINATION_NAMES):

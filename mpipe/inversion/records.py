@@ -69,7 +69,7 @@ _PARAMETER_MEANINGS = {
     "m": "reed mass per unit area",
     "g": "reed damping",
     "lam": "effective width of the reed channel",
-    "k_c": "contact stiffness of the lay, force per area per m^alpha of penetration",
+    "k_c": "contact stiffness: force per area k_c [y - y_c]_+^alpha on the reed at the lay",
     "y_c": "opening at which the reed meets the lay (contact point)",
 }
 
@@ -102,9 +102,8 @@ def _step1_columns() -> list[Column]:
     return cols
 
 
-#: Columns of the per-window table, in order: the inversion's, then those the later
-#: stages add (what was played, the fitted reed's opening).
-WINDOW_SCHEMA: tuple[Column, ...] = (
+#: Columns a window's inversion fills, in order.
+_INVERSION: tuple[Column, ...] = (
     _col("window", COUNT, "window index in the take"),
     _col("t_start_s", FLOAT, "window start"),
     _col("t_end_s", FLOAT, "window end"),
@@ -119,8 +118,14 @@ WINDOW_SCHEMA: tuple[Column, ...] = (
     *_step1_columns(),
     _col("f2", FLOAT, "step 2's cost F2: the norm of the pressure residual"),
     _col("relative_residual", FLOAT, "F2 over the norm of the window's pressure"),
-    _col("model_f0_cents", FLOAT, "playing frequency of the model minus the measured one"),
-    _col("model_level_db", FLOAT, "level of the model's pressure minus the measured one"),
+    _col(
+        "model_f0_cents",
+        FLOAT,
+        "model playing frequency re the measured one, 1200 log2(f0_model / f0)",
+    ),
+    _col(
+        "model_level_db", FLOAT, "model AC RMS pressure re the measured one, 20 log10 of the ratio"
+    ),
     _col("n_iterations", COUNT, "iterations of the step-2 search"),
     _col("n_evaluations", COUNT, "model evaluations of the step-2 search"),
     _col("optimiser", TEXT, "step-2 search method"),
@@ -133,22 +138,29 @@ WINDOW_SCHEMA: tuple[Column, ...] = (
     _col("wall_time_s", FLOAT, "wall time of the window"),
     _col("error", TEXT, "why the window has no estimate (empty: it has one)"),
     _col("take_checks", TEXT, "take-level checks that failed"),
+)
+#: Columns the later stages add: the fitted reed's opening, what was played.
+_LATER: tuple[Column, ...] = (
     _col("h_mean", FLOAT, "mean opening of the fitted reed"),
     _col("h_min", FLOAT, "smallest opening of the fitted reed"),
-    _col("closed_fraction", FLOAT, "fraction of the window the fitted reed is shut"),
-    _col("phase", TEXT, "attack, sustain, release or silence"),
+    _col(
+        "closed_fraction", FLOAT, "fraction of the window the fitted reed is shut (opening h = 0)"
+    ),
+    _col("phase", TEXT, "onset, sustain, release (of a note) or silence"),
     _col("f0_hz", FLOAT, "measured playing frequency"),
-    _col("pitch_cents", FLOAT, "playing frequency re A4, cents"),
-    _col("regime", TEXT, "bore resonance the note plays on"),
+    _col("pitch_cents", FLOAT, "pitch in cents above A4 (conditioning.a4_hz)"),
+    _col(
+        "regime", TEXT, "fundamental, register 2, squeak, other (nearest bore resonance) or silence"
+    ),
     _col("rms_pa", FLOAT, "RMS mouthpiece pressure"),
     _col("spl_db", FLOAT, "sound pressure level in the mouthpiece, dB re 20 uPa"),
 )
+#: Columns of the per-window table, in order: the inversion's, then the later stages'.
+WINDOW_SCHEMA: tuple[Column, ...] = (*_INVERSION, *_LATER)
 #: Column name -> :class:`Column`.
 SCHEMA_BY_NAME = {c.name: c for c in WINDOW_SCHEMA}
-#: Columns a window's inversion fills (the others come from later stages).
-RECORD_COLUMNS = tuple(
-    c.name for c in WINDOW_SCHEMA[: [c.name for c in WINDOW_SCHEMA].index("h_mean")]
-)
+#: Columns of a window's record (those the inversion fills), in order.
+RECORD_COLUMNS = tuple(c.name for c in _INVERSION)
 
 
 @dataclass(frozen=True, eq=False)
