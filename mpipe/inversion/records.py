@@ -240,6 +240,13 @@ class WindowRecord(MutableMapping):
         return {k: (v.item() if isinstance(v, np.generic) else v) for k, v in self._values.items()}
 
 
+def schema_markdown() -> str:
+    """The schema as a Markdown table (the reference in ``docs/windows_table.md``)."""
+    lines = ["| column | dtype | unit | meaning |", "| --- | --- | --- | --- |"]
+    lines += [f"| `{c.name}` | {c.dtype} | {c.unit} | {c.meaning} |" for c in WINDOW_SCHEMA]
+    return "\n".join(lines) + "\n"
+
+
 def typed(table: pd.DataFrame) -> pd.DataFrame:
     """A copy of a per-window table with every column in its schema dtype.
 
@@ -356,6 +363,7 @@ __all__ = [
     "WindowRecord",
     "flags",
     "read_windows",
+    "schema_markdown",
     "typed",
     "window_frame",
     "write_windows",

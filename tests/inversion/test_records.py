@@ -1,5 +1,7 @@
 """The window record and its schema: typed columns that round-trip through CSV and Parquet."""
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -18,6 +20,7 @@ from mpipe.inversion.records import (
     Correlation,
     WindowRecord,
     read_windows,
+    schema_markdown,
     typed,
     window_frame,
     write_windows,
@@ -125,3 +128,9 @@ def test_the_correlation_is_a_typed_field_of_the_record():
     assert back.names == corr.names and np.array_equal(back.matrix, corr.matrix)
     assert Correlation.from_json(None) is None
     assert "correlation" not in row and set(row) == {"k"}
+
+
+def test_the_docs_reference_is_the_schema():
+    page = (Path(__file__).resolve().parents[2] / "docs" / "windows_table.md").read_text()
+    assert page.endswith(schema_markdown())
+    assert f"({len(WINDOW_SCHEMA)} columns: the first {len(RECORD_COLUMNS)} " in page
