@@ -165,6 +165,11 @@ def coverage_take(seed: int, snr: float, kind: str, duration: float, folder: Pat
 
     cache = folder / f"{kind}_{snr:g}dB_seed{seed}.parquet"
     stem = folder / f"{kind}_{snr:g}dB_seed{seed}"
+    if cache.exists():
+        try:
+            read_windows(cache)
+        except ValueError:  # cached by an older mpipe, with columns no longer in the schema
+            cache.unlink()
     if not cache.exists():
         for old in folder.glob(stem.name + ".*"):
             old.unlink()
