@@ -161,6 +161,8 @@ WINDOW_SCHEMA: tuple[Column, ...] = (*_INVERSION, *_LATER)
 SCHEMA_BY_NAME = {c.name: c for c in WINDOW_SCHEMA}
 #: Columns of a window's record (those the inversion fills), in order.
 RECORD_COLUMNS = tuple(c.name for c in _INVERSION)
+#: Columns earlier versions wrote, no longer written: name -> what to read instead.
+RETIRED = {"converged": "status == 'ok' (the search's own verdict: optimiser_converged)"}
 
 
 @dataclass(frozen=True, eq=False)
@@ -326,28 +328,31 @@ def write_windows(table: pd.DataFrame, path: str | Path) -> Path:
 def read_windows(path: str | Path) -> pd.DataFrame:
     """Read a per-window table written by :func:`write_windows` (CSV or Parquet).
 
-    Every column comes back in its schema dtype: no value is parsed from text by hand.
+    Every column comes back in its schema dtype: no value is parsed from text by hand. A
+    column of :data:`RETIRED` (a table written by an earlier mpipe) is left out.
 
     Raises
     ------
     ValueError
-        When the file holds a column that is not in :data:`WINDOW_SCHEMA`.
+        When the file holds a column that is not in :data:`WINDOW_SCHEMA` (nor retired).
     """
     path = Path(path)
     if path.suffix == ".parquet":
-        return typed(pd.read_parquet(path))
-    header = pd.read_csv(path, nrows=0).columns
+        table = pd.read_parquet(path)
+        return typed(table.drop(columns=[c for c in table.columns if c in RETIRED]))
+    header = [c for c in pd.read_csv(path, nrows=0).columns if c not in RETIRED]
     unknown = [c for c in header if c not in SCHEMA_BY_NAME]
     if unknown:
         raise ValueError(f"{path}: columns {unknown} are not in the window schema")
     cols = [SCHEMA_BY_NAME[c] for c in header]
     table = pd.read_csv(
         path,
+        usecols=header,
         dtype={c.name: (object if c.dtype == TEXT else c.dtype) for c in cols},
         keep_default_na=False,
         na_values={c.name: [""] for c in cols if c.dtype in (FLOAT, COUNT)},
     )
-    return typed(table)
+    return typed(table[header])
 
 
 __all__ = [
@@ -355,6 +360,7 @@ __all__ = [
     "FLAG",
     "FLOAT",
     "RECORD_COLUMNS",
+    "RETIRED",
     "SCHEMA_BY_NAME",
     "TEXT",
     "WINDOW_SCHEMA",

@@ -112,11 +112,23 @@ def test_every_column_has_a_dtype_unit_and_meaning():
 def test_a_column_outside_the_schema_is_an_error(tmp_path):
     with pytest.raises(ValueError, match=r"\['converged'\] are not in the window schema"):
         typed(pd.DataFrame({"status": ["ok"], "converged": [True]}))
-    (tmp_path / "w.csv").write_text("status,converged\nok,True\n")
-    with pytest.raises(ValueError, match="w.csv: columns"):
+    (tmp_path / "w.csv").write_text("status,k_se_pa\nok,1.5\n")
+    with pytest.raises(ValueError, match=r"w.csv: columns \['k_se_pa'\]"):
         read_windows(tmp_path / "w.csv")
     with pytest.raises(ValueError, match="flag"):
         typed(pd.DataFrame({"warm": [True, None]}))
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".parquet"])
+def test_a_table_of_an_earlier_version_reads_without_its_retired_column(tmp_path, suffix):
+    # earlier versions wrote "converged" (status == "ok") beside optimiser_converged
+    old = pd.DataFrame({"status": ["ok", "at-bound"], "converged": [True, False],
+                        "optimiser_converged": [True, True]})  # fmt: skip
+    path = tmp_path / f"w{suffix}"
+    old.to_csv(path, index=False) if suffix == ".csv" else old.to_parquet(path, index=False)
+    back = read_windows(path)
+    assert list(back.columns) == ["status", "optimiser_converged"]
+    assert back["optimiser_converged"].dtype == bool
 
 
 def test_the_correlation_is_a_typed_field_of_the_record():
