@@ -26,6 +26,7 @@ from mpipe.inversion.records import (
     window_frame,
     write_windows,
 )
+from mpipe.inversion.segments import note_segments
 from mpipe.inversion.settings import InversionConfig
 from mpipe.inversion.window_errors import CORRELATION_COLUMNS, correlation_records
 
@@ -189,8 +190,6 @@ def write_correlations(
 def segment_lines(summary: pd.DataFrame) -> list[str]:
     """One console line per note: when, what was played, ok windows, medians +- SE."""
     lines = []
-    from mpipe.inversion.segments import note_segments
-
     for number, (_, r) in enumerate(note_segments(summary).iterrows(), start=1):
         parts = []
         for name, unit in (("p_m", " Pa"), ("p_M", " Pa"), ("gamma", ""), ("zeta", "")):

@@ -9,6 +9,7 @@ page itself (embedded figures, numbered tables, rounding) is
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -447,8 +448,6 @@ def plot_blocks(blocks: pd.DataFrame, path: Path, sentence: str = "") -> None:
     ``blocks`` is the separation's ``blocks.csv`` table; ``sentence`` titles the figure
     (whether the data show a drift).
     """
-    import textwrap
-
     import matplotlib
 
     matplotlib.use("Agg")
