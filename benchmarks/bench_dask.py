@@ -46,6 +46,7 @@ from bench_realtime import machine_parallelism  # noqa: E402
 from headline import record  # noqa: E402
 
 from mpipe.cli.virtual_takes import SynthOptions, make_take  # noqa: E402
+from mpipe.inversion.records import read_windows  # noqa: E402
 from tests.inversion.cluster_helpers import real_cluster, start_worker  # noqa: E402
 
 CAL = ROOT / "calibration" / "simplified_clarinet.yaml"
@@ -64,7 +65,7 @@ def pipeline(folder: Path, calibration: Path, executor: dict, name: str, **inv) 
 
 
 def windows(folder: Path) -> pd.DataFrame:
-    table = pd.read_csv(folder / "inversion" / "windows.csv", keep_default_na=False)
+    table = read_windows(folder / "inversion" / "windows.csv")
     return table.drop(columns="wall_time_s")
 
 

@@ -189,12 +189,12 @@ def compare(folder: Path, truth, reed) -> None:
     define differently can sit on its search bound while p_m and p_M are right, so this
     looks at every inverted window whatever its status.
     """
-    import pandas as pd
+    from mpipe.inversion.records import read_windows
 
     path = folder / "inversion" / "windows.csv"
     if not path.exists():
         return
-    win = pd.read_csv(path)
+    win = read_windows(path)
     win = win[np.isfinite(win["p_m"])]
     if win.empty:
         print("  no inverted window")

@@ -46,6 +46,8 @@ ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 from headline import record  # noqa: E402
 
+from mpipe.inversion.records import read_windows as read_window_table  # noqa: E402
+
 CAL = ROOT / "calibration" / "simplified_clarinet.yaml"
 REED = ROOT / "calibration" / "reed_table1.yaml"
 PIPELINE = ROOT / "pipelines" / "simplified_clarinet.yaml"
@@ -120,7 +122,7 @@ def read_windows(folder: Path, notes, spans) -> pd.DataFrame:
     path = folder / "inversion" / "windows.csv"
     if not path.exists():
         return pd.DataFrame(columns=["t_start_s", "t_end_s", "status", "ok", "note", "in_note"])
-    win = pd.read_csv(path)
+    win = read_window_table(path)
     win["ok"] = win["status"].astype(str) == "ok"
     centre = 0.5 * (win["t_start_s"] + win["t_end_s"])
     win["note"] = -1
@@ -228,7 +230,7 @@ def long_take(folder: Path, pipe: Path, snr: float, duration: float) -> None:
     if not path.exists():
         print(f"\n{duration:g} s swell: no windows table (exit {code}): {tail}")
         return
-    win = pd.read_csv(path)
+    win = read_window_table(path)
     ok = win[win["status"] == "ok"]
     s_err = 100 * (ok["S"].median() / float(truth["reed_S"]) - 1)
     lam_err = 100 * (ok["lam"].median() / float(truth["reed_lambda"]) - 1)

@@ -59,6 +59,7 @@ from mpipe.cli.main import main as cli_main
 from mpipe.inversion.combinations import COMBINATION_NAMES, combination_values
 from mpipe.inversion.coverage import summary
 from mpipe.inversion.kernel import bore_kernel
+from mpipe.inversion.records import flags, read_windows, write_windows
 from mpipe.measurement.calibration import load_calibration
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -108,7 +109,7 @@ def run_path(label: str, take, pipeline: Path, out: Path) -> pd.DataFrame:
          "-o", str(out)]
     )  # fmt: skip
     print(f"[{label}] mpipe run: exit {code}, {time.perf_counter() - t0:.0f} s", flush=True)
-    return pd.read_csv(out / take.audio.stem / "inversion" / "windows.csv", keep_default_na=False)
+    return read_windows(out / take.audio.stem / "inversion" / "windows.csv")
 
 
 def report(label: str, windows: pd.DataFrame, truth: dict, z_c: float, rho: float) -> None:
@@ -164,6 +165,11 @@ def coverage_take(seed: int, snr: float, kind: str, duration: float, folder: Pat
 
     cache = folder / f"{kind}_{snr:g}dB_seed{seed}.parquet"
     stem = folder / f"{kind}_{snr:g}dB_seed{seed}"
+    if cache.exists():
+        try:
+            read_windows(cache)
+        except ValueError:  # cached by an older mpipe, with columns no longer in the schema
+            cache.unlink()
     if not cache.exists():
         for old in folder.glob(stem.name + ".*"):
             old.unlink()
@@ -182,8 +188,8 @@ def coverage_take(seed: int, snr: float, kind: str, duration: float, folder: Pat
                            starts=starts, temperature_c=tr.temperature_c)  # fmt: skip
         table = done.tracking.table.copy()
         table["take_checks"] = "; ".join(done.checks)
-        table.to_parquet(cache, index=False)
-    table = pd.read_parquet(cache)
+        write_windows(table, cache)
+    table = read_windows(cache)
     with np.load(stem.with_suffix(".truth.npz")) as d:
         truth = {k: d[k] for k in d.files}
     return table, truth
@@ -305,7 +311,7 @@ def main(argv=None) -> int:
             )
         flagged = [
             n for n in ("k", "S", "y_m", "lam", "m", "k_c")
-            if not ok[f"determined_{n}"].astype(str).str.lower().eq("true").any()
+            if not flags(ok, f"determined_{n}").any()
         ]  # fmt: skip
         print(f"[closure] undetermined in every ok window: {', '.join(flagged)}")
     return 0

@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from mpipe.cli.main import main as cli_main
+from mpipe.inversion.records import flags, read_windows
 
 ROOT = Path(__file__).resolve().parents[2]
 CALIBRATION = ROOT / "calibration" / "simplified_clarinet.yaml"
@@ -33,7 +34,7 @@ PARAMETERS = (
     ("m", "m", "kg/m^2"),
     ("g", "g", "1/s"),
     ("lam", "lambda", "m"),
-    ("k_c", "k_c", "Pa/m^α"),
+    ("k_c", "k_c", "Pa/m^alpha"),
 )
 
 
@@ -63,7 +64,7 @@ def truth_table(windows: pd.DataFrame, truth: dict, fs: float) -> pd.DataFrame:
         if f"{col}_se" in ok:
             # the median standard error over the windows, and how often the data determine it
             se = pd.to_numeric(ok[f"{col}_se"], errors="coerce")
-            det = ok[f"determined_{col}"].astype(str).str.lower().eq("true")
+            det = flags(ok, f"determined_{col}")
             row["median_se_%"] = 100 * float((se / ok[col]).median()) if len(ok) else math.nan
             row["determined"] = f"{det.mean():.0%}" if len(ok) else ""
         rows.append(row)
@@ -93,8 +94,7 @@ def main(out_dir: Path = ROOT / "demo_output") -> int:
     if code:
         return code
     name = Path(files.audio).stem
-    windows = pd.read_csv(out_dir / "run" / name / "inversion" / "windows.csv",
-                          keep_default_na=False)  # fmt: skip
+    windows = read_windows(out_dir / "run" / name / "inversion" / "windows.csv")
     with np.load(files.truth) as data:
         truth = {k: data[k] for k in data.files}
     table = truth_table(windows, truth, float(truth["fs_model"]))

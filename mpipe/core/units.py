@@ -16,7 +16,7 @@ UNITS = {
     "m": "kg/m²",
     "g": "1/s",
     "lam": "m",
-    "k_c": "Pa/m^α",
+    "k_c": "Pa/m^alpha",  # alpha: the contact exponent (column alpha)
     "y_c": "m",
     "alpha": "–",
     "step1_p_m": "Pa",

@@ -31,8 +31,11 @@ window
     One window's inversion: step 1, the cold or warm start, step 2, its errors.
 execution
     Where windows run: in process, a local process pool or a Dask cluster.
+records
+    The window record (a window's result and its correlation) and the table's schema:
+    every column's dtype, unit and meaning; typed CSV and Parquet files.
 tables
-    The per-window table, its checkpoints and the files written.
+    A window's blank record, checkpoints, the files written.
 least_squares, coldstart
     Trust-region search on F2's residual vector; the global cold start.
 fastpath
@@ -48,7 +51,7 @@ combinations
 window_errors
     The uncertainty columns of a window's row (standard errors, determined, notes).
 coverage
-    Summary of a take's uncertainty: spread, median SE, determined, 2-SE coverage.
+    Summary of a take's uncertainty: MAD sigma, median SE, determined, 2-SE coverage.
 resynthesis
     The model driven by each window's estimates, and its figures.
 

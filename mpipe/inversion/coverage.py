@@ -1,8 +1,9 @@
-"""Summary of a take's uncertainty: median, spread, median SE, determined, coverage.
+"""Summary of a take's uncertainty: median, MAD sigma, median SE, determined, coverage.
 
 Over the windows of one status, per parameter and combination: the median estimate, its
-spread between windows, the median standard error, the fraction of windows where it is
-determined and, given the truth, the coverage of the 2-SE interval.
+scatter between windows (``mad_sigma``: 1.4826 times the median absolute deviation, the
+standard deviation of a normal scatter), the median standard error, the fraction of windows
+where it is determined and, given the truth, the coverage of the 2-SE interval.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import numpy as np
 import pandas as pd
 
 from mpipe.inversion.combinations import COMBINATION_NAMES
+from mpipe.inversion.records import flags
 from mpipe.inversion.uncertainty import SE_PARAMETERS
 
 
@@ -22,7 +24,7 @@ def summary(
     truth: Mapping[str, np.ndarray | float] | None = None,
     status: str = "ok",
 ) -> pd.DataFrame:
-    """Per parameter and combination: median, spread, median SE, determined, coverage.
+    """Per parameter and combination: median, MAD sigma, median SE, determined, coverage.
 
     Parameters
     ----------
@@ -40,12 +42,12 @@ def summary(
     Returns
     -------
     pandas.DataFrame
-        Columns ``name, median, spread, median_se, median_rel_se, determined_fraction``
-        (and ``truth_median, coverage_2se`` with a truth). ``spread`` is 1.4826 times the
-        median absolute deviation over the windows (the standard deviation for a normal
-        spread).
+        Columns ``name, median, mad_sigma, median_se, median_rel_se, determined_fraction``
+        (and ``truth_median, coverage_2se`` with a truth). ``mad_sigma`` is 1.4826 times
+        the median absolute deviation over the windows (the standard deviation of a normal
+        scatter), in the quantity's unit.
     """
-    mask = table["status"].astype(str) == status if "status" in table else slice(None)
+    mask = table["status"] == status if "status" in table else slice(None)
     sel = table[mask]
     rows = []
     for name in (*SE_PARAMETERS, *COMBINATION_NAMES):
@@ -55,15 +57,15 @@ def summary(
         se = pd.to_numeric(sel[f"{name}_se"], errors="coerce").to_numpy(dtype=float)
         if not np.isfinite(se).any() and not np.isinf(se).any():
             continue  # a fixed parameter
-        det = sel[f"determined_{name}"].astype(str).str.lower().isin(("true", "1"))
+        det = flags(sel, f"determined_{name}")
         med = float(np.nanmedian(x)) if x.size else math.nan
         row = {
             "name": name,
             "median": med,
-            "spread": float(1.4826 * np.nanmedian(np.abs(x - med))) if x.size else math.nan,
+            "mad_sigma": float(1.4826 * np.nanmedian(np.abs(x - med))) if x.size else math.nan,
             "median_se": float(np.median(se)) if se.size else math.nan,
             "median_rel_se": float(np.median(se / np.abs(x))) if x.size else math.nan,
-            "determined_fraction": float(det.mean()) if len(det) else math.nan,
+            "determined_fraction": float(det.mean()) if det.size else math.nan,
         }
         if truth is not None and name in truth:
             t = np.broadcast_to(np.asarray(truth[name], dtype=float), np.shape(table[name]))

@@ -115,7 +115,7 @@ def take_checks(
             f"{config.local_starts} short searches (fewer than {MIN_AGREEING}): a narrow basin, "
             "possibly a wrong one"
         )
-    ok = table[table["status"].astype(str) == "ok"] if "status" in table else table.iloc[:0]
+    ok = table[table["status"] == "ok"] if "status" in table else table.iloc[:0]
     if not len(ok):
         return reasons
     checks = (

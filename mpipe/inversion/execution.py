@@ -127,7 +127,7 @@ def _retry_cold(job: Job, s: int, previous: dict) -> tuple[dict, np.ndarray | No
     row, hist = previous, None
     if not o.row["error"] and o.row["f2"] < previous["f2"]:
         row, hist = o.row, None if o.search is None else o.search.history
-    return {**row, "retried_cold": True}, hist
+    return row.replace(retried_cold=True), hist
 
 
 # The take's shared data in a worker process of the local pool: set once per worker by the

@@ -33,6 +33,7 @@ from mpipe.inversion.objective import (  # noqa: E402
     TargetWindow,
     run_model,
 )
+from mpipe.inversion.records import flags  # noqa: E402
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig  # noqa: E402
 from mpipe.inversion.step1 import Step1Result  # noqa: E402
 from mpipe.reed.bore_kernel import BoreKernel  # noqa: E402
@@ -300,7 +301,7 @@ def plot_tracks(table: pd.DataFrame, path: str | Path) -> Path:
                 _split(np.where(band, hi, np.nan), brk),
                 color="tab:blue", alpha=0.25, lw=0, label="±2 SE",
             )  # fmt: skip
-            det = table[det_col].astype(str).str.lower().isin(("true", "1")).to_numpy()
+            det = flags(table, det_col)
             if np.isnan(se[ok]).all():
                 title += " fixed"
                 det = np.ones(len(t), bool)

@@ -170,7 +170,7 @@ def classify(table: pd.DataFrame, config: InversionConfig) -> pd.DataFrame:
     Returns
     -------
     pandas.DataFrame
-        A copy with ``status``, ``status_reason`` and ``converged`` (status is ok) set.
+        A copy with ``status`` and ``status_reason`` set.
     """
     out = table.copy()
     provisional = [window_status(r) for r in out.to_dict("records")]
@@ -220,7 +220,6 @@ def classify(table: pd.DataFrame, config: InversionConfig) -> pd.DataFrame:
             status[i] = "high-residual" if status[i] == "ok" else status[i]
     out["status"] = status
     out["status_reason"] = reasons
-    out["converged"] = out["status"] == "ok"
     return out
 
 

@@ -1,9 +1,11 @@
-"""The per-window table of a take: its columns, a window's blank row, and the files written.
+"""The per-window table of a take: a window's blank record, checkpoints, the files written.
 
-A window's row holds its estimate, status, step-1 fits, standard errors and search
-diagnostics (:data:`COLUMNS`). Each finished window can be saved as a JSON checkpoint
-(so an interrupted take resumes without redoing it); the take's table is written as CSV
-and Parquet, its correlation matrices as a long-format CSV.
+A window's record (:class:`mpipe.inversion.records.WindowRecord`) holds its estimate,
+status, step-1 fits, standard errors and search diagnostics (:data:`COLUMNS`, declared
+with dtypes and units in :data:`mpipe.inversion.records.WINDOW_SCHEMA`) and its
+correlation matrix. Each finished window can be saved as a JSON checkpoint (so an
+interrupted take resumes without redoing it); the take's table is written as CSV and
+Parquet in the schema's dtypes, its correlation matrices as a long-format CSV.
 """
 
 from __future__ import annotations
@@ -16,32 +18,28 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from mpipe.core.io import write_atomic, write_csv, write_text_atomic
-from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
-from mpipe.inversion.window_errors import (
-    CORRELATION_COLUMNS,
-    correlation_records,
-    uncertainty_columns,
+from mpipe.core.io import write_atomic, write_text_atomic
+from mpipe.inversion.records import (
+    RECORD_COLUMNS,
+    Correlation,
+    WindowRecord,
+    window_frame,
+    write_windows,
 )
+from mpipe.inversion.segments import note_segments
+from mpipe.inversion.settings import InversionConfig
+from mpipe.inversion.window_errors import CORRELATION_COLUMNS, correlation_records
 
 log = logging.getLogger(__name__)
 
-#: Columns of the per-window table, in order.
-COLUMNS = (
-    "window", "t_start_s", "t_end_s", "segment", *PARAMETER_NAMES, "y_c", "alpha",
-    "kernel_temperature_c", "kernel_temperature_se_c",
-    "status", "status_reason", "converged", *uncertainty_columns(),
-    "step1_p_m", "k_closing", "S_closing", "y_m_closing", "f1_closing",
-    "k_opening", "S_opening", "y_m_opening", "f1_opening",
-    "f2", "relative_residual", "model_f0_cents", "model_level_db", "n_iterations",
-    "n_evaluations", "optimiser",
-    "optimiser_converged", "optimiser_message", "at_bound", "warm", "cold_starts_agreeing",
-    "retried_cold", "wall_time_s", "error", "take_checks",
-)  # fmt: skip
+#: Columns of a window's record, in order (those the inversion fills).
+COLUMNS = RECORD_COLUMNS
 
 
-def blank_row(start: int, n: int, fs: float, config: InversionConfig, *, cold: bool) -> dict:
-    """The row of a window before it runs: NaN numbers, status failed, no estimate.
+def blank_row(
+    start: int, n: int, fs: float, config: InversionConfig, *, cold: bool
+) -> WindowRecord:
+    """The record of a window before it runs: NaN numbers, status failed, no estimate.
 
     Parameters
     ----------
@@ -56,10 +54,10 @@ def blank_row(start: int, n: int, fs: float, config: InversionConfig, *, cold: b
 
     Returns
     -------
-    dict
-        Keys of :data:`COLUMNS` (and ``uncertainty_note``).
+    WindowRecord
+        Every column of :data:`COLUMNS`, no correlation.
     """
-    row = {c: np.nan for c in COLUMNS}
+    row = WindowRecord({c: np.nan for c in COLUMNS})
     row.update(
         window=-1,
         t_start_s=start / fs,
@@ -67,7 +65,6 @@ def blank_row(start: int, n: int, fs: float, config: InversionConfig, *, cold: b
         error="",
         status="failed",
         status_reason="",
-        converged=False,
         optimiser=config.optimiser,
         optimiser_converged=False,
         optimiser_message="",
@@ -81,26 +78,26 @@ def blank_row(start: int, n: int, fs: float, config: InversionConfig, *, cold: b
     return row
 
 
-def window_table(results: list[tuple[dict, np.ndarray | None]]) -> pd.DataFrame:
-    """The table of ``(row, history)`` results, in their order (columns :data:`COLUMNS`)."""
-    return pd.DataFrame([r for r, _ in results], columns=list(COLUMNS))
+def window_table(results: list[tuple[WindowRecord, np.ndarray | None]]) -> pd.DataFrame:
+    """The typed table of ``(record, history)`` results, in their order (:data:`COLUMNS`)."""
+    return window_frame([r for r, _ in results])
 
 
 def histories_and_correlations(
-    results: list[tuple[dict, np.ndarray | None]],
+    results: list[tuple[WindowRecord, np.ndarray | None]],
 ) -> tuple[dict, pd.DataFrame]:
     """Step-2 histories by window index, and the long-format correlation table.
 
-    The correlation matrix of a window rides in its row under ``_correlation``.
+    The correlation matrix of a window is its record's :attr:`WindowRecord.correlation`.
     """
     histories = {}
     records = []
     for i, (row, hist) in enumerate(results):
         if hist is not None:
             histories[i] = hist
-        corr = row.get("_correlation")
-        if corr:
-            records += correlation_records(i, row["t_start_s"], corr["names"], corr["matrix"])
+        corr = row.correlation
+        if corr is not None:
+            records += correlation_records(i, row["t_start_s"], corr.names, corr.matrix)
     return histories, pd.DataFrame(records, columns=list(CORRELATION_COLUMNS))
 
 
@@ -108,27 +105,38 @@ def _checkpoint_path(checkpoint: Path, start: int) -> Path:
     return checkpoint / f"w{start:010d}.json"
 
 
-def save_checkpoint(checkpoint: Path, start: int, row: dict, history) -> None:
+def save_checkpoint(checkpoint: Path, start: int, row: WindowRecord, history) -> None:
     """Save the result of the window starting at sample ``start`` (JSON, atomically)."""
     record = {
-        "row": {k: (v.item() if isinstance(v, np.generic) else v) for k, v in row.items()},
+        "row": row.as_dict(),
+        "correlation": None if row.correlation is None else row.correlation.to_json(),
         "history": None if history is None else np.asarray(history, dtype=float).tolist(),
     }
     write_text_atomic(_checkpoint_path(checkpoint, start), json.dumps(record))
 
 
-def load_checkpoint(checkpoint: str | Path, start: int) -> tuple[dict, np.ndarray | None] | None:
-    """The saved result of the window starting at sample ``start``, or None."""
+def load_checkpoint(
+    checkpoint: str | Path, start: int
+) -> tuple[WindowRecord, np.ndarray | None] | None:
+    """The saved result of the window starting at sample ``start``, or None.
+
+    A checkpoint whose columns are not those of :data:`COLUMNS` (written by another
+    version of mpipe) is not used: the window is inverted again.
+    """
     path = _checkpoint_path(Path(checkpoint), start)
     if not path.exists():
         return None
     record = json.loads(path.read_text())
+    if set(record["row"]) != set(COLUMNS) or "correlation" not in record:
+        log.info("%s: written by another version of mpipe; the window is redone", path)
+        return None
     hist = record["history"]
-    return record["row"], None if hist is None else np.asarray(hist)
+    row = WindowRecord(record["row"], Correlation.from_json(record["correlation"]))
+    return row, None if hist is None else np.asarray(hist)
 
 
 def write_table(table: pd.DataFrame, directory: str | Path, stem: str = "windows") -> list[Path]:
-    """Write the per-window table as CSV (10 significant digits) and as Parquet (full precision).
+    """Write the per-window table as CSV (10 significant digits) and Parquet (exact), typed.
 
     Parameters
     ----------
@@ -145,17 +153,13 @@ def write_table(table: pd.DataFrame, directory: str | Path, stem: str = "windows
         Files written (atomically).
     """
     directory = Path(directory)
-    written = [write_csv(directory / f"{stem}.csv", table)]
+    written = [write_windows(table, directory / f"{stem}.csv")]
     try:
         import pyarrow  # noqa: F401
     except ImportError:  # a dependency; only a broken installation lacks it
         log.warning("pyarrow cannot be imported: no Parquet output")
     else:
-        written.append(
-            write_atomic(
-                directory / f"{stem}.parquet", lambda tmp: table.to_parquet(tmp, index=False)
-            )
-        )
+        written.append(write_windows(table, directory / f"{stem}.parquet"))
     return written
 
 
@@ -186,8 +190,6 @@ def write_correlations(
 def segment_lines(summary: pd.DataFrame) -> list[str]:
     """One console line per note: when, what was played, ok windows, medians +- SE."""
     lines = []
-    from mpipe.inversion.segments import note_segments
-
     for number, (_, r) in enumerate(note_segments(summary).iterrows(), start=1):
         parts = []
         for name, unit in (("p_m", " Pa"), ("p_M", " Pa"), ("gamma", ""), ("zeta", "")):

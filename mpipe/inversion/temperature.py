@@ -38,6 +38,7 @@ import pandas as pd
 from mpipe.inversion.coldstart import map_tasks
 from mpipe.inversion.combinations import COMBINATION_NAMES, combination_values
 from mpipe.inversion.kernel import bore_kernel
+from mpipe.inversion.records import flags
 from mpipe.inversion.segments import pick_by_segment, pick_windows, window_count
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
 from mpipe.inversion.uncertainty import SE_PARAMETERS
@@ -481,7 +482,7 @@ def widen_standard_errors(table: pd.DataFrame, fit: TemperatureFit, limit: float
         out[col] = widened
         det = f"determined_{name}"
         if det in out:
-            was = out[det].astype(str).str.lower().isin(("true", "1")).to_numpy()
+            was = flags(out, det)
             with np.errstate(invalid="ignore", divide="ignore"):
                 out[det] = was & np.isfinite(widened) & (widened / np.abs(x) < limit)
     return out

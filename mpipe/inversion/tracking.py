@@ -31,6 +31,7 @@ import pandas as pd
 from mpipe.core.progress import ProgressBar  # the bar drawn by the commands (tqdm)
 from mpipe.inversion.conditioning import is_zero_mean
 from mpipe.inversion.execution import Job, dispatch, run_windows, stage_workers
+from mpipe.inversion.records import typed
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.status import classify
 from mpipe.inversion.tables import histories_and_correlations, window_table
@@ -239,7 +240,7 @@ def track(
     histories, correlations = histories_and_correlations(results)
     table["window"] = np.arange(len(table))
     return Tracking(
-        table=table, histories=histories, zero_mean=zero_mean, correlations=correlations
+        table=typed(table), histories=histories, zero_mean=zero_mean, correlations=correlations
     )
 
 

@@ -25,6 +25,7 @@ from mpipe.inversion.coldstart import global_search
 from mpipe.inversion.diagnostics import playing_difference
 from mpipe.inversion.least_squares import trust_region
 from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWindow
+from mpipe.inversion.records import Correlation, WindowRecord
 from mpipe.inversion.rosenbrock import SearchResult
 from mpipe.inversion.scipy_searches import minimise
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
@@ -45,8 +46,8 @@ class WindowOutcome:
 
     Attributes
     ----------
-    row : dict
-        One row of the table (keys of :data:`mpipe.inversion.tables.COLUMNS`).
+    row : WindowRecord
+        The window's record (columns of :data:`mpipe.inversion.tables.COLUMNS`).
     step1 : Step1Result or None
         Step-1 fits (None when step 1 was not run or failed).
     search : SearchResult or None
@@ -55,7 +56,7 @@ class WindowOutcome:
         Step-2 estimate.
     """
 
-    row: dict
+    row: WindowRecord
     step1: Step1Result | None
     search: SearchResult | None
     reed: ReedParameters | None
@@ -224,7 +225,9 @@ def invert_window(
             raise RuntimeError("no feasible parameter set found (model silent or unstable)")
         reed = objective.reed(search.x)
         row.update(_estimate_columns(reed, search, pw, bounds, config))
-        errors = _errors_or_note(objective, search, bounds, reed, kernel, config, row, start / fs)
+        errors, row.correlation = _errors_or_note(
+            objective, search, bounds, reed, kernel, config, row, start / fs
+        )
         row.update(errors)
         res = search.residuals if search.residuals is not None else objective.residuals(search.x)
         row.update(playing_difference(pw, pw - np.asarray(res, dtype=float), fs))
@@ -233,7 +236,6 @@ def invert_window(
         row["error"] = f"{type(exc).__name__}: {exc}"
     row["wall_time_s"] = time.perf_counter() - t0
     row.update(zip(("status", "status_reason"), window_status(row), strict=True))
-    row["converged"] = row["status"] == "ok"
     return WindowOutcome(row=row, step1=s1, search=search, reed=reed)
 
 
@@ -356,23 +358,27 @@ def _estimate_columns(
     return row
 
 
-def _errors_or_note(objective, search, bounds, reed, kernel, config, row, t_start) -> dict:
-    """The uncertainty columns, or only a note saying why there are none (``t_start``, s)."""
+def _errors_or_note(
+    objective, search, bounds, reed, kernel, config, row, t_start
+) -> tuple[dict, Correlation | None]:
+    """Uncertainty columns and correlation, or a note saying why there are none (``t_start``, s)."""
     try:
         return _uncertainty(objective, search, bounds, reed, kernel, config, row["at_bound"])
     except (ValueError, np.linalg.LinAlgError) as exc:
         # the estimate stands; only its error bars are missing
         log.warning("window at %.4f s: no standard errors: %s", t_start, exc)
-        return {"uncertainty_note": f"no standard errors: {exc}", "dof": math.nan}
+        return {"uncertainty_note": f"no standard errors: {exc}", "dof": math.nan}, None
 
 
-def _uncertainty(objective, search, bounds, reed, kernel, config, at_bound: str) -> dict:
+def _uncertainty(
+    objective, search, bounds, reed, kernel, config, at_bound: str
+) -> tuple[dict, Correlation]:
     """Standard errors, combinations and correlations of one window.
 
     See :mod:`mpipe.inversion.uncertainty`.
     The trust-region search's own Jacobian at the solution is used; other searches (and
     the rare trust-region end that is not scipy's point) get a forward-difference one.
-    The correlation matrix rides in the row under ``_correlation`` (not a table column).
+    Returns the uncertainty columns and the correlation of the free parameters.
     """
     names = objective.free
     if search.jacobian is not None and search.residuals is not None:
@@ -401,8 +407,7 @@ def _uncertainty(objective, search, bounds, reed, kernel, config, at_bound: str)
         out["uncertainty_note"] = "; ".join(
             x for x in ("search not converged: SEs at its last point", out["uncertainty_note"]) if x
         )
-    out["_correlation"] = {"names": list(names), "matrix": cov.correlation().tolist()}
-    return out
+    return out, Correlation(tuple(names), cov.correlation())
 
 
 __all__ = ["WindowOutcome", "invert_window", "local_search", "start_point"]

@@ -23,6 +23,7 @@ from mpipe.core.errors import UserError
 from mpipe.core.io import write_atomic, write_csv, write_npz_atomic
 from mpipe.core.progress import stage_timer
 from mpipe.inversion.kernel import bore_kernel, table_temperature, take_temperature
+from mpipe.inversion.records import read_windows
 from mpipe.inversion.settings import PARAMETER_NAMES
 from mpipe.measurement.calibration import Calibration, load_calibration
 from mpipe.measurement.measured_instrument import bore_description
@@ -296,8 +297,7 @@ def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
         mp = _load_npz(mouthpiece)
         fs = float(mp["fs"])
         p, u = mp["p"], mp["u"]
-        table = pd.read_csv(windows, keep_default_na=False, na_values=[""], dtype={"error": str})
-        table["error"] = table["error"].fillna("")
+        table = read_windows(windows)
         kernel, _ = bore_kernel(cal, fs, table_temperature(table, mp.get("temperature_c"), cal))
         bar = ProgressBar(len(table), desc="resynthesis")
         try:

@@ -1,6 +1,6 @@
 """The HTML report of a take: one self-contained file a scientist can send.
 
-The report opens with a summary (verdict, parameter medians with their spread, failed and
+The report opens with a summary (verdict, parameter medians with their IQR, failed and
 flagged windows), then the measurement (impedance validation), the reed parameters over
 time, the resynthesis and the run. Units come from :func:`mpipe.core.units.unit_of`; the
 page itself (embedded figures, numbered tables, rounding) is
@@ -9,6 +9,7 @@ page itself (embedded figures, numbered tables, rounding) is
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -16,6 +17,8 @@ import numpy as np
 import pandas as pd
 
 from mpipe.core.units import unit_of
+from mpipe.inversion.coverage import summary as uncertainty_summary
+from mpipe.inversion.records import read_windows
 from mpipe.pipeline.html_report import Figure, Section, fmt, write_report
 
 #: Reed parameters summarised at the top of a take's report, in this order.
@@ -23,7 +26,7 @@ SUMMARY_PARAMETERS = ("k", "S", "y_m", "p_m", "lam", "m", "g", "k_c")
 
 
 def parameter_summary(windows: pd.DataFrame) -> pd.DataFrame:
-    """Median and spread of each reed parameter over the windows with status ok.
+    """Median and interquartile range of each reed parameter over the windows with status ok.
 
     Returns
     -------
@@ -145,7 +148,7 @@ def write_take_report(
     -------
     Path
     """
-    windows = _read_csv(root / "inversion" / "windows.csv")
+    windows = read_windows(root / "inversion" / "windows.csv")
     resonances = _read_csv(root / "validation" / "validation.csv")
     harmonics = _read_csv(root / "validation" / "harmonics.csv")
     plan = _read_csv(root / "conditioning" / "plan.csv")
@@ -220,14 +223,13 @@ def _summary_section(
         "when the search met its tolerance, no parameter sits on a search bound and its "
         "residual is within a few times the take's best. Median relative residual of the "
         f"model pressure {fmt(med_res, 3)}. Air temperature: {_temperature_words(val, inv)} "
-        "The spread is the interquartile range (q25–q75) over the ok windows."
+        "In the parameter table, iqr_pct is the interquartile range (q75 − q25) over the "
+        "median, %, over the ok windows."
     )
     if val.get("failures"):
         summary_text += "\n\nValidation failures: " + "; ".join(val["failures"]) + "."
     if inv.get("take_checks"):
         summary_text += "\n\nTake-level checks: " + "; ".join(inv["take_checks"]) + "."
-    from mpipe.inversion.coverage import summary as uncertainty_summary
-
     uncertainty = uncertainty_summary(windows)
     if len(uncertainty):
         uncertainty.insert(1, "unit", [unit_of(n) for n in uncertainty["name"]])
@@ -252,16 +254,21 @@ def _summary_section(
         )
         if len(uncertainty):
             uncertainty = uncertainty.drop(
-                columns=[c for c in ("median", "spread") if c in uncertainty]
+                columns=[c for c in ("median", "mad_sigma") if c in uncertainty]
             )
     else:
         summary_tables.append(
-            ("Reed parameters over the take (ok windows): median, interquartile spread.", params)
+            (
+                "Reed parameters over the take (ok windows): median, quartiles q25 and q75, "
+                "interquartile range over the median (iqr_pct, %), extremes.",
+                params,
+            )
         )
     summary_tables += [
         (
-            "Uncertainty (ok windows): median, spread over windows (1.4826 × median absolute "
-            "deviation), median standard error of one window, and the fraction of windows "
+            "Uncertainty (ok windows): median, mad_sigma (the scatter over windows: 1.4826 × "
+            "their median absolute deviation), median standard error of one window, and the "
+            "fraction of windows "
             "where the quantity is determined (relative standard error below "
             "inversion.determined_limit). An undetermined quantity is not measured by this "
             "take; see uncertainty_note in windows.csv. p_M = k y_m, γ = p_m / p_M, "
@@ -372,7 +379,7 @@ def _parameters_section(root: Path, records: dict, windows: pd.DataFrame) -> Sec
     inv_root = root / "inversion"
     captions = {
         "tracks.png": "Reed parameters per window from step 2 against time (s); each panel "
-        "in its SI unit (k Pa/m, S m², y_m m, p_m Pa, λ m, m kg/m², g 1/s, k_c Pa/m²), with "
+        "in its SI unit (k Pa/m, S m², y_m m, p_m Pa, λ m, m kg/m², g 1/s, k_c Pa/m^alpha), with "
         "the fitted reed's mean opening h_mean (m) and the fraction of the time it is shut; "
         "lines break between notes, bands are ±2 SE in log space.",
         "flow_pressure.png": "First inverted window: volume flow u (m³/s) against the "
@@ -441,8 +448,6 @@ def plot_blocks(blocks: pd.DataFrame, path: Path, sentence: str = "") -> None:
     ``blocks`` is the separation's ``blocks.csv`` table; ``sentence`` titles the figure
     (whether the data show a drift).
     """
-    import textwrap
-
     import matplotlib
 
     matplotlib.use("Agg")

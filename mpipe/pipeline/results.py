@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from mpipe.core.units import unit_of
+from mpipe.inversion.records import read_windows
 
 #: Tables of a take folder: name -> (stage folder, file).
 TABLES = {
@@ -145,7 +146,10 @@ def load_run(out: str | Path, take: str | None = None) -> RunData:
         if not path.exists():
             continue
         parquet = path.with_suffix(".parquet")
-        if parquet.exists():
+        if name == "windows":
+            # typed by the window schema: flags as bool, counts as Int64, text "" when empty
+            table = read_windows(parquet if parquet.exists() else path)
+        elif parquet.exists():
             table = pd.read_parquet(parquet)
         else:
             table = pd.read_csv(path, keep_default_na=False, na_values=[""])

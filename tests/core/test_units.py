@@ -4,7 +4,7 @@ from mpipe.core.units import label, unit_of
 
 
 def test_named_quantities_and_their_standard_errors_carry_their_unit():
-    assert unit_of("k") == "Pa/m" and unit_of("S") == "m²" and unit_of("k_c") == "Pa/m^α"
+    assert unit_of("k") == "Pa/m" and unit_of("S") == "m²" and unit_of("k_c") == "Pa/m^alpha"
     assert unit_of("k_se") == "Pa/m"  # a standard error has its quantity's unit
     assert unit_of("gamma") == "–" and unit_of("zeta_se") == "–"
 

@@ -23,3 +23,6 @@ def test_summary_coverage():
     s = summary(table, {"k": 1.0}).set_index("name")
     assert s.loc["k", "coverage_2se"] == pytest.approx(1 / 2)
     assert s.loc["k", "median"] == pytest.approx(1.0)
+    # the scatter over windows is 1.4826 MAD: |x - 1| = 0, 0.1, 0.3 -> MAD 0.1
+    assert s.loc["k", "mad_sigma"] == pytest.approx(0.14826)
+    assert "spread" not in s

@@ -10,9 +10,10 @@ import soundfile
 from mpipe.acoustics.reflection import reflection_function
 from mpipe.cli.main import main
 from mpipe.inversion import resynthesis as rs
+from mpipe.inversion.records import window_frame
 from mpipe.inversion.settings import InversionConfig
 from mpipe.inversion.step1 import step1
-from mpipe.inversion.tables import COLUMNS
+from mpipe.inversion.tables import blank_row
 from mpipe.measurement.calibration import load_calibration
 from mpipe.reed.bore_kernel import prepare_bore
 from mpipe.reed.model import simulate
@@ -36,16 +37,16 @@ def setup():
 def table_of(reed, starts):
     rows = []
     for i, s in enumerate(starts):
-        row = {c: np.nan for c in COLUMNS}
+        row = blank_row(s, 2000, FS, InversionConfig(), cold=True)
         row.update(
             {
                 f: getattr(reed, f)
                 for f in ("k", "S", "y_m", "p_m", "m", "g", "lam", "k_c", "y_c", "alpha")
             }
         )
-        row.update(window=i, t_start_s=s / FS, t_end_s=(s + 2000) / FS, error="")
+        row.update(window=i, status="ok", error="")
         rows.append(row)
-    return pd.DataFrame(rows, columns=list(COLUMNS))
+    return window_frame(rows)
 
 
 def test_resynthesis_with_true_parameters_matches(setup):
@@ -133,7 +134,6 @@ def test_invert_command_bad_npz(tmp_path, capsys):
 
 
 def test_track_bands_stay_positive_and_lines_break_between_notes():
-    import pandas as pd
 
     from mpipe.inversion.resynthesis import _band, _breaks, _split
 

@@ -26,7 +26,7 @@ def test_summary_lists_windows_that_are_not_ok():
     assert overall_verdict(True, windows.iloc[2:])[1] == "fail"  # no window ok
     assert overall_verdict(True, windows.iloc[:2])[1] == "pass"
     params = parameter_summary(windows).set_index("parameter")
-    # only the ok windows make the median and the spread
+    # only the ok windows make the median and the quartiles
     assert params.loc["k", "n_windows"] == 2
     assert params.loc["k", "median"] == pytest.approx(8.65e6)
     assert params.loc["k", "unit"] == "Pa/m"
