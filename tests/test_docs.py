@@ -7,6 +7,14 @@ ROOT = Path(__file__).resolve().parents[1]
 LINK = re.compile(r"\]\(([^)#\s]+)(?:#[^)]*)?\)")
 
 
+def test_readme_names_every_page_of_the_docs():
+    readme = (ROOT / "README.md").read_text()
+    missing = [
+        p.name for p in sorted((ROOT / "docs").glob("*.md")) if f"docs/{p.name}" not in readme
+    ]
+    assert not missing, f"README's Documentation section does not name: {missing}"
+
+
 def test_relative_links_resolve_inside_the_repository():
     pages = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
     assert len(pages) >= 3
