@@ -18,6 +18,7 @@ import numpy as np
 from mpipe.core.errors import UserError
 from mpipe.core.io import check_writable
 from mpipe.measurement.calibration import Calibration, load_calibration
+from mpipe.reed.recorder import RecorderOptions
 from mpipe.reed.recording import VirtualTake, virtual_recording
 from mpipe.reed.take_files import TakeFiles, take_file_paths
 from mpipe.reed.take_files import write_virtual_take as _write
@@ -179,12 +180,14 @@ def synthesize(calibration: Calibration, reed, options: SynthOptions, score=None
         calibration,
         temperature_c=temp,
         mach=mach,
-        gain_error_db=options.gain_error_db,
-        phase_error_deg=options.phase_error_deg,
-        snr_db=options.snr_db,
-        bits=options.bits,
-        fs_out=options.fs_out,
-        seed=noise_seed,
+        recorder=RecorderOptions(
+            gain_error_db=options.gain_error_db,
+            phase_error_deg=options.phase_error_deg,
+            snr_db=options.snr_db,
+            bits=options.bits,
+            fs_out=options.fs_out,
+            seed=noise_seed,
+        ),
     )
     return take, run, mach
 
