@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import ctypes.util
+import faulthandler
 import logging
 import os
 import signal
@@ -25,6 +26,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
+from multiprocessing.managers import SyncManager
 
 log = logging.getLogger(__name__)
 
@@ -155,8 +157,6 @@ def manager():
 
     Use it as a context manager: ``with manager() as m: queue = m.Queue()``.
     """
-    from multiprocessing.managers import SyncManager
-
     m = SyncManager()
     m.start(worker_init, (os.getpid(),))
     return m
@@ -188,8 +188,6 @@ def exit_on_sigterm(grace_s: float = SIGTERM_GRACE_S) -> None:
 
 
 def _exit_now(code: int) -> None:
-    import faulthandler
-
     sys.stderr.write(f"mpipe: cleanup after termination did not finish; exiting (code {code})\n")
     with contextlib.suppress(Exception):
         faulthandler.dump_traceback(all_threads=True)

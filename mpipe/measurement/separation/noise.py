@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
+from mpipe.core.resampling import resample
 from mpipe.measurement.separation.settings import SeparationConfig
 
 # Floor of the noise levels relative to the strongest bin of a block's microphone spectra:
@@ -148,8 +149,6 @@ def resampler_response(freqs: np.ndarray, fs: float, fs_file: float) -> np.ndarr
     ndarray
         Dimensionless, shape of ``freqs``.
     """
-    from mpipe.measurement.takes import resample
-
     n_file = 4096
     impulse = np.zeros((n_file, 1))
     impulse[n_file // 2] = 1.0
