@@ -63,7 +63,7 @@ import scipy.fft
 from mpipe.acoustics.air import Air
 from mpipe.measurement.calibration import Calibration
 from mpipe.measurement.field import (
-    _check_mach,
+    check_mach,
     complex_gain,
     microphone_spectra,
     mouthpiece_to_reference,
@@ -248,7 +248,7 @@ def virtual_recording(
     physics.md E.1, F.1; Chatziioannou & van Walstijn 2012, section 4.
     """
     p, u = _checked_signals(p, u, fs)
-    _check_mach(mach)
+    check_mach(mach)
     recorder = RecorderOptions() if recorder is None else recorder
     n_mics = len(calibration.microphones)
     gains = per_microphone(recorder.gain_error_db, n_mics, "gain_error_db")

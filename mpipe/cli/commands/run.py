@@ -59,7 +59,7 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _take_files(arg: str) -> list[Path]:
+def take_arguments(arg: str) -> list[Path]:
     """The files of one TAKE argument.
 
     An existing file is taken as it is (commas in its name and all); otherwise the argument
@@ -138,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
 
     # a bad calibration or fingering: one line before any work, not one per take
     load_calibration(cal_path, cfg.fingering)
-    takes = [_take_files(t) for t in args.takes]
+    takes = [take_arguments(t) for t in args.takes]
     names = take_names(takes)
     _check_lengths(takes, cfg)
     # a bad output path fails now, not after the computation
