@@ -7,6 +7,16 @@ ROOT = Path(__file__).resolve().parents[1]
 LINK = re.compile(r"\]\(([^)#\s]+)(?:#[^)]*)?\)")
 
 
+#: The README is the front door (what, quickstart, stages, commands, where the docs are);
+#: the reference and the physics live in docs/.
+README_MAX_LINES = 150
+
+
+def test_readme_stays_a_front_door():
+    lines = (ROOT / "README.md").read_text().count("\n")
+    assert lines <= README_MAX_LINES, f"README.md has {lines} lines: move the detail to docs/"
+
+
 def test_readme_names_every_page_of_the_docs():
     readme = (ROOT / "README.md").read_text()
     missing = [
