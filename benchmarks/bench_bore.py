@@ -44,7 +44,7 @@ def main() -> None:
     air = cal.air_properties()
     omega = 2 * np.pi * np.linspace(10.0, 5000.0, 5000)
     t_z = median_time(lambda: input_impedance(cal.bore, omega, air), 30)
-    with mock.patch.object(ducts, "_bessel_ratio", jve_ratio):
+    with mock.patch.object(ducts, "bessel_ratio", jve_ratio):
         t_base = median_time(lambda: input_impedance(cal.bore, omega, air), 30)
     t_rf = median_time(lambda: reflection_function(cal.bore, air, 100_000.0), 5)
     rf = reflection_function(cal.bore, air, 100_000.0)

@@ -49,6 +49,7 @@ from mpipe.measurement.takes import resample  # noqa: E402
 from mpipe.reed.bore_kernel import prepare_bore  # noqa: E402
 from mpipe.reed.model import simulate  # noqa: E402
 from mpipe.reed.parameters import load_reed  # noqa: E402
+from mpipe.reed.recorder import RecorderOptions  # noqa: E402
 from mpipe.reed.recording import virtual_recording  # noqa: E402
 
 ROOT = Path(__file__).parents[1]
@@ -158,7 +159,9 @@ def clean_take(p, u, fs_out, drift, duration):
         temperature = (TRUTH_C - 1.5 - rate * SETTLE_S, TRUTH_C + 1.5)
     else:
         temperature = TRUTH_C
-    take = virtual_recording(p, u, FS, CAL, temperature_c=temperature, fs_out=fs_out)
+    take = virtual_recording(
+        p, u, FS, CAL, temperature_c=temperature, recorder=RecorderOptions(fs_out=fs_out)
+    )
     cut = int(round(SETTLE_S * fs_out))
     x = take.signals[cut:] * np.asarray(take.sensitivity)
     t = np.arange(x.shape[0]) / fs_out

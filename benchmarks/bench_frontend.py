@@ -44,6 +44,7 @@ from mpipe.measurement.translation import TranslationConfig, translate  # noqa: 
 from mpipe.reed.bore_kernel import prepare_bore  # noqa: E402
 from mpipe.reed.model import simulate  # noqa: E402
 from mpipe.reed.parameters import load_reed  # noqa: E402
+from mpipe.reed.recorder import RecorderOptions  # noqa: E402
 from mpipe.reed.recording import virtual_recording  # noqa: E402
 from mpipe.reed.take_files import write_virtual_take  # noqa: E402
 
@@ -71,9 +72,13 @@ def played_note(duration):
     return sim.p, sim.u
 
 
-def record(p, u, cal=CAL, **kw):
-    """Virtual take of the played note, the onset cut (a recording that starts mid-note)."""
-    take = virtual_recording(p, u, FS, cal, bits=24, **kw)
+def record(p, u, cal=CAL, temperature_c=None, **recorder):
+    """Virtual take of the played note, the onset cut (a recording that starts mid-note).
+
+    ``recorder``: fields of :class:`RecorderOptions` (24 bits unless given).
+    """
+    options = RecorderOptions(**{"bits": 24, **recorder})
+    take = virtual_recording(p, u, FS, cal, temperature_c=temperature_c, recorder=options)
     cut = int(SETTLE_S * take.fs)
     return dataclasses.replace(take, signals=take.signals[cut:])
 

@@ -13,8 +13,6 @@ on first use (so ``import mpipe`` stays light)::
 
 from importlib import import_module
 
-from mpipe import _moved
-
 __version__ = "0.1.0"
 
 _API = {
@@ -58,8 +56,6 @@ _API = {
 }
 
 __all__ = ["__version__", *_API]
-
-_moved.install()
 
 
 def __getattr__(name: str):

@@ -1,14 +1,14 @@
-"""The package's layers: every import points downward, and old module paths still work."""
+"""The package's layers: every import points downward, and no import hook or shim remains."""
 
 import ast
 import importlib
-import warnings
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
 import mpipe
-from mpipe._moved import MOVED
 
 PACKAGE = Path(mpipe.__file__).parent
 #: Subpackages from the bottom up: a module may import its own layer and the ones below.
@@ -33,7 +33,7 @@ def _imports(path: Path):
 def _modules():
     for path in sorted(PACKAGE.rglob("*.py")):
         parts = path.relative_to(PACKAGE).parts
-        if len(parts) > 1:  # the facade (mpipe/__init__.py, mpipe/_moved.py) is exempt
+        if len(parts) > 1:  # the facade (mpipe/__init__.py) is exempt
             yield parts[0], path
 
 
@@ -49,7 +49,7 @@ def test_imports_point_downward_and_name_real_modules():
                 continue
             where = f"{path.relative_to(PACKAGE.parent)}:{line} imports {name}"
             target = name.split(".")[1] if "." in name else None
-            if name in MOVED or target not in LAYERS:
+            if target not in LAYERS:
                 wrong.append(f"{where}: not a module of the layered package")
             elif LAYERS.index(target) > LAYERS.index(layer):
                 wrong.append(f"{where}: {layer} may not import the higher layer {target}")
@@ -62,14 +62,38 @@ def test_the_check_catches_an_upward_import(tmp_path):
     assert list(_imports(bad)) == [(2, "mpipe.pipeline.report")]
 
 
-@pytest.mark.parametrize("old", ["mpipe.separation", "mpipe.takes", "mpipe.commands.run"])
-def test_old_module_paths_warn_and_give_the_moved_module(old):
-    new = MOVED.get(old) or old.replace("mpipe.commands.", "mpipe.cli.commands.")
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        module = importlib.import_module(old)
-    assert module is importlib.import_module(new)
-    assert any(issubclass(w.category, DeprecationWarning) and new in str(w.message) for w in caught)
+#: Module paths of mpipe 0.1, before the subpackages: no shim keeps them importable.
+OLD_PATHS = ("mpipe.separation", "mpipe.takes", "mpipe.model", "mpipe.commands.run")
+
+
+def test_importing_mpipe_installs_no_import_hook():
+    code = (
+        "import sys; before = list(sys.meta_path); import mpipe, mpipe.pipeline; "
+        "print(sys.meta_path == before)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0 and out.stdout.strip() == "True", out.stderr[-500:]
+
+
+@pytest.mark.parametrize("old", OLD_PATHS)
+def test_old_module_paths_are_gone(old):
+    with pytest.raises(ModuleNotFoundError):
+        importlib.import_module(old)
+
+
+def test_no_module_forwards_names_with_a_module_level_getattr():
+    # only the facade has one, and it serves the public API, not moved names
+    found = [
+        path.relative_to(PACKAGE.parent)
+        for path in sorted(PACKAGE.rglob("*.py"))
+        for node in ast.parse(path.read_text()).body
+        if isinstance(node, ast.FunctionDef) and node.name == "__getattr__"
+    ]
+    assert [str(p) for p in found] == ["mpipe/__init__.py"]
+    with pytest.raises(ImportError):
+        from mpipe.pipeline import InversionConfig  # noqa: F401  (0.1 had it here)
+    with pytest.raises(AttributeError, match="no attribute 'separation'"):
+        mpipe.separation  # noqa: B018
 
 
 def test_public_api_names_resolve():
@@ -77,36 +101,16 @@ def test_public_api_names_resolve():
         assert getattr(mpipe, name) is not None
 
 
-def test_names_of_a_module_split_in_several_are_found_under_its_old_path():
-    from mpipe.reed.bore_kernel import prepare_bore
-    from mpipe.reed.take_files import write_virtual_take
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        old_model = importlib.import_module("mpipe.model")
-        old_recording = importlib.import_module("mpipe.recording")
-        from mpipe.pipeline import InversionConfig, load_pipeline  # the 0.1 module's names
-    assert old_model.prepare_bore is prepare_bore
-    assert old_model.simulate is importlib.import_module("mpipe.reed.model").simulate
-    assert old_recording.write_virtual_take is write_virtual_take
-    assert InversionConfig.__module__ == "mpipe.inversion.settings" and callable(load_pipeline)
-    with pytest.raises(AttributeError, match="no attribute 'nonsense'"):
-        old_model.nonsense  # noqa: B018
-
-
 def test_submodules_of_pipeline_import_in_a_fresh_interpreter():
-    import subprocess
-    import sys
-
     code = "from mpipe.pipeline import settings, report; print(settings.load_pipeline.__name__)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0 and out.stdout.strip() == "load_pipeline", out.stderr[-500:]
 
 
-def test_readme_architecture_lists_every_module():
-    readme = (PACKAGE.parent / "README.md").read_text()
-    start = readme.index("```\nmpipe/\n")
-    block = readme[start : readme.index("```\n", start + 4)]
+def test_architecture_page_lists_every_module():
+    page = (PACKAGE.parent / "docs" / "architecture.md").read_text()
+    start = page.index("```\nmpipe/\n")
+    block = page[start : page.index("```\n", start + 4)]
     for sep in ",()/":
         block = block.replace(sep, " ")
     words = set(block.split())
@@ -115,7 +119,7 @@ def test_readme_architecture_lists_every_module():
         for layer, path in _modules()
         if path.stem != "__init__" and path.parent.name != "commands" and path.stem not in words
     ]
-    assert not missing, f"README architecture section does not name: {missing}"
+    assert not missing, f"docs/architecture.md does not name: {missing}"
 
 
 #: A module a reader can hold: lines per module, code lines per function (docstring excluded).
@@ -144,12 +148,3 @@ def test_modules_and_functions_stay_readable():
                 long_functions.append(f"{path.relative_to(PACKAGE)}:{node.lineno} {node.name}")
     assert not long_modules, long_modules
     assert not long_functions, long_functions
-
-
-def test_the_warning_of_a_split_module_names_every_new_home():
-    import subprocess
-    import sys
-
-    code = "import warnings; warnings.simplefilter('always'); import mpipe.model"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    assert out.returncode == 0 and "mpipe.reed.bore_kernel" in out.stderr, out.stderr

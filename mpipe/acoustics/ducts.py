@@ -42,7 +42,7 @@ _A0 = _hankel_coefficients(0, 16)
 _A1 = _hankel_coefficients(1, 16)
 
 
-def _bessel_ratio(z: np.ndarray) -> np.ndarray:
+def bessel_ratio(z: np.ndarray) -> np.ndarray:
     """Return F(z) = 2 J1(z) / (z J0(z)) for z on the ray arg z = -pi/4 (physics.md B.2).
 
     For |z| >= 25 the ratio J1/J0 comes from Hankel's expansion of H^(1), which dominates
@@ -101,8 +101,8 @@ def series_shunt(
     if losses == "bessel":
         kv = np.sqrt(-1j * w * air.rho / air.mu)
         kt = sqrt_pr * kv
-        zv = zv0 / (1.0 - _bessel_ratio(kv * radius))
-        yt = yt0 * (1.0 + (air.gamma - 1.0) * _bessel_ratio(kt * radius))
+        zv = zv0 / (1.0 - bessel_ratio(kv * radius))
+        yt = yt0 * (1.0 + (air.gamma - 1.0) * bessel_ratio(kt * radius))
         return zv, yt
     if losses == "keefe":
         rv = radius * np.sqrt(w * air.rho / air.mu)

@@ -15,10 +15,3 @@ Examples
 --------
     The shipped example take.
 """
-
-
-def main(argv=None) -> int:
-    """Entry point of the ``mpipe`` command (see :mod:`mpipe.cli.main`)."""
-    from mpipe.cli.main import main as _main
-
-    return _main(argv)

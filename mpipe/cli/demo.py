@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from mpipe.cli.examples import example_take
 from mpipe.cli.main import main as cli_main
 from mpipe.inversion.records import flags, read_windows
 
@@ -73,8 +74,6 @@ def truth_table(windows: pd.DataFrame, truth: dict, fs: float) -> pd.DataFrame:
 
 def main(out_dir: Path = ROOT / "demo_output") -> int:
     """Run the demo and return an exit code."""
-    from mpipe.cli.examples import example_take
-
     out_dir.mkdir(parents=True, exist_ok=True)
     print("== 1/3 input impedance of the shipped instrument", flush=True)
     code = cli_main(

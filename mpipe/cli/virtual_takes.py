@@ -15,10 +15,16 @@ from pathlib import Path
 
 import numpy as np
 
+from mpipe.acoustics.reflection import reflection_function
 from mpipe.core.errors import UserError
 from mpipe.core.io import check_writable
 from mpipe.measurement.calibration import Calibration, load_calibration
+from mpipe.reed.bore_kernel import prepare_bore
+from mpipe.reed.controls import control_curves, make_controls, play
+from mpipe.reed.parameters import load_reed
+from mpipe.reed.recorder import RecorderOptions
 from mpipe.reed.recording import VirtualTake, virtual_recording
+from mpipe.reed.score import load_score, score_controls, score_mapping
 from mpipe.reed.take_files import TakeFiles, take_file_paths
 from mpipe.reed.take_files import write_virtual_take as _write
 
@@ -128,11 +134,6 @@ def synthesize(calibration: Calibration, reed, options: SynthOptions, score=None
     ----------
     Chatziioannou & van Walstijn 2012, Appendix A (model) and section 4 (measurement).
     """
-    from mpipe.acoustics.reflection import reflection_function
-    from mpipe.reed.bore_kernel import prepare_bore
-    from mpipe.reed.controls import make_controls, play
-    from mpipe.reed.score import load_score, score_controls
-
     if score is None and options.score is not None:
         score = load_score(options.score)
     _check_options(options, score is not None)
@@ -179,12 +180,14 @@ def synthesize(calibration: Calibration, reed, options: SynthOptions, score=None
         calibration,
         temperature_c=temp,
         mach=mach,
-        gain_error_db=options.gain_error_db,
-        phase_error_deg=options.phase_error_deg,
-        snr_db=options.snr_db,
-        bits=options.bits,
-        fs_out=options.fs_out,
-        seed=noise_seed,
+        recorder=RecorderOptions(
+            gain_error_db=options.gain_error_db,
+            phase_error_deg=options.phase_error_deg,
+            snr_db=options.snr_db,
+            bits=options.bits,
+            fs_out=options.fs_out,
+            seed=noise_seed,
+        ),
     )
     return take, run, mach
 
@@ -240,9 +243,6 @@ def make_take(
     OutputExistsError
         Before any work, when an output exists and ``force`` is not set.
     """
-    from mpipe.reed.parameters import load_reed
-    from mpipe.reed.score import load_score, score_mapping
-
     out = Path(out)
     check_file_rate(out, options.fs_out if options.fs_out is not None else options.fs_model)
     planned = take_file_paths(out, options.mic_calibration)
@@ -309,8 +309,6 @@ def played_truth(run, step_s: float) -> dict[str, np.ndarray]:
     each note (``note_start_s``, ``note_end_s``) and the tongue holds (``tongue_start_s``,
     ``tongue_end_s``), in s from the start of the take.
     """
-    from mpipe.reed.controls import control_curves
-
     controls = run.controls
     out = control_curves(run, step_s)
     out["opening_model"] = run.h.astype(np.float32)

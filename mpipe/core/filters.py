@@ -78,7 +78,7 @@ def design_lowpass(
 
 
 #: Samples per block of :func:`apply_lowpass`.
-_LOWPASS_BLOCK = 2**18
+LOWPASS_BLOCK = 2**18
 
 
 def apply_lowpass(x: np.ndarray, lp: LowPass, axis: int = -1) -> np.ndarray:
@@ -105,10 +105,10 @@ def apply_lowpass(x: np.ndarray, lp: LowPass, axis: int = -1) -> np.ndarray:
     d, n = lp.delay, x.shape[-1]
     taps = lp.taps.reshape((1,) * (x.ndim - 1) + (-1,))
     y = np.empty_like(x)
-    # in blocks of _LOWPASS_BLOCK samples (memory bounded by the block, not the signal),
+    # in blocks of LOWPASS_BLOCK samples (memory bounded by the block, not the signal),
     # each convolved with d samples of context on either side
-    for a in range(0, n, _LOWPASS_BLOCK):
-        b = min(a + _LOWPASS_BLOCK, n)
+    for a in range(0, n, LOWPASS_BLOCK):
+        b = min(a + LOWPASS_BLOCK, n)
         seg = x[..., max(a - d, 0) : min(b + d, n)]
         before, after = max(d - a, 0), max(b + d - n, 0)
         if before or after:

@@ -9,7 +9,15 @@ from collections.abc import Callable, Iterable
 from contextlib import contextmanager
 from pathlib import Path
 
-from mpipe.core.errors import OutputExistsError
+import numpy as np
+
+from mpipe.core.errors import OutputExistsError, UserError
+
+try:
+    import fcntl
+except ImportError:  # Windows
+    fcntl = None
+    import msvcrt
 
 
 def _umask() -> int:
@@ -31,8 +39,6 @@ def check_writable(paths: Iterable[str | Path], force: bool) -> None:
     UserError
         Naming an output that is a folder, or a folder that cannot be written.
     """
-    from mpipe.core.errors import UserError
-
     paths = [Path(p) for p in paths]
     for p in paths:
         if p.is_dir():
@@ -87,8 +93,6 @@ def write_npz_atomic(path: str | Path, compressed: bool = False, **arrays) -> Pa
     **arrays
         Name to array (any units; the caller's docstring names them).
     """
-    import numpy as np
-
     save = np.savez_compressed if compressed else np.savez
 
     def writer(tmp: Path) -> None:
@@ -123,8 +127,6 @@ def check_output_folder(path: str | Path) -> Path:
         One line naming the path: it is a file, it cannot be created, or it is not
         writable.
     """
-    from mpipe.core.errors import UserError
-
     path = Path(path)
     for parent in (path, *path.parents):
         if parent.exists() and not parent.is_dir():
@@ -159,8 +161,6 @@ def folder_lock(folder: str | Path):
     UserError
         When another run holds the folder, naming it and that run's process id.
     """
-    from mpipe.core.errors import UserError
-
     folder = check_output_folder(folder)
     lock_path = folder / LOCK_NAME
     fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666 & ~_umask())
@@ -182,11 +182,7 @@ def folder_lock(folder: str | Path):
 
 
 def _lock_fd(fd: int) -> None:
-    try:
-        import fcntl
-    except ImportError:  # Windows
-        import msvcrt
-
+    if fcntl is None:  # Windows
         try:
             msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
         except OSError:
@@ -196,11 +192,7 @@ def _lock_fd(fd: int) -> None:
 
 
 def _unlock_fd(fd: int) -> None:
-    try:
-        import fcntl
-    except ImportError:  # Windows
-        import msvcrt
-
+    if fcntl is None:  # Windows
         with contextlib.suppress(OSError):
             msvcrt.locking(fd, msvcrt.LK_UNLCK, 1)
         return

@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import ctypes.util
+import faulthandler
 import logging
 import os
 import signal
@@ -25,6 +26,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
+from multiprocessing.managers import SyncManager
 
 log = logging.getLogger(__name__)
 
@@ -75,7 +77,7 @@ def worker_init(parent_pid: int, interval_s: float = PARENT_POLL_S) -> None:
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     set_parent_death_signal(signal.SIGKILL)
-    _plain_log_handlers()
+    plain_log_handlers()
     # The parent may have died before prctl took effect: the watchdog's first check
     # runs immediately and catches that case.
     threading.Thread(
@@ -84,10 +86,13 @@ def worker_init(parent_pid: int, interval_s: float = PARENT_POLL_S) -> None:
     ).start()  # fmt: skip
 
 
-def _plain_log_handlers() -> None:
-    # A forked worker inherits the parent's progress-bar-aware log handler, and with it the
-    # bar's lock as it was at the fork (possibly held by the parent's timer thread) and
-    # copies of the parent's bars: log plainly to stderr instead.
+def plain_log_handlers() -> None:
+    """Replace a progress-bar-aware log handler by a plain one on stderr (in a worker).
+
+    A forked worker inherits the parent's progress-bar-aware log handler, and with it the
+    bar's lock as it was at the fork (possibly held by the parent's timer thread) and
+    copies of the parent's bars: it logs plainly to stderr instead.
+    """
     root = logging.getLogger()
     for handler in list(root.handlers):
         if "tqdm" in type(handler).__name__.lower():
@@ -155,8 +160,6 @@ def manager():
 
     Use it as a context manager: ``with manager() as m: queue = m.Queue()``.
     """
-    from multiprocessing.managers import SyncManager
-
     m = SyncManager()
     m.start(worker_init, (os.getpid(),))
     return m
@@ -188,8 +191,6 @@ def exit_on_sigterm(grace_s: float = SIGTERM_GRACE_S) -> None:
 
 
 def _exit_now(code: int) -> None:
-    import faulthandler
-
     sys.stderr.write(f"mpipe: cleanup after termination did not finish; exiting (code {code})\n")
     with contextlib.suppress(Exception):
         faulthandler.dump_traceback(all_threads=True)

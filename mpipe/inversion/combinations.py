@@ -4,7 +4,7 @@ Every combination reported is a monomial ``c = C prod x_i^{e_i}``, so
 ``ln c = const + e . z`` (``z = ln x``) and ``var(ln c) = e^T cov(z) e`` exactly to first
 order: its standard error follows from the covariance of the log parameters
 (:mod:`mpipe.inversion.uncertainty`) whether or not the parameters themselves are
-determined. See :data:`COMBINATIONS` and the README.
+determined. See :data:`COMBINATIONS` and docs/uncertainty.md.
 
 References
 ----------
@@ -45,7 +45,7 @@ class Combination:
     description: str
 
 
-#: The combinations clarinet acousticians use (definitions in the README). zeta and Q_r
+#: The combinations clarinet acousticians use (definitions in docs/uncertainty.md). zeta and Q_r
 #: also need constants: Z_c sqrt(2/rho) for zeta and 1/(2 pi) for f_r (see
 #: :func:`combination_values`).
 COMBINATIONS = (

@@ -15,9 +15,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import soundfile as sf
 
+from mpipe.acoustics.bore import input_impedance
 from mpipe.core.errors import UserError
 from mpipe.measurement.calibration import Calibration
+from mpipe.measurement.field import microphone_field, mouthpiece_to_reference
 from mpipe.measurement.relative_calibration import closed_tube_ratio
 
 
@@ -48,8 +51,6 @@ def read_channels(
         Naming the file for an unreadable file, and the microphone or channel that is
         missing.
     """
-    import soundfile as sf
-
     by_name = {m.name: m for m in calibration.microphones}
     for name in mics:
         if name not in by_name:
@@ -121,9 +122,6 @@ def simulate_calibration_recording(
     ndarray
         Shape ``(n, len(positions))``, Pa as read by each (mismatched) microphone.
     """
-    from mpipe.acoustics.bore import input_impedance
-    from mpipe.measurement.field import microphone_field, mouthpiece_to_reference
-
     rng = np.random.default_rng(seed)
     n = int(round(duration_s * fs))
     freqs = np.fft.rfftfreq(n, 1 / fs)

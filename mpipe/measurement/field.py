@@ -102,7 +102,7 @@ def microphone_field(
     ``k± = k0 / (1 ± M)``, ``k0 = -j Gamma``, ``d = x - x_ref``, ``P0 = A + B``,
     ``U0 = (A - B) / Zc``; each wave carries ``U = ±P / Zc`` also with convection.
     """
-    _check_mach(mach)
+    check_mach(mach)
     freqs = np.atleast_1d(np.asarray(freqs, dtype=float))
     if np.any(freqs < 0):
         raise ValueError("frequencies must be >= 0 Hz")
@@ -158,7 +158,8 @@ def microphone_spectra(
     return microphone_field(P0, U0, freqs, calibration, air, mach)[0]
 
 
-def _check_mach(mach: float) -> None:
+def check_mach(mach: float) -> None:
+    """Refuse (ValueError) a mean-flow Mach number no wind instrument gives."""
     if not abs(mach) < MACH_LIMIT:
         raise ValueError(
             f"Mach number {mach:g} is implausible for a wind instrument (|M| < {MACH_LIMIT}; "

@@ -136,7 +136,7 @@ def format_resonances(resonances: list[Resonance]) -> str:
 
 def plot_impedance(curve: ImpedanceCurve, path: str | Path, title: str = "") -> Path:
     """Write magnitude (dB re Z0) and phase of the impedance, resonances marked, as PNG."""
-    import matplotlib
+    import matplotlib  # lazy here and below: matplotlib adds ~0.5 s to start-up
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -154,7 +154,7 @@ def compare(
 def plot_comparison(path: str | Path, curves: list[tuple[str, np.ndarray, np.ndarray]],
                     band: tuple[float, float]) -> None:  # fmt: skip
     """Plot |Z/Zc| (dB) and phase (deg) of several curves: ``(label, freqs_hz, z/zc)``."""
-    import matplotlib
+    import matplotlib  # lazy here and below: matplotlib adds ~0.5 s to start-up
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -49,8 +49,9 @@ from typing import Literal
 import numpy as np
 import yaml
 
-from mpipe.core.config import ConfigError, Where, build, positive, spec
+from mpipe.core.config import ConfigError, Where, build, load_yaml, positive, spec
 from mpipe.core.errors import UserError
+from mpipe.core.io import write_text_atomic
 from mpipe.measurement.impedance_comparison import resonances
 
 log = logging.getLogger(__name__)
@@ -273,8 +274,6 @@ def _layout_in_file(path: Path, lines: list[str]) -> dict:
     layout: dict = {}
     sidecar = path.with_suffix(".yaml")
     if sidecar.exists() and sidecar != path:
-        from mpipe.core.config import load_yaml
-
         layout.update(load_yaml(sidecar))
     if header_lines:
         try:
@@ -443,8 +442,6 @@ def write_impedance_file(
 
     ``z`` is in mpipe's convention (e^{+jwt}); it is written as ``layout`` declares.
     """
-    from mpipe.core.io import write_text_atomic
-
     lay = replace(layout, columns=("frequency_hz", "re", "im"))
     zz = np.conj(z) if lay.time_convention == "-jwt" else z
     head = {

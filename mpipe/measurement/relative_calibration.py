@@ -34,6 +34,29 @@ from mpipe.core.errors import UserError
 
 
 @dataclass(frozen=True)
+class SpectralOptions:
+    """How both methods estimate H_c over frequency.
+
+    Attributes
+    ----------
+    band : (float, float)
+        Frequencies of the table, Hz (the wave separation needs 20-7250 Hz).
+    resolution_hz : float
+        Welch resolution, Hz.
+    min_coherence : float
+        Bins below this squared coherence (pressure nodes, no excitation) are interpolated
+        from their neighbours.
+    smooth_hz : float
+        Width of the running mean applied to H_c, Hz (0: none); see :func:`smooth`.
+    """
+
+    band: tuple[float, float] = (20.0, 7250.0)
+    resolution_hz: float = 10.0
+    min_coherence: float = 0.95
+    smooth_hz: float = 100.0
+
+
+@dataclass(frozen=True)
 class RelativeCalibration:
     """A relative calibration H_c of one microphone against microphone 1.
 
@@ -175,10 +198,7 @@ def switching_calibration(
     second: np.ndarray,
     fs: float,
     mic: str = "mic",
-    band: tuple[float, float] = (20.0, 7250.0),
-    resolution_hz: float = 10.0,
-    min_coherence: float = 0.95,
-    smooth_hz: float = 100.0,
+    spectral: SpectralOptions | None = None,
 ) -> RelativeCalibration:
     """Relative calibration of microphone m by the two-recording switching method.
 
@@ -196,15 +216,9 @@ def switching_calibration(
         Sample rate, Hz.
     mic : str
         Name of microphone m, for messages.
-    band : (float, float)
-        Frequencies of the table, Hz (the wave separation needs 20-7250 Hz).
-    resolution_hz : float
-        Welch resolution, Hz.
-    min_coherence : float
-        Bins where either recording's squared coherence is below this (pressure nodes,
-        no excitation) are interpolated from their neighbours.
-    smooth_hz : float
-        Width of the running mean applied to H_c, Hz (0: none); see :func:`smooth`.
+    spectral : SpectralOptions, optional
+        Band, Welch resolution, coherence threshold (a bin below it in either recording is
+        interpolated) and smoothing; default :class:`SpectralOptions`.
 
     Returns
     -------
@@ -222,13 +236,14 @@ def switching_calibration(
     ----------
     Chung & Blaser 1980, JASA 68(3):907-913; physics.md E.6.
     """
-    f, h1, c1 = transfer_estimate(first[:, 0], first[:, 1], fs, resolution_hz)
-    _, h2, c2 = transfer_estimate(second[:, 0], second[:, 1], fs, resolution_hz)
-    sel = _band(f, band)
+    opt = SpectralOptions() if spectral is None else spectral
+    f, h1, c1 = transfer_estimate(first[:, 0], first[:, 1], fs, opt.resolution_hz)
+    _, h2, c2 = transfer_estimate(second[:, 0], second[:, 1], fs, opt.resolution_hz)
+    sel = _band(f, opt.band)
     f, h1, h2 = f[sel], h1[sel], h2[sel]
-    valid = (c1[sel] >= min_coherence) & (c2[sel] >= min_coherence)
-    _require(valid, mic, min_coherence)
-    product = smooth(f, h1 * h2, smooth_hz, valid)
+    valid = (c1[sel] >= opt.min_coherence) & (c2[sel] >= opt.min_coherence)
+    _require(valid, mic, opt.min_coherence)
+    product = smooth(f, h1 * h2, opt.smooth_hz, valid)
     phase = np.unwrap(np.angle(product))
     # the branch of the unwrapped phase nearest 0 at the lowest usable bins
     phase -= 2 * np.pi * np.round(np.median(phase[valid][:5]) / (2 * np.pi))
@@ -316,11 +331,8 @@ def closed_tube_calibration(
     ratio: np.ndarray,
     ratio_freqs: np.ndarray,
     mic: str = "mic",
-    band: tuple[float, float] = (20.0, 7250.0),
-    resolution_hz: float = 10.0,
-    min_coherence: float = 0.95,
+    spectral: SpectralOptions | None = None,
     max_node_db: float = 10.0,
-    smooth_hz: float = 100.0,
     max_change: float = 0.1,
 ) -> RelativeCalibration:
     """Relative calibration of microphone m against a known field (a rigidly closed tube).
@@ -339,21 +351,16 @@ def closed_tube_calibration(
         Hz.
     mic : str
         Name of microphone m.
-    band : (float, float)
-        Frequencies of the table, Hz.
-    resolution_hz : float
-        Welch resolution, Hz.
-    min_coherence : float
-        Bins below this squared coherence are interpolated.
+    spectral : SpectralOptions, optional
+        Band, Welch resolution, coherence threshold (bins below it are interpolated) and
+        smoothing; default :class:`SpectralOptions`.
     max_node_db : float
         Bins where the theoretical ratio is more than this above or below 0 dB (one
         microphone near a pressure node, where a small error of the model is a large
         error of H_c) are interpolated too.
-    smooth_hz : float
-        Width of the running mean applied to H_c, Hz (0: none); see :func:`smooth`.
     max_change : float
         Bins where the theoretical ratio changes by more than this fraction over one
-        ``resolution_hz`` (the flanks of a pressure node) are interpolated too: the
+        ``spectral.resolution_hz`` (the flanks of a pressure node) are interpolated too: the
         spectral estimate averages the field over its resolution, so there it is biased
         against the ratio at the bin's centre (0.45 dB and 2 deg with the cap at 0.45 m
         and 10 Hz resolution, without this test).
@@ -363,17 +370,19 @@ def closed_tube_calibration(
     RelativeCalibration
         ``near_node`` counts the bins refused near the tube's pressure nodes.
     """
+    opt = SpectralOptions() if spectral is None else spectral
+    resolution_hz = opt.resolution_hz
     f, h, coh = transfer_estimate(recording[:, 0], recording[:, 1], fs, resolution_hz)
-    sel = _band(f, band)
+    sel = _band(f, opt.band)
     f, h, coh = f[sel], h[sel], coh[sel]
     theory = np.interp(f, ratio_freqs, ratio.real) + 1j * np.interp(f, ratio_freqs, ratio.imag)
     level = 20 * np.log10(np.maximum(np.abs(theory), 1e-300))
     log_theory = np.log(np.where(np.abs(theory) > 0, theory, 1e-300))
     change = np.abs(np.gradient(log_theory.real + 1j * np.unwrap(log_theory.imag), f))
     node = (np.abs(level) > max_node_db) | (change * resolution_hz > max_change)
-    valid = (coh >= min_coherence) & ~node
-    _require(valid, mic, min_coherence)
-    hc = smooth(f, h / np.where(valid, theory, 1.0), smooth_hz, valid)
+    valid = (coh >= opt.min_coherence) & ~node
+    _require(valid, mic, opt.min_coherence)
+    hc = smooth(f, h / np.where(valid, theory, 1.0), opt.smooth_hz, valid)
     return RelativeCalibration(mic, f, hc, valid, "closed-tube", int(node.sum()))
 
 
@@ -398,6 +407,7 @@ def _require(valid: np.ndarray, mic: str, min_coherence: float) -> None:
 
 __all__ = [
     "RelativeCalibration",
+    "SpectralOptions",
     "closed_tube_calibration",
     "closed_tube_ratio",
     "smooth",

@@ -15,6 +15,7 @@ import numpy as np
 
 from mpipe.core.errors import UserError
 from mpipe.measurement.calibration import Calibration
+from mpipe.measurement.separation.checks import check_channel_order
 
 #: Upper band edge of the analysis, Hz (the paper's 7.25 kHz low-pass, physics.md E.4, F.2).
 BAND_HZ = 7250.0
@@ -140,8 +141,6 @@ def check_take(pressures: np.ndarray, fs: float, calibration: Calibration, name:
     UserError
         On the first failed check.
     """
-    from mpipe.measurement.separation.checks import check_channel_order
-
     mics = calibration.microphones
     rms = np.sqrt(np.mean((pressures - np.mean(pressures, axis=0)) ** 2, axis=0))
     lo, hi = LEVEL_RANGE_PA

@@ -31,6 +31,7 @@ from mpipe.core.errors import UserError
 from mpipe.core.resampling import resample
 from mpipe.measurement.calibration import Calibration
 from mpipe.measurement.calibration_tables import divide_response, read_mic_calibration
+from mpipe.measurement.microphones import level_warning
 from mpipe.measurement.take_checks import (
     BAND_HZ,
     BAND_LOW_HZ,
@@ -168,9 +169,6 @@ def read_take(
                 data[:, c - 1], f"{names[c]}: channel {c} ({mic.name})", max_clip_fraction
             )
         check_take(raw, fs, calibration, name)
-    from mpipe.measurement.microphones import (
-        level_warning,  # plausible, yet no clarinet plays there
-    )
 
     if (warning := level_warning(raw, name)) is not None:
         log.warning("%s", warning)

@@ -31,12 +31,16 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+import soundfile as sf
 from scipy import fft as sfft
 
 from mpipe.acoustics.bore import transfer_matrix
 from mpipe.core.config import between, positive, spec
 from mpipe.core.filters import LowPass, apply_lowpass, design_lowpass
 from mpipe.measurement.calibration import Calibration
+from mpipe.measurement.separation.reconstruction import reference_noise
+from mpipe.measurement.separation.settings import SeparationConfig
+from mpipe.measurement.separation.waves import Geometry
 
 log = logging.getLogger(__name__)
 
@@ -310,10 +314,6 @@ def mouthpiece_noise(
         ``u_noise_freq_hz`` (Hz, 0 to fs/2), ``u_noise_psd`` ((m^3/s)^2/Hz, one-sided) and
         ``p_noise_psd`` (Pa^2/Hz, one-sided) at the mouthpiece entry.
     """
-    from mpipe.measurement.separation.reconstruction import reference_noise
-    from mpipe.measurement.separation.settings import SeparationConfig
-    from mpipe.measurement.separation.waves import Geometry
-
     sep_cfg = SeparationConfig() if separation_config is None else separation_config
     cfg = TranslationConfig() if config is None else config
     freqs = np.arange(0.0, fs / 2 + 0.5 * df_hz, df_hz)
@@ -356,8 +356,6 @@ def write_mouthpiece_wav(path, p: np.ndarray, u: np.ndarray, fs: float) -> None:
     fs : float
         Sample rate, Hz.
     """
-    import soundfile as sf
-
     with sf.SoundFile(path, "w", int(round(fs)), 2, subtype="FLOAT", format="WAV") as f:
         for a in range(0, p.size, 2**18):  # in blocks: memory does not grow with the take
             block = np.empty((min(2**18, p.size - a), 2), dtype=np.float32)

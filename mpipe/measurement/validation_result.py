@@ -164,7 +164,7 @@ def plot_impedance(
 
     Uses the Agg canvas directly, so no global pyplot state is touched.
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # lazy: ~0.5 s of start-up
     from matplotlib.figure import Figure
 
     fmax = fmax_hz if fmax_hz is not None else float(result.freqs[-1])

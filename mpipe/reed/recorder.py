@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.fft
@@ -22,6 +23,37 @@ SUPPORTED_BITS = (16, 24, 32)
 # Anti-aliasing window of resample_poly. scipy's default (Kaiser beta 5) ripples by ~1e-3 in
 # the pass band; beta 10 keeps the gain within 1e-5 up to 12 kHz at 100 -> 48 kHz.
 _RESAMPLE_WINDOW = ("kaiser", 10.0)
+
+
+@dataclass(frozen=True)
+class RecorderOptions:
+    """What the microphones and the recorder add to the true pressures of a virtual take.
+
+    Attributes
+    ----------
+    gain_error_db : sequence of N float, optional
+        Sensitivity error of each microphone, dB (recorded = true x 10^(dB/20)); default 0.
+    phase_error_deg : sequence of N float, optional
+        Phase error of each microphone, degrees, constant over frequency; default 0.
+    snr_db : float, optional
+        Add white Gaussian noise with an RMS ``snr_db`` below each channel's RMS, dB.
+    bits : {16, 24, 32}, optional
+        Quantise to this word length with the peak at ``-headroom_db`` dBFS.
+    fs_out : float, optional
+        Output sample rate in Hz, a rational multiple of the model's; default the model's.
+    seed : int
+        Seed of the noise generator (``numpy.random.default_rng``).
+    headroom_db : float
+        Peak level below digital full scale, dB.
+    """
+
+    gain_error_db: Sequence[float] | None = None
+    phase_error_deg: Sequence[float] | None = None
+    snr_db: float | None = None
+    bits: int | None = None
+    fs_out: float | None = None
+    seed: int = 0
+    headroom_db: float = 6.0
 
 
 def quantise(x: np.ndarray, full_scale: float, bits: int) -> np.ndarray:
@@ -47,7 +79,8 @@ def quantise(x: np.ndarray, full_scale: float, bits: int) -> np.ndarray:
     return q / steps * full_scale
 
 
-def _per_mic(values: Sequence[float] | None, n_mics: int, name: str) -> tuple[float, ...]:
+def per_microphone(values: Sequence[float] | None, n_mics: int, name: str) -> tuple[float, ...]:
+    """One finite value per microphone (0 for each when ``values`` is None); else ValueError."""
     if values is None:
         return (0.0,) * n_mics
     vals = tuple(float(v) for v in values)
@@ -59,7 +92,8 @@ def _per_mic(values: Sequence[float] | None, n_mics: int, name: str) -> tuple[fl
     return vals
 
 
-def _rate_ratio(fs: float, fs_out: float) -> tuple[int, int]:
+def output_rate_ratio(fs: float, fs_out: float) -> tuple[int, int]:
+    """(up, down) with fs_out = fs up / down exactly; ValueError when no such integers exist."""
     if not fs_out > 0:
         raise ValueError(f"output sample rate must be positive, got {fs_out} Hz")
     up, down, error = rate_ratio(fs, fs_out)
@@ -71,14 +105,14 @@ def _rate_ratio(fs: float, fs_out: float) -> tuple[int, int]:
     return up, down
 
 
-def _resample(x: np.ndarray, up: int, down: int) -> np.ndarray:
+def resample_by(x: np.ndarray, up: int, down: int) -> np.ndarray:
     """``x`` (time along axis 0) resampled by up / down; ``x`` itself when they are equal."""
     if up == down:
         return x
     return signal.resample_poly(x, up, down, axis=0, window=_RESAMPLE_WINDOW)
 
 
-def _add_noise(
+def add_noise(
     recorded: np.ndarray, snr_db: float | None, seed: int
 ) -> tuple[np.ndarray, tuple[float, ...]]:
     """White Gaussian noise ``snr_db`` below each channel's RMS; returns (signals, noise RMS)."""
@@ -90,7 +124,7 @@ def _add_noise(
     return recorded + noise, tuple(float(s) for s in std)
 
 
-def _apply_gains(x: np.ndarray, g: np.ndarray, pad: int) -> np.ndarray:
+def apply_gains(x: np.ndarray, g: np.ndarray, pad: int) -> np.ndarray:
     """Apply complex gains ``g`` (one per column) in the frequency domain.
 
     DC and Nyquist bins must stay real for a real signal; they get ``|g|``.

@@ -63,19 +63,20 @@ import scipy.fft
 from mpipe.acoustics.air import Air
 from mpipe.measurement.calibration import Calibration
 from mpipe.measurement.field import (
-    _check_mach,
+    check_mach,
     complex_gain,
     microphone_spectra,
     mouthpiece_to_reference,
 )
 from mpipe.reed.recorder import (
     SUPPORTED_BITS,
-    _add_noise,
-    _apply_gains,
-    _per_mic,
-    _rate_ratio,
-    _resample,
+    RecorderOptions,
+    add_noise,
+    apply_gains,
+    output_rate_ratio,
+    per_microphone,
     quantise,
+    resample_by,
 )
 
 log = logging.getLogger(__name__)
@@ -201,13 +202,7 @@ def virtual_recording(
     *,
     temperature_c: float | tuple[float, float] | None = None,
     mach: float = 0.0,
-    gain_error_db: Sequence[float] | None = None,
-    phase_error_deg: Sequence[float] | None = None,
-    snr_db: float | None = None,
-    bits: int | None = None,
-    fs_out: float | None = None,
-    seed: int = 0,
-    headroom_db: float = 6.0,
+    recorder: RecorderOptions | None = None,
     drift_step_c: float = DRIFT_STEP_C,
 ) -> VirtualTake:
     """Record mouthpiece signals with the calibration's virtual wall microphones (N >= 2).
@@ -230,27 +225,17 @@ def virtual_recording(
     mach : float
         Mean-flow Mach number between the reference plane and the microphones, positive for
         breath flowing towards the bell (physics.md E.1).
-    gain_error_db : sequence of N float, optional
-        Sensitivity error of each microphone, dB (recorded = true x 10^(dB/20)); default 0.
-    phase_error_deg : sequence of N float, optional
-        Phase error of each microphone, degrees, constant over frequency; default 0.
-    snr_db : float, optional
-        Add white Gaussian noise with an RMS ``snr_db`` below each channel's RMS.
-    bits : {16, 24, 32}, optional
-        Quantise to this word length with the peak at ``-headroom_db`` dBFS.
-    fs_out : float, optional
-        Output sample rate in Hz, a rational multiple of ``fs``; default ``fs``.
-    seed : int
-        Seed of the noise generator (``numpy.random.default_rng``).
-    headroom_db : float
-        Peak level below digital full scale, dB.
+    recorder : RecorderOptions, optional
+        The microphones' gain and phase errors, noise, word length, output rate, noise seed
+        and headroom (:class:`mpipe.reed.recorder.RecorderOptions`); default: none of them,
+        at ``fs``.
     drift_step_c : float
         Largest temperature step between the nodes of a drifting temperature, degC.
 
     Returns
     -------
     VirtualTake
-        Recorded signals and the truth, all at ``fs_out``.
+        Recorded signals and the truth, all at the output rate ``recorder.fs_out``.
 
     Raises
     ------
@@ -263,24 +248,26 @@ def virtual_recording(
     physics.md E.1, F.1; Chatziioannou & van Walstijn 2012, section 4.
     """
     p, u = _checked_signals(p, u, fs)
-    _check_mach(mach)
+    check_mach(mach)
+    recorder = RecorderOptions() if recorder is None else recorder
     n_mics = len(calibration.microphones)
-    gains = _per_mic(gain_error_db, n_mics, "gain_error_db")
-    phases = _per_mic(phase_error_deg, n_mics, "phase_error_deg")
+    gains = per_microphone(recorder.gain_error_db, n_mics, "gain_error_db")
+    phases = per_microphone(recorder.phase_error_deg, n_mics, "phase_error_deg")
+    bits, snr_db, seed = recorder.bits, recorder.snr_db, recorder.seed
     if bits is not None and bits not in SUPPORTED_BITS:
         raise ValueError(f"bits must be one of {SUPPORTED_BITS}, got {bits}")
-    fs_out = float(fs if fs_out is None else fs_out)
-    up, down = _rate_ratio(fs, fs_out)
+    fs_out = float(fs if recorder.fs_out is None else recorder.fs_out)
+    up, down = output_rate_ratio(fs, fs_out)
     temps = _temperatures(temperature_c, calibration)
     sens = tuple(float(m.sensitivity) for m in calibration.microphones)
     mics, p0, u0, pad, c_min = _render(p, u, fs, calibration, temps, mach, drift_step_c)
-    recorded = _apply_gains(mics / np.asarray(sens), complex_gain(gains, phases), pad)
+    recorded = apply_gains(mics / np.asarray(sens), complex_gain(gains, phases), pad)
     recorded, mics, p_out, u_out, p0, u0 = (
-        _resample(x, up, down) for x in (recorded, mics, p, u, p0, u0)
+        resample_by(x, up, down) for x in (recorded, mics, p, u, p0, u0)
     )
-    recorded, noise_rms = _add_noise(recorded, snr_db, seed)
+    recorded, noise_rms = add_noise(recorded, snr_db, seed)
     peak = float(np.max(np.abs(recorded)))
-    full_scale = (peak if peak > 0 else 1.0) * 10.0 ** (headroom_db / 20.0)
+    full_scale = (peak if peak > 0 else 1.0) * 10.0 ** (recorder.headroom_db / 20.0)
     if bits is not None:
         recorded = quantise(recorded, full_scale, bits)
     temp_out: float | tuple[float, float] = (

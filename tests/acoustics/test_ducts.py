@@ -124,7 +124,7 @@ def test_bessel_ratio_matches_scipy_across_regimes():
 
     z = np.sqrt(-1j * np.logspace(-2, 8, 2000))
     exact = 2 * special.jve(1, z) / (z * special.jve(0, z))
-    np.testing.assert_allclose(ducts._bessel_ratio(z), exact, rtol=1e-13)
+    np.testing.assert_allclose(ducts.bessel_ratio(z), exact, rtol=1e-13)
 
 
 def test_losses_attenuate_forward_wave():

@@ -264,11 +264,11 @@ def test_permission_denied_is_named(tmp_path, capsys, monkeypatch, take):
 
 
 def test_run_takes_file_names_with_commas_and_tells_equal_names_apart(tmp_path):
-    from mpipe.cli.commands.run import _take_files, take_names
+    from mpipe.cli.commands.run import take_arguments, take_names
 
     comma = tmp_path / "a,b.wav"
     comma.write_bytes(b"")
-    assert _take_files(str(comma)) == [comma]  # one file, not two
+    assert take_arguments(str(comma)) == [comma]  # one file, not two
     (tmp_path / "x").mkdir()
     (tmp_path / "y").mkdir()
     same = [[tmp_path / "x" / "take.wav"], [tmp_path / "y" / "take.wav"], [comma]]

@@ -40,6 +40,7 @@ def test_the_options_of_mpipe_0_1_give_the_same_take_bit_for_bit(shipped_calibra
     from mpipe.reed.bore_kernel import prepare_bore
     from mpipe.reed.model import simulate
     from mpipe.reed.parameters import load_reed
+    from mpipe.reed.recorder import RecorderOptions
     from mpipe.reed.recording import virtual_recording
 
     cal, reed = shipped_calibration, load_reed(REED)
@@ -53,7 +54,9 @@ def test_the_options_of_mpipe_0_1_give_the_same_take_bit_for_bit(shipped_calibra
     breath, noise = child_seeds(3)
     sim = simulate(reed, kernel, n, mouth_pressure=reed.p_m * (1 + 0.1 * t / 0.15),
                    onset_s=0.02, noise_std_pa=10.0, seed=breath)  # fmt: skip
-    old = virtual_recording(sim.p, sim.u, opts.fs_model, cal, snr_db=40.0, bits=24, seed=noise)
+    old = virtual_recording(
+        sim.p, sim.u, opts.fs_model, cal, recorder=RecorderOptions(snr_db=40.0, bits=24, seed=noise)
+    )
     assert np.array_equal(run.p, sim.p) and np.array_equal(take.signals, old.signals)
     assert run.controls.notes == ((0.0, 0.15),)
 

@@ -18,4 +18,4 @@ def test_blocked_lowpass_equals_one_convolution(n):
     want = signal.fftconvolve(padded, lp.taps[None, :], mode="valid")
     np.testing.assert_allclose(apply_lowpass(x, lp), want, atol=1e-12)
     np.testing.assert_allclose(apply_lowpass(x.T, lp, axis=0), want.T, atol=1e-12)
-    assert filters._LOWPASS_BLOCK == 2**18  # the lengths above straddle its blocks
+    assert filters.LOWPASS_BLOCK == 2**18  # the lengths above straddle its blocks

@@ -121,12 +121,12 @@ def test_workers_log_plainly_not_through_the_parents_progress_bars():
     import logging
 
     from mpipe.core.progress import logging_redirect
-    from mpipe.core.workers import _plain_log_handlers
+    from mpipe.core.workers import plain_log_handlers
 
     root = logging.getLogger()
     with logging_redirect():
         assert any("tqdm" in type(h).__name__.lower() for h in root.handlers)
-        _plain_log_handlers()  # what a forked worker does first
+        plain_log_handlers()  # what a forked worker does first
         assert not any("tqdm" in type(h).__name__.lower() for h in root.handlers)
 
 

@@ -6,6 +6,7 @@ import numpy as np
 import yaml
 
 from mpipe.measurement.calibration import load_calibration
+from mpipe.reed.recorder import RecorderOptions
 from mpipe.reed.recording import virtual_recording
 from mpipe.reed.take_files import calibration_mapping
 
@@ -39,8 +40,10 @@ def virtual_take(cal):
         u,
         FS,
         cal,
-        gain_error_db=(0.4, 0.7, -0.5),
-        phase_error_deg=(0.0, 1.5, -2.0),
-        bits=24,
-        fs_out=48_000.0,
+        recorder=RecorderOptions(
+            gain_error_db=(0.4, 0.7, -0.5),
+            phase_error_deg=(0.0, 1.5, -2.0),
+            bits=24,
+            fs_out=48_000.0,
+        ),
     )

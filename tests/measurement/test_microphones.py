@@ -41,7 +41,7 @@ def test_implausible_take_level_is_warned(tmp_path, caplog):
     assert level_warning(np.array([1500.0, -2000.0])) is None
     assert "far below" in level_warning(np.array([0.5, -0.4]), "t.flac")
     assert "far above" in level_warning(np.array([2e5]), "t.flac")
-    # the README's trap: a virtual take read with the shipped calibration (sensitivity 1.0)
+    # docs/python_api.md's trap: a virtual take read with the shipped calibration (sensitivity 1)
     take = make_take(SHIPPED, SHIPPED.parent / "reed_table1.yaml", tmp_path / "t.flac",
                      SynthOptions(duration_s=0.3, seed=1))  # fmt: skip
     with caplog.at_level(logging.WARNING, logger="mpipe.measurement.takes"):

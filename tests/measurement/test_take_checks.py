@@ -6,6 +6,7 @@ import soundfile as sf
 
 from mpipe.core.errors import UserError
 from mpipe.measurement.takes import read_take
+from mpipe.reed.recorder import RecorderOptions
 from mpipe.reed.recording import virtual_recording
 from tests.measurement.take_helpers import FS, signals, write_calibration
 
@@ -83,7 +84,9 @@ def test_sanity_checks_give_one_line_each(
     tmp_path, shipped_calibration, columns, scale, edit, message
 ):
     cal = shipped_calibration
-    vt = virtual_recording(*signals(), FS, cal, snr_db=50.0, bits=24, fs_out=48_000.0)
+    vt = virtual_recording(
+        *signals(), FS, cal, recorder=RecorderOptions(snr_db=50.0, bits=24, fs_out=48_000.0)
+    )
     path, cal2 = _write_mono_take(tmp_path, vt, cal, columns, scale=scale, edit=edit)
     with pytest.raises(UserError, match=message) as info:
         read_take(path, cal2)
@@ -95,7 +98,13 @@ def test_sanity_checks_pass_a_good_take_at_any_snr(tmp_path, shipped_calibration
     cal = shipped_calibration
     p, u = signals()
     for seed, snr, bits in ((0, 30.0, 16), (1, 45.0, 24), (2, 70.0, 24)):
-        vt = virtual_recording(p, u, FS, cal, snr_db=snr, bits=bits, seed=seed, fs_out=48_000.0)
+        vt = virtual_recording(
+            p,
+            u,
+            FS,
+            cal,
+            recorder=RecorderOptions(snr_db=snr, bits=bits, seed=seed, fs_out=48_000.0),
+        )
         path, cal2 = _write_mono_take(tmp_path, vt, cal, (0, 1, 2))
         read_take(path, cal2)
 
@@ -104,7 +113,9 @@ def test_a_float_file_above_one_is_not_clipped(tmp_path, shipped_calibration):
     # Issue 19: a float WAV holds samples beyond 1.0 as they are: a take peaking at 3 x
     # full scale (sensitivities a third) reads as the same pressures, no clipping reported.
     cal = shipped_calibration
-    vt = virtual_recording(*signals(), FS, cal, snr_db=50.0, bits=24, fs_out=48_000.0)
+    vt = virtual_recording(
+        *signals(), FS, cal, recorder=RecorderOptions(snr_db=50.0, bits=24, fs_out=48_000.0)
+    )
     path, cal_ok = _write_mono_take(tmp_path, vt, cal, (0, 1, 2))
     ref = read_take(path, cal_ok)
     (tmp_path / "big").mkdir()

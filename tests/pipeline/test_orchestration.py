@@ -269,7 +269,7 @@ def test_load_run_gives_tables_and_signals_with_units(finished):
 
 
 def test_load_run_finds_the_run_in_the_folder_above(finished, tmp_path):
-    # Issue 19: the README's mpipe.load_run("demo_output") (the run is in demo_output/run)
+    # Issue 19: docs/python_api.md's mpipe.load_run("demo_output") (the run is in demo_output/run)
     import mpipe
 
     out, run, _ = finished

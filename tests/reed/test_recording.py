@@ -12,6 +12,7 @@ import pytest
 
 from mpipe.acoustics.bore import transfer_matrix
 from mpipe.acoustics.ducts import propagation
+from mpipe.reed.recorder import RecorderOptions
 from mpipe.reed.recording import virtual_recording
 
 FS = 100_000.0
@@ -119,7 +120,11 @@ def test_gain_and_phase_errors_appear_as_specified(shipped_calibration):
     p, u = tone(f0, 600.0, 4e-5 * np.exp(0.7j))
     gains, phases = (0.0, 0.8, -1.3), (0.0, 2.5, -4.0)
     vt = virtual_recording(
-        p, u, FS, shipped_calibration, gain_error_db=gains, phase_error_deg=phases
+        p,
+        u,
+        FS,
+        shipped_calibration,
+        recorder=RecorderOptions(gain_error_db=gains, phase_error_deg=phases),
     )
     ratio = amplitude(vt.signals, f0, FS, 0.06, 0.14) / amplitude(vt.pressures, f0, FS, 0.06, 0.14)
     np.testing.assert_allclose(20 * np.log10(np.abs(ratio)), gains, atol=1e-4)
@@ -141,14 +146,20 @@ def test_sensitivity_divides_the_pressure(shipped_calibration):
 def test_noise_snr_within_half_a_db(shipped_calibration, snr_db):
     p, u = broadband(20_000)
     clean = virtual_recording(p, u, FS, shipped_calibration)
-    noisy = virtual_recording(p, u, FS, shipped_calibration, snr_db=snr_db, seed=7)
+    noisy = virtual_recording(
+        p, u, FS, shipped_calibration, recorder=RecorderOptions(snr_db=snr_db, seed=7)
+    )
     noise = noisy.signals - clean.signals
     snr = 10 * np.log10(np.sum(clean.signals**2, axis=0) / np.sum(noise**2, axis=0))
     np.testing.assert_allclose(snr, snr_db, atol=0.5)
     # same seed, same noise; another seed, other noise
-    again = virtual_recording(p, u, FS, shipped_calibration, snr_db=snr_db, seed=7)
+    again = virtual_recording(
+        p, u, FS, shipped_calibration, recorder=RecorderOptions(snr_db=snr_db, seed=7)
+    )
     np.testing.assert_array_equal(again.signals, noisy.signals)
-    other = virtual_recording(p, u, FS, shipped_calibration, snr_db=snr_db, seed=8)
+    other = virtual_recording(
+        p, u, FS, shipped_calibration, recorder=RecorderOptions(snr_db=snr_db, seed=8)
+    )
     assert not np.allclose(other.signals, noisy.signals)
 
 
@@ -156,7 +167,7 @@ def test_noise_snr_within_half_a_db(shipped_calibration, snr_db):
 def test_quantisation_error_below_half_an_lsb(shipped_calibration, bits):
     p, u = broadband(20_000)
     exact = virtual_recording(p, u, FS, shipped_calibration)
-    q = virtual_recording(p, u, FS, shipped_calibration, bits=bits)
+    q = virtual_recording(p, u, FS, shipped_calibration, recorder=RecorderOptions(bits=bits))
     lsb = q.full_scale / 2 ** (bits - 1)
     assert q.full_scale == pytest.approx(exact.full_scale)
     err = np.abs(q.signals - exact.signals)
@@ -173,7 +184,7 @@ def test_resampling_keeps_amplitude_and_truth_aligned(shipped_calibration):
     f0 = 1000.0
     p, u = tone(f0, 800.0, 5e-5)
     full = virtual_recording(p, u, FS, shipped_calibration)
-    vt = virtual_recording(p, u, FS, shipped_calibration, fs_out=48_000.0)
+    vt = virtual_recording(p, u, FS, shipped_calibration, recorder=RecorderOptions(fs_out=48_000.0))
     assert vt.fs == 48_000.0 and vt.fs_model == FS
     assert vt.signals.shape == (9600, 3) and vt.p.shape == (9600,)
     for a, b in [(vt.pressures, full.pressures), (vt.p, full.p), (vt.u0, full.u0)]:
@@ -218,10 +229,14 @@ def test_edge_and_input_checks(shipped_calibration):
     with pytest.raises(ValueError, match="Mach"):
         virtual_recording(p, u, FS, shipped_calibration, mach=0.5)
     with pytest.raises(ValueError, match="bits"):
-        virtual_recording(p, u, FS, shipped_calibration, bits=12)
+        virtual_recording(p, u, FS, shipped_calibration, recorder=RecorderOptions(bits=12))
     with pytest.raises(ValueError, match="3 finite numbers, one per microphone"):
-        virtual_recording(p, u, FS, shipped_calibration, gain_error_db=(0.0, 1.0))
+        virtual_recording(
+            p, u, FS, shipped_calibration, recorder=RecorderOptions(gain_error_db=(0.0, 1.0))
+        )
     with pytest.raises(ValueError, match="equal length"):
         virtual_recording(p, u[:-1], FS, shipped_calibration)
     with pytest.raises(ValueError, match="rational"):
-        virtual_recording(p, u, FS, shipped_calibration, fs_out=44_100.123456)
+        virtual_recording(
+            p, u, FS, shipped_calibration, recorder=RecorderOptions(fs_out=44_100.123456)
+        )

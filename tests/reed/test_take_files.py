@@ -6,6 +6,7 @@ import soundfile as sf
 import yaml
 
 from mpipe.measurement.calibration import load_calibration
+from mpipe.reed.recorder import RecorderOptions
 from mpipe.reed.recording import virtual_recording
 from mpipe.reed.take_files import take_file_paths, write_virtual_take
 
@@ -19,7 +20,11 @@ def take(shipped_calibration):
     t = np.arange(n) / FS
     p, u = env * 500 * np.sin(2 * np.pi * 440 * t), env * 3e-5 * np.cos(2 * np.pi * 440 * t)
     return virtual_recording(
-        p, u, FS, shipped_calibration, gain_error_db=(1.0, 0.5, -0.5), bits=16, seed=2
+        p,
+        u,
+        FS,
+        shipped_calibration,
+        recorder=RecorderOptions(gain_error_db=(1.0, 0.5, -0.5), bits=16, seed=2),
     )
 
 

@@ -17,8 +17,20 @@ import argparse
 import math
 import sys
 
+import numpy as np
+
 from mpipe.core.errors import UserError
 from mpipe.core.io import check_writable, write_csv
+from mpipe.measurement.calibration import load_calibration
+from mpipe.measurement.calibration_recordings import read_channels
+from mpipe.measurement.calibration_tables import read_mic_calibration
+from mpipe.measurement.microphones import sensitivity_from_chain
+from mpipe.measurement.relative_calibration import (
+    SpectralOptions,
+    closed_tube_calibration,
+    closed_tube_ratio,
+    switching_calibration,
+)
 
 
 def add_parser(sub) -> None:
@@ -97,8 +109,6 @@ def add_parser(sub) -> None:
 
 def run_sensitivity(args: argparse.Namespace) -> int:
     """Execute ``mpipe calibrate sensitivity``."""
-    from mpipe.measurement.microphones import sensitivity_from_chain
-
     if (args.full_scale_v is None) == (args.full_scale_dbu is None):
         raise UserError("give exactly one of --full-scale-v and --full-scale-dbu")
     volts = args.full_scale_v
@@ -117,7 +127,6 @@ def run_sensitivity(args: argparse.Namespace) -> int:
 
 
 def _setup(args):
-    from mpipe.measurement.calibration import load_calibration
 
     check_writable([args.output], args.force)
     cal = load_calibration(args.calibration)
@@ -128,7 +137,6 @@ def _setup(args):
 
 
 def _finish(args, result) -> int:
-    from mpipe.measurement.calibration_tables import read_mic_calibration
 
     write_csv(args.output, result.table())
     read_mic_calibration(args.output, band=None)  # what the take reader will accept
@@ -150,33 +158,24 @@ def _finish(args, result) -> int:
     return 0
 
 
+def _spectral(args: argparse.Namespace) -> SpectralOptions:
+    """The spectral options of both methods, from the command line."""
+    return SpectralOptions((args.fmin, args.fmax), args.resolution, args.min_coherence, args.smooth)
+
+
 def run_switch(args: argparse.Namespace) -> int:
     """Execute ``mpipe calibrate switch``."""
-    from mpipe.measurement.calibration_recordings import read_channels
-    from mpipe.measurement.relative_calibration import switching_calibration
-
     cal, ref = _setup(args)
     first, fs1 = read_channels(args.first, cal, (ref, args.mic))
     second, fs2 = read_channels(args.second, cal, (ref, args.mic))
     if fs1 != fs2:
         raise UserError(f"{args.second}: sampled at {fs2:g} Hz, {args.first} at {fs1:g} Hz")
-    result = switching_calibration(
-        first, second, fs1, args.mic, (args.fmin, args.fmax), args.resolution,
-        args.min_coherence, args.smooth,
-    )  # fmt: skip
+    result = switching_calibration(first, second, fs1, args.mic, _spectral(args))
     return _finish(args, result)
 
 
 def run_closed(args: argparse.Namespace) -> int:
     """Execute ``mpipe calibrate closed``."""
-    import numpy as np
-
-    from mpipe.measurement.calibration_recordings import read_channels
-    from mpipe.measurement.relative_calibration import (
-        closed_tube_calibration,
-        closed_tube_ratio,
-    )
-
     cal, ref = _setup(args)
     rec, fs = read_channels(args.recording, cal, (ref, args.mic))
     mics = {m.name: m for m in cal.microphones}
@@ -191,10 +190,7 @@ def run_closed(args: argparse.Namespace) -> int:
         positions, args.closed_at, cal.main_radius, freqs, cal.air_properties(args.temperature),
         cal.bore.losses,
     )  # fmt: skip
-    result = closed_tube_calibration(
-        rec, fs, ratio[:, 1], freqs, args.mic, (args.fmin, args.fmax), args.resolution,
-        args.min_coherence, smooth_hz=args.smooth,
-    )  # fmt: skip
+    result = closed_tube_calibration(rec, fs, ratio[:, 1], freqs, args.mic, _spectral(args))
     return _finish(args, result)
 
 

@@ -3,14 +3,20 @@
 from __future__ import annotations
 
 import argparse
+import math
+
+import numpy as np
+import pandas as pd
 
 from mpipe.acoustics.radiation import RADIATION_MODELS
 from mpipe.cli.commands import add_fingering_option
 from mpipe.core.config import ConfigError
 from mpipe.core.errors import UserError
-from mpipe.core.io import check_writable, write_csv
+from mpipe.core.io import check_writable, write_atomic, write_csv
 from mpipe.measurement.calibration import load_calibration
 from mpipe.measurement.impedance import format_resonances, impedance_curve, plot_impedance
+from mpipe.measurement.impedance_comparison import compare, plot_comparison
+from mpipe.measurement.measured_impedance import read_measured_impedance
 
 
 def add_parser(sub) -> None:
@@ -135,14 +141,6 @@ def run(args: argparse.Namespace) -> int:
 
 def run_measured(args: argparse.Namespace, cal) -> int:
     """``mpipe impedance --measured FILE``: a measured curve against theory (and a take)."""
-    import math
-
-    import numpy as np
-    import pandas as pd
-
-    from mpipe.measurement.impedance_comparison import compare, plot_comparison
-    from mpipe.measurement.measured_impedance import read_measured_impedance
-
     declared = {
         key: value
         for key, value in (
@@ -197,8 +195,6 @@ def run_measured(args: argparse.Namespace, cal) -> int:
         write_csv(args.csv, pd.concat(tables, ignore_index=True))
         print(f"wrote {args.csv}")
     if args.plot:
-        from mpipe.core.io import write_atomic
-
         write_atomic(args.plot, lambda tmp: plot_comparison(tmp, curves, band))
         print(f"wrote {args.plot}")
     return 0 if np.isfinite(result.band_error_db) else 1

@@ -7,6 +7,7 @@ import dataclasses
 import json
 import logging
 import sys
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,15 @@ import numpy as np
 from mpipe import __version__
 from mpipe.cli.commands import add_fingering_option
 from mpipe.core.errors import UserError
-from mpipe.core.io import check_writable, write_atomic, write_text_atomic
+from mpipe.core.io import check_writable, folder_lock, write_atomic, write_text_atomic
+from mpipe.core.resampling import resample
+from mpipe.inversion.conditioning import bore_resonances, plan_take
+from mpipe.inversion.execution import connect
+from mpipe.inversion.segments import segment_summary, with_played
+from mpipe.inversion.status import summary_line
+from mpipe.inversion.tables import segment_lines, write_correlations, write_table
+from mpipe.inversion.take import invert_take
+from mpipe.inversion.tracking import ProgressBar
 from mpipe.measurement.calibration import load_calibration
 from mpipe.measurement.measured_instrument import bore_description
 from mpipe.pipeline.settings import load_pipeline
@@ -73,8 +82,6 @@ def load_mouthpiece(path: str | Path) -> tuple[float, np.ndarray, np.ndarray, np
     ``temperature_c`` (degC per sample, written by the wave separation) is None when the
     file has none (model output). Errors name the file and what is wrong.
     """
-    import zipfile
-
     if not zipfile.is_zipfile(path):
         # np.load would take any other file for a pickle and say so: name the real problem
         raise UserError(
@@ -128,8 +135,6 @@ def _numeric(data, key: str, path) -> np.ndarray:
 
 def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe invert``, holding the lock of the output folder."""
-    from mpipe.core.io import folder_lock
-
     with folder_lock(args.output):
         return _run(args)
 
@@ -178,7 +183,6 @@ def _at_inversion_rate(
     """The signals resampled to ``inversion.sample_rate`` (Hz) when they differ."""
     if abs(fs - rate) > 1e-6 * fs:
         # One rate for the pipeline, as in `mpipe run` (which resamples the take when read).
-        from mpipe.core.resampling import resample
 
         log.info("%s: resampling %g Hz -> %g Hz (inversion.sample_rate)", path, fs, rate)
         try:
@@ -192,10 +196,6 @@ def _at_inversion_rate(
 
 def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
     """The window plan and the take's inversion (kernel temperature, windows, kernel, air)."""
-    from mpipe.inversion.conditioning import bore_resonances, plan_take
-    from mpipe.inversion.take import invert_take
-    from mpipe.inversion.tracking import ProgressBar
-
     inv = cfg.inversion
     # The same windows and the same bore kernel as `mpipe run` (one answer per take).
     resonances = bore_resonances(cal)
@@ -216,8 +216,6 @@ def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
         )
     client = None
     if cfg.executor.kind == "dask":  # an unreachable scheduler: one line before any work
-        from mpipe.inversion.execution import connect
-
         client = connect(cfg.executor.scheduler)
     bar = ProgressBar(len(starts))
     try:
@@ -236,9 +234,7 @@ def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
 
 def _write_results(out: Path, plan, result, p, u, fs: float, kernel, air, inv) -> None:
     """Tables, the resynthesis (plots and WAV) and the parameter tracks into ``out``."""
-    from mpipe.inversion import resynthesis as rs
-    from mpipe.inversion.segments import segment_summary, with_played
-    from mpipe.inversion.tables import segment_lines, write_correlations, write_table
+    from mpipe.inversion import resynthesis as rs  # lazy: it imports matplotlib (~0.5 s)
 
     plan, segments = plan
     table = with_played(result.table, plan)
@@ -271,8 +267,6 @@ def _write_results(out: Path, plan, result, p, u, fs: float, kernel, air, inv) -
 
 def _print_windows(table, out: Path) -> int:
     """The per-window table and the windows not ok on stdout; 1 when none is ok."""
-    from mpipe.inversion.status import summary_line
-
     cols = ["t_start_s", "status", "k", "S", "y_m", "p_m", "m", "g", "lam", "k_c",
             "relative_residual", "n_evaluations"]  # fmt: skip
     sys.stdout.write(table[cols].to_string(index=False, float_format=lambda v: f"{v:.4g}"))

@@ -8,9 +8,18 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+import soundfile as sf
+
 from mpipe.cli.commands import add_fingering_option
 from mpipe.core.config import ConfigError
 from mpipe.core.errors import UserError
+from mpipe.core.io import check_output_folder
+from mpipe.core.progress import write
+from mpipe.inversion.conditioning import check_span
+from mpipe.inversion.execution import connect
+from mpipe.measurement.calibration import load_calibration
+from mpipe.pipeline.batch import run_takes, summary_lines
+from mpipe.pipeline.orchestration import ValidationFailed, usable
 from mpipe.pipeline.settings import load_pipeline
 
 
@@ -50,7 +59,7 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _take_files(arg: str) -> list[Path]:
+def take_arguments(arg: str) -> list[Path]:
     """The files of one TAKE argument.
 
     An existing file is taken as it is (commas in its name and all); otherwise the argument
@@ -106,10 +115,6 @@ def take_names(takes: Sequence[Sequence[str | Path]]) -> list[str]:
 
 def _check_lengths(takes: list[list[Path]], cfg) -> None:
     """Refuse, before any work, a take too short for one window within conditioning.edge_s."""
-    import soundfile as sf
-
-    from mpipe.inversion.conditioning import check_span
-
     for t in takes:
         try:
             info = sf.info(str(t[0]))
@@ -124,22 +129,16 @@ def _check_lengths(takes: list[list[Path]], cfg) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe run``."""
-    from mpipe.core.io import check_output_folder
-    from mpipe.core.progress import write
-    from mpipe.pipeline.batch import run_takes, summary_lines
-    from mpipe.pipeline.orchestration import ValidationFailed, usable
-
     cfg = load_pipeline(args.pipeline, check_calibration=args.calibration is None)
     if args.fingering is not None:
         cfg = dataclasses.replace(cfg, fingering=args.fingering)
     cal_path = Path(args.calibration) if args.calibration else cfg.calibration_path
     if not cal_path.is_file():
         raise UserError(f"{cal_path}: no such calibration file")
-    from mpipe.measurement.calibration import load_calibration
 
     # a bad calibration or fingering: one line before any work, not one per take
     load_calibration(cal_path, cfg.fingering)
-    takes = [_take_files(t) for t in args.takes]
+    takes = [take_arguments(t) for t in args.takes]
     names = take_names(takes)
     _check_lengths(takes, cfg)
     # a bad output path fails now, not after the computation
@@ -148,8 +147,6 @@ def run(args: argparse.Namespace) -> int:
         check_output_folder(Path(args.output) / name)
     client = None
     if cfg.executor.kind == "dask":
-        from mpipe.inversion.execution import connect
-
         # one client for every take of this call: the takes share the cluster; an
         # unreachable scheduler is one line (exit 2) before any work
         client = connect(cfg.executor.scheduler)

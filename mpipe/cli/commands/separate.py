@@ -35,13 +35,14 @@ import numpy as np
 
 from mpipe.cli.commands import add_fingering_option
 from mpipe.core.errors import UserError
-from mpipe.core.io import check_writable, write_atomic, write_csv, write_npz_atomic
+from mpipe.core.io import check_writable, folder_lock, write_atomic, write_csv, write_npz_atomic
 from mpipe.inversion.kernel import take_temperature
 from mpipe.inversion.settings import InversionConfig
 from mpipe.measurement.calibration import load_calibration
 from mpipe.measurement.measured_instrument import bore_description
 from mpipe.measurement.separation.settings import SeparationConfig
 from mpipe.measurement.separation.stage import separate
+from mpipe.measurement.takes import read_take
 from mpipe.measurement.translation import (
     TranslationConfig,
     mouthpiece_noise,
@@ -113,14 +114,11 @@ def add_parser(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe separate``, holding the lock of the output folder."""
-    from mpipe.core.io import folder_lock
-
     with folder_lock(args.output):
         return _run(args)
 
 
 def _run(args: argparse.Namespace) -> int:
-    from mpipe.measurement.takes import read_take
 
     takes, cal_path, out, paths = _inputs(args)
     log.info("reading calibration %s", cal_path)
@@ -255,7 +253,6 @@ def _fingering(args: argparse.Namespace) -> str | None:
     """``--fingering``, else the pipeline's ``fingering`` (with ``--pipeline``), else None."""
     if args.fingering is not None or args.pipeline is None:
         return args.fingering
-    from mpipe.pipeline.settings import load_pipeline
 
     # its calibration key is not used here (the command names its own): not checked
     return load_pipeline(args.pipeline, check_calibration=False).fingering

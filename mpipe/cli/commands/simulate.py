@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import soundfile
 
 from mpipe import __version__
 from mpipe.acoustics.bore import find_resonances, input_impedance
@@ -239,8 +240,6 @@ def _print_summary(args, n: int, sim: Simulation, steady: slice, f_play, f1, rms
 
 def _write_wav(sim: Simulation, path: str | Path) -> None:
     """Mouthpiece pressure, scaled to 0.9 of full scale, 24-bit PCM at the model rate."""
-    import soundfile
-
     peak = float(np.max(np.abs(sim.p)))
     data = 0.9 * sim.p / peak if peak > 0 else sim.p
     write_atomic(path, lambda tmp: soundfile.write(tmp, data, int(round(sim.fs)), subtype="PCM_24"))
@@ -258,7 +257,7 @@ def plot_simulation(sim: Simulation, path: str | Path, title: str = "") -> None:
     title : str
         Figure title.
     """
-    from matplotlib.figure import Figure  # no pyplot: no global state, no GUI backend
+    from matplotlib.figure import Figure  # lazy (start-up); no pyplot: no global state
 
     fig = Figure(figsize=(11, 7), layout="constrained")
     axes = fig.subplots(3, 2, sharex="col")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import shlex
 
 from mpipe.cli.commands import add_fingering_option
@@ -165,8 +166,6 @@ BYTES_PER_MODEL_SAMPLE = 320
 
 def _check_duration(duration_s: float, fs_model: float) -> None:
     """Refuse, before simulating, a duration that is not positive or will not fit in memory."""
-    import os
-
     if not (math.isfinite(duration_s) and duration_s > 0):
         raise UserError(f"--duration: expected a positive length in s, got {duration_s:g}")
     need = duration_s * fs_model * BYTES_PER_MODEL_SAMPLE

@@ -1,6 +1,6 @@
 """Analysis blocks of the separation and the spectra of one block (physics.md E.5).
 
-The take is cut into blocks overlapping by half (:func:`_block_layout`, :func:`_block`);
+The take is cut into blocks overlapping by half (:func:`block_layout`, :func:`padded_block`);
 :func:`cross_spectra` prepares one block for the estimation of theta as a
 :class:`BlockSpectra` (windowed microphone powers in Pa^2/Hz at the estimation bins, and the
 spectra of the block with context on which the null filter acts); :func:`window_correlation`
@@ -22,7 +22,7 @@ _CORR_BINS = 8
 # Context taken on each side of a block before the null filter is applied, s: longer than
 # the filter's impulse response (the delays between microphones, ~0.1 ms, and the tails of
 # the visco-thermal terms), so that the residual inside the block is an exact filtering.
-_FILTER_MARGIN_S = 0.005
+FILTER_MARGIN_S = 0.005
 
 
 @dataclass(frozen=True)
@@ -93,8 +93,9 @@ class BlockSpectra:
         """Windowed spectra of the residual signals ``sum_m w_mk * p_m`` at the used bins.
 
         ``w`` (shape ``(n_model, N, K)``) holds the K = N - 2 noise-whitened null filters
-        at ``model_freqs`` (:func:`_null_weights`); the result is the K residual spectra,
-        one after the other (component-major), shape ``(K * sum(use),)``. The
+        at ``model_freqs`` (:func:`mpipe.measurement.separation.residual.null_weights`); the
+        result is the K residual spectra, one after the other (component-major), shape
+        ``(K * sum(use),)``. The
         filter is applied to the unwindowed block with context, and the window only
         afterwards, so that a harmonic between two bins is cancelled exactly at the true
         parameters (filtering the windowed segments instead evaluates the model at the
@@ -207,7 +208,12 @@ def window_correlation(spectra: BlockSpectra) -> dict[int, np.ndarray]:
     }
 
 
-def _block_layout(n: int, fs: float, block_s: float) -> tuple[int, int, np.ndarray]:
+def block_layout(n: int, fs: float, block_s: float) -> tuple[int, int, np.ndarray]:
+    """(hop, length, starts), in samples, of half-overlapping blocks covering the signal.
+
+    Blocks of ``block_s`` s at ``fs`` Hz over ``n`` samples; the first starts half a block
+    before the signal, so that the windows sum to one over every sample of it.
+    """
     hop = max(int(round(block_s * fs / 2)), 8)
     length = 2 * hop
     # Blocks start half a block before the signal so that the windows sum to one over
@@ -217,7 +223,8 @@ def _block_layout(n: int, fs: float, block_s: float) -> tuple[int, int, np.ndarr
     return hop, length, starts
 
 
-def _block(x: np.ndarray, start: int, length: int) -> np.ndarray:
+def padded_block(x: np.ndarray, start: int, length: int) -> np.ndarray:
+    """Rows ``start`` to ``start + length`` of ``x`` (time along axis 0), zero outside it."""
     out = np.zeros((length, x.shape[1]))
     lo, hi = max(start, 0), min(start + length, x.shape[0])
     if hi > lo:

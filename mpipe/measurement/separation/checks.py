@@ -8,7 +8,10 @@ reversed channels).
 
 from __future__ import annotations
 
+from itertools import permutations
+
 import numpy as np
+from scipy import signal
 
 from mpipe.measurement.calibration import Calibration
 from mpipe.measurement.separation.settings import SeparationConfig
@@ -108,8 +111,6 @@ def _strongest_cross_spectra(
     Returns their frequencies (Hz) and cross-spectral matrices ``E[X_i conj(X_j)]``
     (Pa^2/Hz, shape ``(n, N, N)``), or None when no bin is 100 times above the median.
     """
-    from scipy import signal
-
     x = np.asarray(pressures, dtype=float)
     n = min(x.shape[0], int(seconds * fs))
     start = (x.shape[0] - n) // 2
@@ -157,8 +158,6 @@ def _plane_wave_operators(f: np.ndarray, calibration: Calibration) -> tuple[np.n
 
 def _candidate_orders(n_mics: int) -> list[tuple[int, ...]]:
     """Every order of the channels up to 5; beyond, the given one and its single swaps."""
-    from itertools import permutations
-
     identity = tuple(range(n_mics))
     if n_mics <= 5:
         return list(permutations(identity))

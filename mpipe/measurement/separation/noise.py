@@ -2,7 +2,7 @@
 
 :func:`noise_levels` gives the white-noise power spectral density of each channel (Pa^2/Hz,
 the scaling of :attr:`BlockSpectra.mic_power`) from the incoherent part of the take's cross
-spectra; ``_NOISE_FLOOR`` bounds it from below relative to the strongest bin of a block.
+spectra; ``NOISE_FLOOR`` bounds it from below relative to the strongest bin of a block.
 """
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
+from mpipe.core.resampling import resample
 from mpipe.measurement.separation.settings import SeparationConfig
 
 # Floor of the noise levels relative to the strongest bin of a block's microphone spectra:
@@ -19,7 +20,7 @@ from mpipe.measurement.separation.settings import SeparationConfig
 # ~1e3 times the take's power per bin), so chi^2 per term came out 0.35 and the standard
 # errors 1.7x too wide. 1e-14 is ~100 dB below the strongest bin's share of a take at
 # 80 dB SNR; 24-bit quantisation lies near 1e-17.
-_NOISE_FLOOR = 1e-14
+NOISE_FLOOR = 1e-14
 
 # The noise level is measured where the resampler's power response (when the take was
 # resampled from a lower rate) is at least this, after dividing by it.
@@ -148,8 +149,6 @@ def resampler_response(freqs: np.ndarray, fs: float, fs_file: float) -> np.ndarr
     ndarray
         Dimensionless, shape of ``freqs``.
     """
-    from mpipe.measurement.takes import resample
-
     n_file = 4096
     impulse = np.zeros((n_file, 1))
     impulse[n_file // 2] = 1.0

@@ -16,12 +16,17 @@ import numpy as np
 from scipy import optimize
 
 from mpipe.measurement.separation.blocks import BlockSpectra, window_correlation
-from mpipe.measurement.separation.residual import _null_weights
+from mpipe.measurement.separation.residual import null_weights
 from mpipe.measurement.separation.settings import SeparationConfig
 from mpipe.measurement.separation.waves import Geometry, Theta, zk_excess
 
 
-def _fixed_mach(config: SeparationConfig, geometry: Geometry, c: float) -> float | None:
+def fixed_mach(config: SeparationConfig, geometry: Geometry, c: float) -> float | None:
+    """The Mach number the settings hold fixed, or None when it is estimated.
+
+    ``mach`` when set, else ``mean_flow_m3_s`` (m^3/s) over the bore's cross-section at the
+    sound speed ``c`` (m/s).
+    """
     if config.mach is not None:
         return config.mach
     if config.mean_flow_m3_s is not None:
@@ -134,15 +139,16 @@ class BlockEstimate:
     evaluations: int
 
 
-_NAMES = ("temperature", "eta", "mach", "position")
+PROPAGATION_NAMES = ("temperature", "eta", "mach", "position")
 
 
 # Solver scales: 1 degC, 0.1 of eta, 1e-3 of Mach, 0.1 mm.
 _SCALES = np.array([1.0, 0.1, 1e-3, 1e-4])
 
 
-def _fixed_mach_t(config: SeparationConfig, geometry: Geometry, t: float) -> float | None:
-    return _fixed_mach(config, geometry, geometry.sound_speed(t))
+def fixed_mach_at(config: SeparationConfig, geometry: Geometry, t: float) -> float | None:
+    """:func:`fixed_mach` at the sound speed of temperature ``t`` (degC)."""
+    return fixed_mach(config, geometry, geometry.sound_speed(t))
 
 
 def estimate_block(
@@ -209,7 +215,7 @@ def estimate_block(
     def values(z: np.ndarray) -> np.ndarray:
         v = np.array(start, dtype=float)
         v[idx] = z * scales
-        held = _fixed_mach_t(config, geometry, v[0])
+        held = fixed_mach_at(config, geometry, v[0])
         if not free[2]:
             v[2] = held if held is not None else start[2]
         return v
@@ -234,7 +240,7 @@ def estimate_block(
         def fun(z, excess=excess, kappa=kappa_fit):
             v = values(z)
             g = geometry_of(v)
-            w = _null_weights(theta_of(v), spectra.model_freqs, g, excess, noise)
+            w = null_weights(theta_of(v), spectra.model_freqs, g, excess, noise)
             r = np.sqrt(2.0 / kappa) * spectra.residual(w, use)
             pr = ((v[idx] - prior.mean[idx]) / prior.width[idx])[has_prior]
             return np.concatenate([r.real, r.imag, pr])
@@ -287,7 +293,7 @@ def _least_squares(
 def _on_bounds(values: np.ndarray, prior: Prior) -> tuple[str, ...]:
     """Names of the free parameters within 1e-6 of their range from a bound."""
     return tuple(
-        _NAMES[i]
+        PROPAGATION_NAMES[i]
         for i in np.flatnonzero(prior.free)
         if min(values[i] - prior.lower[i], prior.upper[i] - values[i])
         <= 1e-6 * max(prior.upper[i] - prior.lower[i], 1e-12)

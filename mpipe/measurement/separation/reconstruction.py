@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import fft as sfft
 
-from mpipe.measurement.separation.blocks import _block
+from mpipe.measurement.separation.blocks import padded_block
 from mpipe.measurement.separation.settings import SeparationConfig
 from mpipe.measurement.separation.waves import Geometry, Theta, separation_filters
 
@@ -151,7 +151,7 @@ def overlap_add(
         geo_b = geometry.corrected(float(smooth[b, 3]))
         g_p, g_u = _tapered_filters(fb, th, geo_b, config, ramp)
         seg = np.zeros((nfft, n_mics))
-        seg[pad : pad + length] = _block(x, s, length) * win[:, None]
+        seg[pad : pad + length] = padded_block(x, s, length) * win[:, None]
         spec_ = np.fft.rfft(seg, axis=0)[band]
         y = np.zeros((freqs.size, 2), dtype=complex)
         y[band, 0] = np.sum(g_p * spec_, axis=1)

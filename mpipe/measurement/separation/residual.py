@@ -41,7 +41,7 @@ def _null_components(
     return out
 
 
-def _null_weights(
+def null_weights(
     theta: Theta, freqs: np.ndarray, geometry: Geometry, excess: np.ndarray | None, noise
 ) -> np.ndarray:
     """Null filters whitened under the sensor noise, shape ``(n, N, N - 2)``.
@@ -83,7 +83,7 @@ def residual_vector(
     ``spectra.model_freqs``.
     """
     use = np.ones(spectra.freqs.size, bool) if use is None else use
-    w = _null_weights(theta, spectra.model_freqs, geometry, excess, noise)
+    w = null_weights(theta, spectra.model_freqs, geometry, excess, noise)
     return spectra.residual(w, use)
 
 

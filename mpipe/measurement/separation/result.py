@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 
 from mpipe.measurement.separation.drift import TrackChoice
-from mpipe.measurement.separation.propagation import _NAMES
+from mpipe.measurement.separation.propagation import PROPAGATION_NAMES
 from mpipe.measurement.separation.settings import SeparationConfig
 from mpipe.measurement.separation.tracking import BlockFits
 from mpipe.measurement.separation.waves import Geometry, Theta
@@ -75,7 +75,7 @@ class SeparationResult:
         """One line per parameter whose per-block estimate sat on a bound."""
         out = []
         hits = self.blocks["at_bound"].fillna("").astype(str)
-        for name in _NAMES:
+        for name in PROPAGATION_NAMES:
             count = int(hits.str.contains(name).sum())
             if count:
                 out.append(

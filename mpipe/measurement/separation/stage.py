@@ -21,16 +21,16 @@ import numpy as np
 
 from mpipe.measurement.calibration import Calibration
 from mpipe.measurement.separation.blocks import (
-    _FILTER_MARGIN_S,
+    FILTER_MARGIN_S,
     BlockSpectra,
-    _block,
-    _block_layout,
+    block_layout,
     cross_spectra,
+    padded_block,
 )
 from mpipe.measurement.separation.checks import check_band
 from mpipe.measurement.separation.drift import TrackChoice, choose_track, overlap_correlation
-from mpipe.measurement.separation.noise import _NOISE_FLOOR, noise_levels
-from mpipe.measurement.separation.propagation import Prior, _fixed_mach, _fixed_mach_t
+from mpipe.measurement.separation.noise import NOISE_FLOOR, noise_levels
+from mpipe.measurement.separation.propagation import Prior, fixed_mach, fixed_mach_at
 from mpipe.measurement.separation.reconstruction import overlap_add
 from mpipe.measurement.separation.result import SeparationResult, block_table
 from mpipe.measurement.separation.settings import SeparationConfig
@@ -112,10 +112,10 @@ def _plan(x: np.ndarray, fs: float, calibration: Calibration, config: Separation
     )
     c_start = geometry.sound_speed(t_start)
     check_band(config, geometry, fs, c_start)
-    hop, length, starts = _block_layout(x.shape[0], fs, config.block_s)
-    free_mach = _fixed_mach(config, geometry, c_start) is None
+    hop, length, starts = block_layout(x.shape[0], fs, config.block_s)
+    free_mach = fixed_mach(config, geometry, c_start) is None
     prior = Prior.from_config(config, t_start, free_mach, n_mics)
-    held_mach = _fixed_mach(config, geometry, c_start)
+    held_mach = fixed_mach(config, geometry, c_start)
     start = prior.mean.copy()
     if held_mach is not None:
         start[2] = held_mach
@@ -165,18 +165,18 @@ def _prepare_blocks(
     spectra : list of BlockSpectra
         One per block.
     noise : ndarray
-        ``noise_raw`` floored at ``_NOISE_FLOOR`` of the strongest bin, Pa^2/Hz.
+        ``noise_raw`` floored at ``NOISE_FLOOR`` of the strongest bin, Pa^2/Hz.
     uses : list of ndarray
         Per block, the bins entering the estimate (bool).
     fitted : ndarray
         Per block, whether it is fitted (bool).
     """
     n, length, starts = x.shape[0], plan.length, plan.starts
-    margin = int(np.ceil(_FILTER_MARGIN_S * fs))
+    margin = int(np.ceil(FILTER_MARGIN_S * fs))
     f1 = plan.c_start / (2 * plan.geometry.spacing)
     spectra_list = [
         cross_spectra(
-            _block(x, s - margin, length + 2 * margin), fs, config.fmin_hz, config.fmax_hz,
+            padded_block(x, s - margin, length + 2 * margin), fs, config.fmin_hz, config.fmax_hz,
             margin, f1,
         )
         for s in starts
@@ -190,7 +190,7 @@ def _prepare_blocks(
         (float(np.max(sp.mic_power, initial=0.0)) for sp in spectra_list),
         default=0.0,
     )
-    noise = np.maximum(noise_raw, _NOISE_FLOOR * peak + 1e-300)
+    noise = np.maximum(noise_raw, NOISE_FLOOR * peak + 1e-300)
     uses = [sp.use(noise, config.min_snr_db) for sp in spectra_list]
     # Blocks hanging over either end hold half silence and an abrupt edge: not fitted.
     fitted = inside & (level > max(floor, 0.0)) & np.array([np.sum(u) >= 3 for u in uses])
@@ -242,7 +242,7 @@ def _smoothed_track(
     smooth, smooth_se = choice.values.copy(), choice.se
     geometry = plan.geometry
     if plan.held_mach is not None:
-        smooth[:, 2] = [_fixed_mach_t(config, geometry, t) for t in smooth[:, 0]]
+        smooth[:, 2] = [fixed_mach_at(config, geometry, t) for t in smooth[:, 0]]
     c_track = np.array([geometry.sound_speed(float(t)) for t in smooth[:, 0]])
     return smooth, smooth_se, c_track, choice
 

@@ -15,6 +15,7 @@ from scipy import signal
 from mpipe.acoustics import ducts
 from mpipe.measurement.calibration import load_calibration
 from mpipe.measurement.takes import resample
+from mpipe.reed.recorder import RecorderOptions
 from mpipe.reed.recording import virtual_recording
 
 CAL = load_calibration(Path(__file__).parents[3] / "calibration" / "simplified_clarinet.yaml")
@@ -107,10 +108,8 @@ def note_take(snr_db, seed, fs_out=FS_NOTE, temperature_c=None):
         u,
         FS_NOTE,
         CAL,
-        snr_db=snr_db,
-        seed=seed,
-        fs_out=fs_out,
         temperature_c=temperature_c,
+        recorder=RecorderOptions(snr_db=snr_db, seed=seed, fs_out=fs_out),
     )
     x = take.signals * np.asarray(take.sensitivity)
     # two-sided noise PSD in the scaling of noise_levels: sigma^2 / fs of the file

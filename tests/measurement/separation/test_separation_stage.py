@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mpipe.measurement.separation.blocks import _block_layout
+from mpipe.measurement.separation.blocks import block_layout
 from mpipe.measurement.separation.result import BLOCK_COLUMNS
 from mpipe.measurement.separation.settings import SeparationConfig, fixed_config
 from mpipe.measurement.separation.stage import separate
@@ -134,7 +134,7 @@ def test_separation_of_every_length_and_rate(duration_s, fs, extra, prime):
     # length can go wrong, are then those of the full take (the test stays fast).
     n = int(duration_s * fs) + extra
     n = _prime_at_least(n) if prime else n
-    hop = _block_layout(n, fs, SeparationConfig().block_s)[0]
+    hop = block_layout(n, fs, SeparationConfig().block_s)[0]
     n -= hop * max(0, -(-(n - int(2 * fs)) // hop))
     _check_separation(n, fs)
 
@@ -145,7 +145,7 @@ def test_blocks_cover_every_sample_of_every_length(duration_s, fs, extra):
     # The periodic Hann windows of the blocks sum to one over every sample of the take, for
     # the full lengths (50 ms to 30 s): nothing is lost or doubled at either end.
     n = int(duration_s * fs) + extra
-    hop, length, starts = _block_layout(n, fs, SeparationConfig().block_s)
+    hop, length, starts = block_layout(n, fs, SeparationConfig().block_s)
     win = np.hanning(length + 1)[:-1]
     total = np.zeros(n + 2 * length)
     for s in starts:
