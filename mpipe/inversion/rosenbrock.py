@@ -1,8 +1,7 @@
-"""Rosenbrock's rotating-coordinate search, the paper's step-2 search.
+"""Rosenbrock's rotating-coordinate search, the paper's step-2 search (the reference).
 
 It works on log-scaled parameters ``z_i = ln(theta_i / theta0_i)`` inside bounds, as step
-2 does (physics.md I), like scipy's searches kept for comparison
-(:mod:`mpipe.inversion.scipy_searches`). A trial point that is out of bounds or whose value
+2 does (physics.md I). A trial point that is out of bounds or whose value
 is not finite, or not below ``infeasible_at``, counts as a failure.
 
 References
@@ -56,7 +55,7 @@ class SearchResult:
     history : ndarray
         Best objective value after each evaluation (paper Fig. 7).
     method : str
-        ``"rosenbrock"``, ``"powell"``, ``"nelder-mead"`` or ``"trust-region"``.
+        ``"rosenbrock"`` or ``"trust-region"``.
     jacobian : ndarray or None
         d residual / d ln x at ``x``, shape ``(n_residuals, n_parameters)``, where the
         method computes it (``"trust-region"``); None otherwise.
