@@ -235,7 +235,7 @@ def measured_path(take_files, pipe, inversion, fixed_front_end: bool):
     plan = plan_inversion(tr.p, take.fs, conditioning, 0.02, 0.04)
     starts = plan.loc[plan["invert"], "start"].tolist()
     return invert_take(
-        tr.p, tr.u, take.fs, cal, inversion, ExecutorConfig(workers=1), starts=starts,
+        tr.p, tr.u, take.fs, cal, inversion, ExecutorConfig(workers=1), windows=starts,
         temperature_c=tr.temperature_c,
     ).tracking.table  # fmt: skip
 

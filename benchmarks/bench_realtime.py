@@ -127,7 +127,7 @@ def invert_stage(data, cal, config, workers):
         t_cold = time.perf_counter() - t1  # one cold start alone, for the figure
     kernel, air = bore_kernel(cal, fs, fit.temperature_c)
     t2 = time.perf_counter()
-    result = track(p, u, fs, kernel, air.rho, config, executor, starts=starts, anchor=fit.anchor)
+    result = track(p, u, fs, kernel, air.rho, config, executor, windows=starts, anchor=fit.anchor)
     wall = t_fit + time.perf_counter() - t2
     return wall, cpu_seconds() - c0, result.table, t_fit, t_cold
 

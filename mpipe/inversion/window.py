@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mpipe.inversion.coldstart import global_search
+from mpipe.inversion.coldstart import ColdStartOptions, global_search
 from mpipe.inversion.diagnostics import playing_difference
 from mpipe.inversion.least_squares import trust_region
 from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWindow
@@ -313,11 +313,8 @@ def _search(
         bounds[:, 1],
         [x0],
         lambda x: local_search(objective, x, bounds, config, cold=True),
-        design_points=config.design_points,
-        local_starts=config.local_starts,
-        local_evaluations=config.local_evaluations,
+        options=ColdStartOptions.of(config),
         infeasible_at=objective.penalty,
-        seed=config.design_seed,
         jacobian=_jacobian(objective),
     )
     return found.search, found.agreeing

@@ -193,7 +193,7 @@ def _at_inversion_rate(
 def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
     """The window plan and the take's inversion (kernel temperature, windows, kernel, air)."""
     from mpipe.inversion.conditioning import bore_resonances, plan_take
-    from mpipe.inversion.take import invert_take
+    from mpipe.inversion.take import RunOptions, WindowPlan, invert_take
     from mpipe.inversion.tracking import ProgressBar
 
     inv = cfg.inversion
@@ -221,10 +221,9 @@ def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
         client = connect(cfg.executor.scheduler)
     bar = ProgressBar(len(starts))
     try:
-        take = invert_take(p, u, fs, cal, inv, cfg.executor, starts=starts,
-                           temperature_c=temperature, progress=bar, client=client,
-                           segments=chosen["segment"].astype(int).tolist(),
-                           steady=chosen["steady"].astype(bool).tolist())  # fmt: skip
+        take = invert_take(p, u, fs, cal, inv, cfg.executor, windows=WindowPlan.of(chosen),
+                           temperature_c=temperature,
+                           options=RunOptions(progress=bar, client=client))  # fmt: skip
     except ValueError as exc:
         raise UserError(f"{args.mouthpiece}: {exc}") from None
     finally:
