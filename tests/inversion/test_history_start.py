@@ -43,4 +43,3 @@ def test_missing_mean_flow_restores_the_mean_of_a_zero_mean_flow(take):
     lost = missing_mean_flow(TABLE1, dp, y, u - u.mean(), FS, rho)
     # with the true reed the candidate's flow is the model's own: the mean lost is exact
     assert lost == pytest.approx(u.mean(), rel=1e-6)
-
