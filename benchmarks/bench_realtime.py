@@ -1,8 +1,8 @@
 """Real time of the whole run and of every stage (issue 21), with baselines, in one run.
 
 Usage: ``.venv/bin/python benchmarks/bench_realtime.py [--duration S] [--snr DB]
-[--repeats N] [--cache DIR] [--compare-every K] [--rosenbrock-budget N] [--skip-before]
-[--skip-stage] [--skip-run]``
+[--repeats N] [--cache DIR] [--compare-every K] [--rosenbrock-budget N] [--skip-stage]
+[--skip-run]``
 
 0. The machine: how much faster 2 processes of a CPU burner run than 1 (2.00 on two free
    cores; the machine may be shared), measured before and after the figures, and the
@@ -13,10 +13,10 @@ Usage: ``.venv/bin/python benchmarks/bench_realtime.py [--duration S] [--snr DB]
 2. The inversion stage on the separated, translated take (``--cache DIR`` keeps the
    mouthpiece signals), as ``mpipe.invert_take`` runs it: the temperature fit (its cold
    start included) and the tracking of every planned window, timed apart, on 1 and 2
-   local workers; "after" (the shipped configuration) and "before" (the Jacobian by
-   forward differences, ``inversion.jacobian: differences``) on 1 and 2 workers. Prints
-   wall and CPU times, real-time factors, evaluations per warm window and the ratios
-   after/before and 2 workers/1 worker beside what the machine offered.
+   local workers (the shipped configuration). Prints wall and CPU times, real-time
+   factors, evaluations per warm window and the ratio 2 workers/1 worker beside what the
+   machine offered. (The "before" run, the Jacobian by forward differences, went with the
+   ``inversion.jacobian`` switch in issue 23.)
 3. Agreement with the paper's method: every K-th warm window is also inverted by
    Rosenbrock's search (``optimiser: rosenbrock``, a budget it does not exhaust) from the
    same start; the share of windows whose F2 is within 1 % and whose parameters are within
@@ -51,10 +51,11 @@ from mpipe.inversion.conditioning import plan_inversion
 from mpipe.inversion.execution import stage_workers
 from mpipe.inversion.kernel import bore_kernel, take_temperature
 from mpipe.inversion.resynthesis import reed_from_row
-from mpipe.inversion.settings import PARAMETER_NAMES, ExecutorConfig
+from mpipe.inversion.settings import ExecutorConfig
+from mpipe.inversion.step1 import step1
 from mpipe.inversion.temperature import fit_temperature
 from mpipe.inversion.tracking import track
-from mpipe.inversion.window import invert_window
+from mpipe.inversion.window import invert_window, start_point
 from mpipe.measurement.calibration import load_calibration
 from mpipe.measurement.separation.stage import separate
 from mpipe.measurement.takes import read_take
@@ -126,7 +127,7 @@ def invert_stage(data, cal, config, workers):
         t_cold = time.perf_counter() - t1  # one cold start alone, for the figure
     kernel, air = bore_kernel(cal, fs, fit.temperature_c)
     t2 = time.perf_counter()
-    result = track(p, u, fs, kernel, air.rho, config, executor, starts=starts, anchor=fit.anchor)
+    result = track(p, u, fs, kernel, air.rho, config, executor, windows=starts, anchor=fit.anchor)
     wall = t_fit + time.perf_counter() - t2
     return wall, cpu_seconds() - c0, result.table, t_fit, t_cold
 
@@ -259,6 +260,17 @@ def kernel_rates(seconds: float, repeats: int) -> None:
     record("lean model kernel, CPU (baseline: full)", lean, "M samples/s", base / 1e6, ">= 20")
 
 
+def warm_up(data, kernel, rho, config) -> None:
+    """A short warm window from step 1's start: loads the compiled code, costs ~40 runs."""
+    p, u, fs = data["p"], data["u"], float(data["fs"])
+    s = int(data["starts"][1])
+    n = int(round(config.window_s * fs))
+    s1 = step1(p[s : s + n], u[s : s + n], fs, rho=rho, lam=config.lam, zero_mean=True,
+               p_m=config.step1_p_m, y_c=config.y_c)  # fmt: skip
+    short = dataclasses.replace(config, warm_max_evaluations=40)
+    invert_window(p, u, fs, s, kernel, rho, short, zero_mean=True, warm=start_point(s1, config))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=4.0, help="take length, s")
@@ -267,7 +279,6 @@ def main() -> None:
     parser.add_argument("--cache", type=Path, default=None, help="keep the signals here")
     parser.add_argument("--compare-every", type=int, default=10, help="Rosenbrock comparison")
     parser.add_argument("--rosenbrock-budget", type=int, default=4000, help="its model runs")
-    parser.add_argument("--skip-before", action="store_true", help="only the shipped path")
     parser.add_argument("--skip-stage", action="store_true", help="skip part 2")
     parser.add_argument("--skip-run", action="store_true", help="skip part 1")
     args = parser.parse_args()
@@ -293,50 +304,26 @@ def main() -> None:
     cal = load_calibration(CAL)
     kernel, air = bore_kernel(cal, fs, take_temperature(data["temperature_c"], cal))
     after = dataclasses.replace(load_pipeline(PIPE).inversion, sample_rate=fs)
-    before = dataclasses.replace(after, jacobian="differences")
     print(
         f"take: {duration:g} s at {args.snr:g} dB, {len(data['starts'])} steady windows of "
         f"{after.window_s * 1e3:g} ms; r_f {kernel.n_taps} taps"
     )
     with threadpool_limits(limits=1, user_api="blas"):  # warm-up: load the compiled code
-        invert_window(data["p"], data["u"], fs, int(data["starts"][1]), kernel, air.rho,
-                      dataclasses.replace(after, cold_start="step1", max_evaluations=40),
-                      zero_mean=True)  # fmt: skip
+        warm_up(data, kernel, air.rho, after)
 
     print("2. Inversion stage (temperature fit with its cold start, then every window)")
     walls = {}
-    configs = [("after", after)] + ([] if args.skip_before else [("before", before)])
-    if args.skip_stage:
-        configs = []
-    for label, config in configs:
+    if not args.skip_stage:
         for workers in (1, 2):
-            runs = [
-                invert_stage(data, cal, config, workers)
-                for _ in range(args.repeats if label == "after" else 1)
-            ]
-            walls[label, workers] = stage_figures(f"{label}, {workers} worker(s)", runs, duration)
-    for label, _ in configs:
-        (w1, f1, _), (w2, f2, _) = walls[label, 1], walls[label, 2]
+            runs = [invert_stage(data, cal, after, workers) for _ in range(args.repeats)]
+            walls[workers] = stage_figures(f"after, {workers} worker(s)", runs, duration)
+        (w1, f1, _), (w2, f2, _) = walls[1], walls[2]
         print(
-            f"  {label}: 2 workers / 1 worker: x{w1 / w2:.2f} (whole stage), x{f1 / f2:.2f} "
+            f"  after: 2 workers / 1 worker: x{w1 / w2:.2f} (whole stage), x{f1 / f2:.2f} "
             f"(temperature fit), x{(w1 - f1) / max(w2 - f2, 1e-9):.2f} (windows); the machine "
             f"offered x{offered:.2f}"
         )
-        if label == "after":
-            record("inversion stage, 2 workers / 1 worker", w1 / w2, "", offered, ">= 1.8")
-    if configs and not args.skip_before:
-        for workers in (1, 2):
-            print(
-                f"  after/before (Jacobian from sensitivities / by differences) on {workers} "
-                f"worker(s): x{walls['before', workers][0] / walls['after', workers][0]:.2f}"
-            )
-        t_a, t_b = walls["after", 1][2], walls["before", 1][2]
-        ratio = t_a["f2"].to_numpy() / t_b["f2"].to_numpy()
-        dx = np.max(np.abs(np.log(t_a[list(PARAMETER_NAMES)] / t_b[list(PARAMETER_NAMES)])), 1)
-        print(
-            f"  after against before, per window: F2 ratio median {np.median(ratio):.5f}, "
-            f"max {np.max(ratio):.5f}; largest parameter change median {np.median(dx):.1e}"
-        )
+        record("inversion stage, 2 workers / 1 worker", w1 / w2, "", offered, ">= 1.8")
     again = machine_parallelism(args.repeats)
     print(f"  the machine after these figures: 2 processes x{again:.2f} faster than 1")
 

@@ -54,7 +54,7 @@ def run(seed: int, workers: int, baseline: bool) -> dict:
     from mpipe.inversion.conditioning import bore_resonances, plan_take
     from mpipe.inversion.kernel import bore_kernel
     from mpipe.inversion.settings import ExecutorConfig
-    from mpipe.inversion.take import invert_take
+    from mpipe.inversion.take import WindowPlan, invert_take
     from mpipe.measurement.calibration import load_calibration
     from mpipe.pipeline.settings import load_pipeline
     from mpipe.reed.model import simulate
@@ -78,9 +78,8 @@ def run(seed: int, workers: int, baseline: bool) -> dict:
     t0 = time.perf_counter()
     done = invert_take(
         p, u, fs, cal, pipe.inversion, ExecutorConfig(workers=workers),
-        starts=chosen["start"].tolist(), temperature_c=None,
-        segments=None if baseline else chosen["segment"].tolist(),
-        steady=None if baseline else chosen["steady"].tolist(),
+        windows=chosen["start"].tolist() if baseline else WindowPlan.of(chosen),
+        temperature_c=None,
     )  # fmt: skip
     wall = time.perf_counter() - t0
     table = done.tracking.table

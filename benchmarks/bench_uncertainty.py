@@ -185,7 +185,7 @@ def coverage_take(seed: int, snr: float, kind: str, duration: float, folder: Pat
                               pipe.inversion.hop_s, end_s=duration - 0.05)  # fmt: skip
         starts = plan.loc[plan["invert"], "start"].tolist()
         done = invert_take(tr.p, tr.u, take.fs, cal, pipe.inversion, ExecutorConfig(workers=1),
-                           starts=starts, temperature_c=tr.temperature_c)  # fmt: skip
+                           windows=starts, temperature_c=tr.temperature_c)  # fmt: skip
         table = done.tracking.table.copy()
         table["take_checks"] = "; ".join(done.checks)
         write_windows(table, cache)

@@ -41,7 +41,6 @@ QUICK_ARGS = {
         "2",
         "--repeats",
         "1",
-        "--skip-before",
         "--compare-every",
         "30",
     ],

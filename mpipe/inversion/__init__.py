@@ -18,9 +18,7 @@ flow_fit
 mouth_pressure
     Step 1's p_m: the minimiser of the profiled flow misfit.
 rosenbrock
-    Rosenbrock's rotating-coordinate search (paper section 3.2).
-scipy_searches
-    scipy's Powell and Nelder-Mead on the same problem, and the choice by name.
+    Rosenbrock's rotating-coordinate search (paper section 3.2), the reference step-2 search.
 objective
     The step-2 objective F2 and the two ways of starting the model.
 history_start

@@ -124,6 +124,36 @@ class ColdStart:
     design_evaluations: int
 
 
+@dataclass(frozen=True)
+class ColdStartOptions:
+    """Sizes of the cold start's stages (``inversion`` settings of the same names).
+
+    Attributes
+    ----------
+    design_points : int
+        Size of the Sobol design (rounded up to a power of two).
+    local_starts : int
+        Short local searches in all, seeds included.
+    local_evaluations : int
+        Model runs per short local search.
+    seed : int
+        Scrambling seed of the design (fixed: one answer per input).
+    """
+
+    design_points: int = 256
+    local_starts: int = 8
+    local_evaluations: int = 300
+    seed: int = 0
+
+    @classmethod
+    def of(cls, config) -> ColdStartOptions:
+        """The options of an :class:`~mpipe.inversion.settings.InversionConfig`."""
+        return cls(
+            config.design_points, config.local_starts, config.local_evaluations,
+            config.design_seed,
+        )  # fmt: skip
+
+
 def sobol_design(lower: np.ndarray, upper: np.ndarray, n_points: int, seed: int) -> np.ndarray:
     """Scrambled Sobol points spread evenly over a box in log coordinates.
 
@@ -155,11 +185,8 @@ def global_search(
     seeds: Sequence[np.ndarray],
     polish: Callable[[np.ndarray], SearchResult],
     *,
-    design_points: int = 256,
-    local_starts: int = 8,
-    local_evaluations: int = 300,
+    options: ColdStartOptions = ColdStartOptions(),
     infeasible_at: float = math.inf,
-    seed: int = 0,
     jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray] | None] | None = None,
 ) -> ColdStart:
     """Find the global basin of F2 inside bounds and polish its minimum.
@@ -176,16 +203,10 @@ def global_search(
         Start points that always get a local search (step 1's estimate).
     polish : callable
         ``polish(x0) -> SearchResult``: the full step-2 search from the best point found.
-    design_points : int
-        Size of the Sobol design (rounded up to a power of two).
-    local_starts : int
-        Short local searches in all, seeds included.
-    local_evaluations : int
-        Model runs per short local search.
+    options : ColdStartOptions
+        Design size, number of short local searches, their budget, the design's seed.
     infeasible_at : float
         F2 at or above this marks an infeasible candidate.
-    seed : int
-        Scrambling seed of the design (fixed: one answer per input).
     jacobian : callable, optional
         ``jacobian(x) -> (r, J)`` for the short local searches (see
         :func:`mpipe.inversion.least_squares.trust_region`).
@@ -200,7 +221,7 @@ def global_search(
     lower = np.asarray(lower, float)
     upper = np.asarray(upper, float)
     seeds = [np.clip(np.asarray(s, float), lower, upper) for s in seeds]
-    design = sobol_design(lower, upper, design_points, seed)
+    design = sobol_design(lower, upper, options.design_points, options.seed)
     chunks = [c for c in np.array_split(design, 8) if len(c)] if len(design) else []
     parts = map_tasks(_design_task, [(objective, c) for c in chunks])
     values = np.array([v for part in parts for v in part])
@@ -208,7 +229,7 @@ def global_search(
     feasible = np.flatnonzero(values < infeasible_at)
     starts = list(seeds)
     for i in feasible[np.argsort(values[feasible], kind="stable")]:
-        if len(starts) >= local_starts:
+        if len(starts) >= options.local_starts:
             break
         # distinct from the starts already chosen: more than 5 % apart in some parameter
         if all(np.max(np.abs(np.log(design[i] / s))) > 0.05 for s in starts):
@@ -216,7 +237,7 @@ def global_search(
     local = map_tasks(
         _local_task,
         [
-            (residuals, jacobian, x0, lower, upper, local_evaluations, infeasible_at)
+            (residuals, jacobian, x0, lower, upper, options.local_evaluations, infeasible_at)
             for x0 in starts
         ],
     )
@@ -240,6 +261,7 @@ def global_search(
 __all__ = [
     "AGREEMENT",
     "ColdStart",
+    "ColdStartOptions",
     "global_search",
     "map_tasks",
     "run_tasks_here",

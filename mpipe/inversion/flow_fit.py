@@ -8,7 +8,7 @@ is linear in three coefficients:
     c1 = -lambda/k,  c2 = lambda y_m,  c3 = -S/k,
 
 with dp = p_m - p. F1 = ||u - X c||^2 is quadratic (convex) in c, so it is minimised exactly
-by linear least squares; the paper's Nelder-Mead is kept for comparison. The closing
+by linear least squares (the paper searched it by Nelder-Mead). The closing
 (dp/dt < 0) and opening (dp/dt > 0) branches are fitted separately.
 
 Samples that violate the model are left out: a shut reed (fitted opening y_m - dp/k <= 0)
@@ -32,7 +32,6 @@ from scipy import optimize
 log = logging.getLogger(__name__)
 
 Branch = Literal["closing", "opening"]
-Solver = Literal["lstsq", "nelder-mead"]
 
 
 @dataclass(frozen=True)
@@ -63,7 +62,7 @@ class BranchFit:
     n_iterations : int
         Solver iterations (1 for the exact least-squares solve).
     solver : str
-        ``"lstsq"``, ``"lsq_linear"`` (bounded) or ``"nelder-mead"``.
+        ``"lstsq"`` or ``"lsq_linear"`` (bounded).
     """
 
     branch: str
@@ -135,27 +134,6 @@ def _solve_lstsq(x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, str]:
     return res.x / scale, "lsq_linear"
 
 
-def _solve_nelder_mead(
-    x: np.ndarray, u: np.ndarray, c_start: np.ndarray, xtol: float
-) -> tuple[np.ndarray, int]:
-    # Work in units of the start coefficients, so that xatol is a relative change.
-    xs = x * c_start
-
-    def f1(v: np.ndarray) -> float:
-        r = u - xs @ v
-        return float(r @ r)
-
-    # scipy stops when both the simplex size (xatol) and the spread of F1 (fatol) are
-    # small; fatol is made relative to F1 at the start.
-    res = optimize.minimize(
-        f1,
-        np.ones(3),
-        method="Nelder-Mead",
-        options={"xatol": xtol, "fatol": 1e-6 * f1(np.ones(3)), "maxiter": 20000},
-    )
-    return res.x * c_start, int(res.nit)
-
-
 #: Most refits of the sample-selection refinement; the selection usually settles in 2-6.
 MAX_REFITS = 20
 
@@ -205,11 +183,9 @@ def fit_branch(
     p_m: float,
     rho: float,
     lam: float,
-    solver: Solver = "lstsq",
     zero_mean: bool = False,
     refine: bool = True,
     y_c: float | None = None,
-    nm_xtol: float = 0.01,
 ) -> BranchFit:
     """Fit the quasi-static flow on one branch of a window.
 
@@ -229,9 +205,6 @@ def fit_branch(
         Air density, kg/m^3.
     lam : float
         Reed width lambda held fixed, m.
-    solver : {"lstsq", "nelder-mead"}
-        Exact linear least squares (bounded by ``lsq_linear`` when the unconstrained fit
-        is unphysical), or the paper's Nelder-Mead.
     zero_mean : bool
         The flow is zero-mean (measured): every regressor is centred by its mean over the
         whole window, which removes the unknown mean flow from the fit.
@@ -243,8 +216,6 @@ def fit_branch(
         Displacement where reed-lay contact begins, m. With ``refine``, samples with
         ``dp/k > y_c`` (fitted k) are dropped: there the lay pushes back, y < dp/k, and the
         step-1 model (no contact) does not hold. Default: contact samples are kept.
-    nm_xtol : float
-        Nelder-Mead termination: relative change of the coefficients (the paper's 1 %).
 
     Returns
     -------
@@ -280,10 +251,6 @@ def fit_branch(
             p_m,
         )
     c, used_solver = _solve_lstsq(x[mask], u[mask])
-    n_iter = 1
-    if solver == "nelder-mead":
-        c, n_iter = _solve_nelder_mead(x[mask], u[mask], _nm_start(c), nm_xtol)
-        used_solver = "nelder-mead"
     xb, ub = x[mask], u[mask]
     r = ub - xb @ c
     f1 = float(r @ r)
@@ -298,7 +265,7 @@ def fit_branch(
         relative_residual=float(np.sqrt(f1) / (np.linalg.norm(ub) + 1e-300)),
         n_samples=int(mask.sum()),
         n_dropped=int(branch_mask.sum() - mask.sum()),
-        n_iterations=n_iter,
+        n_iterations=1,
         solver=used_solver,
     )
 
@@ -325,20 +292,10 @@ def select_samples(
     return mask
 
 
-def _nm_start(c_exact: np.ndarray) -> np.ndarray:
-    # The paper started its simplex from literature values; we start from a point 30 %
-    # away from the exact minimiser, in every coordinate, so that the comparison with the
-    # exact solve measures the search and not a lucky start.
-    start = c_exact * 1.3
-    start[start == 0] = 1e-12
-    return start
-
-
 __all__ = [
     "Branch",
     "BranchFit",
     "MAX_REFITS",
-    "Solver",
     "branch_samples",
     "fit_branch",
     "fit_mask",

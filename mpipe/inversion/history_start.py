@@ -66,50 +66,12 @@ def reed_trajectory(reed: ReedParameters, dp: np.ndarray, fs: float) -> np.ndarr
     return _reed_lead_in(dp, a1, a2, a3, b1, reed.y_c, reed.alpha, y0)
 
 
-def reed_state_from_pressure(
-    reed: ReedParameters, dp: np.ndarray, fs: float
-) -> tuple[float, float]:
-    """Reed displacement at the last two samples of a pressure-difference history, m.
-
-    See :func:`reed_trajectory`; returns ``(y, y_prev)``.
-    """
-    y = reed_trajectory(reed, dp, fs)
-    return float(y[-1]), float(y[-2])
-
-
 def pad_history(x: np.ndarray, n: int) -> np.ndarray:
     """The last ``n`` samples of a history, zeros in front when it is shorter."""
     x = np.asarray(x, dtype=float)
     if x.size >= n:
         return x[-n:]
     return np.concatenate([np.zeros(n - x.size), x])
-
-
-def mean_flow_estimate(reed: ReedParameters, p: np.ndarray, rho: float) -> float:
-    """Mean flow of the quasi-static reed over a pressure record, m^3/s.
-
-    Used to restore the mean that a measured (zero-mean) flow history lacks.
-
-    Parameters
-    ----------
-    reed : ReedParameters
-        Candidate reed (k, y_m, p_m, lam are used).
-    p : ndarray
-        Mouthpiece pressure, Pa, ideally a whole number of periods.
-    rho : float
-        Air density, kg/m^3.
-
-    Returns
-    -------
-    float
-
-    References
-    ----------
-    Chatziioannou & van Walstijn 2012, eq. (10) (the u_f term; u_r has zero mean).
-    """
-    dp = reed.p_m - np.asarray(p, dtype=float)
-    h = np.maximum(reed.y_m - dp / reed.k, 0.0)
-    return float(np.mean(np.sign(dp) * reed.lam * h * np.sqrt(2.0 * np.abs(dp) / rho)))
 
 
 def missing_mean_flow(reed, dp, y, u_meas, fs, rho) -> float:
@@ -125,10 +87,4 @@ def missing_mean_flow(reed, dp, y, u_meas, fs, rho) -> float:
     return float(np.mean((u_f + u_r - u_meas)[half:]))
 
 
-__all__ = [
-    "mean_flow_estimate",
-    "missing_mean_flow",
-    "pad_history",
-    "reed_state_from_pressure",
-    "reed_trajectory",
-]
+__all__ = ["missing_mean_flow", "pad_history", "reed_trajectory"]

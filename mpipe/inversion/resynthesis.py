@@ -78,7 +78,7 @@ def resynthesise(
 ) -> Resynthesis:
     """Run the model with each window's parameters and stitch the windows together.
 
-    Each window is run the way step 2 ran it (``config.start``), so the resynthesis shows
+    Each window is run the way step 2 ran it (from its history), so the resynthesis shows
     exactly what F2 compared. Failed windows stay NaN.
 
     Parameters
@@ -105,9 +105,7 @@ def resynthesise(
     p_out = np.full(len(p), np.nan)
     u_out = np.full(len(p), np.nan)
     settings = ObjectiveSettings(
-        start=config.start,
         lead_s=config.lead_s,
-        settle_s=config.settle_s,
         lowpass=config.lowpass.design(fs) if zero_mean else None,
     )
     for _, row in table.iterrows():
@@ -442,7 +440,7 @@ def plot_first_window(
     first = ok.iloc[0]
     i0, i1 = int(round(first["t_start_s"] * fs)), int(round(first["t_end_s"] * fs))
     s1 = step1(
-        p[i0:i1], u[i0:i1], fs, rho=rho, lam=config.lam, solver=config.step1_solver,
+        p[i0:i1], u[i0:i1], fs, rho=rho, lam=config.lam,
         zero_mean=zero_mean, p_m=config.step1_p_m, y_c=config.y_c,
     )  # fmt: skip
     plot_flow_pressure(

@@ -1,8 +1,7 @@
-"""Rosenbrock's rotating-coordinate search, the paper's step-2 search.
+"""Rosenbrock's rotating-coordinate search, the paper's step-2 search (the reference).
 
 It works on log-scaled parameters ``z_i = ln(theta_i / theta0_i)`` inside bounds, as step
-2 does (physics.md I), like scipy's searches kept for comparison
-(:mod:`mpipe.inversion.scipy_searches`). A trial point that is out of bounds or whose value
+2 does (physics.md I). A trial point that is out of bounds or whose value
 is not finite, or not below ``infeasible_at``, counts as a failure.
 
 References
@@ -56,7 +55,7 @@ class SearchResult:
     history : ndarray
         Best objective value after each evaluation (paper Fig. 7).
     method : str
-        ``"rosenbrock"``, ``"powell"``, ``"nelder-mead"`` or ``"trust-region"``.
+        ``"rosenbrock"`` or ``"trust-region"``.
     jacobian : ndarray or None
         d residual / d ln x at ``x``, shape ``(n_residuals, n_parameters)``, where the
         method computes it (``"trust-region"``); None otherwise.
@@ -140,10 +139,8 @@ def rosenbrock(
     initial_step: float | np.ndarray = 0.05,
     step_tolerance: float = 1e-4,
     f_tolerance: float = 1e-4,
-    f_target: float = 0.0,
     max_evaluations: int = 1500,
     infeasible_at: float = math.inf,
-    reset_steps: bool = False,
 ) -> SearchResult:
     """Minimise ``fun`` inside bounds by Rosenbrock's rotating-coordinate method.
 
@@ -165,15 +162,10 @@ def rosenbrock(
         Stop when every |step| is below this (z units).
     f_tolerance : float
         Stop when the relative fall of the objective over a stage is below this.
-    f_target : float
-        Stop when the objective reaches this value or less.
     max_evaluations : int
         Evaluation budget.
     infeasible_at : float
         Values at or above this count as infeasible (failures).
-    reset_steps : bool
-        After each rotation, reset the steps to ``initial_step`` instead of keeping their
-        magnitudes.
 
     Returns
     -------
@@ -191,7 +183,7 @@ def rosenbrock(
     failure (Rosenbrock's rule); the directions are then rotated by Palmer's procedure.
     When every step has fallen below ``step_tolerance`` the search restarts once along the
     coordinate axes with the initial steps (rotated directions can jam against a bound);
-    it stops when a restart gains nothing.
+    it stops when a restart gains nothing, or when the objective (a norm) reaches zero.
 
     References
     ----------
@@ -214,7 +206,7 @@ def rosenbrock(
             history=np.asarray(evaluate.history), method="rosenbrock",
         )  # fmt: skip
     state = _State(z=z, f=f, directions=np.eye(n), steps=steps0.copy())
-    limits = _Limits(z_lo, z_hi, steps0, step_tolerance, f_target, max_evaluations)
+    limits = _Limits(z_lo, z_hi, steps0, step_tolerance, max_evaluations)
     n_stages = 0
     converged = False
     message = "evaluation budget spent"
@@ -232,7 +224,7 @@ def rosenbrock(
             converged, message = True, "relative fall of the objective over a stage below tolerance"
             break
         state.directions = palmer_directions(state.directions, advances)
-        state.steps = steps0.copy() if reset_steps else np.abs(state.steps)
+        state.steps = np.abs(state.steps)
     log.debug("rosenbrock: %s after %d evaluations, f=%.6g", message, evaluate.n, state.f)
     return SearchResult(
         x=to_x(state.z),
@@ -293,7 +285,6 @@ class _Limits:
     z_hi: np.ndarray
     steps0: np.ndarray
     step_tolerance: float
-    f_target: float
     max_evaluations: int
 
 
@@ -318,7 +309,7 @@ def _stage(
     while not done.all():
         if _sweep(state, evaluate, limits, advances, succeeded, done):
             return advances, f_stage, _BUDGET_SPENT
-        if state.f <= limits.f_target:
+        if state.f <= 0.0:  # a norm cannot fall further
             return advances, f_stage, "objective reached its target"
         if np.all(np.abs(state.steps) < limits.step_tolerance):
             # Rotated directions can all point into an active bound and shrink to

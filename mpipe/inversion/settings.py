@@ -147,9 +147,6 @@ class InversionConfig:
         "", "parameters optimised in step 2", _check_free, default=PARAMETER_NAMES
     )
     bounds: ParameterBounds = spec("", "search bounds per parameter", default=ParameterBounds())
-    step1_solver: Literal["lstsq", "nelder-mead"] = spec(
-        "", "step-1 solver: exact linear least squares, or the paper's Nelder-Mead", default="lstsq"
-    )
     step1_p_m: Literal["estimate", "max"] = spec(
         "",
         "step-1 mouth pressure (Pa). estimate: the p_m in [1, 2] max p that minimises the "
@@ -161,11 +158,11 @@ class InversionConfig:
     seed_branch: Literal["closing", "opening"] = spec(
         "", "step-1 branch whose k, S, y_m start step 2 (the paper: closing)", default="closing"
     )
-    optimiser: Literal["trust-region", "rosenbrock", "powell", "nelder-mead"] = spec(
+    optimiser: Literal["trust-region", "rosenbrock"] = spec(
         "",
         "step-2 local search: trust-region (least squares on the residual vector, log "
         "parameters; the default, 10-20x fewer model runs) or rosenbrock (the paper's "
-        "rotating-coordinate search), powell, nelder-mead",
+        "rotating-coordinate search, the reference method)",
         default="trust-region",
     )
     temperature: Literal["fit", "front-end"] = spec(
@@ -201,13 +198,6 @@ class InversionConfig:
     temperature_evaluations: int = spec(
         "", "temperatures tried by the fit before its standard error", between(3, 50), default=8
     )
-    cold_start: Literal["global", "step1"] = spec(
-        "",
-        "how the first window of a take is started. global: a Sobol design over the whole "
-        "bounded box, short local searches from step 1's estimate and the best design points, "
-        "a full search from the best; step1: the paper's single start from step 1",
-        default="global",
-    )
     design_points: int = spec(
         "", "points of the cold start's Sobol design (rounded up to a power of two)",
         between(1, 65536), default=256,
@@ -224,12 +214,6 @@ class InversionConfig:
         "", "scrambling seed of the Sobol design (fixed: the same take gives the same answer)",
         between(0, 2**31 - 1), default=0,
     )  # fmt: skip
-    step1_every_window: bool = spec(
-        "",
-        "run step 1 on every window; by default only the cold-started window runs it (warm "
-        "windows start from the take's cold-start result and do not use it)",
-        default=False,
-    )
     bound_tolerance: float = spec(
         "",
         "a parameter within this log distance of a search bound is on the bound "
@@ -306,58 +290,24 @@ class InversionConfig:
         between(1, 1_000_000),
         default=400,
     )
-    warm_secant: bool = spec(
-        "",
-        "trust-region on warm windows: update the Jacobian by Broyden's secant rule between "
-        "difference Jacobians (a fresh one at the start, after a failed step and before "
-        "stopping); false: a difference Jacobian at every step (scipy's method)",
-        default=True,
-    )
     warm_f_tolerance: float = spec(
         "",
-        "warm windows with warm_secant: also stop when a fresh difference Jacobian predicts "
+        "warm windows (secant trust region): also stop when a fresh difference Jacobian predicts "
         "the sum of squares to fall by less than this fraction (1e-4: F2 by 0.005 %)",
         between(0.0, 0.1),
         default=1e-4,
     )
-    jacobian: Literal["sensitivities", "differences"] = spec(
-        "",
-        "how the trust-region search takes the Jacobian of F2's residuals. sensitivities: "
-        "from the model's forward sensitivities, run alongside the model (one run, exact to "
-        "rounding; needs fast_objective and start: history); differences: forward "
-        "differences, one extra model run per parameter. Either way a Jacobian counts as one "
-        "run per parameter against the budgets",
-        default="sensitivities",
-    )
-    fast_objective: bool = spec(
-        "",
-        "compute F2's residuals by the compiled per-window evaluator (the same numbers to "
-        "rounding, ~4x cheaper); false: the plain reference implementation",
-        default=True,
-    )
     warm_initial_step: float = spec(
         "",
-        "initial log step of a warm-started window (rosenbrock, powell, nelder-mead)",
+        "initial log step of a warm-started window (rosenbrock)",
         between(1e-5, 1.0),
         default=0.01,
     )
-    start: Literal["history", "rest"] = spec(
-        "",
-        "how each model run starts: from the measured history before the window, or from rest "
-        "into steady state followed by synchronisation",
-        default="history",
-    )
     lead_s: float = spec(
         "s",
-        "reed lead-in driven by the measured pressure before the window (start: history)",
+        "reed lead-in driven by the measured pressure before the window",
         between(0.0, 0.05),
         default=0.01,
-    )
-    settle_s: float = spec(
-        "s",
-        "simulated time from rest before the window (start: rest)",
-        between(0.01, 2.0),
-        default=0.25,
     )
     window_s: float = spec("s", "analysis window length", between(1e-3, 1.0), default=0.02)
     hop_s: float = spec("s", "hop between window starts", between(1e-3, 10.0), default=0.02)

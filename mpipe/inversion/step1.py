@@ -30,7 +30,7 @@ from typing import Literal
 
 import numpy as np
 
-from mpipe.inversion.flow_fit import Branch, BranchFit, Solver, fit_branch
+from mpipe.inversion.flow_fit import Branch, BranchFit, fit_branch
 from mpipe.inversion.mouth_pressure import estimate_p_m
 
 log = logging.getLogger(__name__)
@@ -82,7 +82,6 @@ def step1(
     rho: float,
     lam: float,
     p_m: float | PmMethod | None = "max",
-    solver: Solver = "lstsq",
     zero_mean: bool = False,
     refine: bool = True,
     y_c: float | None = None,
@@ -105,8 +104,6 @@ def step1(
         Mouth pressure: a value in Pa; ``"max"`` (or None), max(p) over the window (the
         paper's choice); ``"estimate"``, the minimiser of the profiled F1 over
         [max p, 2 max p] (:func:`mpipe.inversion.mouth_pressure.estimate_p_m`).
-    solver : {"lstsq", "nelder-mead"}
-        See :func:`mpipe.inversion.flow_fit.fit_branch`.
     zero_mean : bool
         The flow is zero-mean (measured data); see
         :func:`mpipe.inversion.flow_fit.fit_branch`.
@@ -140,9 +137,7 @@ def step1(
         raise ValueError(f"p_m must be a pressure in Pa, 'max' or 'estimate', got {p_m!r}")
     else:
         pm, method = float(p_m), "given"
-    kwargs = dict(
-        p_m=pm, rho=rho, lam=lam, solver=solver, zero_mean=zero_mean, refine=refine, y_c=y_c
-    )
+    kwargs = dict(p_m=pm, rho=rho, lam=lam, zero_mean=zero_mean, refine=refine, y_c=y_c)
     closing = fit_branch(p, u, fs, branch="closing", **kwargs)
     opening = fit_branch(p, u, fs, branch="opening", **kwargs)
     log.debug(

@@ -25,20 +25,18 @@ import dataclasses
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from mpipe.acoustics.air import Air
-from mpipe.core.progress import ProgressBar
 from mpipe.inversion.diagnostics import check_plausible, take_checks
 from mpipe.inversion.execution import stage_workers
 from mpipe.inversion.kernel import bore_kernel, take_temperature
 from mpipe.inversion.segments import reed_openings
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.temperature import TemperatureFit, fit_temperature, widen_standard_errors
-from mpipe.inversion.tracking import Tracking, detect_zero_mean, track
+from mpipe.inversion.tracking import RunOptions, Tracking, WindowPlan, detect_zero_mean, track
 from mpipe.measurement.calibration import Calibration
 from mpipe.reed.bore_kernel import BoreKernel
 
@@ -78,13 +76,9 @@ def invert_take(
     config: InversionConfig,
     executor: ExecutorConfig | None = None,
     *,
-    starts: Sequence[int],
+    windows: WindowPlan | Sequence[int] | pd.DataFrame,
     temperature_c: np.ndarray | float | None = None,
-    progress: ProgressBar | None = None,
-    client=None,
-    checkpoint: str | Path | None = None,
-    segments: Sequence[int] | None = None,
-    steady: Sequence[bool] | None = None,
+    options: RunOptions | None = None,
 ) -> TakeInversion:
     """Invert the planned windows of a take (see the module docstring for the steps).
 
@@ -100,19 +94,17 @@ def invert_take(
         Inversion settings; its ``sample_rate`` is set to ``fs``.
     executor : ExecutorConfig, optional
         Local processes (default) or Dask.
-    starts : sequence of int
-        First samples of the windows to invert (the conditioning stage's plan).
+    windows : WindowPlan, sequence of int or DataFrame
+        The windows to invert (:class:`mpipe.inversion.tracking.WindowPlan`: first samples,
+        each window's note, which are steady), their first samples only (one note), or the
+        conditioning stage's plan table (its ``invert`` rows). Each note gets its own cold
+        start; the temperature is fitted on steady windows where a note has enough.
     temperature_c : ndarray, float or None
         The temperature the signals carry, degC (the separation's, per sample); None: the
         calibration's.
-    progress, client, checkpoint
-        As in :func:`mpipe.inversion.tracking.track`.
-    segments : sequence of int, optional
-        The segment (note) of each window (the plan's ``segment`` column): each note gets
-        its own cold start; None: the take is one segment.
-    steady : sequence of bool, optional
-        Which windows are steady (the plan's ``steady``): the temperature is fitted on
-        them where a note has enough.
+    options : RunOptions, optional
+        Progress bar, Dask client, checkpoint folder
+        (:class:`mpipe.inversion.tracking.RunOptions`).
 
     Returns
     -------
@@ -128,23 +120,23 @@ def invert_take(
     carried = temperature_c is not None and np.isfinite(np.asarray(temperature_c, float)).any()
     front = take_temperature(temperature_c, calibration)
     z_c = calibration.bore.entry_impedance(calibration.air_properties(front))
-    check_plausible(p, u, fs, starts, int(round(config.window_s * fs)), z_c)
+    plan = WindowPlan.of(windows)
+    check_plausible(p, u, fs, list(plan.starts), int(round(config.window_s * fs)), z_c)
     zero_mean = detect_zero_mean(np.asarray(u, float), config.signal, config.zero_mean_ratio)
     executor = executor or ExecutorConfig()
     workers = executor.workers or os.cpu_count() or 1
     p, u = np.asarray(p, dtype=float), np.asarray(u, dtype=float)
+    client = options.client if options is not None else None
     # the fit's cold start and its windows spread over the workers (the same answer)
     with stage_workers((p, u), executor, workers, client):
         fit = fit_temperature(
-            p, u, fs, calibration, list(starts), config, zero_mean=zero_mean, front_end_c=front,
-            source="front end" if carried else "calibration", segments=segments,
-            steady=steady,
+            p, u, fs, calibration, plan, config, zero_mean=zero_mean, front_end_c=front,
+            source="front end" if carried else "calibration",
         )  # fmt: skip
     kernel, air = bore_kernel(calibration, fs, fit.temperature_c)
     result = track(
-        p, u, fs, kernel, air.rho, config, executor, progress=progress, client=client,
-        starts=starts, checkpoint=checkpoint, anchor=dict(fit.anchors) or None,
-        segments=segments,
+        p, u, fs, kernel, air.rho, config, executor, windows=plan,
+        anchor=dict(fit.anchors) or None, options=options,
     )  # fmt: skip
     table = widen_standard_errors(result.table, fit, config.determined_limit)
     openings, _ = reed_openings(table, p, fs)  # what the reed did: h(t), time shut
@@ -176,4 +168,4 @@ def _first_agreeing(table) -> int | None:
     return int(values.min()) if len(values) else None
 
 
-__all__ = ["TakeInversion", "invert_take"]
+__all__ = ["RunOptions", "TakeInversion", "WindowPlan", "invert_take"]

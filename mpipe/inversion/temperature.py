@@ -41,6 +41,7 @@ from mpipe.inversion.kernel import bore_kernel
 from mpipe.inversion.records import flags
 from mpipe.inversion.segments import pick_by_segment, pick_windows, window_count
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
+from mpipe.inversion.tracking import WindowPlan
 from mpipe.inversion.uncertainty import SE_PARAMETERS
 from mpipe.inversion.window import invert_window
 from mpipe.measurement.calibration import Calibration
@@ -213,14 +214,12 @@ def fit_temperature(
     u: np.ndarray,
     fs: float,
     calibration: Calibration,
-    starts: Sequence[int],
+    windows: WindowPlan | Sequence[int],
     config: InversionConfig,
     *,
     zero_mean: bool,
     front_end_c: float,
     source: str = "front end",
-    segments: Sequence[int] | None = None,
-    steady: Sequence[bool] | None = None,
 ) -> TemperatureFit:
     """The kernel temperature that makes the model play the take best, with its SE.
 
@@ -232,8 +231,11 @@ def fit_temperature(
         Sample rate, Hz.
     calibration : Calibration
         Bore and air model.
-    starts : sequence of int
-        First samples of the windows planned for inversion.
+    windows : WindowPlan or sequence of int
+        The windows planned for inversion (:class:`mpipe.inversion.tracking.WindowPlan`),
+        or their first samples (one segment). Each segment fitted gets its own cold start,
+        and its windows start from it; the fit prefers steady windows (see
+        :func:`pick_by_segment`).
     config : InversionConfig
         Inversion settings (``temperature``, ``temperature_windows``, ...).
     zero_mean : bool
@@ -243,12 +245,6 @@ def fit_temperature(
         of the search, and the kernel temperature when the fit is off or fails.
     source : str
         Where ``front_end_c`` comes from, for the report.
-    segments : sequence of int, optional
-        The segment (note) of each window of ``starts``; each segment fitted gets its own
-        cold start, and its windows start from it (default: one segment).
-    steady : sequence of bool, optional
-        Which windows of ``starts`` are steady (the plan's ``steady``): the fit prefers
-        them (see :func:`pick_by_segment`).
 
     Returns
     -------
@@ -257,8 +253,9 @@ def fit_temperature(
     fallback = TemperatureFit(front_end_c, math.nan, source, front_end_c)
     if config.temperature != "fit":
         return fallback
-    segments = [0] * len(starts) if segments is None else [int(g) for g in segments]
-    chosen, groups = pick_by_segment(starts, segments, window_count(len(starts), config), steady)
+    plan = WindowPlan.of(windows)
+    count = window_count(len(plan.starts), config)
+    chosen, groups = pick_by_segment(plan.starts, plan.segment_ids, count, plan.steady)
     if not chosen:
         return dataclasses.replace(fallback, note="no window to fit the temperature on")
     lo, hi = front_end_c - config.temperature_range_c, front_end_c + config.temperature_range_c

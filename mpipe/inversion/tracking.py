@@ -124,6 +124,98 @@ class Tracking:
     )
 
 
+@dataclass(frozen=True)
+class WindowPlan:
+    """The windows of a take to invert: first samples, their notes and steadiness.
+
+    Attributes
+    ----------
+    starts : tuple of int
+        First sample of each window.
+    segments : tuple of int or None
+        The segment (note) of each window (the conditioning plan's ``segment`` column): each
+        segment gets its own cold start and its windows start from it, never from another
+        note's; None: the take is one segment.
+    steady : tuple of bool or None
+        Which windows are steady (the plan's ``steady``): the temperature fit prefers them
+        (:func:`mpipe.inversion.segments.pick_by_segment`); None: all count as steady.
+    """
+
+    starts: tuple[int, ...]
+    segments: tuple[int, ...] | None = None
+    steady: tuple[bool, ...] | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "starts", tuple(int(s) for s in self.starts))
+        for name, kind in (("segments", int), ("steady", bool)):
+            values = getattr(self, name)
+            if values is None:
+                continue
+            values = tuple(kind(v) for v in values)
+            if len(values) != len(self.starts):
+                raise ValueError(f"{len(values)} {name} for {len(self.starts)} windows")
+            object.__setattr__(self, name, values)
+
+    @classmethod
+    def of(cls, windows: WindowPlan | Sequence[int] | pd.DataFrame) -> WindowPlan:
+        """A plan from a plan, a sequence of first samples, or a conditioning plan's table.
+
+        A table (:func:`mpipe.inversion.conditioning.plan_inversion`) gives the rows whose
+        ``invert`` is true (all rows without that column), with their ``segment`` and
+        ``steady`` where it has those columns.
+        """
+        if isinstance(windows, WindowPlan):
+            return windows
+        if isinstance(windows, pd.DataFrame):
+            rows = windows[windows["invert"].astype(bool)] if "invert" in windows else windows
+            return cls(
+                rows["start"].astype(int).tolist(),
+                rows["segment"].astype(int).tolist() if "segment" in rows else None,
+                rows["steady"].astype(bool).tolist() if "steady" in rows else None,
+            )
+        return cls(tuple(windows))
+
+    @classmethod
+    def span(
+        cls, n_samples: int, fs: float, config: InversionConfig, start_s=0.0, end_s=None
+    ) -> WindowPlan:
+        """Every window of ``config`` (window_s, hop_s) between ``start_s`` and ``end_s`` (s).
+
+        Raises ValueError when none fits.
+        """
+        starts = plan_windows(n_samples, fs, config.window_s, config.hop_s, start_s, end_s)
+        if not starts:
+            raise ValueError(
+                f"no {config.window_s:g} s window fits between {start_s:g} s and "
+                f"{end_s if end_s is not None else n_samples / fs:g} s"
+            )
+        return cls(starts)
+
+    @property
+    def segment_ids(self) -> list[int]:
+        """The segment of each window (0 for all when the plan has none)."""
+        return list(self.segments) if self.segments is not None else [0] * len(self.starts)
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """How a take's windows are run, beside the executor's settings.
+
+    Attributes
+    ----------
+    progress : ProgressBar or None
+        Updated as windows finish.
+    client : distributed.Client or None
+        An existing Dask client (overrides the executor's scheduler address).
+    checkpoint : str, Path or None
+        Folder where each finished window is saved; windows found there are not redone.
+    """
+
+    progress: ProgressBar | None = None
+    client: object = None
+    checkpoint: str | Path | None = None
+
+
 def track(
     p: np.ndarray,
     u: np.ndarray,
@@ -133,14 +225,9 @@ def track(
     config: InversionConfig,
     executor: ExecutorConfig | None = None,
     *,
-    start_s: float = 0.0,
-    end_s: float | None = None,
-    progress: ProgressBar | None = None,
-    client=None,
-    starts: Sequence[int] | None = None,
-    checkpoint: str | Path | None = None,
+    windows: WindowPlan | Sequence[int] | None = None,
     anchor: ReedParameters | Mapping[int, ReedParameters] | None = None,
-    segments: Sequence[int] | None = None,
+    options: RunOptions | None = None,
 ) -> Tracking:
     """Invert every window of a take.
 
@@ -167,26 +254,17 @@ def track(
         Inversion and window settings.
     executor : ExecutorConfig, optional
         Local processes (default) or Dask.
-    start_s, end_s : float, optional
-        Span of the take to analyse, s.
-    progress : ProgressBar, optional
-        Updated as windows finish.
-    client : distributed.Client, optional
-        An existing Dask client (overrides the scheduler address).
-    starts : sequence of int, optional
-        Window start samples to invert (default: every window of the span); the
-        conditioning stage passes the steady windows only.
-    checkpoint : str or Path, optional
-        Folder where each finished window is saved; windows found there are not redone.
+    windows : WindowPlan or sequence of int, optional
+        The windows to invert and their notes (:class:`WindowPlan`, or first samples only:
+        one note); default: every window of the take (:meth:`WindowPlan.span` for a part).
+        The conditioning stage passes the sounding windows.
     anchor : ReedParameters or mapping, optional
         Start every window here instead of cold-starting the first one (the temperature
         fit of :func:`mpipe.inversion.take.invert_take` has already made the take's cold
         start); a mapping gives each segment's start (segment id -> reed), and a segment
         missing from it is cold-started.
-    segments : sequence of int, optional
-        The segment (note) of each window of ``starts`` (the plan's ``segment`` column):
-        each segment gets its own cold start and its windows start from it, never from
-        another note's (default: the whole take is one segment).
+    options : RunOptions, optional
+        Progress bar, Dask client, checkpoint folder.
 
     Returns
     -------
@@ -198,25 +276,23 @@ def track(
         When the sample rates differ or no window fits in the span.
     """
     executor = executor or ExecutorConfig()
+    options = options or RunOptions()
     p = np.asarray(p, dtype=float)
     u = np.asarray(u, dtype=float)
     if abs(kernel.fs - fs) > 1e-6 * fs:
         raise ValueError(f"signals at {fs:g} Hz but the bore kernel is at {kernel.fs:g} Hz")
     zero_mean = detect_zero_mean(u, config.signal, config.zero_mean_ratio)
-    if starts is None:
-        starts = plan_windows(p.size, fs, config.window_s, config.hop_s, start_s, end_s)
-    starts = [int(s) for s in starts]
+    plan = WindowPlan.span(p.size, fs, config) if windows is None else WindowPlan.of(windows)
+    starts, segments = list(plan.starts), plan.segment_ids
+    if not starts:
+        raise ValueError("no window to invert")
+    checkpoint = options.checkpoint
     if checkpoint is not None:
         checkpoint = Path(checkpoint)
         checkpoint.mkdir(parents=True, exist_ok=True)
-    if not starts:
-        raise ValueError(
-            f"no {config.window_s:g} s window fits between {start_s:g} s and "
-            f"{end_s if end_s is not None else p.size / fs:g} s"
-        )
     job = Job(p, u, fs, kernel, rho, config, zero_mean, checkpoint)
     workers = executor.workers or os.cpu_count() or 1
-    update = progress.update if progress is not None else None
+    update = options.progress.update if options.progress is not None else None
     log.info(
         "%d windows (%s executor, %d workers), %s flow",
         len(starts),
@@ -224,19 +300,15 @@ def track(
         workers,
         "zero-mean" if zero_mean else "full",
     )
-    run = dict(executor=executor, workers=workers, client=client)
-    if segments is None:
-        segments = [0] * len(starts)
-    if len(segments) != len(starts):
-        raise ValueError(f"{len(segments)} segment ids for {len(starts)} windows")
+    run = dict(executor=executor, workers=workers, client=options.client)
     anchors = dict(anchor) if isinstance(anchor, Mapping) else {}
     if anchor is not None and not isinstance(anchor, Mapping):
         anchors = {int(g): anchor for g in set(segments)}
-    results = _cold_then_warm(job, starts, [int(g) for g in segments], anchors, update, **run)
+    results = _cold_then_warm(job, starts, segments, anchors, update, **run)
     table = classify(window_table(results), config)
     if config.retry_cold:
         table = _retry_not_ok(job, results, table, **run)
-    table["segment"] = [int(g) for _, g in sorted(zip(starts, segments, strict=True))]
+    table["segment"] = [g for _, g in sorted(zip(starts, segments, strict=True))]
     histories, correlations = histories_and_correlations(results)
     table["window"] = np.arange(len(table))
     return Tracking(
@@ -317,7 +389,9 @@ def _retry_not_ok(
 
 __all__ = [
     "ProgressBar",
+    "RunOptions",
     "Tracking",
+    "WindowPlan",
     "detect_zero_mean",
     "plan_windows",
     "track",

@@ -1,10 +1,9 @@
 """One window's inversion: step 1, the cold or warm start, the step-2 search, its errors.
 
-A cold window (the first of a take, or a retry) runs step 1 on both branches and the cold
-start of ``config.cold_start``: the global search of :mod:`mpipe.inversion.coldstart` or
-the paper's single start from step 1. A warm window starts the local search from the
-take's cold-start result. The estimate gets its standard errors
-(:mod:`mpipe.inversion.window_errors`) and a provisional status
+A cold window (the first of a take, or a retry) runs step 1 on both branches and the
+global cold start of :mod:`mpipe.inversion.coldstart` (step 1's estimate among its starts).
+A warm window starts the local search from the take's cold-start result. The estimate
+gets its standard errors (:mod:`mpipe.inversion.window_errors`) and a provisional status
 (:mod:`mpipe.inversion.status`); a failing window is recorded with its error, never raised.
 
 References
@@ -21,13 +20,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mpipe.inversion.coldstart import global_search
+from mpipe.inversion.coldstart import ColdStartOptions, global_search
 from mpipe.inversion.diagnostics import playing_difference
 from mpipe.inversion.least_squares import trust_region
 from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWindow
 from mpipe.inversion.records import Correlation, WindowRecord
-from mpipe.inversion.rosenbrock import SearchResult
-from mpipe.inversion.scipy_searches import minimise
+from mpipe.inversion.rosenbrock import SearchResult, rosenbrock
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
 from mpipe.inversion.status import on_bounds, search_bounds, window_status
 from mpipe.inversion.step1 import Step1Result, step1
@@ -105,11 +103,9 @@ def start_point(
     return ReedParameters(**values, y_c=config.y_c, alpha=config.alpha)
 
 
-def _jacobian(objective: F2Objective, config: InversionConfig):
-    """The objective's sensitivity Jacobian when configured and available, else None."""
-    if objective.has_jacobian and config.jacobian == "sensitivities":
-        return objective.jacobian
-    return None
+def _jacobian(objective: F2Objective):
+    """The objective's sensitivity Jacobian when it has one (compiled path), else None."""
+    return objective.jacobian if objective.has_jacobian else None
 
 
 def local_search(
@@ -123,6 +119,8 @@ def local_search(
     """The configured step-2 local search from ``x0`` inside ``bounds`` (shape (n, 2)).
 
     A cold search gets ``max_evaluations`` model runs, a warm one ``warm_max_evaluations``.
+    The trust region runs scipy's reflective method when cold and the Broyden-updated
+    secant method when warm; ``optimiser: rosenbrock`` is the paper's search (reference).
     """
     budget = config.max_evaluations if cold else config.warm_max_evaluations
     if config.optimiser == "trust-region":
@@ -132,19 +130,15 @@ def local_search(
             lower=bounds[:, 0],
             upper=bounds[:, 1],
             x_tolerance=config.step_tolerance,
-            f_tolerance=(
-                config.warm_f_tolerance if not cold and config.warm_secant else config.f_tolerance
-            )
-            or None,
+            f_tolerance=(config.f_tolerance if cold else config.warm_f_tolerance) or None,
             max_evaluations=budget,
             infeasible_norm=objective.penalty,
-            secant=not cold and config.warm_secant,
-            jacobian=_jacobian(objective, config),
+            secant=not cold,
+            jacobian=_jacobian(objective),
         )
-    return minimise(
+    return rosenbrock(
         objective,
         x0,
-        method=config.optimiser,
         lower=bounds[:, 0],
         upper=bounds[:, 1],
         initial_step=config.initial_step if cold else config.warm_initial_step,
@@ -169,10 +163,9 @@ def invert_window(
 ) -> WindowOutcome:
     """Invert one window of a take.
 
-    A cold window (no ``warm`` start) runs step 1 on both branches and then the cold start
-    of ``config.cold_start``: the global search of :mod:`mpipe.inversion.coldstart` (step 1's
-    estimate among its starts) or the paper's single start from step 1. A warm window runs
-    the local search from ``warm`` only (step 1 too when ``config.step1_every_window``).
+    A cold window (no ``warm`` start) runs step 1 on both branches and then the global
+    cold start of :mod:`mpipe.inversion.coldstart` (step 1's estimate among its starts). A
+    warm window runs the local search from ``warm`` only.
 
     Parameters
     ----------
@@ -211,7 +204,7 @@ def invert_window(
         pw, uw = p[start : start + n], u[start : start + n]
         if pw.size < n:
             raise ValueError(f"window at {start / fs:.4f} s runs past the end of the take")
-        if cold or config.step1_every_window:
+        if cold:
             s1 = _step1(pw, uw, fs, rho, config, zero_mean)
             row.update(_step1_columns(s1))
         base = warm if warm is not None else start_point(s1, config)
@@ -266,7 +259,6 @@ def _step1(
         rho=rho,
         lam=config.lam,
         p_m=config.step1_p_m,
-        solver=config.step1_solver,
         zero_mean=zero_mean,
         # with contact from closure, step 1's shut-reed test already covers it
         y_c=config.y_c if estimate and config.contact != "closure" else None,
@@ -287,9 +279,7 @@ def _objective(
 ) -> F2Objective:
     """F2 of the window over the configured search parameters, the others held at ``base``."""
     settings = ObjectiveSettings(
-        start=config.start,
         lead_s=config.lead_s,
-        settle_s=config.settle_s,
         lowpass=config.lowpass.design(target.fs) if target.zero_mean else None,
     )
     return F2Objective(
@@ -298,7 +288,6 @@ def _objective(
         settings,
         base,
         config.search_parameters,
-        fast=config.fast_objective,
         contact_at_closure=config.contact == "closure",
     )
 
@@ -317,7 +306,7 @@ def _search(
     """
     names = config.search_parameters
     x0 = np.clip([getattr(base, name) for name in names], bounds[:, 0], bounds[:, 1])
-    if not (cold and config.cold_start == "global"):
+    if not cold:
         return local_search(objective, x0, bounds, config, cold=cold), None
     found = global_search(
         objective,
@@ -326,12 +315,9 @@ def _search(
         bounds[:, 1],
         [x0],
         lambda x: local_search(objective, x, bounds, config, cold=True),
-        design_points=config.design_points,
-        local_starts=config.local_starts,
-        local_evaluations=config.local_evaluations,
+        options=ColdStartOptions.of(config),
         infeasible_at=objective.penalty,
-        seed=config.design_seed,
-        jacobian=_jacobian(objective, config),
+        jacobian=_jacobian(objective),
     )
     return found.search, found.agreeing
 

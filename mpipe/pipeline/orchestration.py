@@ -220,7 +220,7 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
     from mpipe.inversion.status import count as count_status
     from mpipe.inversion.status import summary_line
     from mpipe.inversion.tables import segment_lines, why_no_window, write_correlations, write_table
-    from mpipe.inversion.take import invert_take
+    from mpipe.inversion.take import RunOptions, WindowPlan, invert_take
     from mpipe.inversion.tracking import ProgressBar
 
     inv = cfg.inversion
@@ -238,10 +238,9 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
         bar = ProgressBar(len(starts))
         try:
             take = invert_take(
-                p, u, fs, cal, inv, cfg.executor, starts=starts,
-                temperature_c=mp.get("temperature_c"), progress=bar, client=client,
-                checkpoint=checkpoint, segments=chosen["segment"].astype(int).tolist(),
-                steady=chosen["steady"].astype(bool).tolist(),
+                p, u, fs, cal, inv, cfg.executor, windows=WindowPlan.of(chosen),
+                temperature_c=mp.get("temperature_c"),
+                options=RunOptions(progress=bar, client=client, checkpoint=checkpoint),
             )  # fmt: skip
         finally:
             bar.close()

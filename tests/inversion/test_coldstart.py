@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from mpipe.inversion.coldstart import global_search, sobol_design
+from mpipe.inversion.coldstart import ColdStartOptions, global_search, sobol_design
 from mpipe.inversion.least_squares import trust_region
 
 T = np.linspace(0.0, 0.05, 500)
@@ -44,15 +44,10 @@ def test_single_start_is_trapped_global_search_is_not():
     seed = np.array([600.0, 0.5])
     local = polish(seed)
     assert abs(local.x[0] / TRUTH[0] - 1) > 0.1
-    found = global_search(
-        objective, residuals, LOWER, UPPER, [seed], polish, design_points=256, local_starts=6,
-        local_evaluations=60,
-    )  # fmt: skip
+    options = ColdStartOptions(design_points=256, local_starts=6, local_evaluations=60)
+    found = global_search(objective, residuals, LOWER, UPPER, [seed], polish, options=options)
     np.testing.assert_allclose(found.search.x, TRUTH, rtol=1e-6)
     assert found.agreeing >= 1 and found.local_f.size == 6
     assert found.search.n_evaluations > found.design_evaluations == 256
-    again = global_search(
-        objective, residuals, LOWER, UPPER, [seed], polish, design_points=256, local_starts=6,
-        local_evaluations=60,
-    )  # fmt: skip
+    again = global_search(objective, residuals, LOWER, UPPER, [seed], polish, options=options)
     np.testing.assert_array_equal(again.search.x, found.search.x)  # one answer per input

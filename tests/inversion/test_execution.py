@@ -12,7 +12,7 @@ from mpipe.inversion.execution import Job, dispatch, split_chains
 from mpipe.inversion.resynthesis import reed_from_row
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.tables import COLUMNS
-from mpipe.inversion.tracking import track
+from mpipe.inversion.tracking import RunOptions, WindowPlan, track
 from mpipe.measurement.calibration import load_calibration
 from mpipe.reed.bore_kernel import prepare_bore
 from mpipe.reed.model import simulate
@@ -63,9 +63,11 @@ def cluster(dask_cluster):
     return dask_cluster
 
 
-def _track(take, executor, **kw):
+def _track(take, executor, end_s=None, **kw):
     kernel, rho, sim = take
-    return track(sim.p, sim.u, FS, kernel, rho, CHEAP, executor, start_s=0.26, **kw)
+    windows = WindowPlan.span(sim.p.size, FS, CHEAP, start_s=0.26, end_s=end_s)
+    return track(sim.p, sim.u, FS, kernel, rho, CHEAP, executor, windows=windows,
+                 options=RunOptions(**kw))  # fmt: skip
 
 
 def test_repeated_runs_on_a_real_cluster_equal_the_local_run(take, cluster):

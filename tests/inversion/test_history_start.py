@@ -4,13 +4,7 @@ import numpy as np
 import pytest
 
 from mpipe.acoustics.reflection import reflection_function
-from mpipe.inversion.history_start import (
-    mean_flow_estimate,
-    missing_mean_flow,
-    pad_history,
-    reed_state_from_pressure,
-    reed_trajectory,
-)
+from mpipe.inversion.history_start import missing_mean_flow, pad_history, reed_trajectory
 from mpipe.reed.bore_kernel import prepare_bore
 from mpipe.reed.model import simulate
 from mpipe.reed.parameters import ReedParameters
@@ -31,7 +25,7 @@ def take(shipped_calibration, shipped_air):
 def test_reed_lead_in_converges_to_the_model_reed(take):
     sim, _ = take
     dp = TABLE1.p_m - sim.p[W0 - 1000 : W0]
-    y, y_prev = reed_state_from_pressure(TABLE1, dp, FS)
+    y, y_prev = reed_trajectory(TABLE1, dp, FS)[-2:][::-1]
     assert y == pytest.approx(sim.y[W0 - 1], rel=1e-4)
     assert y_prev == pytest.approx(sim.y[W0 - 2], rel=1e-4)
 
@@ -49,10 +43,3 @@ def test_missing_mean_flow_restores_the_mean_of_a_zero_mean_flow(take):
     lost = missing_mean_flow(TABLE1, dp, y, u - u.mean(), FS, rho)
     # with the true reed the candidate's flow is the model's own: the mean lost is exact
     assert lost == pytest.approx(u.mean(), rel=1e-6)
-
-
-def test_mean_flow_estimate_of_a_steady_pressure():
-    dp = TABLE1.p_m - 1000.0
-    opening = TABLE1.y_m - dp / TABLE1.k
-    expected = TABLE1.lam * opening * np.sqrt(2.0 * dp / 1.2)
-    assert mean_flow_estimate(TABLE1, np.full(50, 1000.0), 1.2) == pytest.approx(expected)

@@ -43,7 +43,7 @@ def measured_path(seed: int, tmp: Path):
     plan = plan_inversion(tr.p, take.fs, conditioning, 0.02, 0.02, end_s=0.34)
     starts = plan.loc[plan["invert"], "start"].tolist()
     return invert_take(tr.p, tr.u, take.fs, cal, pipe.inversion, ExecutorConfig(workers=1),
-                       starts=starts, temperature_c=tr.temperature_c)  # fmt: skip
+                       windows=starts, temperature_c=tr.temperature_c)  # fmt: skip
 
 
 @pytest.fixture(scope="module")

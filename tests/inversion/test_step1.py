@@ -18,12 +18,11 @@ def pressure(n=2000):
     return 1200 * np.tanh(3 * np.sin(2 * np.pi * 150 * t)) + 200 * np.sin(2 * np.pi * 450 * t)
 
 
-@pytest.mark.parametrize("solver", ["lstsq", "nelder-mead"])
-def test_exact_on_quasi_static_flow(solver):
+def test_exact_on_quasi_static_flow():
     p = pressure()
     u = quasi_static_flow(p, FS, rho=RHO, **TRUE)
-    r = step1(p, u, FS, rho=RHO, lam=TRUE["lam"], p_m=TRUE["p_m"], solver=solver)
-    tol = 1e-6 if solver == "lstsq" else 1e-3  # Nelder-Mead stops at a 1 % simplex
+    r = step1(p, u, FS, rho=RHO, lam=TRUE["lam"], p_m=TRUE["p_m"])
+    tol = 1e-6
     for fit in (r.closing, r.opening):
         assert fit.k == pytest.approx(TRUE["k"], rel=tol)
         assert fit.S == pytest.approx(TRUE["S"], rel=10 * tol)

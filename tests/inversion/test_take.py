@@ -40,7 +40,7 @@ def played(shipped_calibration):
 
 def _run(played, config):
     p, u, cal = played
-    return invert_take(p, u, FS, cal, config, ExecutorConfig(workers=1), starts=STARTS)
+    return invert_take(p, u, FS, cal, config, ExecutorConfig(workers=1), windows=STARTS)
 
 
 def test_the_fit_finds_the_temperature_the_take_was_played_at(played):
@@ -66,7 +66,7 @@ def test_a_fit_that_falls_back_makes_the_take_check(played):
     air = dataclasses.replace(cal.air, temperature_c=23.5)
     far = dataclasses.replace(cal, air=air)
     config = dataclasses.replace(CONFIG, temperature_range_c=2.5, temperature_windows=2)
-    done = invert_take(p, u, FS, far, config, ExecutorConfig(workers=1), starts=STARTS[:2])
+    done = invert_take(p, u, FS, far, config, ExecutorConfig(workers=1), windows=STARTS[:2])
     assert done.temperature.source == "calibration"
     assert len(done.checks) >= 1 and "fell back" in done.checks[0], done.checks
     assert (done.tracking.table["take_checks"].str.contains("fell back")).all()
@@ -88,7 +88,7 @@ def test_two_workers_give_the_same_take(played):
 
     p, u, cal = played
     one = _run(played, CONFIG)
-    two = invert_take(p, u, FS, cal, CONFIG, ExecutorConfig(workers=2), starts=STARTS)
+    two = invert_take(p, u, FS, cal, CONFIG, ExecutorConfig(workers=2), windows=STARTS)
     assert two.temperature.temperature_c == one.temperature.temperature_c
     assert two.temperature.evaluations == one.temperature.evaluations
     same = [c for c in COLUMNS if c != "wall_time_s"]

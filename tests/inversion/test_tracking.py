@@ -10,7 +10,7 @@ import pytest
 from mpipe.acoustics.reflection import reflection_function
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.tables import COLUMNS, write_table
-from mpipe.inversion.tracking import ProgressBar, plan_windows, track
+from mpipe.inversion.tracking import ProgressBar, RunOptions, WindowPlan, plan_windows, track
 from mpipe.measurement.calibration import load_calibration
 from mpipe.reed.bore_kernel import prepare_bore
 from mpipe.reed.model import simulate
@@ -60,8 +60,9 @@ def test_track_in_process_warm_starts_and_failure(take, tmp_path):
     out = io.StringIO()
     bar = ProgressBar(3, stream=out, force=True)
     result = track(
-        p, u, FS, kernel, rho, LIGHT, ExecutorConfig(workers=1), start_s=0.30, progress=bar
-    )
+        p, u, FS, kernel, rho, LIGHT, ExecutorConfig(workers=1),
+        windows=WindowPlan.span(p.size, FS, LIGHT, 0.30), options=RunOptions(progress=bar),
+    )  # fmt: skip
     t = result.table
     assert list(t.columns) == list(COLUMNS)
     assert len(t) == 3 and not result.zero_mean
@@ -87,7 +88,7 @@ def test_track_does_not_depend_on_workers_or_executor(take):
     distributed = pytest.importorskip("distributed")
     kernel, rho, sim = take
     cfg = replace(LIGHT, free=("k", "p_m"), design_points=16, local_starts=2)
-    span = dict(start_s=0.26, end_s=0.36)
+    span = dict(windows=WindowPlan.span(sim.p.size, FS, cfg, 0.26, 0.36))
     one = track(sim.p, sim.u, FS, kernel, rho, cfg, ExecutorConfig(workers=1), **span)
     two = track(sim.p, sim.u, FS, kernel, rho, cfg, ExecutorConfig(workers=2, chunks=4), **span)
     assert len(one.table) == 5
@@ -97,7 +98,8 @@ def test_track_does_not_depend_on_workers_or_executor(take):
     ) as cluster:
         with distributed.Client(cluster) as client:
             dask_cfg = ExecutorConfig(kind="dask", scheduler=cluster.scheduler_address)
-            three = track(sim.p, sim.u, FS, kernel, rho, cfg, dask_cfg, client=client, **span)
+            three = track(sim.p, sim.u, FS, kernel, rho, cfg, dask_cfg,
+                          options=RunOptions(client=client), **span)  # fmt: skip
     pd.testing.assert_frame_equal(one.table[SAME], three.table[SAME])
 
 
@@ -105,9 +107,8 @@ def test_track_dask_local_cluster_of_processes_matches_in_process(take):
     # two worker processes on loopback: the job is scattered once, the table is the same
     distributed = pytest.importorskip("distributed")
     kernel, rho, sim = take
-    one = track(
-        sim.p, sim.u, FS, kernel, rho, LIGHT, ExecutorConfig(workers=1), start_s=0.30, end_s=0.36
-    )
+    windows = WindowPlan.span(sim.p.size, FS, LIGHT, 0.30, 0.36)
+    one = track(sim.p, sim.u, FS, kernel, rho, LIGHT, ExecutorConfig(workers=1), windows=windows)
     with distributed.LocalCluster(
         n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
         host="127.0.0.1",
@@ -115,8 +116,9 @@ def test_track_dask_local_cluster_of_processes_matches_in_process(take):
         with distributed.Client(cluster) as client:
             cfg = ExecutorConfig(kind="dask", scheduler=cluster.scheduler_address)
             result = track(
-                sim.p, sim.u, FS, kernel, rho, LIGHT, cfg, start_s=0.30, end_s=0.36, client=client
-            )
+                sim.p, sim.u, FS, kernel, rho, LIGHT, cfg, windows=windows,
+                options=RunOptions(client=client),
+            )  # fmt: skip
     pd.testing.assert_frame_equal(one.table[SAME], result.table[SAME])
 
 
@@ -131,9 +133,10 @@ def test_interrupted_tracking_resumes_without_redoing_windows(take, tmp_path, mo
 
     kernel, rho, sim = take
     ckpt = tmp_path / "windows.d"
+    windows = WindowPlan.span(sim.p.size, FS, LIGHT, 0.30, 0.34)
     first = track(
-        sim.p, sim.u, FS, kernel, rho, LIGHT, ExecutorConfig(workers=1), start_s=0.30,
-        end_s=0.34, checkpoint=ckpt,
+        sim.p, sim.u, FS, kernel, rho, LIGHT, ExecutorConfig(workers=1), windows=windows,
+        options=RunOptions(checkpoint=ckpt),
     )  # fmt: skip
     assert len(list(ckpt.glob("w*.json"))) == 2
     # an interruption after the first window: its file survives, the second is lost
@@ -147,8 +150,8 @@ def test_interrupted_tracking_resumes_without_redoing_windows(take, tmp_path, mo
 
     monkeypatch.setattr(execution, "invert_window", counting)
     resumed = track(
-        sim.p, sim.u, FS, kernel, rho, LIGHT, ExecutorConfig(workers=1), start_s=0.30,
-        end_s=0.34, checkpoint=ckpt,
+        sim.p, sim.u, FS, kernel, rho, LIGHT, ExecutorConfig(workers=1), windows=windows,
+        options=RunOptions(checkpoint=ckpt),
     )  # fmt: skip
     assert calls == [32000]  # only the lost window is redone, from the same cold start
     cols = ["t_start_s", "k", "p_m", "f2", "warm"]
@@ -182,8 +185,7 @@ def test_each_note_gets_its_own_cold_start_and_its_own_answer(take):
         rho,
         LIGHT,
         ExecutorConfig(workers=1),
-        starts=chosen["start"].tolist(),
-        segments=chosen["segment"].tolist(),
+        windows=WindowPlan(chosen["start"].tolist(), chosen["segment"].tolist()),
     )
     t = result.table
     assert t["segment"].nunique() == 2
@@ -198,7 +200,7 @@ def test_each_note_gets_its_own_cold_start_and_its_own_answer(take):
         medians.append(ok["p_m"].median())
     assert abs(medians[1] / medians[0] / (2000 / 1800) - 1) < 0.02  # each note its own
     # one answer per worker count: the notes' cold starts run in parallel, same table
-    two = track(sim.p, sim.u, FS, kernel, rho, LIGHT, ExecutorConfig(workers=2),
-                starts=chosen["start"].tolist(), segments=chosen["segment"].tolist())  # fmt: skip
+    windows = WindowPlan(chosen["start"].tolist(), chosen["segment"].tolist())
+    two = track(sim.p, sim.u, FS, kernel, rho, LIGHT, ExecutorConfig(workers=2), windows=windows)
     cols = ["t_start_s", "segment", "status", "p_m", "k", "f2", "warm"]
     pd.testing.assert_frame_equal(two.table[cols], t[cols])

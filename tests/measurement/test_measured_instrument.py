@@ -114,7 +114,7 @@ def test_the_measured_bore_inverts_a_take_like_the_geometry(measured):
     config = InversionConfig(temperature="front-end")
     tables = [
         invert_take(
-            p, u, FS, cal, config, ExecutorConfig(workers=1), starts=[26000, 30000]
+            p, u, FS, cal, config, ExecutorConfig(workers=1), windows=[26000, 30000]
         ).tracking.table
         for cal in (geometry, measured)
     ]

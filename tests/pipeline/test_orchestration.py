@@ -205,7 +205,14 @@ def test_every_door_gives_the_same_table(finished, take, pipeline, tmp_path):
     plan = plan_inversion(tr.p, t.fs, pipeline.conditioning, inv.window_s, inv.hop_s)
     starts = plan.loc[plan["invert"], "start"].tolist()
     via_api = mpipe.invert_take(
-        tr.p, tr.u, t.fs, cal, inv, pipeline.executor, starts=starts, temperature_c=tr.temperature_c
+        tr.p,
+        tr.u,
+        t.fs,
+        cal,
+        inv,
+        pipeline.executor,
+        windows=starts,
+        temperature_c=tr.temperature_c,
     ).tracking.table
 
     assert np.isfinite(via_run["kernel_temperature_se_c"]).all()  # fitted, with its SE

@@ -22,7 +22,7 @@ from mpipe.inversion.execution import connect
 from mpipe.inversion.segments import segment_summary, with_played
 from mpipe.inversion.status import summary_line
 from mpipe.inversion.tables import segment_lines, write_correlations, write_table
-from mpipe.inversion.take import invert_take
+from mpipe.inversion.take import RunOptions, WindowPlan, invert_take
 from mpipe.inversion.tracking import ProgressBar
 from mpipe.measurement.calibration import load_calibration
 from mpipe.measurement.measured_instrument import bore_description
@@ -219,10 +219,9 @@ def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
         client = connect(cfg.executor.scheduler)
     bar = ProgressBar(len(starts))
     try:
-        take = invert_take(p, u, fs, cal, inv, cfg.executor, starts=starts,
-                           temperature_c=temperature, progress=bar, client=client,
-                           segments=chosen["segment"].astype(int).tolist(),
-                           steady=chosen["steady"].astype(bool).tolist())  # fmt: skip
+        take = invert_take(p, u, fs, cal, inv, cfg.executor, windows=WindowPlan.of(chosen),
+                           temperature_c=temperature,
+                           options=RunOptions(progress=bar, client=client))  # fmt: skip
     except ValueError as exc:
         raise UserError(f"{args.mouthpiece}: {exc}") from None
     finally:
