@@ -51,8 +51,8 @@ def test_unknown_benchmark_is_refused_in_one_line():
     assert out.returncode == 2 and "no such benchmark: bench_nonsense" in out.stderr
 
 
-def test_a_missed_target_makes_the_run_fail(tmp_path, monkeypatch, capsys):
-    # one benchmark meets its target, one misses it: make bench exits 1 and names it
+def test_a_missed_target_is_named_and_fails_the_strict_run(tmp_path, monkeypatch, capsys):
+    # one benchmark meets its target, one misses it: make bench names it; --strict exits 1
     run_all = _run_all()
     (tmp_path / "headline.py").write_text((BENCH / "headline.py").read_text())
     for name, value in (("bench_good", 3.0), ("bench_slow", 0.5)):
@@ -60,6 +60,15 @@ def test_a_missed_target_makes_the_run_fail(tmp_path, monkeypatch, capsys):
             f"from headline import record\nrecord('speed', {value}, '', target='>= 1')\n"
         )
     monkeypatch.setattr(run_all, "HERE", tmp_path)
-    assert run_all.main(["--only", "good"]) == 0
-    assert run_all.main([]) == 1
+    assert run_all.main(["--only", "good", "--strict"]) == 0
+    assert run_all.main([]) == 0
     assert "miss their target: bench_slow: speed" in capsys.readouterr().out
+    assert run_all.main(["--strict"]) == 1
+
+
+def test_a_failing_benchmark_fails_the_run(tmp_path, monkeypatch, capsys):
+    run_all = _run_all()
+    (tmp_path / "bench_broken.py").write_text("raise SystemExit(3)\n")
+    monkeypatch.setattr(run_all, "HERE", tmp_path)
+    assert run_all.main([]) == 1
+    assert "FAILED: bench_broken (exit 3)" in capsys.readouterr().out
