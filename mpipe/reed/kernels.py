@@ -244,32 +244,6 @@ def _tangent_tails(xt, n0, blk, line_t):
         _fdl_tail(xt[j], n0, blk, (level, ft_re[j], ft_im[j], wt[j]))
 
 
-@njit(inline="always")
-def _tangent_samples(tangent, i, n0, r, head, step, reed, bore):
-    """The tangent of sample ``i`` for every parameter column (``r`` = (r1, r2), -1: off).
-
-    ``tangent`` is the record of :func:`run`; the tangent of the history term sums its
-    direct part, its delay lines and ``c_t[j] q_ones[i]``, in the pressure's order.
-    """
-    d, dy, dy_prev, ddp, xt, fut_t, line1, line2, out_dp, q_ones, c_t = tangent
-    r1, r2 = r
-    m = n0 + i
-    for j in range(d.shape[1]):
-        dq = fut_t[j, i]
-        if r1 >= 0:
-            dq += line1[3][j, 4, r1]
-        if r2 >= 0:
-            dq += line2[3][j, 4, r2]
-        dq += c_t[j] * q_ones[i]
-        dy_new, dpp, dpo = _step_tangent(d, j, dq, (dy[j], dy_prev[j], ddp[j]), step, reed, bore)
-        xt[j, m] = dpp
-        _spread(fut_t[j], i, dpp, head)
-        out_dp[j, i] = dpo
-        dy_prev[j] = dy[j]
-        dy[j] = dy_new
-        ddp[j] = d[7, j] - dpo
-
-
 @njit(cache=True)
 def run(x, n0, model, conv, state, pm, q_ext, out_p, full, tangent):
     """Run the scheme for n = len(out_p) samples; x holds p+ with n0 samples of history.
@@ -297,15 +271,22 @@ def run(x, n0, model, conv, state, pm, q_ext, out_p, full, tangent):
     y, y_prev, dp = state
     n = out_p.size
     _seed(fut, n, x, n0, head)
-    if tangent is not None:
-        for j in range(tangent[0].shape[1]):
-            _seed(tangent[5][j], n, tangent[4][j], n0, head)
     blk1 = line1[0][2][0].size
     blk2 = line2[0][2][0].size
     on1 = line1[0][0].shape[0] > 0
     on2 = line2[0][0].shape[0] > 0
     tail1 = line1[3][4, :blk1]
     tail2 = line2[3][4, :blk2]
+    # records unpacked once, outside the loop: an array taken from a tuple is a new
+    # reference, counted up and down (atomically) wherever it is taken
+    if full is not None:
+        out_u, out_uf, out_ur, out_y, out_h, out_pminus = full
+    if tangent is not None:
+        d, dy, dy_prev, ddp, xt, fut_t, lt1, lt2, out_dp, q_ones, c_t = tangent
+        wt1 = lt1[3]
+        wt2 = lt2[3]
+        for j in range(d.shape[1]):
+            _seed(fut_t[j], n, xt[j], n0, head)
     r1 = 0
     r2 = 0
     c1 = 0
@@ -314,11 +295,11 @@ def run(x, n0, model, conv, state, pm, q_ext, out_p, full, tangent):
         if on2 and r2 == 0:
             _fdl_tail(x, n0, c2, line2)
             if tangent is not None:
-                _tangent_tails(tangent[4], n0, c2, tangent[7])
+                _tangent_tails(xt, n0, c2, lt2)
         if on1 and r1 == 0:
             _fdl_tail(x, n0, c1, line1)
             if tangent is not None:
-                _tangent_tails(tangent[4], n0, c1, tangent[6])
+                _tangent_tails(xt, n0, c1, lt1)
         q = fut[i]
         if on1:
             q += tail1[r1]
@@ -332,7 +313,6 @@ def run(x, n0, model, conv, state, pm, q_ext, out_p, full, tangent):
         _spread(fut, i, pp, head)
         out_p[i] = p
         if full is not None:
-            out_u, out_uf, out_ur, out_y, out_h, out_pminus = full
             out_u[i] = u
             out_uf[i] = uf
             out_ur[i] = ur
@@ -340,9 +320,23 @@ def run(x, n0, model, conv, state, pm, q_ext, out_p, full, tangent):
             out_h[i] = hh
             out_pminus[i] = pp - bore[0] * u
         if tangent is not None:
-            r = (r1 if on1 else -1, r2 if on2 else -1)
             step = (q, p_m, y, y_prev, dp, y_new, hh, ur, uf)
-            _tangent_samples(tangent, i, n0, r, head, step, reed, bore)
+            for j in range(d.shape[1]):
+                # the tangent of the history term, summed in the pressure's order
+                dq = fut_t[j, i]
+                if on1:
+                    dq += wt1[j, 4, r1]
+                if on2:
+                    dq += wt2[j, 4, r2]
+                dq += c_t[j] * q_ones[i]
+                tstate = (dy[j], dy_prev[j], ddp[j])
+                dy_new, dpp, dpo = _step_tangent(d, j, dq, tstate, step, reed, bore)
+                xt[j, n0 + i] = dpp
+                _spread(fut_t[j], i, dpp, head)
+                out_dp[j, i] = dpo
+                dy_prev[j] = dy[j]
+                dy[j] = dy_new
+                ddp[j] = d[7, j] - dpo
         y_prev = y
         y = y_new
         dp = p_m - p
