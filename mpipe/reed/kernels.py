@@ -244,6 +244,22 @@ def _tangent_tails(xt, n0, blk, line_t):
         _fdl_tail(xt[j], n0, blk, (level, ft_re[j], ft_im[j], wt[j]))
 
 
+@njit(inline="always")
+def _level_shape(line):
+    """(B, on, tail) of a delay line: its block, whether it has partitions, its output."""
+    blk = line[0][2][0].size
+    return blk, line[0][0].shape[0] > 0, line[3][4, :blk]
+
+
+@njit(inline="always")
+def _advance(r, c, blk):
+    """The next sample's position ``r`` in its block of ``blk`` and the block count ``c``."""
+    r += 1
+    if r == blk:
+        return 0, c + 1
+    return r, c
+
+
 @njit(cache=True)
 def run(x, n0, model, conv, state, pm, q_ext, out_p, full, tangent):
     """Run the scheme for n = len(out_p) samples; x holds p+ with n0 samples of history.
@@ -271,12 +287,8 @@ def run(x, n0, model, conv, state, pm, q_ext, out_p, full, tangent):
     y, y_prev, dp = state
     n = out_p.size
     _seed(fut, n, x, n0, head)
-    blk1 = line1[0][2][0].size
-    blk2 = line2[0][2][0].size
-    on1 = line1[0][0].shape[0] > 0
-    on2 = line2[0][0].shape[0] > 0
-    tail1 = line1[3][4, :blk1]
-    tail2 = line2[3][4, :blk2]
+    blk1, on1, tail1 = _level_shape(line1)
+    blk2, on2, tail2 = _level_shape(line2)
     # records unpacked once, outside the loop: an array taken from a tuple is a new
     # reference, counted up and down (atomically) wherever it is taken
     if full is not None:
@@ -287,10 +299,7 @@ def run(x, n0, model, conv, state, pm, q_ext, out_p, full, tangent):
         wt2 = lt2[3]
         for j in range(d.shape[1]):
             _seed(fut_t[j], n, xt[j], n0, head)
-    r1 = 0
-    r2 = 0
-    c1 = 0
-    c2 = 0
+    r1 = r2 = c1 = c2 = 0  # position in, and number of, each level's current block
     for i in range(n):
         if on2 and r2 == 0:
             _fdl_tail(x, n0, c2, line2)
@@ -340,12 +349,6 @@ def run(x, n0, model, conv, state, pm, q_ext, out_p, full, tangent):
         y_prev = y
         y = y_new
         dp = p_m - p
-        r1 += 1
-        if r1 == blk1:
-            r1 = 0
-            c1 += 1
-        r2 += 1
-        if r2 == blk2:
-            r2 = 0
-            c2 += 1
+        r1, c1 = _advance(r1, c1, blk1)
+        r2, c2 = _advance(r2, c2, blk2)
     return y, y_prev, dp
