@@ -12,7 +12,8 @@ recomputes for every candidate is the same for every candidate of a window. A
   are affine in the one candidate-dependent number ``c`` (the mean flow the measurement
   lost), so they are computed once per window as ``F0 + c F1`` instead of 50-odd FFTs per
   run (FFT linearity);
-* runs the lean kernel :func:`mpipe.reed.kernels._run_pressure` (pressure only, no allocation);
+* runs the model's one compiled kernel (:func:`mpipe.reed.kernels.run`) for the pressure
+  only, on the two-level partition of r_f, without allocation;
 * low-passes the pressure only (the flow does not enter F2) with the measurement's
   linear-phase FIR, by overlap-save FFT convolution over exactly the samples the
   reference's edge-padded filter reads for the window (the padding never reaches them);
@@ -20,6 +21,9 @@ recomputes for every candidate is the same for every candidate of a window. A
 
 It agrees with the reference to rounding (tests/inversion/test_fastpath.py: ~1e-12
 relative); the reference still computes the model flow for plots and the ``rest`` start.
+Given a ``jac`` record the same compiled evaluation (:func:`_evaluate`) also differentiates
+every step forward and writes the Jacobian (:mod:`mpipe.inversion.sensitivities`). Its
+arguments are records (tuples numba types), documented in :func:`_evaluate`.
 """
 
 from __future__ import annotations
@@ -407,13 +411,18 @@ class WindowEvaluator:
             "" for a feasible candidate, else the reason ("unstable: ...", "diverged",
             "silent").
         """
+        return self.evaluate_into(reed, out, None)
+
+    def evaluate_into(self, reed: ReedParameters, out: np.ndarray, jac: tuple | None) -> str:
+        """:meth:`residuals_into`, and with a ``jac`` record (:func:`_evaluate`) the Jacobian."""
         try:
             check_stability(reed, self.fs)
         except ValueError as exc:
             return f"unstable: {exc}"
-        cand = self.candidate(reed)
+        k = self.kernel
+        cand = (scheme_records(reed, self.fs, self.lean.h0, k.z0, k.rho), reed.k, reed.S, reed.p_m)
         with np.errstate(all="ignore"):
-            code = _evaluate(out, self.win, self.lp, self.buffers, cand, None)
+            code = _evaluate(out, self.win, self.lp, self.buffers, cand, jac)
         return REASONS.get(int(code), "")
 
 

@@ -29,8 +29,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from mpipe.inversion.fastpath import REASONS, WindowEvaluator, _evaluate
-from mpipe.reed.parameters import ReedParameters, check_stability
+from mpipe.inversion.fastpath import WindowEvaluator
+from mpipe.reed.parameters import ReedParameters
 from mpipe.reed.sensitivity import coefficient_derivatives, tangent_lines
 
 
@@ -85,17 +85,9 @@ class SensitivityEvaluator:
             "" for a feasible candidate, else the reason (as
             :meth:`WindowEvaluator.residuals_into`).
         """
-        ev = self.ev
-        try:
-            check_stability(reed, ev.fs)
-        except ValueError as exc:
-            return f"unstable: {exc}"
-        d = coefficient_derivatives(reed, ev.fs, self.names, self.contact_at_closure)
+        d = coefficient_derivatives(reed, self.ev.fs, self.names, self.contact_at_closure)
         tw, xt, dp_mod, ctx0, col, conv_t = self.buffers
-        jac = (d, out_j, tw, xt, dp_mod, ctx0, col, conv_t)
-        with np.errstate(all="ignore"):
-            code = _evaluate(out_r, ev.win, ev.lp, ev.buffers, ev.candidate(reed), jac)
-        return REASONS.get(int(code), "")
+        return self.ev.evaluate_into(reed, out_r, (d, out_j, tw, xt, dp_mod, ctx0, col, conv_t))
 
 
 __all__ = ["SensitivityEvaluator"]

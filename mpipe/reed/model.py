@@ -13,24 +13,30 @@ Per sample n -> n+1:
 5. ``u = u_f + u_r``, ``p+(n+1) = (q + Z0 u) / (1 - h_0)``, ``p- = p+ - Z0 u``,
    ``p = p+ + p-`` and ``dp(n+1) = p_m(n+1) - p``.
 
-Three interchangeable kernels compute step 3:
+Two implementations run it: one compiled kernel (:func:`mpipe.reed.kernels.run`), and a
+plain Python/NumPy loop written from the equations (:func:`mpipe.reed.scheme.run_reference`)
+that the tests compare it with. ``method`` picks how step 3 is computed:
 
 ``"fast"``
-    Exact partitioned convolution: lags 1..B-1 run as a direct dot product every sample;
-    lags >= B run blockwise in the frequency domain (uniformly partitioned overlap-save
-    with a frequency-domain delay line). That works because a block of B outputs only
-    needs p+ at least B samples old, which is all known when the block starts
-    (physics.md D.4). The FFT is a small radix-2 implementation compiled with numba.
+    Exact partitioned convolution: lags 1..B-1 run as a direct sum every sample; lags
+    >= B run blockwise in the frequency domain (uniformly partitioned overlap-save with a
+    frequency-domain delay line). That works because a block of B outputs only needs p+
+    at least B samples old, which is all known when the block starts (physics.md D.4).
+    The FFT is a small radix-2 implementation compiled with numba.
 ``"direct"``
-    The same compiled loop with every lag in the direct dot product.
+    The same compiled kernel with every lag in the direct sum.
 ``"numpy"``
-    A plain Python/NumPy loop written from the equations, kept as a slow reference.
+    The plain reference loop (slow; for tests on short runs).
+
+:func:`simulate_pressure` runs the same compiled kernel for the pressure only, with the
+two-level partition of the inversion (:func:`mpipe.reed.bore_kernel.prepare_lean`).
 
 Where it lives: this module holds the driver (:func:`simulate`, :func:`simulate_pressure`)
-and its result types; the compiled loops are in :mod:`mpipe.reed.kernels` (their FFT in
-:mod:`mpipe.reed.block_fft`), the bore's preparation in :mod:`mpipe.reed.bore_kernel`, the
-reed coefficients and the NumPy reference in :mod:`mpipe.reed.scheme`, and the playing
-frequency in :mod:`mpipe.reed.playing`.
+and its result types; the compiled kernel is in :mod:`mpipe.reed.kernels` (its FFT in
+:mod:`mpipe.reed.block_fft`), the bore's preparation and partitions in
+:mod:`mpipe.reed.bore_kernel`, the reed coefficients and the reference in
+:mod:`mpipe.reed.scheme`, the forward sensitivities in :mod:`mpipe.reed.sensitivity`, and
+the playing frequency in :mod:`mpipe.reed.playing`.
 
 Time axis: output sample ``i`` is the state at ``t[i] = (i + 1) / fs``; ``t = 0`` is the
 initial state (rest, or the end of a given history), which is not part of the output.

@@ -1,10 +1,11 @@
 """The explicit scheme of the paper's Appendix A written plainly: coefficients and reference.
 
 :func:`reed_coefficients` gives the coefficients of the centred-difference reed update
-that every kernel uses; :func:`_run_numpy` is the scheme as a plain Python/NumPy loop
-written directly from the equations (physics.md G.2-G.4, D.2 step 6), the slow reference
-of :func:`mpipe.reed.model.simulate` (``method="numpy"``) against which the compiled
-kernels (:mod:`mpipe.reed.kernels`) are tested.
+and :func:`scheme_records` the compiled kernel's records of them; :func:`run_reference` is
+the scheme as a plain Python/NumPy loop written directly from the equations (physics.md
+G.2-G.4, D.2 step 6): the slow reference of :func:`mpipe.reed.model.simulate`
+(``method="numpy"``) against which the one compiled kernel (:func:`mpipe.reed.kernels.run`)
+is tested (tests/reed/test_kernels.py).
 
 References
 ----------
