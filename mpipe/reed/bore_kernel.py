@@ -242,8 +242,6 @@ class Partition:
         return self.head, np.empty(n + self.head.size), line1, line2
 
 
-#: The partition's former name (the lean kernel of the inversion).
-LeanKernel = Partition
 
 #: Block sizes of the lean kernel's two levels, chosen by measurement on the shipped
 #: instrument (7200 taps at 100 kHz), interleaved runs against today's kernel, thread CPU
