@@ -242,7 +242,6 @@ class Partition:
         return self.head, np.empty(n + self.head.size), line1, line2
 
 
-
 #: Block sizes of the lean kernel's two levels, chosen by measurement on the shipped
 #: instrument (7200 taps at 100 kHz), interleaved runs against today's kernel, thread CPU
 #: time (medians of 7): (16, 256) 1.25x, (32, 256) 1.39x, (32, 512) 1.49x, (64, 256) 1.52x,
