@@ -257,8 +257,8 @@ def _tangent_start(jac, ylead, win, cand, conv_t):
         _missing_tangent(dmiss, dyl, ylead, d, win, cand)
     fut_t, line1_t, line2_t = conv_t
     for line in (line1_t, line2_t):
+        line[0].fill(0.0)
         line[1].fill(0.0)
-        line[2].fill(0.0)
     dy = dyl[:, n_lead - 1].copy()
     dy_prev = dyl[:, n_lead - 2].copy()
     z0 = cand[0][1][0]

@@ -237,9 +237,14 @@ def _fdl_tail(x, n0, blk, line):
 
 
 @njit(cache=True)
-def _tangent_tails(xt, n0, blk, line_t):
-    """:func:`_fdl_tail` of every tangent column j (``xt[j]``, spectra and work ``[j]``)."""
-    level, ft_re, ft_im, wt = line_t
+def _tangent_tails(xt, n0, blk, line, line_t):
+    """:func:`_fdl_tail` of every tangent column j (``xt[j]``, spectra and work ``[j]``).
+
+    ``line`` is the pressure's delay line (its level is shared), ``line_t`` the tangents'
+    (ft_re, ft_im, work), one row per column.
+    """
+    level = line[0]
+    ft_re, ft_im, wt = line_t
     for j in range(xt.shape[0]):
         _fdl_tail(xt[j], n0, blk, (level, ft_re[j], ft_im[j], wt[j]))
 
@@ -276,9 +281,9 @@ def run(x, n0, model, conv, state, pm, q_ext, out_p, full, tangent):
     tangent : None, or (d, dy, dy_prev, ddp, xt, fut_t, line1, line2, out_dp, q_ones, c_t):
         the seed matrix d (rows :data:`mpipe.reed.sensitivity.SEED_ROWS`, one column per
         parameter), the tangent state per column (updated in place), the tangent of p+
-        (``xt[j]``, history given), its pending direct sums, its delay lines (as ``conv``'s
-        with one spectra and work per column), the output d p / d theta_j, and a history
-        shift ``c_t[j] q_ones`` added to the tangent of the history term.
+        (``xt[j]``, history given), its pending direct sums, its delay lines ((f_re, f_im,
+        work) with one row per column, on ``conv``'s levels), the output d p / d theta_j,
+        and a history shift ``c_t[j] q_ones`` added to the tangent of the history term.
 
     Returns the final (y, y_prev, dp).
     """
@@ -295,8 +300,8 @@ def run(x, n0, model, conv, state, pm, q_ext, out_p, full, tangent):
         out_u, out_uf, out_ur, out_y, out_h, out_pminus = full
     if tangent is not None:
         d, dy, dy_prev, ddp, xt, fut_t, lt1, lt2, out_dp, q_ones, c_t = tangent
-        wt1 = lt1[3]
-        wt2 = lt2[3]
+        wt1 = lt1[2]
+        wt2 = lt2[2]
         for j in range(d.shape[1]):
             _seed(fut_t[j], n, xt[j], n0, head)
     r1 = r2 = c1 = c2 = 0  # position in, and number of, each level's current block
@@ -304,11 +309,11 @@ def run(x, n0, model, conv, state, pm, q_ext, out_p, full, tangent):
         if on2 and r2 == 0:
             _fdl_tail(x, n0, c2, line2)
             if tangent is not None:
-                _tangent_tails(xt, n0, c2, lt2)
+                _tangent_tails(xt, n0, c2, line2, lt2)
         if on1 and r1 == 0:
             _fdl_tail(x, n0, c1, line1)
             if tangent is not None:
-                _tangent_tails(xt, n0, c1, lt1)
+                _tangent_tails(xt, n0, c1, line1, lt1)
         q = fut[i]
         if on1:
             q += tail1[r1]

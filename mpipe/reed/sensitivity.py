@@ -169,12 +169,11 @@ def tangent_lines(conv: tuple, n_par: int) -> tuple:
     """The tangents' direct sums and delay lines beside ``conv``'s, zero history spectra.
 
     Returns ``(fut_t, line1_t, line2_t)`` for ``n_par`` parameter columns: the pending
-    direct sums (one row per column) and each level's (level, ft_re, ft_im, work) with one
-    set of spectra and scratch per column (:func:`mpipe.reed.kernels.run`'s ``tangent``).
+    direct sums (one row per column) and each level's (ft_re, ft_im, work) with one set of
+    spectra and scratch per column (:func:`mpipe.reed.kernels.run`'s ``tangent``).
     """
     _, fut, *lines = conv
-    fut_t = np.empty((n_par, fut.size))
-    out = [fut_t]
-    for level, f_re, f_im, work in lines:
-        out.append((level, *(np.zeros((n_par, *a.shape)) for a in (f_re, f_im, work))))
+    out = [np.empty((n_par, fut.size))]
+    for line in lines:
+        out.append(tuple(np.zeros((n_par, *a.shape)) for a in line[1:]))
     return tuple(out)
