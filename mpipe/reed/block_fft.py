@@ -1,9 +1,9 @@
 """The small radix-2 FFT of the model's partitioned convolution, compiled with numba.
 
-The fast and lean kernels (:mod:`mpipe.reed.kernels`) transform one block of the forward
-wave p+ per B samples and invert one accumulated spectrum; these routines do that in place,
-without allocation, on blocks of a power-of-two length. :func:`_fft_tables` builds the bit
-reversal and twiddle tables they read.
+The model's kernel (:mod:`mpipe.reed.kernels`) transforms one block of the forward wave p+
+per B samples and inverts one accumulated spectrum per delay-line level; these routines
+do that in place, without allocation, on blocks of a power-of-two length.
+:func:`_fft_tables` builds the bit reversal and twiddle tables (``tables``) they read.
 
 References
 ----------
@@ -18,8 +18,15 @@ import numpy as np
 from numba import njit
 
 
-def _fft_tables(b: int) -> tuple[np.ndarray, ...]:
-    """Bit reversal, FFT twiddles and real-FFT twiddles for blocks of B samples."""
+def _fft_tables(b: int, real_nyquist: bool = False) -> tuple[np.ndarray, ...]:
+    """Bit reversal, FFT twiddles and real-FFT twiddles for blocks of B samples.
+
+    Returns ``(bitrev, tw_re, tw_im, w_re, w_im)``, the ``tables`` of :func:`_rfft` and
+    :func:`_irfft_last_half`. With ``real_nyquist`` the last real-FFT twiddle's imaginary
+    part, sin(-pi) ~ -1.2e-16 in floating point, is set to 0: :func:`_rfft` then gives
+    bin M the exactly real value of a real sequence's Nyquist bin (the lean levels' and
+    the low-pass's convention; the uniform kernel keeps the plain tables).
+    """
     bits = int(round(math.log2(b)))
     idx = np.arange(b)
     bitrev = np.zeros(b, dtype=np.int64)
@@ -29,6 +36,8 @@ def _fft_tables(b: int) -> tuple[np.ndarray, ...]:
         [np.exp(-1j * np.pi * np.arange(half) / half) for half in 2 ** np.arange(bits)]
     )
     rw = np.exp(-2j * np.pi * np.arange(b + 1) / (2 * b))
+    if real_nyquist:
+        rw[b] = rw[b].real
     return bitrev, tw.real.copy(), tw.imag.copy(), rw.real.copy(), rw.imag.copy()
 
 
@@ -91,32 +100,51 @@ def _fft(re, im, bitrev, tw_re, tw_im):
 
 
 @njit(cache=True)
-def _rfft(x, start, out_re, out_im, zr, zi, bitrev, tw_re, tw_im, w_re, w_im):
+def _rfft(x, start, out_re, out_im, zr, zi, tables):
     """Spectrum (bins 0..M) of the real segment x[start : start + 2M], M = len(zr).
 
-    Packs even and odd samples into one complex sequence of length M, transforms it and
-    splits the result: X[k] = E[k] + w^k O[k] with w = exp(-i pi / M).
+    Packs even and odd samples into one complex sequence z of length M, transforms it and
+    splits the result: X[k] = E[k] + w^k O[k] with w = exp(-i pi / M). ``tables`` is
+    :func:`_fft_tables` of M. Bins 0 and M are set apart; bins 1..M-1 pair z[k] with
+    z[M - k] through slices (no modulo indexing: this loop cost as much as the FFT). Bin
+    M's imaginary part is ``w_im[M] z_im[0]``: sin(-pi) z_im[0] ~ 1e-16 z_im[0] with the
+    plain tables, exactly 0 with ``real_nyquist`` tables.
     """
+    bitrev, tw_re, tw_im, w_re, w_im = tables
     m = zr.size
     xs = x[start : start + 2 * m]
     for n in range(m):
         zr[n] = xs[2 * n]
         zi[n] = xs[2 * n + 1]
     _fft(zr, zi, bitrev, tw_re, tw_im)
-    for k in range(m + 1):
-        ka = k % m
-        kb = (m - k) % m
-        er = 0.5 * (zr[ka] + zr[kb])
-        ei = 0.5 * (zi[ka] - zi[kb])
-        orr = 0.5 * (zi[ka] + zi[kb])
-        oi = -0.5 * (zr[ka] - zr[kb])
-        out_re[k] = er + w_re[k] * orr - w_im[k] * oi
-        out_im[k] = ei + w_re[k] * oi + w_im[k] * orr
+    out_re[0] = zr[0] + zi[0]
+    out_im[0] = 0.0
+    out_re[m] = zr[0] - zi[0]
+    out_im[m] = 0.0 + w_im[m] * zi[0]
+    za_r = zr[1:m]
+    za_i = zi[1:m]
+    wr = w_re[1:m]
+    wi = w_im[1:m]
+    ore = out_re[1:m]
+    oim = out_im[1:m]
+    for k in range(m - 1):
+        kb = m - 2 - k
+        ar = za_r[k]
+        ai = za_i[k]
+        br = za_r[kb]
+        bi = za_i[kb]
+        er = 0.5 * (ar + br)
+        ei = 0.5 * (ai - bi)
+        orr = 0.5 * (ai + bi)
+        oi = -0.5 * (ar - br)
+        ore[k] = er + wr[k] * orr - wi[k] * oi
+        oim[k] = ei + wr[k] * oi + wi[k] * orr
 
 
 @njit(cache=True)
-def _irfft_last_half(x_re, x_im, out, zr, zi, bitrev, tw_re, tw_im, w_re, w_im):
+def _irfft_last_half(x_re, x_im, out, zr, zi, tables):
     """Second half (samples M..2M-1) of the real inverse FFT of bins 0..M, M = len(zr)."""
+    bitrev, tw_re, tw_im, w_re, w_im = tables
     m = zr.size
     for k in range(m):
         ar = x_re[k]
@@ -139,40 +167,3 @@ def _irfft_last_half(x_re, x_im, out, zr, zi, bitrev, tw_re, tw_im, w_re, w_im):
     for n in range(half, m):
         out[2 * (n - half)] = zr[n] * scale
         out[2 * (n - half) + 1] = -zi[n] * scale
-
-
-@njit(cache=True)
-def _rfft_lean(x, start, out_re, out_im, zr, zi, bitrev, tw_re, tw_im, w_re, w_im):
-    """:func:`_rfft` with the split loop free of modulo indexing (the lean kernel's).
-
-    Bins 0 and M are set apart; bins 1..M-1 pair z[k] with z[M - k] through slices, which
-    spares two integer divisions per bin (this loop cost as much as the FFT itself).
-    """
-    m = zr.size
-    xs = x[start : start + 2 * m]
-    for n in range(m):
-        zr[n] = xs[2 * n]
-        zi[n] = xs[2 * n + 1]
-    _fft(zr, zi, bitrev, tw_re, tw_im)
-    out_re[0] = zr[0] + zi[0]
-    out_im[0] = 0.0
-    out_re[m] = zr[0] - zi[0]
-    out_im[m] = 0.0
-    za_r = zr[1:m]
-    za_i = zi[1:m]
-    wr = w_re[1:m]
-    wi = w_im[1:m]
-    ore = out_re[1:m]
-    oim = out_im[1:m]
-    for k in range(m - 1):
-        kb = m - 2 - k
-        ar = za_r[k]
-        ai = za_i[k]
-        br = za_r[kb]
-        bi = za_i[kb]
-        er = 0.5 * (ar + br)
-        ei = 0.5 * (ai - bi)
-        orr = 0.5 * (ai + bi)
-        oi = -0.5 * (ar - br)
-        ore[k] = er + wr[k] * orr - wi[k] * oi
-        oim[k] = ei + wr[k] * oi + wi[k] * orr

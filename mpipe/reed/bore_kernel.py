@@ -2,8 +2,9 @@
 
 :func:`prepare_bore` builds a :class:`BoreKernel` once per (bore, air, fs): the reflection
 function with the spectra of its uniformly partitioned tail and the FFT tables of the fast
-kernel. :func:`prepare_lean` cuts it further into the two delay-line levels of the lean,
-pressure-only kernel of the inversion (:class:`LeanKernel`).
+kernel. A :class:`Partition` splits it between the compiled kernel's direct sum and delay
+lines: uniform (``BoreKernel.partition("fast")``), all direct, or the two levels of the
+inversion's lean runs (:func:`prepare_lean`).
 
 References
 ----------
@@ -83,9 +84,32 @@ class BoreKernel:
         return int(self.tail_re.shape[0])
 
     @functools.cached_property
-    def lean(self) -> LeanKernel:
+    def lean(self) -> Partition:
         """The two-level partition of the lean kernel (:func:`prepare_lean`), made once."""
         return prepare_lean(self)
+
+    def partition(self, method: str) -> Partition:
+        """The partition of :func:`mpipe.reed.model.simulate`'s ``method``, made once.
+
+        "fast": lags 1..B-1 direct, the rest by the uniform delay line of block B (the
+        tail spectra above, plain FFT tables); "direct": every lag direct.
+        """
+        cache = self.__dict__.setdefault("_partitions", {})
+        if method not in cache:
+            b = self.head_taps
+            tables = (
+                self.fft_bitrev,
+                self.fft_tw_re,
+                self.fft_tw_im,
+                self.rfft_w_re,
+                self.rfft_w_im,
+            )
+            off = (np.zeros((0, 5)), np.zeros((0, 5)), _fft_tables(4))
+            if method == "fast":
+                cache[method] = _partition(self.h, b, (self.tail_re, self.tail_im, tables), off)
+            else:
+                cache[method] = _partition(self.h, self.n_taps, (*off[:2], tables), off)
+        return cache[method]
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -158,31 +182,37 @@ def _partition_spectra(segment: np.ndarray, b: int) -> tuple[np.ndarray, np.ndar
 
 
 @dataclass(frozen=True)
-class LeanKernel:
-    """The reflection function partitioned for the lean (pressure-only) kernel.
+class Partition:
+    """The reflection function partitioned for the compiled kernel (:mod:`mpipe.reed.kernels`).
 
-    Two delay-line levels (non-uniform partitioned convolution): lags ``1..B1-1`` run as a
-    direct dot product every sample, lags ``B1..B2-1`` by a frequency-domain delay line of
-    block B1 (a few short partitions, recomputed every B1 samples), and the long tail,
-    lags ``>= B2``, by one of block B2 (few long partitions, every B2 samples). A uniform
-    partition must trade the direct part's cost (B per sample) against the delay line's
-    (about 8 N / B flops per sample for N taps); two levels make both small. Each level is
-    exact by the same argument as the uniform one: a block of B outputs only needs p+ at
-    least B samples old.
+    Lags ``1..B1-1`` run as a direct sum every sample (``head``), lags ``B1..B2-1`` by a
+    frequency-domain delay line of block B1 (``level1``), lags ``>= B2`` by one of block
+    B2 (``level2``); a level with no partitions is off. Three partitions are made:
+
+    * the lean one, two levels (non-uniform partitioned convolution; :func:`prepare_lean`):
+      a few short partitions recomputed every B1 samples and few long ones every B2. A
+      uniform partition must trade the direct part's cost (B per sample) against the delay
+      line's (about 8 N / B flops per sample for N taps); two levels make both small;
+    * the uniform one of block B (level 2 off; :meth:`BoreKernel.partition` "fast");
+    * every lag direct (both levels off; "direct").
+
+    Each level is exact by the same argument: a block of B outputs only needs p+ at least
+    B samples old.
 
     Attributes
     ----------
     block1, block2 : int
-        B1 and B2, powers of two with B1 < B2.
+        B1 and B2, powers of two.
     n0 : int
         Samples of p+ history a run buffer holds before its first output sample.
     head : ndarray
         h[1], ..., h[B1 - 1] (the direct part).
     h0 : float
         Lag-0 tap.
-    level1, level2 : tuple of ndarray
-        (G_re, G_im, bitrev, tw_re, tw_im, w_re, w_im) of each level; G has shape
-        ``(P, B + 1)``.
+    level1, level2 : tuple
+        (G_re, G_im, tables) of each level: G of shape ``(P, B + 1)``, the spectra of the
+        zero-padded partitions, and the FFT tables of block B
+        (:func:`mpipe.reed.block_fft._fft_tables`).
     """
 
     block1: int
@@ -195,12 +225,21 @@ class LeanKernel:
 
     def history_spectra(self, x: np.ndarray) -> tuple[np.ndarray, ...]:
         """Delay-line spectra of the history in ``x[:n0]``: (f1_re, f1_im, f2_re, f2_im)."""
-        out = []
-        for level in (self.level1, self.level2):
-            g_re = level[0]
-            b = level[2].size
-            out.extend(history_spectra(x, self.n0, b, g_re.shape[0], *level[2:]))
-        return tuple(out)
+        return (
+            *history_spectra(x, self.n0, self.level1),
+            *history_spectra(x, self.n0, self.level2),
+        )
+
+    def conv(self, x: np.ndarray, n: int) -> tuple:
+        """The kernel's ``conv`` record for a run of ``n`` samples on the history in ``x``.
+
+        (head, fut, line1, line2) with each line (level, f_re, f_im, work): the history's
+        spectra and fresh work buffers (:mod:`mpipe.reed.kernels`).
+        """
+        f1_re, f1_im, f2_re, f2_im = self.history_spectra(x)
+        line1 = (self.level1, f1_re, f1_im, np.zeros((5, self.block1 + 1)))
+        line2 = (self.level2, f2_re, f2_im, np.zeros((5, self.block2 + 1)))
+        return self.head, np.empty(n + self.head.size), line1, line2
 
 
 #: Block sizes of the lean kernel's two levels, chosen by measurement on the shipped
@@ -211,7 +250,7 @@ LEAN_BLOCKS = (64, 512)
 
 
 def prepare_lean(kernel: BoreKernel, block1: int | None = None, block2: int | None = None):
-    """Partition a prepared bore's reflection function for the lean kernel.
+    """Partition a prepared bore's reflection function in two delay-line levels.
 
     Parameters
     ----------
@@ -222,7 +261,8 @@ def prepare_lean(kernel: BoreKernel, block1: int | None = None, block2: int | No
 
     Returns
     -------
-    LeanKernel
+    Partition
+        With the FFT tables' ``real_nyquist`` convention.
     """
     b1 = LEAN_BLOCKS[0] if block1 is None else int(block1)
     b2 = LEAN_BLOCKS[1] if block2 is None else int(block2)
@@ -233,11 +273,17 @@ def prepare_lean(kernel: BoreKernel, block1: int | None = None, block2: int | No
         raise ValueError(f"lean kernel blocks: expected block1 < block2, got {b1}, {b2}")
     h = kernel.h
     n = h.size
-    level1 = (*_partition_spectra(h[b1 : min(b2, n)], b1), *_fft_tables(b1))
-    level2 = (*_partition_spectra(h[b2:], b2), *_fft_tables(b2))
+    level1 = (*_partition_spectra(h[b1 : min(b2, n)], b1), _fft_tables(b1, real_nyquist=True))
+    level2 = (*_partition_spectra(h[b2:], b2), _fft_tables(b2, real_nyquist=True))
+    return _partition(h, b1, level1, level2)
+
+
+def _partition(h: np.ndarray, b1: int, level1: tuple, level2: tuple) -> Partition:
+    """A read-only :class:`Partition` of ``h`` with direct lags 1..b1-1 and two levels."""
+    b2 = level2[2][0].size
     p1, p2 = level1[0].shape[0], level2[0].shape[0]
-    n0 = max(n - 1, (p1 + 1) * b1, (p2 + 1) * b2)
-    head = np.ascontiguousarray(h[1 : min(b1, n)])
-    for a in (head, *level1, *level2):
+    n0 = max(h.size - 1, (p1 + 1) * b1, (p2 + 1) * b2)
+    head = np.ascontiguousarray(h[1 : min(b1, h.size)])
+    for a in (head, *level1[:2], *level1[2], *level2[:2], *level2[2]):
         a.flags.writeable = False
-    return LeanKernel(b1, b2, n0, head, float(h[0]), level1, level2)
+    return Partition(b1, b2, n0, head, float(h[0]), level1, level2)

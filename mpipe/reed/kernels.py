@@ -1,22 +1,37 @@
-"""Compiled per-sample scheme of the time-domain clarinet model (numba).
+"""The compiled time-domain clarinet model (numba): one kernel, :func:`run`.
 
-Two kernels run the explicit scheme of :mod:`mpipe.reed.model` (the paper's Appendix A,
-physics.md G.2-G.4) sample by sample; both take one step n -> n+1 with :func:`_step`, which
-numba inlines into each loop, and differ only in how they form the bore's history term
-``q = sum_{j>=1} h_j p+(n+1-j)`` and what they keep:
+:func:`run` takes the explicit scheme of :mod:`mpipe.reed.model` (the paper's Appendix A,
+physics.md G.2-G.4) through n samples, one step n -> n+1 at a time by :func:`_step`. The
+bore's history term ``q = sum_{j>=1} h_j p+(n+1-j)`` comes from a partition of the
+reflection function (:class:`mpipe.reed.bore_kernel.Partition`): lags 1..B1-1 by a direct
+sum (:func:`_spread`), then up to two frequency-domain delay lines of blocks B1 and B2
+(:func:`_fdl_tail`). Every variant is this one source; numba compiles one specialisation
+per combination of optional arguments, pruning the branches of those that are ``None``:
 
-:func:`_run`
-    Every output (p, u, u_f, u_r, y, h, p-) for any mouth-pressure series; lags 1..B-1 by a
-    direct sum (:func:`_spread`), lags >= B by a uniformly partitioned frequency-domain
-    delay line of block B (or every lag direct). The ``"fast"`` and ``"direct"`` methods of
-    :func:`mpipe.reed.model.simulate`.
-:func:`_run_pressure`
-    Pressure only, constant mouth pressure, no allocation: the lean kernel of the inversion
-    (:mod:`mpipe.inversion.fastpath`), with a two-level partition of the reflection
-    function (:class:`mpipe.reed.bore_kernel.LeanKernel`).
+* every output (p, u, u_f, u_r, y, h, p-) with ``full`` given: :func:`~mpipe.reed.model.simulate`
+  ("fast": the uniform partition of block B; "direct": every lag direct);
+* the pressure only (``full=None``): the inversion's model runs
+  (:func:`~mpipe.reed.model.simulate_pressure`, :mod:`mpipe.inversion.fastpath`), with the
+  two-level partition;
+* with ``tangent`` given, also the forward sensitivities of the pressure to the reed
+  parameters (:mod:`mpipe.reed.sensitivity`): each step's derivative
+  (:func:`_step_tangent`) and the tangent of p+ through the same partition;
+* ``q_ext`` adds a history share the caller convolved itself (the inversion's).
 
+The plain reference the tests compare it with is :func:`mpipe.reed.scheme.run_reference`.
 Both are exact convolutions: a block of B outputs only needs p+ at least B samples old,
 which is all known when the block starts (physics.md D.4).
+
+Records (tuples, so that numba types them and calls stay short):
+
+``model``
+    ``(reed, bore)`` of :func:`mpipe.reed.scheme.scheme_records`.
+``conv``
+    ``(head, fut, line1, line2)``: h[1..B1-1], the direct part's pending sums (at least
+    ``n + len(head)`` samples) and each level's ``(level, f_re, f_im, work)``: the level
+    ``(G_re, G_im, tables)`` (:class:`~mpipe.reed.bore_kernel.Partition`), the spectra of
+    its delay line (the history's, :func:`history_spectra`; overwritten) and its scratch
+    of shape ``(5, B + 1)``.
 
 No kernel uses fastmath: with reassociation or contraction (fma) LLVM orders the sums
 itself, and numba keeps several differently optimised copies of a kernel (each caller
@@ -37,7 +52,7 @@ import math
 import numpy as np
 from numba import njit
 
-from mpipe.reed.block_fft import _irfft_last_half, _rfft, _rfft_lean
+from mpipe.reed.block_fft import _irfft_last_half, _rfft
 
 
 @njit(cache=True)
@@ -79,8 +94,7 @@ def _step(q, p_m, y, y_prev, dp, reed, bore):
     ``reed`` is (a1, a2, a3, b1, y_m, y_c, alpha, square, lam, s_fs) with ``square`` =
     (alpha == 2) and ``s_fs`` = S fs (m^2/s); ``bore`` is (z0, rho, inv, z0p, two_over_rho)
     with inv = 1 / (1 - h0) and z0p = Z0 (1 + h0) / (1 - h0). ``p_m`` is the mouth pressure
-    at n+1, Pa. Returns (y, h, u_r, u_f, u, p+, p) at n+1. Inlined into both kernels (numba
-    IR inlining), so that they share one scheme at no cost per sample.
+    at n+1, Pa. Returns (y, h, u_r, u_f, u, p+, p) at n+1.
     """
     a1, a2, a3, b1, y_m, y_c, alpha, square, lam, s_fs = reed
     z0, rho, inv, z0p, two_over_rho = bore
@@ -110,15 +124,57 @@ def _step(q, p_m, y, y_prev, dp, reed, bore):
     return y_new, hh, ur, uf, u, pp, p
 
 
-@njit(cache=True)
-def history_spectra(x, n0, block, n_part, bitrev, tw_re, tw_im, w_re, w_im):
-    """Spectra of the P history blocks -1..-P of ``x`` for the frequency-domain delay line.
+@njit(inline="always")
+def _step_tangent(d, j, dq, tstate, step, reed, bore):
+    """Tangent of one :func:`_step` for column ``j`` of the seed matrix ``d``.
 
-    Returns ``(f_re, f_im)`` of shape ``(max(P, 1), B + 1)``, slot ``c mod P`` holding the
-    ``rfft`` of ``x[n0 + (c - 1) B : n0 + (c + 1) B]``: what :func:`_run` computes before
-    its first sample. Built once per window (the history does not depend on the candidate)
-    and handed to :func:`_run_pressure`.
+    ``d`` is :func:`mpipe.reed.sensitivity.coefficient_derivatives`' matrix, ``dq`` the
+    tangent of the history term, ``tstate`` the tangent state (dy, dy_prev, ddp) at n,
+    ``step`` the step's inputs and results (q, p_m, y, y_prev, dp, y_new, h, u_r, u_f).
+    Returns the tangents (dy, dp+, dp) at n+1 (the formulas:
+    :mod:`mpipe.reed.sensitivity`).
     """
+    a1, a2, a3, b1, y_m, y_c, alpha, square, lam, s_fs = reed
+    z0, rho, inv, z0p, two_over_rho = bore
+    dy, dy_prev, ddp = tstate
+    q, p_m, y, y_prev, dp, y_new, hh, ur, uf = step
+    dy_new = d[0, j] * y + a1 * dy + d[1, j] * y_prev + a2 * dy_prev + d[3, j] * dp + b1 * ddp
+    e = y - y_c
+    if e > 0.0:
+        de = dy - d[6, j]
+        if square:
+            dy_new += d[2, j] * (e * e) + a3 * (2.0 * e * de)
+        else:
+            dy_new += d[2, j] * e**alpha + a3 * (alpha * e ** (alpha - 1.0) * de)
+    dur = d[4, j] * (y_new - y) + s_fs * (dy_new - dy)
+    duf = 0.0
+    if hh > 0.0:
+        dhh = d[5, j] - dy_new
+        lh = lam * hh
+        lh2 = lh * lh
+        dlh2 = 2.0 * lh * (d[8, j] * hh + lam * dhh)
+        big_l = lh2 * z0p / rho
+        dbig_l = dlh2 * z0p / rho
+        w = 2.0 * q * inv + z0p * ur - p_m
+        dw = 2.0 * dq * inv + z0p * dur - d[7, j]
+        dbig_g = two_over_rho * (dlh2 * w + lh2 * dw)
+        duf = -(2.0 * uf * dbig_l + dbig_g) / (2.0 * (abs(uf) + big_l))
+    du = duf + dur
+    dpp = (dq + z0 * du) * inv
+    return dy_new, dpp, 2.0 * dpp - z0 * du
+
+
+@njit(cache=True)
+def history_spectra(x, n0, level):
+    """Spectra of the P history blocks -1..-P of ``x`` for a level's delay line.
+
+    ``level`` is (G_re, G_im, tables) of block B. Returns ``(f_re, f_im)`` of shape
+    ``(max(P, 1), B + 1)``, slot ``c mod P`` holding the ``rfft`` of
+    ``x[n0 + (c - 1) B : n0 + (c + 1) B]``: the delay line before the first sample.
+    """
+    g_re, _, tables = level
+    block = tables[0].size
+    n_part = g_re.shape[0]
     nb = block + 1
     f_re = np.zeros((max(n_part, 1), nb))
     f_im = np.zeros((max(n_part, 1), nb))
@@ -126,88 +182,8 @@ def history_spectra(x, n0, block, n_part, bitrev, tw_re, tw_im, w_re, w_im):
     zi = np.zeros(block)
     for c in range(-n_part, 0):
         slot = c % n_part
-        _rfft(
-            x, n0 + (c - 1) * block, f_re[slot], f_im[slot], zr, zi, bitrev, tw_re, tw_im,
-            w_re, w_im,
-        )  # fmt: skip
+        _rfft(x, n0 + (c - 1) * block, f_re[slot], f_im[slot], zr, zi, tables)
     return f_re, f_im
-
-
-@njit(cache=True)
-def _uniform_tail(x, n0, b, g_re, g_im, f_re, f_im, acc_re, acc_im, zr, zi, tail, tables):
-    """Tail (lags >= B) of :func:`_run`'s uniform delay line for output block ``b``.
-
-    Block ``b - 1`` of p+ has just been completed: its spectrum enters slot ``(b - 1) mod
-    P``, then ``acc = sum_k G_k F_{b-1-k}`` and the second half of its inverse go to
-    ``tail``. ``tables`` is (bitrev, tw_re, tw_im, w_re, w_im) of block B.
-    """
-    bitrev, tw_re, tw_im, w_re, w_im = tables
-    block = zr.size
-    n_part = g_re.shape[0]
-    if b > 0:
-        c = b - 1
-        slot = c % n_part
-        _rfft(
-            x, n0 + (c - 1) * block, f_re[slot], f_im[slot], zr, zi, bitrev, tw_re, tw_im,
-            w_re, w_im,
-        )  # fmt: skip
-    _accumulate(acc_re, acc_im, g_re, g_im, f_re, f_im, (b - 1) % n_part)
-    _irfft_last_half(acc_re, acc_im, tail, zr, zi, bitrev, tw_re, tw_im, w_re, w_im)
-
-
-@njit(cache=True)
-def _run(
-    x, n0, n, head, h0, z0, rho, a1, a2, a3, b1, y_m, y_c, alpha, lam, s_fs, pm, y,
-    y_prev, dp, block, g_re, g_im, bitrev, tw_re, tw_im, w_re, w_im, out_p, out_u, out_uf,
-    out_ur, out_y, out_h, out_pminus,
-):  # fmt: skip
-    """Run the scheme for n samples; x holds p+ with n0 samples of history before it.
-
-    ``head`` is h[1], ..., h[H-1] (lags 1 to H-1, run direct). With P = len(g_re)
-    > 0, lags block..(P+1)*block-1 run by partitioned FFT (then H must equal ``block``).
-    Returns the final (y, y_prev, dp).
-    """
-    n_part = g_re.shape[0]
-    inv = 1.0 / (1.0 - h0)
-    bore = (z0, rho, inv, z0 * (1.0 + h0) * inv, 2.0 / rho)
-    reed = (a1, a2, a3, b1, y_m, y_c, alpha, alpha == 2.0, lam, s_fs)
-    tables = (bitrev, tw_re, tw_im, w_re, w_im)
-    # work arrays, allocated once before the loop; the frequency-domain delay line holds
-    # the spectrum of input block c (x[n0 + c B : n0 + (c + 1) B]) in slot c mod P,
-    # starting with the history blocks -1..-P
-    f_re, f_im = history_spectra(x, n0, block, n_part, *tables)
-    acc_re = np.zeros(block + 1)
-    acc_im = np.zeros(block + 1)
-    zr = np.zeros(block)
-    zi = np.zeros(block)
-    tail = np.zeros(block)
-    fut = np.empty(n + head.size)
-    _seed(fut, n, x, n0, head)
-    for i in range(n):
-        m = n0 + i
-        r = i % block
-        if n_part > 0 and r == 0:
-            _uniform_tail(
-                x, n0, i // block, g_re, g_im, f_re, f_im, acc_re, acc_im, zr, zi, tail, tables
-            )
-        q = fut[i]
-        if n_part > 0:
-            q += tail[r]
-        p_m = pm[i]
-        y_new, hh, ur, uf, u, pp, p = _step(q, p_m, y, y_prev, dp, reed, bore)
-        x[m] = pp
-        _spread(fut, i, pp, head)
-        out_p[i] = p
-        out_u[i] = u
-        out_uf[i] = uf
-        out_ur[i] = ur
-        out_y[i] = y_new
-        out_h[i] = hh
-        out_pminus[i] = pp - z0 * u
-        y_prev = y
-        y = y_new
-        dp = p_m - p
-    return y, y_prev, dp
 
 
 @njit(cache=True)
@@ -238,87 +214,146 @@ def _accumulate(acc_re, acc_im, g_re, g_im, f_re, f_im, newest):
 
 
 @njit(cache=True)
-def _fdl_tail(x, n0, blk, level, f_re, f_im, work):
+def _fdl_tail(x, n0, blk, line):
     """Tail of one delay-line level for output block ``blk`` into ``work[4, :B]``.
 
-    ``level`` is (G_re, G_im, bitrev, tw_re, tw_im, w_re, w_im) of block size B; block
-    ``blk - 1`` of p+ has just been completed, so its spectrum enters the delay line first.
+    ``line`` is (level, f_re, f_im, work) with ``level`` = (G_re, G_im, tables) of block
+    size B; block ``blk - 1`` of p+ has just been completed, so its spectrum enters the
+    delay line (slot ``(blk - 1) mod P``) first.
     """
-    g_re, g_im, bitrev, tw_re, tw_im, w_re, w_im = level
-    b = bitrev.size
+    level, f_re, f_im, work = line
+    g_re, g_im, tables = level
+    b = tables[0].size
     n_part = g_re.shape[0]
     acc_re = work[0, : b + 1]
     acc_im = work[1, : b + 1]
     zr = work[2, :b]
     zi = work[3, :b]
-    tail = work[4, :b]
     if blk > 0:
         c = blk - 1
-        _rfft_lean(
-            x, n0 + (c - 1) * b, f_re[c % n_part], f_im[c % n_part], zr, zi, bitrev, tw_re,
-            tw_im, w_re, w_im,
-        )  # fmt: skip
+        _rfft(x, n0 + (c - 1) * b, f_re[c % n_part], f_im[c % n_part], zr, zi, tables)
     _accumulate(acc_re, acc_im, g_re, g_im, f_re, f_im, (blk - 1) % n_part)
-    _irfft_last_half(acc_re, acc_im, tail, zr, zi, bitrev, tw_re, tw_im, w_re, w_im)
+    _irfft_last_half(acc_re, acc_im, work[4, :b], zr, zi, tables)
 
 
 @njit(cache=True)
-def _run_pressure(
-    x, n0, n, head, h0, z0, rho, a1, a2, a3, b1, y_m, y_c, alpha, lam, s_fs, p_m, y,
-    y_prev, dp, level1, f1_re, f1_im, work1, level2, f2_re, f2_im, work2, fut, out_p, q_ext,
-):  # fmt: skip
-    """The scheme of :func:`_run` for a constant mouth pressure, pressure output only.
+def _tangent_tails(xt, n0, blk, line, line_t):
+    """:func:`_fdl_tail` of every tangent column j (``xt[j]``, spectra and work ``[j]``).
 
-    The lean kernel of the inversion, with a two-level (non-uniform) partition of the
-    reflection function: lags 1..B1-1 direct, lags B1..B2-1 by a frequency-domain delay
-    line of block B1 (``level1``), lags >= B2 by one of block B2 (``level2``); see
-    :class:`mpipe.reed.bore_kernel.LeanKernel`. Each level's history spectra ``f*_re,
-    f*_im`` come precomputed (:func:`history_spectra`; overwritten here) and the scratch
-    ``work*`` (shape ``(5, B + 1)``) and ``fut`` (the direct part's pending sums, at least
-    ``n + B1`` samples) are the caller's, so a run allocates nothing. ``q_ext`` (n
-    samples, Pa) is added to the history term: the share of p+ history that the caller
-    convolved itself (the inversion's, :mod:`mpipe.inversion.fastpath`), zeros otherwise.
+    ``line`` is the pressure's delay line (its level is shared), ``line_t`` the tangents'
+    (ft_re, ft_im, work), one row per column.
+    """
+    level = line[0]
+    ft_re, ft_im, wt = line_t
+    for j in range(xt.shape[0]):
+        _fdl_tail(xt[j], n0, blk, (level, ft_re[j], ft_im[j], wt[j]))
+
+
+@njit(inline="always")
+def _level_shape(line):
+    """(B, on, tail) of a delay line: its block, whether it has partitions, its output."""
+    blk = line[0][2][0].size
+    return blk, line[0][0].shape[0] > 0, line[3][4, :blk]
+
+
+@njit(inline="always")
+def _advance(r, c, blk):
+    """The next sample's position ``r`` in its block of ``blk`` and the block count ``c``."""
+    r += 1
+    if r == blk:
+        return 0, c + 1
+    return r, c
+
+
+@njit(cache=True)
+def run(x, n0, model, conv, state, pm, q_ext, out_p, full, tangent):
+    """Run the scheme for n = len(out_p) samples; x holds p+ with n0 samples of history.
+
+    Parameters (records: module docstring)
+    --------------------------------------
+    x : p+ buffer, Pa, ``n0 + n`` samples; the run writes ``x[n0:]``.
+    model, conv : the scheme's and the partition's records.
+    state : (y, y_prev, dp) at the start (m, m, Pa).
+    pm : mouth pressure per sample, Pa.
+    q_ext : None, or n samples (Pa) added to the history term.
+    out_p : the pressure, Pa (written).
+    full : None, or the arrays (u, u_f, u_r, y, h, p-) to fill as well.
+    tangent : None, or (d, dy, dy_prev, ddp, xt, fut_t, line1, line2, out_dp, q_ones, c_t):
+        the seed matrix d (rows :data:`mpipe.reed.sensitivity.SEED_ROWS`, one column per
+        parameter), the tangent state per column (updated in place), the tangent of p+
+        (``xt[j]``, history given), its pending direct sums, its delay lines ((f_re, f_im,
+        work) with one row per column, on ``conv``'s levels), the output d p / d theta_j,
+        and a history shift ``c_t[j] q_ones`` added to the tangent of the history term.
+
     Returns the final (y, y_prev, dp).
     """
+    reed, bore = model
+    head, fut, line1, line2 = conv
+    y, y_prev, dp = state
+    n = out_p.size
     _seed(fut, n, x, n0, head)
-    blk1 = level1[2].size
-    blk2 = level2[2].size
-    on1 = level1[0].shape[0] > 0
-    on2 = level2[0].shape[0] > 0
-    tail1 = work1[4, :blk1]
-    tail2 = work2[4, :blk2]
-    inv = 1.0 / (1.0 - h0)
-    bore = (z0, rho, inv, z0 * (1.0 + h0) * inv, 2.0 / rho)
-    reed = (a1, a2, a3, b1, y_m, y_c, alpha, alpha == 2.0, lam, s_fs)
-    r1 = 0
-    r2 = 0
-    c1 = 0
-    c2 = 0
+    blk1, on1, tail1 = _level_shape(line1)
+    blk2, on2, tail2 = _level_shape(line2)
+    # records unpacked once, outside the loop: an array taken from a tuple is a new
+    # reference, counted up and down (atomically) wherever it is taken
+    if full is not None:
+        out_u, out_uf, out_ur, out_y, out_h, out_pminus = full
+    if tangent is not None:
+        d, dy, dy_prev, ddp, xt, fut_t, lt1, lt2, out_dp, q_ones, c_t = tangent
+        wt1 = lt1[2]
+        wt2 = lt2[2]
+        for j in range(d.shape[1]):
+            _seed(fut_t[j], n, xt[j], n0, head)
+    r1 = r2 = c1 = c2 = 0  # position in, and number of, each level's current block
     for i in range(n):
-        m = n0 + i
         if on2 and r2 == 0:
-            _fdl_tail(x, n0, c2, level2, f2_re, f2_im, work2)
+            _fdl_tail(x, n0, c2, line2)
+            if tangent is not None:
+                _tangent_tails(xt, n0, c2, line2, lt2)
         if on1 and r1 == 0:
-            _fdl_tail(x, n0, c1, level1, f1_re, f1_im, work1)
+            _fdl_tail(x, n0, c1, line1)
+            if tangent is not None:
+                _tangent_tails(xt, n0, c1, line1, lt1)
         q = fut[i]
         if on1:
             q += tail1[r1]
         if on2:
             q += tail2[r2]
-        q += q_ext[i]
-        y_new, _, _, _, _, pp, p = _step(q, p_m, y, y_prev, dp, reed, bore)
-        x[m] = pp
+        if q_ext is not None:
+            q += q_ext[i]
+        p_m = pm[i]
+        y_new, hh, ur, uf, u, pp, p = _step(q, p_m, y, y_prev, dp, reed, bore)
+        x[n0 + i] = pp
         _spread(fut, i, pp, head)
         out_p[i] = p
+        if full is not None:
+            out_u[i] = u
+            out_uf[i] = uf
+            out_ur[i] = ur
+            out_y[i] = y_new
+            out_h[i] = hh
+            out_pminus[i] = pp - bore[0] * u
+        if tangent is not None:
+            step = (q, p_m, y, y_prev, dp, y_new, hh, ur, uf)
+            for j in range(d.shape[1]):
+                # the tangent of the history term, summed in the pressure's order
+                dq = fut_t[j, i]
+                if on1:
+                    dq += wt1[j, 4, r1]
+                if on2:
+                    dq += wt2[j, 4, r2]
+                dq += c_t[j] * q_ones[i]
+                tstate = (dy[j], dy_prev[j], ddp[j])
+                dy_new, dpp, dpo = _step_tangent(d, j, dq, tstate, step, reed, bore)
+                xt[j, n0 + i] = dpp
+                _spread(fut_t[j], i, dpp, head)
+                out_dp[j, i] = dpo
+                dy_prev[j] = dy[j]
+                dy[j] = dy_new
+                ddp[j] = d[7, j] - dpo
         y_prev = y
         y = y_new
         dp = p_m - p
-        r1 += 1
-        if r1 == blk1:
-            r1 = 0
-            c1 += 1
-        r2 += 1
-        if r2 == blk2:
-            r2 = 0
-            c2 += 1
+        r1, c1 = _advance(r1, c1, blk1)
+        r2, c2 = _advance(r2, c2, blk2)
     return y, y_prev, dp

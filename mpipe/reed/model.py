@@ -13,24 +13,30 @@ Per sample n -> n+1:
 5. ``u = u_f + u_r``, ``p+(n+1) = (q + Z0 u) / (1 - h_0)``, ``p- = p+ - Z0 u``,
    ``p = p+ + p-`` and ``dp(n+1) = p_m(n+1) - p``.
 
-Three interchangeable kernels compute step 3:
+Two implementations run it: one compiled kernel (:func:`mpipe.reed.kernels.run`), and a
+plain Python/NumPy loop written from the equations (:func:`mpipe.reed.scheme.run_reference`)
+that the tests compare it with. ``method`` picks how step 3 is computed:
 
 ``"fast"``
-    Exact partitioned convolution: lags 1..B-1 run as a direct dot product every sample;
-    lags >= B run blockwise in the frequency domain (uniformly partitioned overlap-save
-    with a frequency-domain delay line). That works because a block of B outputs only
-    needs p+ at least B samples old, which is all known when the block starts
-    (physics.md D.4). The FFT is a small radix-2 implementation compiled with numba.
+    Exact partitioned convolution: lags 1..B-1 run as a direct sum every sample; lags
+    >= B run blockwise in the frequency domain (uniformly partitioned overlap-save with a
+    frequency-domain delay line). That works because a block of B outputs only needs p+
+    at least B samples old, which is all known when the block starts (physics.md D.4).
+    The FFT is a small radix-2 implementation compiled with numba.
 ``"direct"``
-    The same compiled loop with every lag in the direct dot product.
+    The same compiled kernel with every lag in the direct sum.
 ``"numpy"``
-    A plain Python/NumPy loop written from the equations, kept as a slow reference.
+    The plain reference loop (slow; for tests on short runs).
+
+:func:`simulate_pressure` runs the same compiled kernel for the pressure only, with the
+two-level partition of the inversion (:func:`mpipe.reed.bore_kernel.prepare_lean`).
 
 Where it lives: this module holds the driver (:func:`simulate`, :func:`simulate_pressure`)
-and its result types; the compiled loops are in :mod:`mpipe.reed.kernels` (their FFT in
-:mod:`mpipe.reed.block_fft`), the bore's preparation in :mod:`mpipe.reed.bore_kernel`, the
-reed coefficients and the NumPy reference in :mod:`mpipe.reed.scheme`, and the playing
-frequency in :mod:`mpipe.reed.playing`.
+and its result types; the compiled kernel is in :mod:`mpipe.reed.kernels` (its FFT in
+:mod:`mpipe.reed.block_fft`), the bore's preparation and partitions in
+:mod:`mpipe.reed.bore_kernel`, the reed coefficients and the reference in
+:mod:`mpipe.reed.scheme`, the forward sensitivities in :mod:`mpipe.reed.sensitivity`, and
+the playing frequency in :mod:`mpipe.reed.playing`.
 
 Time axis: output sample ``i`` is the state at ``t[i] = (i + 1) / fs``; ``t = 0`` is the
 initial state (rest, or the end of a given history), which is not part of the output.
@@ -47,10 +53,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mpipe.reed.bore_kernel import BoreKernel, LeanKernel, prepare_lean
-from mpipe.reed.kernels import _run, _run_pressure
+from mpipe.reed.bore_kernel import BoreKernel, Partition, prepare_lean
+from mpipe.reed.kernels import run
 from mpipe.reed.parameters import ReedParameters, check_stability
-from mpipe.reed.scheme import _run_numpy, reed_coefficients
+from mpipe.reed.scheme import run_reference, scheme_records
 
 log = logging.getLogger(__name__)
 
@@ -300,9 +306,8 @@ def simulate(
     check_stability(reed, fs)
     pm = mouth_pressure_series(reed, n_samples, fs, mouth_pressure, onset_s, noise_std_pa, seed)
     n_taps = kernel.n_taps
-    n_part = kernel.n_partitions if method == "fast" else 0
-    # history long enough for the direct taps and for the FFT of the P oldest blocks
-    n0 = max(n_taps - 1, (n_part + 1) * kernel.head_taps if n_part else 0)
+    part = kernel.partition("direct" if method == "numpy" else method)
+    n0 = part.n0
     x = np.zeros(n0 + n_samples)
     if state is None:
         # from rest; dp(0) is the mouth pressure at t = 0, which an onset makes 0
@@ -310,11 +315,9 @@ def simulate(
     else:
         start = _load_history(x, n0, n_taps, state)
     if method == "numpy":
-        out, end = _run_numpy(
-            x, n0, n_samples, kernel.h, kernel.z0, kernel.rho, reed, fs, pm, *start
-        )
+        out, end = run_reference(x, n0, kernel.h, kernel.z0, kernel.rho, reed, fs, pm, start)
     else:
-        out, end = _run_compiled(x, n0, n_samples, kernel, n_part, reed, pm, start)
+        out, end = _run_full(x, part, kernel, reed, pm, start)
     if not np.isfinite(out["p"][-1]):
         # debug, not warning: an optimiser meets diverging candidates routinely
         log.debug("simulation diverged (non-finite pressure); check the reed parameters")
@@ -355,38 +358,15 @@ def _load_history(x: np.ndarray, n0: int, n_taps: int, state: ModelState) -> tup
     return float(state.y), float(state.y_prev), float(state.dp)
 
 
-def _run_compiled(
-    x: np.ndarray,
-    n0: int,
-    n_samples: int,
-    kernel: BoreKernel,
-    n_part: int,
-    reed: ReedParameters,
-    pm: np.ndarray,
-    start: tuple,
+def _run_full(
+    x: np.ndarray, part: Partition, kernel: BoreKernel, reed: ReedParameters, pm, start: tuple
 ) -> tuple[dict, tuple]:
-    """Every output of the compiled kernel :func:`mpipe.reed.kernels._run` and its end state.
-
-    With ``n_part`` = 0 every lag runs in the direct dot product ("direct", or a response
-    no longer than one block); otherwise lags >= B by the kernel's P FFT partitions.
-    """
-    h = kernel.h
-    b = kernel.head_taps
-    n_head = b - 1 if n_part else h.size - 1
-    a1, a2, a3, b1 = reed_coefficients(reed, kernel.fs)
-    head = np.ascontiguousarray(h[1 : n_head + 1])
-    g_re = kernel.tail_re if n_part else np.zeros((0, b + 1))
-    g_im = kernel.tail_im if n_part else np.zeros((0, b + 1))
-    for a in (head, g_re, g_im):
-        a.flags.writeable = False
-    out = {k: np.empty(n_samples) for k in ("p", "u", "u_f", "u_r", "y", "h", "p_minus")}
-    end = _run(
-        x, n0, n_samples, head, float(h[0]), kernel.z0, kernel.rho, a1, a2, a3, b1,
-        reed.y_m, reed.y_c, reed.alpha, reed.lam, reed.S * kernel.fs, pm, *start, b,
-        g_re, g_im, kernel.fft_bitrev, kernel.fft_tw_re, kernel.fft_tw_im,
-        kernel.rfft_w_re, kernel.rfft_w_im, out["p"], out["u"], out["u_f"], out["u_r"],
-        out["y"], out["h"], out["p_minus"],
-    )  # fmt: skip
+    """Every output of the compiled kernel :func:`mpipe.reed.kernels.run` and its end state."""
+    n = pm.size
+    model = scheme_records(reed, kernel.fs, part.h0, kernel.z0, kernel.rho)
+    out = {k: np.empty(n) for k in ("p", "u", "u_f", "u_r", "y", "h", "p_minus")}
+    full = tuple(out[k] for k in ("u", "u_f", "u_r", "y", "h", "p_minus"))
+    end = run(x, part.n0, model, part.conv(x, n), start, pm, None, out["p"], full, None)
     return out, end
 
 
@@ -396,13 +376,13 @@ def simulate_pressure(
     n_samples: int,
     *,
     state: ModelState | None = None,
-    lean: LeanKernel | None = None,
+    lean: Partition | None = None,
 ) -> np.ndarray:
     """Mouthpiece pressure of :func:`simulate` at constant mouth pressure, by the lean kernel.
 
     The same scheme as ``simulate(..., method="fast")`` with ``mouth_pressure = reed.p_m``
     and no onset, but only the pressure is computed and kept, and the reflection function
-    is split over two delay-line levels (:class:`LeanKernel`); this is the kernel the
+    is split over two delay-line levels (:func:`prepare_lean`); this is the kernel the
     inversion runs (:mod:`mpipe.inversion.fastpath`). Agrees with :func:`simulate` to
     rounding.
 
@@ -416,7 +396,7 @@ def simulate_pressure(
         Number of samples.
     state : ModelState, optional
         Start from this history instead of from rest.
-    lean : LeanKernel, optional
+    lean : Partition, optional
         The partition to use (default: :func:`prepare_lean` of ``kernel``).
 
     Returns
@@ -439,13 +419,7 @@ def simulate_pressure(
     else:
         y, y_prev, dp = _load_history(x, n0, kernel.n_taps, state)
     out = np.empty(n_samples)
-    f1_re, f1_im, f2_re, f2_im = lean.history_spectra(x)
-    a1, a2, a3, b1 = reed_coefficients(reed, kernel.fs)
-    _run_pressure(
-        x, n0, n_samples, lean.head, lean.h0, kernel.z0, kernel.rho, a1, a2, a3, b1,
-        reed.y_m, reed.y_c, reed.alpha, reed.lam, reed.S * kernel.fs, reed.p_m, y, y_prev,
-        dp, lean.level1, f1_re, f1_im, np.zeros((5, lean.block1 + 1)), lean.level2, f2_re,
-        f2_im, np.zeros((5, lean.block2 + 1)), np.empty(n_samples + lean.head.size), out,
-        np.zeros(n_samples),
-    )  # fmt: skip
+    model = scheme_records(reed, kernel.fs, lean.h0, kernel.z0, kernel.rho)
+    pm = np.full(n_samples, reed.p_m)
+    run(x, n0, model, lean.conv(x, n_samples), (y, y_prev, dp), pm, None, out, None, None)
     return out

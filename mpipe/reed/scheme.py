@@ -1,10 +1,11 @@
 """The explicit scheme of the paper's Appendix A written plainly: coefficients and reference.
 
 :func:`reed_coefficients` gives the coefficients of the centred-difference reed update
-that every kernel uses; :func:`_run_numpy` is the scheme as a plain Python/NumPy loop
-written directly from the equations (physics.md G.2-G.4, D.2 step 6), the slow reference
-of :func:`mpipe.reed.model.simulate` (``method="numpy"``) against which the compiled
-kernels (:mod:`mpipe.reed.kernels`) are tested.
+and :func:`scheme_records` the compiled kernel's records of them; :func:`run_reference` is
+the scheme as a plain Python/NumPy loop written directly from the equations (physics.md
+G.2-G.4, D.2 step 6): the slow reference of :func:`mpipe.reed.model.simulate`
+(``method="numpy"``) against which the one compiled kernel (:func:`mpipe.reed.kernels.run`)
+is tested (tests/reed/test_kernels.py).
 
 References
 ----------
@@ -49,8 +50,70 @@ def reed_coefficients(reed: ReedParameters, fs: float) -> tuple[float, float, fl
     return a1, a2, a3, b1
 
 
-def _run_numpy(x, n0, n, h, z0, rho, reed, fs, pm, y, y_prev, dp):
-    """Reference loop written directly from physics.md G.2-G.4 and D.2 step 6 (slow)."""
+def scheme_records(reed: ReedParameters, fs: float, h0: float, z0: float, rho: float) -> tuple:
+    """The ``model`` record of the compiled kernel (:func:`mpipe.reed.kernels.run`).
+
+    Parameters
+    ----------
+    reed : ReedParameters
+        Reed parameters.
+    fs : float
+        Sample rate, Hz.
+    h0 : float
+        Lag-0 tap of the reflection function (dimensionless).
+    z0 : float
+        Characteristic impedance of the entry, Pa s/m^3.
+    rho : float
+        Air density, kg/m^3.
+
+    Returns
+    -------
+    tuple
+        ``(reed_record, bore_record)``: (a1, a2, a3, b1, y_m, y_c, alpha, alpha == 2, lam,
+        S fs) and (Z0, rho, 1 / (1 - h0), Z0 (1 + h0) / (1 - h0), 2 / rho), SI units.
+    """
+    a1, a2, a3, b1 = reed_coefficients(reed, fs)
+    record = (a1, a2, a3, b1, reed.y_m, reed.y_c, reed.alpha, reed.alpha == 2.0, reed.lam)
+    inv = 1.0 / (1.0 - h0)
+    bore = (float(z0), float(rho), inv, z0 * (1.0 + h0) * inv, 2.0 / rho)
+    return (*record, reed.S * fs), bore
+
+
+def run_reference(x, n0, h, z0, rho, reed, fs, pm, start):
+    """The scheme as a plain Python/NumPy loop, from physics.md G.2-G.4 and D.2 step 6 (slow).
+
+    The reference of the compiled kernel (:func:`mpipe.reed.kernels.run`), written
+    independently of it: the history term as a dot product over every tap, the Bernoulli
+    flow by the two sign cases of the quadratic as derived.
+
+    Parameters
+    ----------
+    x : ndarray
+        p+ buffer, Pa: ``n0`` samples of history, then the run's (written).
+    n0 : int
+        History samples in ``x`` (at least ``len(h) - 1``).
+    h : ndarray
+        Reflection function, h[j] at a lag of j samples.
+    z0, rho : float
+        Characteristic impedance (Pa s/m^3) and air density (kg/m^3).
+    reed : ReedParameters
+        Reed parameters.
+    fs : float
+        Sample rate, Hz.
+    pm : ndarray
+        Mouth pressure per output sample, Pa; its length is the run's.
+    start : tuple
+        (y, y_prev, dp) at the start: m, m, Pa.
+
+    Returns
+    -------
+    out : dict
+        "p", "u", "u_f", "u_r", "y", "h", "p_minus" per sample (SI units).
+    end : tuple
+        The final (y, y_prev, dp).
+    """
+    y, y_prev, dp = start
+    n = pm.size
     a1, a2, a3, b1 = reed_coefficients(reed, fs)
     h0 = h[0]
     taps = h[1:][::-1].copy()  # lags N-1 .. 1

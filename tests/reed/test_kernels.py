@@ -1,4 +1,4 @@
-"""The compiled kernels against the plain NumPy reference loop of the scheme.
+"""The one compiled kernel, every variant, against the plain NumPy reference loop.
 
 Short runs on the shipped instrument (calibration/simplified_clarinet.yaml) with the
 paper's Table 1 reed, and a synthetic reflection function with a large lag-0 tap.
@@ -8,7 +8,8 @@ import numpy as np
 
 from mpipe.acoustics.reflection import ReflectionFunction
 from mpipe.reed.bore_kernel import prepare_bore
-from mpipe.reed.model import simulate
+from mpipe.reed.model import simulate, simulate_pressure
+from mpipe.reed.sensitivity import pressure_sensitivities
 
 
 def rel_diff(a, b):
@@ -49,3 +50,19 @@ def test_short_reflection_function_and_lag0_tap(setup):
     # p-(n) = sum_j h[j] p+(n - j), with p+ = 0 before the start
     conv = np.convolve(s.p_plus, h)[: s.p_plus.size]
     np.testing.assert_allclose(s.p_minus, conv, rtol=0, atol=1e-9 * np.abs(s.p).max())
+
+
+def test_pressure_only_and_tangent_variants_against_the_reference(setup):
+    # the one compiled kernel's other variants (pressure only on the two-level partition,
+    # and with the forward sensitivities) against the plain reference loop, from rest and
+    # from a history, at constant mouth pressure
+    _, _, reed, _, kernel = setup
+    ref = simulate(reed, kernel, 6000, method="numpy")
+    assert np.ptp(ref.p[-1000:]) > 1000  # it plays
+    cont = simulate(reed, kernel, 2000, method="numpy", state=ref.final_state)
+    for state, want in ((None, ref.p), (ref.final_state, cont.p)):
+        n = want.size
+        p = simulate_pressure(reed, kernel, n, state=state)
+        assert rel_diff(p, want) < 1e-9
+        p_t, _ = pressure_sensitivities(reed, kernel, n, ("k", "y_m"), state=state)
+        assert np.array_equal(p_t, p)
