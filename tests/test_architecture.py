@@ -148,3 +148,52 @@ def test_modules_and_functions_stay_readable():
                 long_functions.append(f"{path.relative_to(PACKAGE)}:{node.lineno} {node.name}")
     assert not long_modules, long_modules
     assert not long_functions, long_functions
+
+
+#: Functions that may take more than ten parameters (issue 23: long positional lists became
+#: records); each says why in a comment just above it containing "More than ten parameters".
+MAX_LONG_SIGNATURES = 3
+
+
+def _parameter_count(node: ast.FunctionDef) -> int:
+    a = node.args
+    n = len(a.posonlyargs) + len(a.args) + len(a.kwonlyargs)
+    n += (a.vararg is not None) + (a.kwarg is not None)
+    return n - bool(a.args and a.args[0].arg in ("self", "cls"))
+
+
+def _long_signatures(text: str):
+    """(line, name, parameters, explained) of each function with more than ten parameters."""
+    lines = text.splitlines()
+    for node in ast.walk(ast.parse(text)):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            n = _parameter_count(node)
+            if n > 10:
+                first = min([node.lineno] + [d.lineno for d in node.decorator_list])
+                above = lines[max(first - 4, 0) : first - 1]
+                why = any("More than ten parameters" in line for line in above)
+                yield node.lineno, node.name, n, why
+
+
+def test_few_functions_take_more_than_ten_parameters_and_each_says_why():
+    found = [
+        (f"{path.relative_to(PACKAGE)}:{line} {name} ({n})", why)
+        for path in sorted(PACKAGE.rglob("*.py"))
+        for line, name, n, why in _long_signatures(path.read_text())
+    ]
+    assert len(found) <= MAX_LONG_SIGNATURES, [f for f, _ in found]
+    assert all(why for _, why in found), [f for f, why in found if not why]
+
+
+def test_the_signature_check_counts_every_kind_of_parameter():
+    text = (
+        "def short(a, b, *, c=1):\n    pass\n\n\n"
+        "def f(a, b, c, d, /, e, f, g, *args, h, i, **kw):\n    pass\n\n\n"
+        "class C:\n"
+        "    # More than ten parameters: a test of the reason\n"
+        "    def m(self, a, b, c, d, e, f, g, h, i, j, k):\n        pass\n"
+    )
+    assert [(name, n, why) for _, name, n, why in _long_signatures(text)] == [
+        ("f", 11, False),
+        ("m", 11, True),
+    ]
