@@ -39,6 +39,7 @@ from mpipe.inversion.objective import ObjectiveSettings, TargetWindow
 from mpipe.reed.block_fft import _fft_tables, _irfft_last_half, _rfft
 from mpipe.reed.bore_kernel import BoreKernel, prepare_lean
 from mpipe.reed.kernels import run
+from mpipe.reed.opening import drive_reed
 from mpipe.reed.parameters import ReedParameters, check_stability
 from mpipe.reed.scheme import scheme_records
 
@@ -49,18 +50,10 @@ REASONS = {DIVERGED: "diverged", SILENT: "silent"}
 
 @njit(cache=True)
 def _lead_in(ylead, p_lead, cand):
-    """Reed lead-in driven by the measured pressure (history_start.reed_trajectory)."""
+    """Reed lead-in driven by the measured pressure (:func:`mpipe.reed.opening.drive_reed`)."""
     reed = cand[0][0]
-    a1, a2, a3, b1, y_c, alpha = reed[0], reed[1], reed[2], reed[3], reed[5], reed[6]
-    k, p_m = cand[1], cand[3]
-    n_lead = p_lead.size
-    y0 = (p_m - p_lead[0]) / k
-    ylead[0] = y0
-    ylead[1] = y0
-    for i in range(1, n_lead - 1):
-        c = ylead[i] - y_c
-        contact = c**alpha if c > 0.0 else 0.0
-        ylead[i + 1] = a1 * ylead[i] + a2 * ylead[i - 1] + b1 * (p_m - p_lead[i]) + a3 * contact
+    coefficients = (reed[0], reed[1], reed[2], reed[3])
+    drive_reed(ylead, p_lead, cand[3], cand[1], coefficients, (reed[5], reed[6]))
 
 
 @njit(cache=True)

@@ -2,9 +2,9 @@
 
 The ``"history"`` start of F2 (:mod:`mpipe.inversion.objective`) needs the reed's state at
 the window's first sample: the reed equation (G.2, contact included) is driven by the
-target's pressure difference over a short lead-in, started from the quasi-static estimate
-``y = dp/k``. A measured (zero-mean) flow history lacks its mean; it is estimated from the
-candidate's flow over the same lead-in.
+target's pressure over a short lead-in, started from the quasi-static estimate ``y = dp/k``
+(:func:`mpipe.reed.opening.reed_trajectory`). A measured (zero-mean) flow history lacks
+its mean; it is estimated from the candidate's flow over the same lead-in.
 
 References
 ----------
@@ -14,56 +14,6 @@ Chatziioannou & van Walstijn 2012, eqs. (9), (10) and (A.1); physics.md G.2, H, 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
-
-from mpipe.reed.parameters import ReedParameters
-from mpipe.reed.scheme import reed_coefficients
-
-
-@njit(cache=True)
-def _reed_lead_in(dp, a1, a2, a3, b1, y_c, alpha, y0):  # pragma: no cover - compiled
-    n = dp.size
-    y = np.empty(n)
-    y[0] = y0
-    y[1] = y0
-    for i in range(1, n - 1):
-        c = y[i] - y_c
-        contact = c**alpha if c > 0.0 else 0.0
-        y[i + 1] = a1 * y[i] + a2 * y[i - 1] + b1 * dp[i] + a3 * contact
-    return y
-
-
-def reed_trajectory(reed: ReedParameters, dp: np.ndarray, fs: float) -> np.ndarray:
-    """Reed displacement driven by a pressure-difference history.
-
-    Starts from the quasi-static estimate ``y = dp/k`` at the first sample and drives the
-    reed update (G.2, contact included) with ``dp``; the start error decays as
-    ``exp(-g t / 2)``.
-
-    Parameters
-    ----------
-    reed : ReedParameters
-        Candidate reed.
-    dp : ndarray
-        Pressure difference p_m - p over the lead-in, Pa (at least 2 samples).
-    fs : float
-        Sample rate, Hz.
-
-    Returns
-    -------
-    ndarray
-        Displacement at every sample of ``dp``, m.
-
-    References
-    ----------
-    Chatziioannou & van Walstijn 2012, eqs. (9) and (A.1); physics.md G.2, H.
-    """
-    dp = np.ascontiguousarray(dp, dtype=float)
-    y0 = float(dp[0]) / reed.k
-    if dp.size < 3:
-        return dp / reed.k
-    a1, a2, a3, b1 = reed_coefficients(reed, fs)
-    return _reed_lead_in(dp, a1, a2, a3, b1, reed.y_c, reed.alpha, y0)
 
 
 def pad_history(x: np.ndarray, n: int) -> np.ndarray:
@@ -87,4 +37,4 @@ def missing_mean_flow(reed, dp, y, u_meas, fs, rho) -> float:
     return float(np.mean((u_f + u_r - u_meas)[half:]))
 
 
-__all__ = ["missing_mean_flow", "pad_history", "reed_trajectory"]
+__all__ = ["missing_mean_flow", "pad_history"]

@@ -48,9 +48,10 @@ from mpipe.inversion.conditioning import (
     steady_state,
     synchronise,
 )
-from mpipe.inversion.history_start import missing_mean_flow, pad_history, reed_trajectory
+from mpipe.inversion.history_start import missing_mean_flow, pad_history
 from mpipe.reed.bore_kernel import BoreKernel
 from mpipe.reed.model import ModelState, simulate
+from mpipe.reed.opening import reed_trajectory
 from mpipe.reed.parameters import ReedParameters, check_stability
 
 StartMethod = Literal["history", "rest"]
@@ -247,7 +248,7 @@ def _run_from_history(
     p_hist = pad_history(target.p_history, max(n_taps, n_lead))
     u_hist = pad_history(target.u_history, max(n_taps, n_lead))
     dp_lead = reed.p_m - p_hist[-n_lead:]
-    y_lead = reed_trajectory(reed, dp_lead, fs)
+    y_lead = reed_trajectory(reed, p_hist[-n_lead:], fs)
     y, y_prev = float(y_lead[-1]), float(y_lead[-2])
     if filt:
         u_hist = u_hist + missing_mean_flow(reed, dp_lead, y_lead, u_hist[-n_lead:], fs, kernel.rho)

@@ -19,9 +19,66 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from mpipe.reed.parameters import ReedParameters
 from mpipe.reed.scheme import reed_coefficients
+
+
+@njit(cache=True)
+def drive_reed(y, p, p_m, k, coefficients, contact):
+    """Reed displacement y (m) driven by the pressure ``p`` (Pa), into ``y`` (len(p) >= 2).
+
+    The one compiled copy of the reed recursion on its own (the lead-in of the inversion's
+    history start, :mod:`mpipe.inversion.fastpath`, and :func:`reed_trajectory`):
+    ``y[0] = y[1] = (p_m - p[0]) / k`` (the reed at rest under the first pressure
+    difference), then ``y[i+1] = a1 y[i] + a2 y[i-1] + b1 (p_m - p[i]) + a3 max(y[i] - y_c,
+    0)^alpha``. ``coefficients`` is (a1, a2, a3, b1) of :func:`reed_coefficients`,
+    ``contact`` is (y_c, alpha).
+    """
+    a1, a2, a3, b1 = coefficients
+    y_c, alpha = contact
+    y0 = (p_m - p[0]) / k
+    y[0] = y0
+    y[1] = y0
+    for i in range(1, p.size - 1):
+        c = y[i] - y_c
+        force = c**alpha if c > 0.0 else 0.0
+        y[i + 1] = a1 * y[i] + a2 * y[i - 1] + b1 * (p_m - p[i]) + a3 * force
+
+
+def reed_trajectory(reed: ReedParameters, p: np.ndarray, fs: float) -> np.ndarray:
+    """Reed displacement (m) at every sample of the mouthpiece pressure ``p`` (Pa).
+
+    Starts from the quasi-static ``y = (p_m - p) / k`` at the first two samples and drives
+    the reed update (A.1, contact included) with ``dp = p_m - p``; the start error decays
+    as ``exp(-g t / 2)``. The inversion's history start drives it over a lead-in before the
+    window (physics.md H).
+
+    Parameters
+    ----------
+    reed : ReedParameters
+        Reed parameters (its ``p_m`` is the mouth pressure, Pa).
+    p : ndarray
+        Mouthpiece pressure, Pa.
+    fs : float
+        Sample rate, Hz.
+
+    Returns
+    -------
+    ndarray
+        Displacement at every sample of ``p``, m.
+
+    References
+    ----------
+    Chatziioannou & van Walstijn 2012, eqs. (9) and (A.1); physics.md G.2, H.
+    """
+    p = np.ascontiguousarray(p, dtype=float)
+    if p.size < 3:
+        return (reed.p_m - p) / reed.k
+    y = np.empty(p.size)
+    drive_reed(y, p, reed.p_m, reed.k, reed_coefficients(reed, fs), (reed.y_c, reed.alpha))
+    return y
 
 
 def reed_displacement(reed: ReedParameters, p: np.ndarray, fs: float) -> np.ndarray:
@@ -41,17 +98,11 @@ def reed_displacement(reed: ReedParameters, p: np.ndarray, fs: float) -> np.ndar
     ndarray
         y at each sample of ``p`` (sample i is the displacement after dp of sample i - 1).
     """
-    a1, a2, a3, b1 = reed_coefficients(reed, fs)
-    dp = reed.p_m - np.asarray(p, dtype=float)
-    y = np.empty(dp.size)
-    y_prev = y_cur = dp[0] / reed.k if dp.size else 0.0
-    y_c, alpha = reed.y_c, reed.alpha
-    for i in range(dp.size):
-        contact = a3 * (y_cur - y_c) ** alpha if y_cur > y_c else 0.0
-        y_new = a1 * y_cur + a2 * y_prev + b1 * dp[i - 1 if i else 0] + contact
-        y_prev, y_cur = y_cur, y_new
-        y[i] = y_new
-    return y
+    p = np.asarray(p, dtype=float)
+    if not p.size:
+        return np.empty(0)
+    # sample i follows dp of sample i - 1: the trajectory of [p0, p0, p] from its third sample
+    return reed_trajectory(reed, np.concatenate([p[:1], p[:1], p]), fs)[2:]
 
 
 def opening(
@@ -91,4 +142,4 @@ def opening_summary(h: np.ndarray) -> dict[str, float]:
             "closed_fraction": float(np.mean(h <= 0.0))}  # fmt: skip
 
 
-__all__ = ["opening", "opening_summary", "reed_displacement"]
+__all__ = ["drive_reed", "opening", "opening_summary", "reed_displacement", "reed_trajectory"]

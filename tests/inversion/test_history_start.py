@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 
 from mpipe.acoustics.reflection import reflection_function
-from mpipe.inversion.history_start import missing_mean_flow, pad_history, reed_trajectory
+from mpipe.inversion.history_start import missing_mean_flow, pad_history
 from mpipe.reed.bore_kernel import prepare_bore
 from mpipe.reed.model import simulate
+from mpipe.reed.opening import reed_trajectory
 from mpipe.reed.parameters import ReedParameters
 
 FS = 100_000.0
@@ -24,8 +25,7 @@ def take(shipped_calibration, shipped_air):
 
 def test_reed_lead_in_converges_to_the_model_reed(take):
     sim, _ = take
-    dp = TABLE1.p_m - sim.p[W0 - 1000 : W0]
-    y, y_prev = reed_trajectory(TABLE1, dp, FS)[-2:][::-1]
+    y, y_prev = reed_trajectory(TABLE1, sim.p[W0 - 1000 : W0], FS)[-2:][::-1]
     assert y == pytest.approx(sim.y[W0 - 1], rel=1e-4)
     assert y_prev == pytest.approx(sim.y[W0 - 2], rel=1e-4)
 
@@ -38,7 +38,7 @@ def test_pad_history_keeps_the_last_samples_and_pads_in_front():
 def test_missing_mean_flow_restores_the_mean_of_a_zero_mean_flow(take):
     sim, rho = take
     dp = TABLE1.p_m - sim.p[W0 - 2000 : W0]
-    y = reed_trajectory(TABLE1, dp, FS)
+    y = reed_trajectory(TABLE1, sim.p[W0 - 2000 : W0], FS)
     u = sim.u[W0 - 2000 : W0]
     lost = missing_mean_flow(TABLE1, dp, y, u - u.mean(), FS, rho)
     # with the true reed the candidate's flow is the model's own: the mean lost is exact
