@@ -34,6 +34,8 @@ from mpipe.core.config import (
 )
 from mpipe.inversion.settings import (
     PARAMETER_NAMES,
+    REMOVED_CHOICES,
+    REMOVED_KEYS,
     ConditioningConfig,
     ExecutorConfig,
     InversionConfig,
@@ -231,7 +233,25 @@ def settings_markdown() -> str:
             default = "(required)" if r.default is MISSING else f"`{yaml_scalar(r.default)}`"
             meaning = r.doc.replace("|", "\\|")
             lines.append(f"| `{key}` | {tier} | {r.unit or '–'} | {default} | {meaning} |")
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + _removed_markdown()) + "\n"
+
+
+def _removed_markdown() -> list[str]:
+    """The table of the keys and choices issue 23 removed, with what became of each."""
+    lines = ["", "## Removed settings", "", REMOVED_NOTE, "", "| key | what became of it |"]
+    lines.append("|---|---|")
+    lines += [f"| `inversion.{key}` | {why} |" for key, why in REMOVED_KEYS.items()]
+    for key, choices in REMOVED_CHOICES.items():
+        for choice, why in choices.items():
+            lines.append(f"| `inversion.{key}: {choice}` | removed; {why} |")
+    return lines
+
+
+REMOVED_NOTE = (
+    "Issue 23's clean-up (one model, one cold start, one search beside the paper's) removed "
+    "these keys and choices. A pipeline file written for an earlier mpipe that sets one "
+    "gets a one-line error saying what became of it: delete the key (or pick a kept choice)."
+)
 
 
 def load_pipeline(path: str | Path, check_calibration: bool = True) -> PipelineConfig:
