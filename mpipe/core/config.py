@@ -71,7 +71,7 @@ def spec(unit: str = "", doc: str = "", check: Callable[[Any], str | None] | Non
     unit : str
         SI unit of the value ("" for dimensionless or non-numeric).
     doc : str
-        One-line meaning, shown by ``mpipe config-keys``-style documentation.
+        One-line meaning, shown by ``mpipe config`` and docs/settings.md.
     check : callable, optional
         ``check(value) -> message | None``.
     **kwargs
