@@ -171,12 +171,16 @@ def pipeline_yaml(
         YAML that :func:`load_pipeline` reads back into an equal configuration.
     """
     if cfg is None:
-        cfg = PipelineConfig(calibration=calibration or "CALIBRATION.yaml")
+        cfg = PipelineConfig(calibration=calibration or CALIBRATION_PLACEHOLDER)
     elif calibration is not None:
         cfg = replace(cfg, calibration=calibration)
     show = None if every else (lambda key, changed: changed or is_user_setting(key))
     body = to_commented_yaml(cfg, skip=("source",), show=show)
     return PIPELINE_HEADER + _TIER_NOTE["all" if every else "user"] + body
+
+
+#: What ``mpipe config`` writes for ``calibration`` when it is given none.
+CALIBRATION_PLACEHOLDER = "CALIBRATION.yaml"
 
 
 SETTINGS_PAGE_HEADER = """\
@@ -295,6 +299,12 @@ def load_pipeline(path: str | Path, check_calibration: bool = True) -> PipelineC
     cfg = build(PipelineConfig, data, Where(str(path)))
     # one low-pass for both sides: the model's is the translation's
     cfg = replace(cfg, inversion=replace(cfg.inversion, lowpass=ModelLowPass.of(cfg.translation)))
+    if check_calibration and cfg.calibration == CALIBRATION_PLACEHOLDER:
+        raise ConfigError(
+            f"{path}: calibration: still the placeholder {CALIBRATION_PLACEHOLDER} that `mpipe "
+            "config` writes: set it to your calibration file (relative to this file), or give "
+            "`--calibration FILE` to mpipe run"
+        )
     if check_calibration and not cfg.calibration_path.is_file():
         raise ConfigError(f"{path}: calibration: no such file {cfg.calibration_path}")
     _check_window(cfg, path)
