@@ -57,3 +57,19 @@ def test_no_page_offers_a_removed_setting():
         text = page.read_text().partition("\n## Removed settings\n")[0]
         hits = [m.group(0) for m in found.finditer(text)]
         assert not hits, f"{page.name} offers removed settings: {hits}"
+
+
+def _anchors(page: Path) -> set[str]:
+    # GitHub's heading anchors: lower case, punctuation dropped, spaces as hyphens
+    text = re.sub(r"```.*?```", "", page.read_text(), flags=re.S)
+    titles = re.findall(r"^#+\s+(.+?)\s*$", text, flags=re.M)
+    return {re.sub(r"[^\w\- ]", "", t.lower()).replace(" ", "-") for t in titles}
+
+
+def test_link_anchors_name_a_heading_of_their_page():
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+    for page in pages:
+        for target, anchor in re.findall(r"\]\(([^)#\s]*)#([^)\s]+)\)", page.read_text()):
+            path = (page.parent / target).resolve() if target else page
+            if path.suffix == ".md" and path.exists():
+                assert anchor in _anchors(path), f"{page.name}: {target}#{anchor}: no such heading"
