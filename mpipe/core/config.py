@@ -148,9 +148,16 @@ def build(cls: type, data: Any, where: Where):
     unknown = [k for k in data if k not in fields]
     removed = getattr(cls, "removed_keys", {})
     gone = [k for k in unknown if k in removed]
-    if gone:
+    if len(gone) == 1:
         why = removed[gone[0]]
         raise where.error(str(gone[0]), f"removed in issue 23's clean-up: {why}; delete this key")
+    if gone:
+        # an earlier mpipe's full pipeline file holds several: name them all at once
+        raise where.error(
+            None,
+            f"{', '.join(map(str, gone))}: removed in issue 23's clean-up; delete these keys "
+            "(what became of each: docs/settings.md, Removed settings)",
+        )
     if unknown:
         keys = sorted(n for n, f in fields.items() if not f.metadata.get("derived"))
         close = difflib.get_close_matches(str(unknown[0]), keys, n=1)

@@ -229,6 +229,17 @@ def test_a_removed_key_says_it_was_removed_and_what_replaces_it(tmp_path, text, 
     assert "\n" not in message and says in message and "unknown key" not in message
 
 
+def test_several_removed_keys_are_named_in_one_line(tmp_path):
+    # an earlier mpipe's shipped file wrote every key out: all removed ones at once, so the
+    # user does not meet them one run at a time
+    text = "calibration: cal.yaml\ninversion: {lam: 0.013, fast_objective: true, start: history}\n"
+    with pytest.raises(ConfigError) as info:
+        load_pipeline(write(tmp_path, text))
+    message = str(info.value)
+    assert "\n" not in message and "inversion: fast_objective, start: removed" in message
+    assert "docs/settings.md" in message
+
+
 @pytest.mark.parametrize("choice", ["powell", "nelder-mead"])
 def test_a_removed_optimiser_says_what_to_use(tmp_path, choice):
     with pytest.raises(ConfigError, match=rf"inversion\.optimiser: '{choice}' was removed.*"
