@@ -47,6 +47,8 @@ _API = {
     "take_temperature": "mpipe.inversion.kernel",
     "step1": "mpipe.inversion.step1",
     "track": "mpipe.inversion.tracking",
+    "WindowPlan": "mpipe.inversion.tracking",
+    "RunOptions": "mpipe.inversion.tracking",
     "invert_take": "mpipe.inversion.take",
     "fit_temperature": "mpipe.inversion.temperature",
     "resynthesise": "mpipe.inversion.resynthesis",

@@ -37,3 +37,39 @@ def test_relative_links_resolve_inside_the_repository():
             path = (page.parent / target).resolve()
             assert path.is_relative_to(ROOT), f"{page.name}: {target} leaves the repository"
             assert path.exists(), f"{page.name}: {target} does not exist"
+
+
+def test_no_page_offers_a_removed_setting():
+    # the keys and choices issue 23 removed are named only in settings.md's table of
+    # removed settings (what became of each); a page or the shipped pipeline file that
+    # offers one sends a user into a one-line error
+    from mpipe.inversion.settings import REMOVED_CHOICES, REMOVED_KEYS
+
+    patterns = []
+    for key in REMOVED_KEYS:
+        # a plain word (start, jacobian) counts only as a YAML key: line start, ` { or ,
+        distinct = rf"\b{key}\b" if "_" in key else rf"(?m:^\s*|[`{{,]\s*){key}:"
+        patterns.append(rf"inversion\.{key}\b|{distinct}")
+    patterns += [rf"{key}: ['\"]?{c}\b" for key, cs in REMOVED_CHOICES.items() for c in cs]
+    found = re.compile("|".join(patterns))
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+    for page in [*pages, *sorted((ROOT / "pipelines").glob("*.yaml"))]:
+        text = page.read_text().partition("\n## Removed settings\n")[0]
+        hits = [m.group(0) for m in found.finditer(text)]
+        assert not hits, f"{page.name} offers removed settings: {hits}"
+
+
+def _anchors(page: Path) -> set[str]:
+    # GitHub's heading anchors: lower case, punctuation dropped, spaces as hyphens
+    text = re.sub(r"```.*?```", "", page.read_text(), flags=re.S)
+    titles = re.findall(r"^#+\s+(.+?)\s*$", text, flags=re.M)
+    return {re.sub(r"[^\w\- ]", "", t.lower()).replace(" ", "-") for t in titles}
+
+
+def test_link_anchors_name_a_heading_of_their_page():
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+    for page in pages:
+        for target, anchor in re.findall(r"\]\(([^)#\s]*)#([^)\s]+)\)", page.read_text()):
+            path = (page.parent / target).resolve() if target else page
+            if path.suffix == ".md" and path.exists():
+                assert anchor in _anchors(path), f"{page.name}: {target}#{anchor}: no such heading"

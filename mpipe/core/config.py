@@ -4,8 +4,11 @@ A configuration class is a frozen dataclass whose fields carry their unit, meani
 check in ``dataclasses.field(metadata=...)``: keys ``unit``, ``doc`` and ``check``
 (a callable returning an error message or ``None``). :func:`build` walks the YAML mapping
 against the type hints, and every problem becomes a :class:`ConfigError` naming the file,
-the key path and what was expected. A class may define ``_check(self, where)`` for checks
-across fields; it raises through ``where.error(key, message)``.
+the key path and what was expected. A class may name keys and choices it no longer has in
+``removed_keys`` (key -> what became of it) and ``removed_choices`` (key -> {choice -> what
+to use}); such a key gets that message instead of "unknown key". A class may define
+``_check(self, where)`` for checks across fields; it raises through
+``where.error(key, message)``.
 
 Supported field types: ``float``, ``int``, ``str``, ``bool``, ``X | None``, ``Literal``,
 nested configuration dataclasses and ``tuple[X, ...]`` of any of these.
@@ -68,7 +71,7 @@ def spec(unit: str = "", doc: str = "", check: Callable[[Any], str | None] | Non
     unit : str
         SI unit of the value ("" for dimensionless or non-numeric).
     doc : str
-        One-line meaning, shown by ``mpipe config-keys``-style documentation.
+        One-line meaning, shown by ``mpipe config`` and docs/settings.md.
     check : callable, optional
         ``check(value) -> message | None``.
     **kwargs
@@ -143,6 +146,18 @@ def build(cls: type, data: Any, where: Where):
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     unknown = [k for k in data if k not in fields]
+    removed = getattr(cls, "removed_keys", {})
+    gone = [k for k in unknown if k in removed]
+    if len(gone) == 1:
+        why = removed[gone[0]]
+        raise where.error(str(gone[0]), f"removed in issue 23's clean-up: {why}; delete this key")
+    if gone:
+        # an earlier mpipe's full pipeline file holds several: name them all at once
+        raise where.error(
+            None,
+            f"{', '.join(map(str, gone))}: removed in issue 23's clean-up; delete these keys "
+            "(what became of each: docs/settings.md, Removed settings)",
+        )
     if unknown:
         keys = sorted(n for n, f in fields.items() if not f.metadata.get("derived"))
         close = difflib.get_close_matches(str(unknown[0]), keys, n=1)
@@ -155,6 +170,10 @@ def build(cls: type, data: Any, where: Where):
                 raise where.error(name, "missing required key")
             continue
         child = where.child(name)
+        retired = getattr(cls, "removed_choices", {}).get(name, {})
+        if isinstance(data[name], str) and data[name] in retired:
+            why = retired[data[name]]
+            raise child.error(None, f"{data[name]!r} was removed in issue 23's clean-up: {why}")
         value = _convert(hints[name], data[name], child)
         check = f.metadata.get("check")
         if check is not None and value is not None:

@@ -3,8 +3,7 @@
 With the reed's mass and damping neglected and no contact, y = dp/k and the mouthpiece flow
 is linear in three coefficients (c1 = -lambda/k, c2 = lambda y_m, c3 = -S/k), fitted
 exactly by linear least squares on the closing (dp/dt < 0) and opening (dp/dt > 0)
-branches separately (:mod:`mpipe.inversion.flow_fit`); the paper's Nelder-Mead is kept for
-comparison.
+branches separately (:mod:`mpipe.inversion.flow_fit`); the paper searched it by Nelder-Mead.
 
 The mouth pressure p_m is either given, taken as max p over the window (the paper's choice),
 or estimated: for a fixed p_m each branch's F1 is an exact linear least-squares problem, so

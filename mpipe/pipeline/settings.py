@@ -34,6 +34,8 @@ from mpipe.core.config import (
 )
 from mpipe.inversion.settings import (
     PARAMETER_NAMES,
+    REMOVED_CHOICES,
+    REMOVED_KEYS,
     ConditioningConfig,
     ExecutorConfig,
     InversionConfig,
@@ -169,12 +171,16 @@ def pipeline_yaml(
         YAML that :func:`load_pipeline` reads back into an equal configuration.
     """
     if cfg is None:
-        cfg = PipelineConfig(calibration=calibration or "CALIBRATION.yaml")
+        cfg = PipelineConfig(calibration=calibration or CALIBRATION_PLACEHOLDER)
     elif calibration is not None:
         cfg = replace(cfg, calibration=calibration)
     show = None if every else (lambda key, changed: changed or is_user_setting(key))
     body = to_commented_yaml(cfg, skip=("source",), show=show)
     return PIPELINE_HEADER + _TIER_NOTE["all" if every else "user"] + body
+
+
+#: What ``mpipe config`` writes for ``calibration`` when it is given none.
+CALIBRATION_PLACEHOLDER = "CALIBRATION.yaml"
 
 
 SETTINGS_PAGE_HEADER = """\
@@ -231,7 +237,25 @@ def settings_markdown() -> str:
             default = "(required)" if r.default is MISSING else f"`{yaml_scalar(r.default)}`"
             meaning = r.doc.replace("|", "\\|")
             lines.append(f"| `{key}` | {tier} | {r.unit or '–'} | {default} | {meaning} |")
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + _removed_markdown()) + "\n"
+
+
+def _removed_markdown() -> list[str]:
+    """The table of the keys and choices issue 23 removed, with what became of each."""
+    lines = ["", "## Removed settings", "", REMOVED_NOTE, "", "| key | what became of it |"]
+    lines.append("|---|---|")
+    lines += [f"| `inversion.{key}` | {why} |" for key, why in REMOVED_KEYS.items()]
+    for key, choices in REMOVED_CHOICES.items():
+        for choice, why in choices.items():
+            lines.append(f"| `inversion.{key}: {choice}` | removed; {why} |")
+    return lines
+
+
+REMOVED_NOTE = (
+    "Issue 23's clean-up (one model, one cold start, one search beside the paper's) removed "
+    "these keys and choices. A pipeline file written for an earlier mpipe that sets one "
+    "gets a one-line error saying what became of it: delete the key (or pick a kept choice)."
+)
 
 
 def load_pipeline(path: str | Path, check_calibration: bool = True) -> PipelineConfig:
@@ -275,6 +299,12 @@ def load_pipeline(path: str | Path, check_calibration: bool = True) -> PipelineC
     cfg = build(PipelineConfig, data, Where(str(path)))
     # one low-pass for both sides: the model's is the translation's
     cfg = replace(cfg, inversion=replace(cfg.inversion, lowpass=ModelLowPass.of(cfg.translation)))
+    if check_calibration and cfg.calibration == CALIBRATION_PLACEHOLDER:
+        raise ConfigError(
+            f"{path}: calibration: still the placeholder {CALIBRATION_PLACEHOLDER} that `mpipe "
+            "config` writes: set it to your calibration file (relative to this file), or give "
+            "`--calibration FILE` to mpipe run"
+        )
     if check_calibration and not cfg.calibration_path.is_file():
         raise ConfigError(f"{path}: calibration: no such file {cfg.calibration_path}")
     _check_window(cfg, path)

@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from mpipe.core.config import ConfigError
-from mpipe.inversion.settings import PARAMETER_NAMES
+from mpipe.inversion.settings import PARAMETER_NAMES, REMOVED_KEYS
 from mpipe.pipeline.settings import load_pipeline
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -205,6 +205,50 @@ def test_an_unknown_key_is_a_one_line_error(tmp_path, text):
     assert "design_points" in message or "smooth_s" in message or "y_m" in message
 
 
+@pytest.mark.parametrize(
+    ("text", "says"),
+    [
+        ("fast_objective: false", "compiled model"),
+        ("warm_secant: false", "secant trust region"),
+        ("jacobian: differences", "forward sensitivities"),
+        ("cold_start: step1", "global"),
+        ("start: rest", "measured history"),
+        ("settle_s: 0.25", "lead_s"),
+        ("step1_solver: nelder-mead", "linear least squares"),
+        ("step1_every_window: true", "cold-started windows"),
+    ],
+)
+def test_a_removed_key_says_it_was_removed_and_what_replaces_it(tmp_path, text, says):
+    # a pipeline file written for mpipe before issue 23 (an upgrading user's) gets one line
+    # naming the key as removed, not an "unknown key" with a list of 40 others
+    with pytest.raises(ConfigError) as info:
+        load_pipeline(write(tmp_path, f"calibration: cal.yaml\ninversion: {{{text}}}\n"))
+    message = str(info.value)
+    key = text.partition(":")[0]
+    assert message.startswith(f"{tmp_path / 'pipe.yaml'}: inversion.{key}: removed in issue 23")
+    assert "\n" not in message and says in message and "unknown key" not in message
+
+
+def test_several_removed_keys_are_named_in_one_line(tmp_path):
+    # an earlier mpipe's shipped file wrote every key out: all removed ones at once, so the
+    # user does not meet them one run at a time
+    text = "calibration: cal.yaml\ninversion: {lam: 0.013, fast_objective: true, start: history}\n"
+    with pytest.raises(ConfigError) as info:
+        load_pipeline(write(tmp_path, text))
+    message = str(info.value)
+    assert "\n" not in message and "inversion: fast_objective, start: removed" in message
+    assert "docs/settings.md" in message
+
+
+@pytest.mark.parametrize("choice", ["powell", "nelder-mead"])
+def test_a_removed_optimiser_says_what_to_use(tmp_path, choice):
+    with pytest.raises(ConfigError, match=rf"inversion\.optimiser: '{choice}' was removed.*"
+                       "trust-region.*rosenbrock"):  # fmt: skip
+        load_pipeline(
+            write(tmp_path, f"calibration: cal.yaml\ninversion: {{optimiser: {choice}}}\n")
+        )
+
+
 def test_the_settings_page_is_in_sync():
     # docs/settings.md is generated from the settings' specs: regenerate and compare
     from mpipe.pipeline.settings import settings_markdown
@@ -221,7 +265,10 @@ def test_the_settings_page_documents_every_key_with_its_tier():
     from mpipe.pipeline.settings import PipelineConfig, is_user_setting, settings_markdown
 
     rows, section = {}, ""
-    for line in settings_markdown().splitlines():
+    page, _, removed = settings_markdown().partition("\n## Removed settings\n")
+    # the removed keys have their own table, each with what became of it
+    assert all(f"| `inversion.{key}` |" in removed for key in REMOVED_KEYS)
+    for line in page.splitlines():
         if line.startswith("## "):
             section = line.split("`")[1] + "." if "`" in line else ""
         elif line.startswith("| `"):
@@ -269,14 +316,14 @@ def test_a_calibration_given_as_the_pipeline_and_back_is_named(tmp_path):
 
 def test_the_config_placeholder_does_not_block_a_given_calibration(tmp_path, capsys):
     # Issue 19: `mpipe config > my.yaml` writes calibration: CALIBRATION.yaml; a command
-    # given its own calibration (mpipe run --calibration) accepts the file, the others name
-    # the missing calibration
+    # given its own calibration (mpipe run --calibration) accepts the file, the others say
+    # to set it
     from mpipe.cli.main import main
     from mpipe.core.config import ConfigError
     from mpipe.pipeline.settings import load_pipeline
 
     assert main(["config", "-o", str(tmp_path / "my.yaml")]) == 0
-    with pytest.raises(ConfigError, match="calibration: no such file .*CALIBRATION.yaml"):
+    with pytest.raises(ConfigError, match="calibration: still the placeholder CALIBRATION.yaml"):
         load_pipeline(tmp_path / "my.yaml")
     assert load_pipeline(tmp_path / "my.yaml", check_calibration=False).calibration
     cal = Path(__file__).resolve().parents[2] / "calibration" / "simplified_clarinet.yaml"

@@ -72,7 +72,13 @@ def add_parser(sub) -> None:
         "--noise", type=float, default=0.0, metavar="PA", help="breath noise std. dev., Pa (0)"
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the breath noise (0)")
-    p.add_argument("--method", choices=METHODS, default="fast", help="convolution kernel (fast)")
+    p.add_argument(
+        "--method",
+        choices=METHODS,
+        default="fast",
+        help="how the bore's reflection function is convolved: fast (partitioned FFT), direct "
+        "(compiled, the same numbers) or numpy (the plain reference, slow) (default: fast)",
+    )
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
     add_fingering_option(p)
     p.set_defaults(func=run)
