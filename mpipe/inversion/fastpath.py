@@ -36,7 +36,7 @@ from numba import njit
 
 from mpipe.inversion.history_start import pad_history
 from mpipe.inversion.objective import ObjectiveSettings, TargetWindow
-from mpipe.reed.block_fft import _fft_tables, _irfft_last_half, _rfft
+from mpipe.reed.block_fft import fft_tables, irfft_last_half, rfft_block
 from mpipe.reed.bore_kernel import BoreKernel, prepare_lean
 from mpipe.reed.kernels import run
 from mpipe.reed.opening import drive_reed
@@ -195,13 +195,13 @@ def _lowpass(out, n, p_mod, p_ctx, lp):
     half = fir_work[4, :m]
     i0 = 0
     while i0 < n:
-        _rfft(buf, i0 + n_taps_fir, acc_re, acc_im, zr, zi, tables)
+        rfft_block(buf, i0 + n_taps_fir, acc_re, acc_im, zr, zi, tables)
         for j in range(m + 1):
             ar = acc_re[j]
             ai = acc_im[j]
             acc_re[j] = ar * h_re[j] - ai * h_im[j]
             acc_im[j] = ar * h_im[j] + ai * h_re[j]
-        _irfft_last_half(acc_re, acc_im, half, zr, zi, tables)
+        irfft_last_half(acc_re, acc_im, half, zr, zi, tables)
         for j in range(min(m, n - i0)):
             out[i0 + j] = half[j]
         i0 += m
@@ -423,7 +423,7 @@ def _lowpass_record(lp, n: int, n_pad: int) -> tuple:
     """:func:`_lowpass`'s record for the measurement's FIR ``lp`` (None: a dummy)."""
     if lp is None:
         return (
-            (np.zeros(1), np.zeros(1), _fft_tables(4, real_nyquist=True)),
+            (np.zeros(1), np.zeros(1), fft_tables(4, real_nyquist=True)),
             np.zeros((5, 5)),
             np.zeros(1),
             0,
@@ -432,7 +432,7 @@ def _lowpass_record(lp, n: int, n_pad: int) -> tuple:
     # segments of 2M samples give M outputs each once the L taps fit: L - 1 <= M
     m = max(256, 1 << int(math.ceil(math.log2(max(taps.size - 1, 1)))))
     spec = np.fft.rfft(taps, 2 * m)
-    fir = (spec.real.copy(), spec.imag.copy(), _fft_tables(m, real_nyquist=True))
+    fir = (spec.real.copy(), spec.imag.copy(), fft_tables(m, real_nyquist=True))
     # zero prefix of M, the input, and enough zeros for the last segment
     n_blocks = -(-n // m)
     buf = np.zeros(max((n_blocks - 1) * m + taps.size + 2 * m, m + n + 2 * n_pad))

@@ -35,7 +35,7 @@ DIFF_STEP = 1e-4
 
 
 @njit(cache=True)
-def _normal_equations(jac, r):  # pragma: no cover - compiled
+def normal_equations(jac, r):  # pragma: no cover - compiled
     # J^T J and J^T r without BLAS: on a shared machine a threaded BLAS call on a
     # (2000, 8) matrix stalls for tens of ms; these loops take microseconds.
     m, n = jac.shape
@@ -55,7 +55,7 @@ def _normal_equations(jac, r):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _broyden_update(jac, dr, dz):  # pragma: no cover - compiled
+def broyden_update(jac, dr, dz):  # pragma: no cover - compiled
     # Broyden's rank-one update: J += (dr - J dz) dz^T / (dz . dz), in place
     m, n = jac.shape
     dd = 0.0
@@ -160,7 +160,7 @@ def secant_levenberg_marquardt(
         gain = (cost - cost_new) / predicted if predicted > 0 else -1.0
         if math.isfinite(cost_new):
             # the secant pair is valid information whether or not the step is taken
-            _broyden_update(jac, r_new - r, dz)
+            broyden_update(jac, r_new - r, dz)
             fresh = False
         if gain > 0:
             z, r, cost = z_new, r_new, cost_new
@@ -229,7 +229,7 @@ def _damped_step(jac, r, z, mu, z_lo, z_hi) -> tuple[np.ndarray, np.ndarray, flo
     Returns the new point, the step taken and the fall of the sum of squares that the
     linear model predicts for it.
     """
-    a, g = _normal_equations(jac, r)
+    a, g = normal_equations(jac, r)
     diag = np.maximum(np.diag(a), 1e-12 * max(float(np.max(np.diag(a))), 1e-300))
     step = np.linalg.solve(a + mu * np.diag(diag), -g)
     z_new = np.clip(z + step, z_lo, z_hi)

@@ -102,7 +102,7 @@ def load_compiled() -> None:
     import types
 
     from mpipe.core.filters import design_lowpass
-    from mpipe.inversion.least_squares import _broyden_update, _normal_equations
+    from mpipe.inversion.least_squares import broyden_update, normal_equations
     from mpipe.inversion.objective import ObjectiveSettings, TargetWindow
     from mpipe.reed.bore_kernel import prepare_bore
 
@@ -124,5 +124,5 @@ def load_compiled() -> None:
     r, jac = np.empty(400), np.empty((400, len(names)))
     ev.residuals_into(reed, r)
     SensitivityEvaluator(ev, names, False).jacobian_into(reed, r, jac)
-    _normal_equations(jac, r)
-    _broyden_update(jac.copy(), r, np.ones(len(names)))
+    normal_equations(jac, r)
+    broyden_update(jac.copy(), r, np.ones(len(names)))

@@ -28,7 +28,13 @@ from pathlib import Path
 
 from mpipe.core.errors import UserError
 from mpipe.inversion.settings import ExecutorConfig
-from mpipe.pipeline.orchestration import TakeRun, ValidationFailed, run_take, take_name
+from mpipe.pipeline.orchestration import (
+    TakeRun,
+    ValidationFailed,
+    run_take,
+    run_take_unlocked,
+    take_name,
+)
 from mpipe.pipeline.settings import PipelineConfig
 
 #: Errors that end one take of a batch (reported per take; the other takes go on).
@@ -103,15 +109,13 @@ def run_takes(
 
 def _take_task(take, cfg, cal_path, out, force, accept_failed_validation):
     """One take on a worker (the caller holds its folder lock); its lines are returned."""
-    from mpipe.pipeline.orchestration import _run_take
-
     take_paths, name = take
     lines: list[str] = []
     t0 = time.perf_counter()
     # no bars from the workers: the batch's one progress view is the caller's
     with contextlib.redirect_stderr(_NotATerminal(sys.stderr)):
         try:
-            result = _run_take(
+            result = run_take_unlocked(
                 cfg, cal_path, take_paths, out, force, None, lines.append,
                 accept_failed_validation, name,
             )  # fmt: skip

@@ -343,8 +343,8 @@ def run_take(
 ) -> TakeRun:
     """Run every stage on one take, holding the lock of its output folder ``out/<take>``.
 
-    The arguments and result are those of :func:`_run_take`; ``name`` is the take's folder
-    (default :func:`take_name`). Raises
+    The arguments and result are those of :func:`run_take_unlocked`; ``name`` is the take's
+    folder (default :func:`take_name`). Raises
     :class:`mpipe.core.errors.UserError` at once when the folder is not writable or another run
     holds it: two runs on one folder would mix their results.
     """
@@ -352,12 +352,12 @@ def run_take(
 
     name = name or take_name([Path(p) for p in take_paths])
     with folder_lock(Path(out) / name):
-        return _run_take(
+        return run_take_unlocked(
             cfg, cal_path, take_paths, out, force, client, say, accept_failed_validation, name
         )
 
 
-def _run_take(
+def run_take_unlocked(
     cfg: PipelineConfig,
     cal_path: Path,
     take_paths: Sequence[str | Path],
@@ -368,7 +368,7 @@ def _run_take(
     accept_failed_validation: bool = False,
     name: str | None = None,
 ) -> TakeRun:
-    """Run every stage on one take.
+    """Run every stage on one take (the caller holds the lock of its output folder).
 
     Parameters
     ----------

@@ -3,7 +3,7 @@
 The model's kernel (:mod:`mpipe.reed.kernels`) transforms one block of the forward wave p+
 per B samples and inverts one accumulated spectrum per delay-line level; these routines
 do that in place, without allocation, on blocks of a power-of-two length.
-:func:`_fft_tables` builds the bit reversal and twiddle tables (``tables``) they read.
+:func:`fft_tables` builds the bit reversal and twiddle tables (``tables``) they read.
 
 References
 ----------
@@ -18,12 +18,12 @@ import numpy as np
 from numba import njit
 
 
-def _fft_tables(b: int, real_nyquist: bool = False) -> tuple[np.ndarray, ...]:
+def fft_tables(b: int, real_nyquist: bool = False) -> tuple[np.ndarray, ...]:
     """Bit reversal, FFT twiddles and real-FFT twiddles for blocks of B samples.
 
-    Returns ``(bitrev, tw_re, tw_im, w_re, w_im)``, the ``tables`` of :func:`_rfft` and
-    :func:`_irfft_last_half`. With ``real_nyquist`` the last real-FFT twiddle's imaginary
-    part, sin(-pi) ~ -1.2e-16 in floating point, is set to 0: :func:`_rfft` then gives
+    Returns ``(bitrev, tw_re, tw_im, w_re, w_im)``, the ``tables`` of :func:`rfft_block` and
+    :func:`irfft_last_half`. With ``real_nyquist`` the last real-FFT twiddle's imaginary
+    part, sin(-pi) ~ -1.2e-16 in floating point, is set to 0: :func:`rfft_block` then gives
     bin M the exactly real value of a real sequence's Nyquist bin (the lean levels' and
     the low-pass's convention; the uniform kernel keeps the plain tables).
     """
@@ -100,12 +100,12 @@ def _fft(re, im, bitrev, tw_re, tw_im):
 
 
 @njit(cache=True)
-def _rfft(x, start, out_re, out_im, zr, zi, tables):
+def rfft_block(x, start, out_re, out_im, zr, zi, tables):
     """Spectrum (bins 0..M) of the real segment x[start : start + 2M], M = len(zr).
 
     Packs even and odd samples into one complex sequence z of length M, transforms it and
     splits the result: X[k] = E[k] + w^k O[k] with w = exp(-i pi / M). ``tables`` is
-    :func:`_fft_tables` of M. Bins 0 and M are set apart; bins 1..M-1 pair z[k] with
+    :func:`fft_tables` of M. Bins 0 and M are set apart; bins 1..M-1 pair z[k] with
     z[M - k] through slices (no modulo indexing: this loop cost as much as the FFT). Bin
     M's imaginary part is ``w_im[M] z_im[0]``: sin(-pi) z_im[0] ~ 1e-16 z_im[0] with the
     plain tables, exactly 0 with ``real_nyquist`` tables.
@@ -142,7 +142,7 @@ def _rfft(x, start, out_re, out_im, zr, zi, tables):
 
 
 @njit(cache=True)
-def _irfft_last_half(x_re, x_im, out, zr, zi, tables):
+def irfft_last_half(x_re, x_im, out, zr, zi, tables):
     """Second half (samples M..2M-1) of the real inverse FFT of bins 0..M, M = len(zr)."""
     bitrev, tw_re, tw_im, w_re, w_im = tables
     m = zr.size

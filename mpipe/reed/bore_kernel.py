@@ -20,7 +20,7 @@ import numpy as np
 
 from mpipe.acoustics.air import Air
 from mpipe.acoustics.reflection import ReflectionFunction
-from mpipe.reed.block_fft import _fft_tables
+from mpipe.reed.block_fft import fft_tables
 from mpipe.reed.kernels import history_spectra
 
 # Block size of the partitioned convolution (= number of direct taps + 1). On the shipped
@@ -104,7 +104,7 @@ class BoreKernel:
                 self.rfft_w_re,
                 self.rfft_w_im,
             )
-            off = (np.zeros((0, 5)), np.zeros((0, 5)), _fft_tables(4))
+            off = (np.zeros((0, 5)), np.zeros((0, 5)), fft_tables(4))
             if method == "fast":
                 cache[method] = _partition(self.h, b, (self.tail_re, self.tail_im, tables), off)
             else:
@@ -155,7 +155,7 @@ def prepare_bore(rf: ReflectionFunction, air: Air, head_taps: int | None = None)
         raise ValueError(f"reflection function: lag-0 tap h[0] = {h[0]:g} is implausibly large")
     # Each partition is zero-padded to 2B, so overlap-save keeps the last B outputs exact.
     tail_re, tail_im = _partition_spectra(h[b:], b)
-    bitrev, tw_re, tw_im, rw_re, rw_im = _fft_tables(b)
+    bitrev, tw_re, tw_im, rw_re, rw_im = fft_tables(b)
     return BoreKernel(
         h=_readonly(h.copy()),
         fs=float(rf.fs),
@@ -212,7 +212,7 @@ class Partition:
     level1, level2 : tuple
         (G_re, G_im, tables) of each level: G of shape ``(P, B + 1)``, the spectra of the
         zero-padded partitions, and the FFT tables of block B
-        (:func:`mpipe.reed.block_fft._fft_tables`).
+        (:func:`mpipe.reed.block_fft.fft_tables`).
     """
 
     block1: int
@@ -273,8 +273,8 @@ def prepare_lean(kernel: BoreKernel, block1: int | None = None, block2: int | No
         raise ValueError(f"lean kernel blocks: expected block1 < block2, got {b1}, {b2}")
     h = kernel.h
     n = h.size
-    level1 = (*_partition_spectra(h[b1 : min(b2, n)], b1), _fft_tables(b1, real_nyquist=True))
-    level2 = (*_partition_spectra(h[b2:], b2), _fft_tables(b2, real_nyquist=True))
+    level1 = (*_partition_spectra(h[b1 : min(b2, n)], b1), fft_tables(b1, real_nyquist=True))
+    level2 = (*_partition_spectra(h[b2:], b2), fft_tables(b2, real_nyquist=True))
     return _partition(h, b1, level1, level2)
 
 

@@ -52,7 +52,7 @@ import math
 import numpy as np
 from numba import njit
 
-from mpipe.reed.block_fft import _irfft_last_half, _rfft
+from mpipe.reed.block_fft import irfft_last_half, rfft_block
 
 
 @njit(cache=True)
@@ -182,7 +182,7 @@ def history_spectra(x, n0, level):
     zi = np.zeros(block)
     for c in range(-n_part, 0):
         slot = c % n_part
-        _rfft(x, n0 + (c - 1) * block, f_re[slot], f_im[slot], zr, zi, tables)
+        rfft_block(x, n0 + (c - 1) * block, f_re[slot], f_im[slot], zr, zi, tables)
     return f_re, f_im
 
 
@@ -231,9 +231,9 @@ def _fdl_tail(x, n0, blk, line):
     zi = work[3, :b]
     if blk > 0:
         c = blk - 1
-        _rfft(x, n0 + (c - 1) * b, f_re[c % n_part], f_im[c % n_part], zr, zi, tables)
+        rfft_block(x, n0 + (c - 1) * b, f_re[c % n_part], f_im[c % n_part], zr, zi, tables)
     _accumulate(acc_re, acc_im, g_re, g_im, f_re, f_im, (blk - 1) % n_part)
-    _irfft_last_half(acc_re, acc_im, work[4, :b], zr, zi, tables)
+    irfft_last_half(acc_re, acc_im, work[4, :b], zr, zi, tables)
 
 
 @njit(cache=True)

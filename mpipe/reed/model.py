@@ -301,7 +301,7 @@ def simulate(
     """
     if method not in METHODS:
         raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
-    n_samples = _check_length(n_samples)
+    n_samples = check_length(n_samples)
     fs = kernel.fs
     check_stability(reed, fs)
     pm = mouth_pressure_series(reed, n_samples, fs, mouth_pressure, onset_s, noise_std_pa, seed)
@@ -313,7 +313,7 @@ def simulate(
         # from rest; dp(0) is the mouth pressure at t = 0, which an onset makes 0
         start = (0.0, 0.0, 0.0 if onset_s > 0 else float(pm[0]))
     else:
-        start = _load_history(x, n0, n_taps, state)
+        start = load_history(x, n0, n_taps, state)
     if method == "numpy":
         out, end = run_reference(x, n0, kernel.h, kernel.z0, kernel.rho, reed, fs, pm, start)
     else:
@@ -339,7 +339,7 @@ def simulate(
     )
 
 
-def _check_length(n_samples: int) -> int:
+def check_length(n_samples: int) -> int:
     """``n_samples`` as an int, at least 1."""
     n_samples = int(n_samples)
     if n_samples < 1:
@@ -347,7 +347,7 @@ def _check_length(n_samples: int) -> int:
     return n_samples
 
 
-def _load_history(x: np.ndarray, n0: int, n_taps: int, state: ModelState) -> tuple:
+def load_history(x: np.ndarray, n0: int, n_taps: int, state: ModelState) -> tuple:
     """Copy the state's p+ history into ``x[:n0]``; return its (y, y_prev, dp)."""
     hist = np.asarray(state.p_plus, dtype=float)
     if hist.ndim != 1 or hist.size < n_taps:
@@ -409,7 +409,7 @@ def simulate_pressure(
     ValueError
         As :func:`simulate`.
     """
-    n_samples = _check_length(n_samples)
+    n_samples = check_length(n_samples)
     check_stability(reed, kernel.fs)
     lean = prepare_lean(kernel) if lean is None else lean
     n0 = lean.n0
@@ -417,7 +417,7 @@ def simulate_pressure(
     if state is None:
         y, y_prev, dp = 0.0, 0.0, float(reed.p_m)
     else:
-        y, y_prev, dp = _load_history(x, n0, kernel.n_taps, state)
+        y, y_prev, dp = load_history(x, n0, kernel.n_taps, state)
     out = np.empty(n_samples)
     model = scheme_records(reed, kernel.fs, lean.h0, kernel.z0, kernel.rho)
     pm = np.full(n_samples, reed.p_m)

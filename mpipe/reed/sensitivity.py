@@ -35,7 +35,7 @@ import numpy as np
 
 from mpipe.reed.bore_kernel import BoreKernel
 from mpipe.reed.kernels import run
-from mpipe.reed.model import ModelState, _check_length, _load_history
+from mpipe.reed.model import ModelState, check_length, load_history
 from mpipe.reed.parameters import ReedParameters, check_stability
 from mpipe.reed.scheme import scheme_records
 
@@ -139,7 +139,7 @@ def pressure_sensitivities(
     dp : ndarray
         Shape ``(len(names), n_samples)``: d p / d theta_j, Pa per the parameter's SI unit.
     """
-    n_samples = _check_length(n_samples)
+    n_samples = check_length(n_samples)
     check_stability(reed, kernel.fs)
     lean = kernel.lean
     n0 = lean.n0
@@ -147,7 +147,7 @@ def pressure_sensitivities(
     if state is None:
         y, y_prev, dp = 0.0, 0.0, float(reed.p_m)
     else:
-        y, y_prev, dp = _load_history(x, n0, kernel.n_taps, state)
+        y, y_prev, dp = load_history(x, n0, kernel.n_taps, state)
     d = coefficient_derivatives(reed, kernel.fs, tuple(names), contact_at_closure)
     n_par = d.shape[1]
     # from rest the tangent of dp(0) = p_m is dp_m; from a given state it is 0
