@@ -24,6 +24,8 @@ import pandas as pd
 from scipy import signal
 
 from mpipe.core.filters import LowPass, apply_lowpass, highpass_zero_phase
+from mpipe.inversion.segments import assign_windows, segment_take
+from mpipe.measurement.impedance import impedance_curve
 
 
 def match_measurement(
@@ -392,8 +394,6 @@ def plan_take(
         When the span lies outside the take or holds no window (naming the span, the
         take's length and ``edge_s`` or ``window_s``).
     """
-    from mpipe.inversion.segments import assign_windows, segment_take
-
     c = conditioning
     n = int(np.size(p))
     check_span(n, fs, c.edge_s, window_s, start_s, end_s)
@@ -440,8 +440,6 @@ def bore_resonances(calibration, count: int = 8, fmax_hz: float = 6000.0) -> lis
 
     The regime of a note is named from them (:func:`mpipe.measurement.pitch.regime`).
     """
-    from mpipe.measurement.impedance import impedance_curve
-
     curve = impedance_curve(calibration, fmin=20.0, fmax=fmax_hz, df=1.0)
     return [r.frequency_hz for r in curve.resonances(count)]
 

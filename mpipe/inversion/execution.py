@@ -14,12 +14,19 @@ import contextlib
 import dataclasses
 import logging
 from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import FIRST_COMPLETED, CancelledError, wait
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
-from mpipe.inversion.coldstart import spread_over
+from mpipe import __version__
+from mpipe.core.errors import UserError
+from mpipe.core.workers import manager as worker_manager
+from mpipe.core.workers import process_pool
+from mpipe.inversion.coldstart import run_tasks_here, spread_over
+from mpipe.inversion.sensitivities import load_compiled
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.tables import load_checkpoint, save_checkpoint
 from mpipe.inversion.window import invert_window
@@ -83,8 +90,6 @@ def _one_blas_thread():
     other users), its spinning threads stall each call by tens of ms: the cold start took
     5-7x longer wall time with the default threads on a loaded 2-core machine.
     """
-    from threadpoolctl import threadpool_limits
-
     return threadpool_limits(limits=1, user_api="blas")
 
 
@@ -182,12 +187,6 @@ def dispatch(
 
 
 def _track_processes(job, groups, warm, workers, update):
-    import contextlib
-    from concurrent.futures import FIRST_COMPLETED, wait
-
-    from mpipe.core.workers import manager as worker_manager
-    from mpipe.core.workers import process_pool
-    from mpipe.inversion.sensitivities import load_compiled
 
     load_compiled()  # once here: the forked workers inherit the loaded compiled code
 
@@ -285,9 +284,6 @@ def connect(scheduler: str, timeout_s: float | None = None):
     """
     from distributed import Client
 
-    from mpipe import __version__
-    from mpipe.core.errors import UserError
-
     timeout_s = CONNECT_TIMEOUT_S if timeout_s is None else timeout_s
     try:
         client = Client(scheduler, timeout=f"{timeout_s:g}s", set_as_default=False)
@@ -316,7 +312,6 @@ def connect(scheduler: str, timeout_s: float | None = None):
 
 
 def _mpipe_version() -> str:
-    from mpipe import __version__
 
     return __version__
 
@@ -352,8 +347,6 @@ def gather_in_order(client, job: Job, groups, warm, update=None, done=None) -> l
     list
         One list of ``(row, history)`` per group, in the order of ``groups``.
     """
-    from concurrent.futures import CancelledError
-
     from distributed import as_completed
 
     parts: list = [None] * len(groups)
@@ -401,7 +394,6 @@ _STAGE_SHARED: list = []
 
 
 def _init_stage(shared) -> None:
-    from mpipe.inversion.coldstart import run_tasks_here
 
     _STAGE_SHARED[:] = [shared]
     # a forked worker inherits the parent's mapper, whose pool no thread serves here: a
@@ -431,8 +423,6 @@ def stage_workers(shared, executor: ExecutorConfig, workers: int, client=None) -
         with spread_over(None):
             yield
         return
-    from mpipe.core.workers import process_pool
-    from mpipe.inversion.sensitivities import load_compiled
 
     load_compiled()  # once here: the forked workers inherit it
     with process_pool(workers, initializer=_init_stage, initargs=(shared,)) as pool:

@@ -25,8 +25,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
+import soundfile
 
 from mpipe.core.io import write_atomic  # noqa: E402
+from mpipe.core.units import unit_of
+from mpipe.inversion.combinations import COMBINATIONS
 from mpipe.inversion.flow_fit import flow_signals  # noqa: E402
 from mpipe.inversion.objective import (  # noqa: E402
     ObjectiveSettings,
@@ -35,7 +38,10 @@ from mpipe.inversion.objective import (  # noqa: E402
 )
 from mpipe.inversion.records import flags  # noqa: E402
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig  # noqa: E402
-from mpipe.inversion.step1 import Step1Result  # noqa: E402
+from mpipe.inversion.step1 import (
+    Step1Result,  # noqa: E402
+    step1,
+)
 from mpipe.reed.bore_kernel import BoreKernel  # noqa: E402
 from mpipe.reed.parameters import ReedParameters  # noqa: E402
 
@@ -270,9 +276,6 @@ def plot_tracks(table: pd.DataFrame, path: str | Path) -> Path:
     -------
     Path
     """
-    from mpipe.core.units import unit_of
-    from mpipe.inversion.combinations import COMBINATIONS
-
     t = (0.5 * (table["t_start_s"] + table["t_end_s"])).to_numpy(dtype=float)
     names = [*PARAMETER_NAMES, "y_c", *(c.name for c in COMBINATIONS), "h_mean",
              "closed_fraction", "relative_residual"]  # fmt: skip
@@ -373,8 +376,6 @@ def write_wav(path: str | Path, p: np.ndarray, fs: float, full_scale: float | No
     -------
     Path
     """
-    import soundfile
-
     x = np.nan_to_num(np.asarray(p, dtype=float))
     scale = full_scale or float(np.max(np.abs(x))) or 1.0
     return write_atomic(
@@ -431,8 +432,6 @@ def plot_first_window(
     dict
         Output name -> file name of the figures written.
     """
-    from mpipe.inversion.step1 import step1
-
     folder = Path(folder)
     ok = table[table["error"] == ""]
     if not len(ok):

@@ -28,7 +28,11 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
+from mpipe.core.io import write_atomic
+from mpipe.inversion.settings import PARAMETER_NAMES
 from mpipe.measurement.pitch import f0_track, note_name, pitch_cents, regime
+from mpipe.reed.opening import opening, opening_summary
+from mpipe.reed.parameters import ReedParameters
 
 #: Reference pressure of the sound pressure level, Pa.
 P_REF_PA = 20e-6
@@ -319,10 +323,6 @@ def reed_openings(table: pd.DataFrame, p: np.ndarray, fs: float) -> tuple[pd.Dat
         window, so of each period, the reed is shut) per row of ``table``; ``h``: the
         opening at every sample of the take (m), NaN outside the windows with an estimate.
     """
-    from mpipe.inversion.settings import PARAMETER_NAMES
-    from mpipe.reed.opening import opening, opening_summary
-    from mpipe.reed.parameters import ReedParameters
-
     p = np.asarray(p, dtype=float)
     h_all = np.full(p.size, np.nan)
     rows = []
@@ -413,8 +413,6 @@ def plot_segments(segments: pd.DataFrame, tracks: dict, path, a4_hz: float = 440
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from mpipe.core.io import write_atomic
 
     fig, (ax_l, ax_p) = plt.subplots(2, 1, sharex=True, figsize=(10, 5))
     ax_l.plot(tracks["t_level_s"], spl_db(np.maximum(tracks["level_pa"], 1e-9)), lw=0.8)

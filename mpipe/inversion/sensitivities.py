@@ -27,9 +27,15 @@ Chatziioannou & van Walstijn 2012, eq. (15) and Appendix A; physics.md G.2-G.4, 
 
 from __future__ import annotations
 
+import types
+
 import numpy as np
 
+from mpipe.core.filters import design_lowpass
 from mpipe.inversion.fastpath import WindowEvaluator
+from mpipe.inversion.least_squares import broyden_update, normal_equations
+from mpipe.inversion.objective import ObjectiveSettings, TargetWindow
+from mpipe.reed.bore_kernel import prepare_bore
 from mpipe.reed.parameters import ReedParameters
 from mpipe.reed.sensitivity import coefficient_derivatives, tangent_lines
 
@@ -99,13 +105,6 @@ def load_compiled() -> None:
     Worker processes forked after this call inherit the loaded code instead of each loading
     numba's cache again (about as long as a few hundred model runs per process).
     """
-    import types
-
-    from mpipe.core.filters import design_lowpass
-    from mpipe.inversion.least_squares import broyden_update, normal_equations
-    from mpipe.inversion.objective import ObjectiveSettings, TargetWindow
-    from mpipe.reed.bore_kernel import prepare_bore
-
     fs = 100_000.0
     h = np.zeros(1100)
     h[1:] = -0.5 * np.exp(-np.arange(1, 1100) / 100.0) / 100.0

@@ -331,6 +331,7 @@ def _cold_then_warm(
 
     Returns the results sorted by time.
     """
+    # lazy: the resynthesis module loads matplotlib (~0.4 s of every command's start-up)
     from mpipe.inversion.resynthesis import reed_from_row
 
     # each segment's first window within 10 % of its loudest: the sustain, not an attack

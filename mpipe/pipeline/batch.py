@@ -24,9 +24,13 @@ import sys
 import time
 import uuid
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import as_completed
 from pathlib import Path
 
 from mpipe.core.errors import UserError
+from mpipe.core.io import folder_lock
+from mpipe.core.progress import ProgressBar
+from mpipe.core.workers import process_pool
 from mpipe.inversion.settings import ExecutorConfig
 from mpipe.pipeline.orchestration import (
     TakeRun,
@@ -34,6 +38,7 @@ from mpipe.pipeline.orchestration import (
     run_take,
     run_take_unlocked,
     take_name,
+    usable,
 )
 from mpipe.pipeline.settings import PipelineConfig
 
@@ -85,7 +90,6 @@ def run_takes(
                 result = exc
             yield t, result, time.perf_counter() - t0
         return
-    from mpipe.core.io import folder_lock
 
     # every take's folder locked by this process for the whole batch: a run on one of them
     # elsewhere stops at once; the workers write under these locks
@@ -141,9 +145,6 @@ class _NotATerminal:
 
 
 def _on_processes(n: int, takes, args, say):
-    from concurrent.futures import as_completed
-
-    from mpipe.core.workers import process_pool
 
     with process_pool(n) as pool:
         futures = {pool.submit(_take_task, t, *args): i for i, t in enumerate(takes)}
@@ -163,8 +164,6 @@ def _on_dask(client, takes, args, say):
 
 def _as_they_end(futures: dict, completed, say):
     """Yield ``(take index, result, wall s)`` as takes end; one bar over the takes."""
-    from mpipe.core.progress import ProgressBar
-
     bar = ProgressBar(len(futures), desc="takes", unit="take")
     try:
         for f in completed:
@@ -210,8 +209,6 @@ def summary_lines(
     names: Sequence[str] | None = None,
 ) -> list:
     """One line per take: its verdict, its windows, its wall time; or why it failed."""
-    from mpipe.pipeline.orchestration import usable
-
     lines = []
     for i, (t, result, wall) in enumerate(outcomes):
         name = take_name(t) if names is None else names[i]

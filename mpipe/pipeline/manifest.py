@@ -9,6 +9,7 @@ a folder without a manifest holds an interrupted stage, which is redone.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import shutil
@@ -45,8 +46,6 @@ def _jsonable(value: Any) -> Any:
     if isinstance(value, float | int | str | bool) or value is None:
         return value
     if hasattr(value, "__dataclass_fields__"):
-        import dataclasses
-
         return _jsonable(dataclasses.asdict(value))
     if isinstance(value, Path):
         return str(value)

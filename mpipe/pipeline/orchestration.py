@@ -20,13 +20,27 @@ import pandas as pd
 
 from mpipe import __version__
 from mpipe.core.errors import UserError
-from mpipe.core.io import write_atomic, write_csv, write_npz_atomic
-from mpipe.core.progress import stage_timer
+from mpipe.core.io import folder_lock, write_atomic, write_csv, write_npz_atomic
+from mpipe.core.progress import ProgressBar, stage_timer
+from mpipe.inversion.conditioning import bore_resonances, plan_take
 from mpipe.inversion.kernel import bore_kernel, table_temperature, take_temperature
 from mpipe.inversion.records import read_windows
+from mpipe.inversion.segments import plot_segments, reed_openings, segment_summary, with_played
 from mpipe.inversion.settings import PARAMETER_NAMES
+from mpipe.inversion.status import count as count_status
+from mpipe.inversion.status import summary_line
+from mpipe.inversion.tables import segment_lines, why_no_window, write_correlations, write_table
+from mpipe.inversion.take import RunOptions, WindowPlan, invert_take
+from mpipe.inversion.tracking import detect_zero_mean
 from mpipe.measurement.calibration import Calibration, load_calibration
 from mpipe.measurement.measured_instrument import bore_description
+from mpipe.measurement.separation.stage import separate
+from mpipe.measurement.separation.waves import Theta
+from mpipe.measurement.takes import read_take
+from mpipe.measurement.translation import mouthpiece_noise, translate, write_mouthpiece_wav
+from mpipe.measurement.validation import validate
+from mpipe.measurement.validation_result import plot_impedance
+from mpipe.pipeline import report
 from mpipe.pipeline.manifest import PARTIAL, StageRecord, run_stage
 from mpipe.pipeline.report import plot_blocks
 from mpipe.pipeline.settings import PipelineConfig
@@ -81,8 +95,6 @@ def _load_npz(path: Path) -> dict:
 
 
 def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
-    from mpipe.measurement.separation.stage import separate
-    from mpipe.measurement.takes import read_take
 
     def work(folder: Path):
         # one rate for the whole pipeline: takes at other rates are resampled when read
@@ -128,8 +140,6 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
 
 
 def _stage_translation(folder_sep: Path, cal: Calibration, cfg: PipelineConfig):
-    from mpipe.measurement.separation.waves import Theta
-    from mpipe.measurement.translation import mouthpiece_noise, translate, write_mouthpiece_wav
 
     def work(folder: Path):
         ref = _load_npz(folder_sep / "reference.npz")
@@ -151,8 +161,6 @@ def _stage_translation(folder_sep: Path, cal: Calibration, cfg: PipelineConfig):
 
 
 def _stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg: PipelineConfig):
-    from mpipe.measurement.validation import validate
-    from mpipe.measurement.validation_result import plot_impedance
 
     def work(folder: Path):
         mp = _load_npz(mouthpiece)
@@ -180,9 +188,6 @@ def _stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg: Pip
 
 
 def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig):
-    from mpipe.inversion.conditioning import bore_resonances, plan_take
-    from mpipe.inversion.segments import plot_segments
-    from mpipe.inversion.tracking import detect_zero_mean
 
     inv = cfg.inversion
 
@@ -215,13 +220,9 @@ def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig)
 
 
 def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: PipelineConfig, client):
+
+    # lazy: the resynthesis module loads matplotlib (~0.4 s of every command's start-up)
     from mpipe.inversion import resynthesis as rs
-    from mpipe.inversion.segments import segment_summary, with_played
-    from mpipe.inversion.status import count as count_status
-    from mpipe.inversion.status import summary_line
-    from mpipe.inversion.tables import segment_lines, why_no_window, write_correlations, write_table
-    from mpipe.inversion.take import RunOptions, WindowPlan, invert_take
-    from mpipe.inversion.tracking import ProgressBar
 
     inv = cfg.inversion
 
@@ -288,9 +289,9 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
 
 
 def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
-    from mpipe.core.progress import ProgressBar
+
+    # lazy: the resynthesis module loads matplotlib (~0.4 s of every command's start-up)
     from mpipe.inversion import resynthesis as rs
-    from mpipe.inversion.segments import reed_openings
 
     def work(folder: Path):
         mp = _load_npz(mouthpiece)
@@ -348,8 +349,6 @@ def run_take(
     :class:`mpipe.core.errors.UserError` at once when the folder is not writable or another run
     holds it: two runs on one folder would mix their results.
     """
-    from mpipe.core.io import folder_lock
-
     name = name or take_name([Path(p) for p in take_paths])
     with folder_lock(Path(out) / name):
         return run_take_unlocked(
@@ -486,7 +485,5 @@ def usable(run: TakeRun) -> bool:
 
 def write_take_report(root: Path, name: str, take_paths, cal_path, records: dict) -> Path:
     """Write ``root/report.html`` from the stage folders and their manifests."""
-    from mpipe.pipeline import report
-
     when = time.strftime("%Y-%m-%d %H:%M")
     return report.write_take_report(root, name, take_paths, cal_path, records, __version__, when)
