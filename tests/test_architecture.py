@@ -197,3 +197,23 @@ def test_the_signature_check_counts_every_kind_of_parameter():
         ("f", 11, False),
         ("m", 11, True),
     ]
+
+
+def _private_imports(text: str):
+    """Names with a leading underscore imported from another mpipe module."""
+    for node in ast.walk(ast.parse(text)):
+        if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("mpipe"):
+            for alias in node.names:
+                if alias.name.startswith("_") and not alias.name.startswith("__"):
+                    yield node.lineno, f"{node.module}.{alias.name}"
+
+
+def test_no_private_name_crosses_a_module():
+    found = [
+        f"{path.relative_to(PACKAGE)}:{line} imports {name}"
+        for path in sorted(PACKAGE.rglob("*.py"))
+        for line, name in _private_imports(path.read_text())
+    ]
+    assert not found, "\n".join(found)
+    bad = "from mpipe.reed.kernels import _step, run\nfrom mpipe import __version__\n"
+    assert list(_private_imports(bad)) == [(1, "mpipe.reed.kernels._step")]
