@@ -397,11 +397,10 @@ def plan_take(
     c = conditioning
     n = int(np.size(p))
     check_span(n, fs, c.edge_s, window_s, start_s, end_s)
-    first = c.edge_s if start_s is None else max(start_s, 0.0)
-    last = n / fs - c.edge_s if end_s is None else min(end_s, n / fs)
+    first, last = span_samples(n, fs, c.edge_s, start_s, end_s)
     window_n = int(round(window_s * fs))
     hop = max(int(round(hop_s * fs)), 1)
-    starts = list(range(int(round(first * fs)), int(round(last * fs)) - window_n + 1, hop))
+    starts = list(range(first, last - window_n + 1, hop))
     table = steady_windows(
         p, fs, starts, window_n, c.steady_tolerance, c.f0_min_hz, c.f0_max_hz, c.min_rms_pa
     )
@@ -444,6 +443,40 @@ def bore_resonances(calibration, count: int = 8, fmax_hz: float = 6000.0) -> lis
     return [r.frequency_hz for r in curve.resonances(count)]
 
 
+def span_samples(
+    n: int, fs: float, edge_s: float, start_s: float | None, end_s: float | None
+) -> tuple[int, int]:
+    """First and last sample (exclusive) of the span asked for, clipped to the take.
+
+    The span's first sample is its start rounded to the nearest sample, and its length is
+    rounded once (with a millionth of a sample of tolerance), not its two ends separately:
+    a span of exactly one window (0.40 to 0.42 s for 20 ms) then holds that window at
+    every rate, although ``0.42 - 0.40 < 0.02`` in floating point and 0.40 s and 0.42 s
+    fall between samples at 93 034 Hz.
+
+    Parameters
+    ----------
+    n : int
+        Samples of the take.
+    fs : float
+        Sample rate, Hz.
+    edge_s : float
+        ``conditioning.edge_s``, s: left out at an end not given.
+    start_s, end_s : float or None
+        Span asked for, s.
+
+    Returns
+    -------
+    (int, int)
+        First sample of the span and the sample after its last.
+    """
+    first = edge_s if start_s is None else max(start_s, 0.0)
+    last = n / fs - edge_s if end_s is None else min(end_s, n / fs)
+    first_n = int(round(first * fs))
+    length_n = int(np.floor((last - first) * fs + 0.5 + 1e-6))
+    return first_n, min(first_n + max(length_n, 0), n)
+
+
 def check_span(
     n: int, fs: float, edge_s: float, window_s: float, start_s: float | None, end_s: float | None
 ) -> None:
@@ -472,10 +505,10 @@ def check_span(
             raise ValueError(f"{name} {value:g} s lies outside the take (0 to {duration:.3f} s)")
     if start_s is not None and end_s is not None and end_s <= start_s:
         raise ValueError(f"end {end_s:g} s is not after start {start_s:g} s ({take})")
-    first = edge_s if start_s is None else start_s
-    last = duration - edge_s if end_s is None else end_s
-    if last - first >= window_s:
+    first_n, last_n = span_samples(n, fs, edge_s, start_s, end_s)
+    if last_n - first_n >= int(round(window_s * fs)):
         return
+    first, last = first_n / fs, last_n / fs
     if start_s is None or end_s is None:
         raise ValueError(
             f"conditioning.edge_s = {edge_s:g} s at each end leaves {max(last - first, 0):.3f} s "

@@ -29,7 +29,7 @@ import numpy as np
 import pandas as pd
 
 from mpipe.core.progress import ProgressBar  # the bar drawn by the commands (tqdm)
-from mpipe.inversion.conditioning import is_zero_mean
+from mpipe.inversion.conditioning import is_zero_mean, span_samples
 from mpipe.inversion.execution import Job, dispatch, run_windows, stage_workers
 from mpipe.inversion.records import typed
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
@@ -94,8 +94,7 @@ def plan_windows(
     """
     n = int(round(window_s * fs))
     hop = max(int(round(hop_s * fs)), 1)
-    first = max(int(round(start_s * fs)), 0)
-    last = n_samples if end_s is None else min(n_samples, int(round(end_s * fs)))
+    first, last = span_samples(n_samples, fs, 0.0, start_s, end_s)
     return list(range(first, last - n + 1, hop))
 
 

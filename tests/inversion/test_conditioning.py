@@ -114,17 +114,58 @@ def test_windows_of_every_length_and_rate_lie_inside_the_take(
     cond = ConditioningConfig()
     hop_s = hop_ratio * window_s
     window_n, hop = int(round(window_s * fs)), max(int(round(hop_s * fs)), 1)
-    first, last = int(round(cond.edge_s * fs)), int(round((n / fs - cond.edge_s) * fs))
-    if n / fs - 2 * cond.edge_s < window_s:
+    # the span's length is rounded once, with a millionth of a sample of tolerance
+    first = int(round(cond.edge_s * fs))
+    last = min(first + int(np.floor((n / fs - 2 * cond.edge_s) * fs + 0.5 + 1e-6)), n)
+    if last - first < window_n:  # counted in samples, as the plan is (issue 33)
         with pytest.raises(ValueError, match="edge_s = .* less than one window"):
             plan_inversion(p, fs, cond, window_s, hop_s)
         return
     table = plan_inversion(p, fs, cond, window_s, hop_s)
     starts = table["start"].to_numpy()
-    if starts.size == 0:  # the span holds a window only before rounding to samples
-        assert last - first < window_n
-        return
     assert starts[0] == first and starts[-1] + window_n <= min(last, n)
     assert np.all(np.diff(starts) == hop)
     assert last - (starts[-1] + window_n) < hop
     assert not table["invert"].any()
+
+
+@given(
+    fs=st.sampled_from([f for f in lengths.RATES if (f * 0.01).is_integer()]),
+    windows=st.integers(1, 6),
+    start_windows=st.integers(0, 40),
+    window_ms=st.sampled_from([10, 20, 25, 40]),
+)
+@settings(max_examples=60, deadline=None)
+def test_a_span_of_whole_windows_holds_exactly_that_many(fs, windows, start_windows, window_ms):
+    # Issue 33: --start 0.40 --end 0.42 (one 20 ms window) was refused as shorter than one
+    # window because 0.42 - 0.40 < 0.02 in floating point. A span given in decimal seconds
+    # that is k windows long, starting and ending on window edges, holds exactly k windows
+    # (hop = window) at every rate where a window is a whole number of samples (elsewhere
+    # the hop, rounded to samples, drifts from k windows' time: one window is tested below).
+    from mpipe.inversion.conditioning import check_span, plan_inversion
+    from mpipe.inversion.settings import ConditioningConfig
+
+    window_s = window_ms / 1000
+    start_s = round(start_windows * window_s + 0.4, 6)  # 0.40 as typed, not a product
+    end_s = round(start_s + windows * window_s, 6)
+    n = int(round((end_s + 0.1) * fs))
+    check_span(n, fs, 0.05, window_s, start_s, end_s)  # no error
+    table = plan_inversion(np.zeros(n), fs, ConditioningConfig(), window_s, window_s,
+                           start_s, end_s)  # fmt: skip
+    assert len(table) == windows
+    # the last window ends on the span's end, to the sample
+    assert table["start"].iloc[-1] + int(round(window_s * fs)) == int(round(end_s * fs))
+
+
+@pytest.mark.parametrize("fs", lengths.RATES)
+def test_the_paper_span_of_one_window_and_one_sample_short(fs):
+    # 0.40-0.42 s is one 20 ms window; one sample less is refused, naming the span
+    from mpipe.inversion.conditioning import check_span, plan_inversion
+    from mpipe.inversion.settings import ConditioningConfig
+
+    n = int(fs)
+    check_span(n, fs, 0.05, 0.02, 0.40, 0.42)
+    table = plan_inversion(np.zeros(n), fs, ConditioningConfig(), 0.02, 0.02, 0.40, 0.42)
+    assert len(table) == 1 and table["start"].iloc[0] == round(0.40 * fs)
+    with pytest.raises(ValueError, match="shorter than one window"):
+        check_span(n, fs, 0.05, 0.02, 0.40, 0.42 - 1.5 / fs)
