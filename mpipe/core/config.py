@@ -97,8 +97,83 @@ def positive(value: float) -> str | None:
     return None if value > 0 else f"expected a positive value, got {value:g}"
 
 
+class _DuplicateKey(Exception):
+    """A mapping gives one key twice (raised inside the loader, named by :func:`parse_yaml`)."""
+
+    def __init__(self, key, first_line: int, second_line: int):
+        super().__init__(key, first_line, second_line)
+        self.key, self.first_line, self.second_line = key, first_line, second_line
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing a key given twice in one mapping.
+
+    PyYAML keeps the last of two equal keys without a word: a fingering listed twice
+    plays the wrong bore, a second ``inversion:`` section wipes the first. Keys brought in
+    by a merge (``<<: *anchor``) may be overridden, as YAML intends.
+    """
+
+    def construct_mapping(self, node, deep=False):
+        seen: dict = {}
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":
+                continue
+            key = self.construct_object(key_node, deep=True)
+            line = key_node.start_mark.line + 1
+            try:
+                if key in seen:
+                    raise _DuplicateKey(key, seen[key], line)
+                seen[key] = line
+            except TypeError:  # an unhashable key: the base loader says so
+                continue
+        return super().construct_mapping(node, deep)
+
+
+def parse_yaml(text: str, source: str) -> Any:
+    """Parse YAML text, refusing a key given twice in one mapping.
+
+    The one YAML parser of mpipe: pipeline, calibration, reed, score and sidecar files
+    all go through it (:func:`load_yaml`).
+
+    Parameters
+    ----------
+    text : str
+        The YAML document.
+    source : str
+        Where it came from (a file name), for error messages.
+
+    Returns
+    -------
+    Any
+        The parsed value.
+
+    Raises
+    ------
+    ConfigError
+        ``"{source}: key 'k' given twice (lines 3 and 9)"``, or naming the syntax error.
+    """
+    try:
+        return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+    except _DuplicateKey as dup:
+        lines = (
+            f"line {dup.first_line}"
+            if dup.first_line == dup.second_line
+            else f"lines {dup.first_line} and {dup.second_line}"
+        )
+        raise ConfigError(f"{source}: key {dup.key!r} given twice ({lines}); keep one") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{source}: not valid YAML: {exc}") from None
+
+
 def load_yaml(path: str | Path) -> Mapping:
-    """Read a YAML file that must hold a mapping, with errors naming the file."""
+    """Read a YAML file that must hold a mapping, with errors naming the file.
+
+    Raises
+    ------
+    ConfigError
+        When the file cannot be read, is not YAML, gives a key twice in one mapping
+        (naming the key and its lines) or does not hold a mapping.
+    """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -110,10 +185,7 @@ def load_yaml(path: str | Path) -> Mapping:
             f"{path}: expected a YAML text file here, got binary data (are the arguments in "
             "the right order?)"
         ) from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    data = parse_yaml(text, str(path))
     if not isinstance(data, Mapping):
         raise ConfigError(f"{path}: expected a mapping of keys at the top level")
     return data

@@ -29,10 +29,11 @@ import numpy as np
 import pandas as pd
 
 from mpipe.core.progress import ProgressBar  # the bar drawn by the commands (tqdm)
-from mpipe.inversion.conditioning import is_zero_mean, span_samples
+from mpipe.inversion.conditioning import is_zero_mean
 from mpipe.inversion.execution import Job, dispatch, run_windows, stage_workers
 from mpipe.inversion.records import typed
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
+from mpipe.inversion.span import span_samples
 from mpipe.inversion.status import classify
 from mpipe.inversion.tables import histories_and_correlations, window_table
 from mpipe.inversion.window_errors import CORRELATION_COLUMNS
