@@ -73,3 +73,82 @@ def test_link_anchors_name_a_heading_of_their_page():
             path = (page.parent / target).resolve() if target else page
             if path.suffix == ".md" and path.exists():
                 assert anchor in _anchors(path), f"{page.name}: {target}#{anchor}: no such heading"
+
+
+# --- docs and messages in step (issue 33) ----------------------------------------------------
+
+OFFERED = re.compile(r"(\S+): unknown key.*expected one of: (.*)$")
+
+
+def _offered(load, mapping) -> tuple[str, list[str]]:
+    """The key path an unknown-key error names, and the keys it offers."""
+    from mpipe.core.config import ConfigError
+
+    try:
+        load(mapping)
+    except ConfigError as exc:
+        match = OFFERED.search(str(exc))
+        assert match, str(exc)
+        return match[1], match[2].split(", ")
+    raise AssertionError(f"{mapping} was accepted")
+
+
+def _refusal(load, mapping) -> str:
+    from mpipe.core.config import ConfigError
+
+    try:
+        load(mapping)
+    except (ConfigError, ValueError, TypeError) as exc:
+        return str(exc)
+    return ""
+
+
+def _nest(path: list[str], leaf: dict) -> dict:
+    for key in reversed(path):
+        leaf = {key: leaf}
+    return leaf
+
+
+def _check_offers(load, base: dict, path: list[str], depth: int) -> list[str]:
+    """Keys offered by an unknown-key error below ``path`` that are then refused as unknown."""
+    bad = []
+    named, keys = _offered(load, {**base, **_nest(path, {"no_such_key": 1})})
+    prefix = named.rsplit(".", 1)[0].split(": ")[-1] + "." if path else ""
+    for key in keys:
+        message = _refusal(load, {**base, **_nest(path, {key: 0.01})})
+        if f"{prefix}{key}: unknown key" in message or f" {key}: unknown key" in message:
+            bad.append(".".join([*path, key]))
+        if depth and f"{prefix}{key}: expected a mapping" in message:
+            bad += _check_offers(load, base, [*path, key], depth - 1)
+    return bad
+
+
+def test_every_key_an_unknown_key_error_offers_is_accepted(tmp_path):
+    # a score's reed width was `lambda` in the docs, the error offered `lam`, and `lam` was
+    # then refused: every key an error offers must be one the file accepts
+    import yaml
+
+    from mpipe.core.config import Where
+    from mpipe.pipeline.settings import load_pipeline
+    from mpipe.reed.parameters import reed_from_mapping
+    from mpipe.reed.score import score_from_mapping
+
+    def pipeline(data):
+        path = tmp_path / "pipe.yaml"
+        path.write_text(yaml.safe_dump(data))
+        return load_pipeline(path, check_calibration=False)
+
+    def note(data):
+        return score_from_mapping({"notes": [{"duration": 0.5, **data}]}, "s.yaml")
+
+    bad = _check_offers(note, {}, [], 1)
+    bad += _check_offers(
+        lambda d: score_from_mapping({"notes": [{"duration": 0.5}], **d}), {}, [], 0
+    )
+    bad += _check_offers(lambda d: reed_from_mapping(d, Where("r.yaml")), {}, [], 0)
+    bad += _check_offers(pipeline, {"calibration": "c.yaml"}, [], 2)
+    assert not bad, f"offered by an unknown-key error, then refused as unknown: {bad}"
+    # the reed width is spelt as in the docs in both the reed file and a score
+    assert "lambda" in _offered(note, {"no_such_key": 1})[1]
+    assert "lambda" in _offered(lambda d: reed_from_mapping(d, Where("r.yaml")), {"x": 1})[1]
+    assert "`lambda`" in (ROOT / "docs" / "virtual_takes.md").read_text()

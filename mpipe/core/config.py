@@ -6,7 +6,9 @@ check in ``dataclasses.field(metadata=...)``: keys ``unit``, ``doc`` and ``check
 against the type hints, and every problem becomes a :class:`ConfigError` naming the file,
 the key path and what was expected. A class may name keys and choices it no longer has in
 ``removed_keys`` (key -> what became of it) and ``removed_choices`` (key -> {choice -> what
-to use}); such a key gets that message instead of "unknown key". A class may define
+to use}); such a key gets that message instead of "unknown key". A class may spell a field
+otherwise in files with ``file_keys`` (field -> key): only that key is accepted, and errors
+name and offer it. A class may define
 ``_check(self, where)`` for checks across fields; it raises through
 ``where.error(key, message)``.
 
@@ -217,7 +219,11 @@ def build(cls: type, data: Any, where: Where):
         raise where.error(None, f"expected a mapping, got {_describe(data)}")
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
-    unknown = [k for k in data if k not in fields]
+    # a field spelt otherwise in files (a note's ``lambda`` is the field ``lam``): errors
+    # name and offer the file's spelling, the only one accepted
+    file_keys = getattr(cls, "file_keys", {})
+    field_of = {file_keys.get(n, n): n for n in fields}
+    unknown = [k for k in data if k not in field_of]
     removed = getattr(cls, "removed_keys", {})
     gone = [k for k in unknown if k in removed]
     if len(gone) == 1:
@@ -231,17 +237,20 @@ def build(cls: type, data: Any, where: Where):
             "(what became of each: docs/settings.md, Removed settings)",
         )
     if unknown:
-        keys = sorted(n for n, f in fields.items() if not f.metadata.get("derived"))
+        keys = sorted(
+            file_keys.get(n, n) for n, f in fields.items() if not f.metadata.get("derived")
+        )
         close = difflib.get_close_matches(str(unknown[0]), keys, n=1)
         hint = f" (did you mean {close[0]}?)" if close else ""
         raise where.error(str(unknown[0]), f"unknown key{hint}; expected one of: {', '.join(keys)}")
+    data = {field_of[k]: v for k, v in data.items()}
     values = {}
     for name, f in fields.items():
         if name not in data:
             if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
-                raise where.error(name, "missing required key")
+                raise where.error(file_keys.get(name, name), "missing required key")
             continue
-        child = where.child(name)
+        child = where.child(file_keys.get(name, name))
         retired = getattr(cls, "removed_choices", {}).get(name, {})
         if isinstance(data[name], str) and data[name] in retired:
             why = retired[data[name]]

@@ -82,6 +82,8 @@ class Note:
     g: Breakpoints | None = spec("1/s", "damping rate", default=None)
     k_c: Breakpoints | None = spec("Pa/m^alpha", "contact stiffness", default=None)
 
+    file_keys = {"lam": "lambda"}  # as in reed files; ``lam`` in code and tables
+
     def _check(self, where: Where) -> None:
         if self.start is not None and self.gap:
             raise where.error("gap", "give start or gap, not both")
@@ -186,18 +188,13 @@ def score_from_mapping(data: Mapping[str, Any], source: str = "<score>") -> Scor
 
 
 def _curves_as_breakpoints(note: Any, where: Where) -> Any:
-    """A note mapping with ``lambda`` renamed and constant curves as one breakpoint."""
+    """A note mapping with constant curves as one breakpoint."""
     if not isinstance(note, Mapping):
         raise where.error(None, "expected a mapping (duration, p_m, ...)")
-    out = {}
-    for key, value in note.items():
-        name = CURVE_KEYS.get(key, key)
-        if key == "lam":
-            raise where.error(key, "unknown key; the slit width is 'lambda'")
-        if name in CURVE_KEYS.values() and _is_number(value):
-            value = [[0.0, float(value)]]
-        out[name] = value
-    return out
+    return {
+        key: [[0.0, float(value)]] if key in CURVE_KEYS and _is_number(value) else value
+        for key, value in note.items()
+    }
 
 
 def _is_number(value: Any) -> bool:
@@ -307,8 +304,13 @@ def _envelope(note: Note, local: np.ndarray) -> np.ndarray:
 
 
 def score_mapping(score: Score) -> dict[str, Any]:
-    """The score as a plain YAML-ready mapping (for a take's sidecar)."""
-    return dataclasses.asdict(score)
+    """The score as a plain YAML-ready mapping (for a take's sidecar), keyed as a score file."""
+    out = dataclasses.asdict(score)
+    out["notes"] = [
+        {Note.file_keys.get(key, key): value for key, value in note.items()}
+        for note in out["notes"]
+    ]
+    return out
 
 
 __all__ = [
