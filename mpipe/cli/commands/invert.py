@@ -103,8 +103,7 @@ def load_mouthpiece(path: str | Path) -> tuple[float, np.ndarray, np.ndarray, np
                 f"{np.array2string(fs_arr.ravel()[:3])}"
             )
         fs = float(fs_arr.ravel()[0])
-        p = _numeric(data, "p", path).astype(float).ravel()
-        u = _numeric(data, "u", path).astype(float).ravel()
+        p, u = (_one_channel(_numeric(data, key, path), key, path) for key in ("p", "u"))
         temperature = (
             _numeric(data, "temperature_c", path) if "temperature_c" in data.files else None
         )
@@ -113,6 +112,16 @@ def load_mouthpiece(path: str | Path) -> tuple[float, np.ndarray, np.ndarray, np
     if not (np.all(np.isfinite(p)) and np.all(np.isfinite(u))):
         raise UserError(f"{path}: p or u contains non-finite samples")
     return fs, p, u, temperature
+
+
+def _one_channel(arr: np.ndarray, key: str, path) -> np.ndarray:
+    """A 1-D float signal; an array of several channels (N x 2) is refused, not flattened."""
+    if sum(d > 1 for d in arr.shape) > 1:
+        raise UserError(
+            f"{path}: key {key!r} holds an array of shape {arr.shape}; expected one signal "
+            "(1-D, one value per sample): save one column, e.g. p[:, 0]"
+        )
+    return arr.astype(float).ravel()
 
 
 def _numeric(data, key: str, path) -> np.ndarray:
