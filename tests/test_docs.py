@@ -152,3 +152,16 @@ def test_every_key_an_unknown_key_error_offers_is_accepted(tmp_path):
     assert "lambda" in _offered(note, {"no_such_key": 1})[1]
     assert "lambda" in _offered(lambda d: reed_from_mapping(d, Where("r.yaml")), {"x": 1})[1]
     assert "`lambda`" in (ROOT / "docs" / "virtual_takes.md").read_text()
+
+
+def test_the_api_examples_write_only_into_the_folder_they_name():
+    # issue 33: the API example wrote track_windows/ into the current folder
+    page = (ROOT / "docs" / "python_api.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", page, flags=re.S)
+    writing = [b for b in blocks if re.search(r"checkpoint=|\.to_csv\(|savez", b)]
+    assert writing
+    for block in writing:
+        named = re.search(r"^(\w+) = Path\(\"(\w+)\"\)", block, flags=re.M)
+        assert named, f"an example that writes names its folder first:\n{block}"
+        for target in re.findall(r"checkpoint=([^),]+)", block):
+            assert target.startswith(f"{named[1]} /"), target
