@@ -109,7 +109,11 @@ def test_invert_command(setup, tmp_path, capsys):
         "0.34",
     ]
     assert main(args) == 0
-    assert "2 windows: 2 ok" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "2 windows: 2 ok" in printed
+    # issue 33: a summary, not the whole windows table (windows.csv holds it)
+    assert "t_start_s" not in printed and "n_evaluations" not in printed
+    assert "medians over the 2 ok windows: k " in printed and " Pa/m" in printed
     for name in (
         "windows.csv",
         "signals.png",
