@@ -165,3 +165,47 @@ def test_the_api_examples_write_only_into_the_folder_they_name():
         assert named, f"an example that writes names its folder first:\n{block}"
         for target in re.findall(r"checkpoint=([^),]+)", block):
             assert target.startswith(f"{named[1]} /"), target
+
+
+def _commands(parser, path=()):
+    """(command words, option strings of each option) of every leaf command of a parser."""
+    import argparse
+
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if not subs:
+        yield path, [a.option_strings for a in parser._actions if a.option_strings]
+        return
+    for name, sub in subs[0].choices.items():
+        yield from _commands(sub, (*path, name))
+
+
+def test_the_readme_synopsis_names_every_option_of_every_command():
+    # issue 33: the synopsis of synth-take lacked --fs-model, --onset, --bits and
+    # --no-mic-calibration; every option now appears on its command's lines (--force and
+    # --fingering, which most commands take, in the paragraph below the synopsis)
+    from mpipe.cli.main import build_parser
+
+    readme = (ROOT / "README.md").read_text()
+    section = readme.split("## Command line", 1)[1]
+    block = section.split("```", 2)[1]
+    after = section.split("```", 2)[2].split("\n## ", 1)[0]
+    assert "`--force`" in after and "`--fingering NAME`" in after
+    entries: dict[tuple, str] = {}
+    key = None
+    for line in block.splitlines():
+        if line.startswith("mpipe "):
+            words = line.split()[1:]
+            key = tuple(words[:2] if words[0] == "calibrate" else words[:1])
+            entries[key] = ""
+        if key is not None:
+            entries[key] += " " + line.split("  # ")[0]
+    missing = []
+    for path, options in _commands(build_parser()):
+        assert path in entries, f"README's synopsis has no line for mpipe {' '.join(path)}"
+        for strings in options:
+            if "--help" in strings or strings[-1] in ("--force", "--fingering"):
+                continue
+            if not any(re.search(rf"(?<![\w-]){re.escape(o)}(?![\w-])", entries[path])
+                       for o in strings):  # fmt: skip
+                missing.append(f"mpipe {' '.join(path)} {strings[-1]}")
+    assert not missing, f"README's synopsis does not name: {missing}"
