@@ -209,3 +209,73 @@ def test_the_readme_synopsis_names_every_option_of_every_command():
                        for o in strings):  # fmt: skip
                 missing.append(f"mpipe {' '.join(path)} {strings[-1]}")
     assert not missing, f"README's synopsis does not name: {missing}"
+
+
+#: Keys of the calibration dataclasses that the loader sets (and refuses in a file).
+LOADER_SET = ("source", "bore.open_holes", "bore.measured_input")
+
+
+def _file_keys(cls, prefix=""):
+    """Every key path a configuration dataclass reads: ``a.b``, ``a.list[].c``."""
+    import dataclasses
+    import types
+    import typing
+
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        tp, path, inner = hints[f.name], prefix + f.name, None
+        for arg in (tp, *typing.get_args(tp)):
+            for a in (arg, *typing.get_args(arg)):
+                if dataclasses.is_dataclass(a):
+                    inner = a
+        listed = typing.get_origin(tp) is tuple or any(
+            typing.get_origin(a) is tuple
+            for a in typing.get_args(tp)
+            if typing.get_origin(tp) in (typing.Union, types.UnionType)
+        )
+        yield path + ("[]" if listed and inner else "")
+        if inner is not None:
+            yield from _file_keys(inner, path + ("[]." if listed else "."))
+
+
+def test_every_calibration_key_is_documented(tmp_path):
+    # issue 33: calibration_file.md did not document holes, fingerings or measured
+    from mpipe.core.config import ConfigError
+    from mpipe.measurement.calibration import Calibration, load_calibration
+
+    page = (ROOT / "docs" / "calibration_file.md").read_text()
+    rows = [line for line in page.splitlines() if line.startswith("| `")]
+    every = list(_file_keys(Calibration))
+    keys = [
+        k.replace("fingerings[]", "fingerings")  # in the file, a mapping name -> open holes
+        for k in every
+        if not any(k == s or k.startswith(s + ".") for s in LOADER_SET)
+        and not k.startswith("fingerings[].")
+        # a section's keys are named, not the section (a list's row names its items' keys)
+        and (k.endswith("[]") or not any(o.startswith(k + ".") for o in every))
+    ]
+    assert {"bore.holes[]", "bore.holes[].chimney", "bore.measured", "fingerings"} <= set(keys)
+    missing = []
+    for key in keys:
+        if "[]." in key:  # a list's item key is named in its list's row
+            parent, leaf = key.rsplit(".", 1)
+            row = [r for r in rows if r.split("|")[1].strip() == f"`{parent}`"]
+            if not row or f"`{leaf}`" not in row[0]:
+                missing.append(key)
+        elif not any(f"`{key}`" in r.split("|")[1] for r in rows):
+            missing.append(key)
+    assert not missing, f"docs/calibration_file.md's table does not name: {missing}"
+    # what the loader sets is refused in a file (so it needs no row)
+    text = (ROOT / "calibration" / "simplified_clarinet.yaml").read_text()
+    for key, value in (("source", "x"), ("bore.open_holes", "[]"), ("bore.measured_input", "1")):
+        path = tmp_path / "cal.yaml"
+        if "." in key:
+            path.write_text(text.replace("bore:\n", f"bore:\n  {key.split('.')[1]}: {value}\n", 1))
+        else:
+            path.write_text(text + f"{key}: {value}\n")
+        try:
+            load_calibration(path)
+        except ConfigError as exc:
+            assert key in str(exc)
+        else:
+            raise AssertionError(f"{key} accepted in a calibration file")
