@@ -127,6 +127,11 @@ def test_invert_command(setup, tmp_path, capsys):
     assert main(args) == 2  # outputs exist, no --force
     assert "--force" in capsys.readouterr().err
     assert main([*args, "--force"]) == 0
+    # issue 33: exactly one window (0.30 - 0.28 < 0.02 in floating point) is one window
+    one = [*args[:-4], "--start", "0.28", "--end", "0.30", "--force"]
+    capsys.readouterr()
+    assert main(one) == 0
+    assert "1 windows: 1 ok" in capsys.readouterr().out
 
 
 def test_invert_command_bad_npz(tmp_path, capsys):
