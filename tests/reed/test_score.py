@@ -105,3 +105,15 @@ def test_a_take_shorter_than_its_score_is_refused(setup):
     *_, reed, _, _ = setup
     with pytest.raises(ConfigError, match="shorter than the score"):
         score_controls(score_from_mapping(PHRASE), reed, FS, duration_s=0.5)
+
+
+def test_a_take_sidecar_score_reads_back_as_a_score():
+    # the sidecar's score is keyed as a score file (a reed width `lambda`, not `lam`)
+    from mpipe.reed.score import score_mapping
+
+    score = score_from_mapping(
+        {"notes": [{"duration": 0.5, "lambda": [[0.0, 0.012], [0.3, 0.014]]}, {"duration": 0.4}]}
+    )
+    plain = yaml.safe_load(yaml.safe_dump(score_mapping(score)))
+    assert "lambda" in plain["notes"][0] and "lam" not in plain["notes"][0]
+    assert score_from_mapping(plain) == score
