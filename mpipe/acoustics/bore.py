@@ -357,7 +357,9 @@ class Resonance:
     level_db : float
         20 log10 |Z_in / Z0| at the peak, dB.
     q : float
-        Quality factor f / (half-power bandwidth).
+        Quality factor f / Δf, Δf the half-power (-3 dB) bandwidth of |Z_in|
+        (:func:`half_power_bandwidth`); a single-degree-of-freedom resonance
+        Z = R / (1 + jQ(f/f_r - f_r/f)) gives its Q.
     """
 
     frequency_hz: float
@@ -384,7 +386,6 @@ def find_resonances(freqs: np.ndarray, z: np.ndarray, z0: float, count: int = 5)
     list of Resonance
     """
     level = 20 * np.log10(np.abs(z) / z0)
-    mag2 = np.abs(z) ** 2
     peaks = np.flatnonzero((level[1:-1] > level[:-2]) & (level[1:-1] >= level[2:])) + 1
     out = []
     for i in peaks[:count]:
@@ -395,15 +396,51 @@ def find_resonances(freqs: np.ndarray, z: np.ndarray, z0: float, count: int = 5)
         df = freqs[1] - freqs[0]
         f_peak = freqs[i] + delta * df
         l_peak = b - 0.25 * (a - c) * delta
-        half = mag2[i] / 2
-        lo = i
-        while lo > 0 and mag2[lo] > half:
-            lo -= 1
-        hi = i
-        while hi < len(mag2) - 1 and mag2[hi] > half:
-            hi += 1
-        f_lo = np.interp(half, [mag2[lo], mag2[lo + 1]], [freqs[lo], freqs[lo + 1]])
-        f_hi = np.interp(half, [mag2[hi], mag2[hi - 1]], [freqs[hi], freqs[hi - 1]])
-        q = f_peak / (f_hi - f_lo) if f_hi > f_lo else float("nan")
+        bandwidth = half_power_bandwidth(freqs, level, i, l_peak)
+        q = f_peak / bandwidth if bandwidth > 0 else float("nan")
         out.append(Resonance(float(f_peak), float(l_peak), float(q)))
     return out
+
+
+def half_power_bandwidth(freqs: np.ndarray, level_db: np.ndarray, i: int, peak_db: float) -> float:
+    """Half-power (-3.01 dB) bandwidth of the peak of a level curve at grid index ``i``, Hz.
+
+    Near a single-degree-of-freedom resonance ``1/|Z|^2`` is a parabola in frequency, its
+    minimum at the peak and twice that at the half-power points. The parabola is fitted
+    (least squares) to the grid points from the last below half power on one side to the
+    first on the other, and the bandwidth is the distance between its two crossings of
+    twice its minimum: exact to a small fraction of a step, where the grid points inside
+    the band alone made the Q of a Q = 25 peak read 27 to 37 on a 0.5-2 Hz grid.
+
+    Parameters
+    ----------
+    freqs : ndarray
+        Frequencies, Hz (any increasing grid).
+    level_db : ndarray
+        20 log10 |Z / Z0| on that grid, dB.
+    i : int
+        Index of the grid maximum of the peak.
+    peak_db : float
+        Level of the peak, dB: where the walk to either side stops (``peak_db`` - 3.01 dB).
+
+    Returns
+    -------
+    float
+        The bandwidth, Hz; NaN when a half-power point lies outside the grid.
+    """
+    target = peak_db - 10 * np.log10(2.0)
+    lo = i
+    while lo > 0 and level_db[lo] > target:
+        lo -= 1
+    hi = i
+    while hi < len(level_db) - 1 and level_db[hi] > target:
+        hi += 1
+    if level_db[lo] > target or level_db[hi] > target:
+        return float("nan")
+    f = freqs[lo : hi + 1] - freqs[i]  # centred: a well-conditioned fit
+    inverse = 10 ** (-(level_db[lo : hi + 1] - peak_db) / 10)  # |Z_peak|^2 / |Z|^2
+    c2, c1, c0 = np.polyfit(f, inverse, 2)
+    minimum = c0 - c1**2 / (4 * c2)
+    if not (c2 > 0 and minimum > 0):
+        return float("nan")
+    return float(2 * np.sqrt(minimum / c2))

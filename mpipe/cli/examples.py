@@ -18,6 +18,7 @@ import yaml
 
 from mpipe import __version__
 from mpipe.cli.virtual_takes import SynthOptions, make_take
+from mpipe.core.config import ConfigError, load_yaml
 from mpipe.reed.take_files import TakeFiles, take_file_paths
 
 log = logging.getLogger(__name__)
@@ -93,9 +94,9 @@ def _is_current(files: TakeFiles) -> bool:
     if not all(p.exists() for p in paths):
         return False
     try:
-        sidecar = yaml.safe_load(files.sidecar.read_text())
+        sidecar = load_yaml(files.sidecar)
         recipe = sidecar["recipe"]
-    except (OSError, yaml.YAMLError, KeyError, TypeError):
+    except (ConfigError, KeyError, TypeError):
         return False
     want = yaml.safe_load(yaml.safe_dump(_plain(dataclasses.asdict(EXAMPLE_OPTIONS))))
     return (

@@ -168,6 +168,8 @@ def synthesize(calibration: Calibration, reed, options: SynthOptions, score=None
     )
     if not np.all(np.isfinite(run.p)):
         raise ValueError("the simulation diverged; check the reed parameters")
+    for line in silent_notes(run):
+        log.warning("%s", line)
     if options.mach == "auto":
         area = np.pi * calibration.main_radius**2
         mach = float(np.mean(run.u[n // 2 :]) / (area * air.c))
@@ -320,6 +322,46 @@ def played_truth(run, step_s: float) -> dict[str, np.ndarray]:
     return out
 
 
+#: Oscillation below which a note is silent, Pa rms: the default ``conditioning.min_rms_pa``,
+#: under which the pipeline calls a window silent.
+SILENT_RMS_PA = 50.0
+
+
+def silent_notes(run) -> list[str]:
+    """A warning for each note of a model run that never sounds.
+
+    A note sounds when the mouthpiece pressure oscillates, over the second half of its
+    sounding span (past the attack), by at least ``SILENT_RMS_PA`` rms; below that the
+    pipeline finds only silence there (a mouth pressure under the blowing threshold).
+
+    Parameters
+    ----------
+    run : mpipe.reed.controls.PlayedRun
+        The model run (its ``controls.notes`` in s).
+
+    Returns
+    -------
+    list of str
+        One line per silent note, naming it, its span, its oscillation and its p_m.
+    """
+    fs = run.controls.fs
+    out = []
+    notes = np.asarray(run.controls.notes, dtype=float).reshape(-1, 2)
+    for i, (t0, t1) in enumerate(notes):
+        a, b = int(round(0.5 * (t0 + t1) * fs)), int(round(t1 * fs))
+        if b - a < 2:
+            continue
+        rms = float(np.std(run.p[a:b]))
+        if rms < SILENT_RMS_PA:
+            p_m = float(np.max(run.mouth_pressure[int(round(t0 * fs)) : b]))
+            out.append(
+                f"notes[{i}] ({t0:.3f}-{t1:.3f} s) never sounds: the mouthpiece pressure "
+                f"oscillates by {rms:.3g} Pa rms (below {SILENT_RMS_PA:g} Pa); its mouth "
+                f"pressure (up to {p_m:.4g} Pa) is below the reed's blowing threshold"
+            )
+    return out
+
+
 #: Highest sample rate a FLAC stream can declare in its header (20-bit field in units of
 #: 10 Hz for the streamable subset libsndfile writes), Hz.
 FLAC_MAX_RATE_HZ = 655_350
@@ -362,5 +404,6 @@ __all__ = [
     "check_file_rate",
     "make_take",
     "played_truth",
+    "silent_notes",
     "synthesize",
 ]

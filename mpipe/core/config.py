@@ -6,7 +6,9 @@ check in ``dataclasses.field(metadata=...)``: keys ``unit``, ``doc`` and ``check
 against the type hints, and every problem becomes a :class:`ConfigError` naming the file,
 the key path and what was expected. A class may name keys and choices it no longer has in
 ``removed_keys`` (key -> what became of it) and ``removed_choices`` (key -> {choice -> what
-to use}); such a key gets that message instead of "unknown key". A class may define
+to use}); such a key gets that message instead of "unknown key". A class may spell a field
+otherwise in files with ``file_keys`` (field -> key): only that key is accepted, and errors
+name and offer it. A class may define
 ``_check(self, where)`` for checks across fields; it raises through
 ``where.error(key, message)``.
 
@@ -97,8 +99,83 @@ def positive(value: float) -> str | None:
     return None if value > 0 else f"expected a positive value, got {value:g}"
 
 
+class _DuplicateKey(Exception):
+    """A mapping gives one key twice (raised inside the loader, named by :func:`parse_yaml`)."""
+
+    def __init__(self, key, first_line: int, second_line: int):
+        super().__init__(key, first_line, second_line)
+        self.key, self.first_line, self.second_line = key, first_line, second_line
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing a key given twice in one mapping.
+
+    PyYAML keeps the last of two equal keys without a word: a fingering listed twice
+    plays the wrong bore, a second ``inversion:`` section wipes the first. Keys brought in
+    by a merge (``<<: *anchor``) may be overridden, as YAML intends.
+    """
+
+    def construct_mapping(self, node, deep=False):
+        seen: dict = {}
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":
+                continue
+            key = self.construct_object(key_node, deep=True)
+            line = key_node.start_mark.line + 1
+            try:
+                if key in seen:
+                    raise _DuplicateKey(key, seen[key], line)
+                seen[key] = line
+            except TypeError:  # an unhashable key: the base loader says so
+                continue
+        return super().construct_mapping(node, deep)
+
+
+def parse_yaml(text: str, source: str) -> Any:
+    """Parse YAML text, refusing a key given twice in one mapping.
+
+    The one YAML parser of mpipe: pipeline, calibration, reed, score and sidecar files
+    all go through it (:func:`load_yaml`).
+
+    Parameters
+    ----------
+    text : str
+        The YAML document.
+    source : str
+        Where it came from (a file name), for error messages.
+
+    Returns
+    -------
+    Any
+        The parsed value.
+
+    Raises
+    ------
+    ConfigError
+        ``"{source}: key 'k' given twice (lines 3 and 9)"``, or naming the syntax error.
+    """
+    try:
+        return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+    except _DuplicateKey as dup:
+        lines = (
+            f"line {dup.first_line}"
+            if dup.first_line == dup.second_line
+            else f"lines {dup.first_line} and {dup.second_line}"
+        )
+        raise ConfigError(f"{source}: key {dup.key!r} given twice ({lines}); keep one") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{source}: not valid YAML: {exc}") from None
+
+
 def load_yaml(path: str | Path) -> Mapping:
-    """Read a YAML file that must hold a mapping, with errors naming the file."""
+    """Read a YAML file that must hold a mapping, with errors naming the file.
+
+    Raises
+    ------
+    ConfigError
+        When the file cannot be read, is not YAML, gives a key twice in one mapping
+        (naming the key and its lines) or does not hold a mapping.
+    """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -110,10 +187,7 @@ def load_yaml(path: str | Path) -> Mapping:
             f"{path}: expected a YAML text file here, got binary data (are the arguments in "
             "the right order?)"
         ) from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    data = parse_yaml(text, str(path))
     if not isinstance(data, Mapping):
         raise ConfigError(f"{path}: expected a mapping of keys at the top level")
     return data
@@ -145,7 +219,11 @@ def build(cls: type, data: Any, where: Where):
         raise where.error(None, f"expected a mapping, got {_describe(data)}")
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
-    unknown = [k for k in data if k not in fields]
+    # a field spelt otherwise in files (a note's ``lambda`` is the field ``lam``): errors
+    # name and offer the file's spelling, the only one accepted
+    file_keys = getattr(cls, "file_keys", {})
+    field_of = {file_keys.get(n, n): n for n in fields}
+    unknown = [k for k in data if k not in field_of]
     removed = getattr(cls, "removed_keys", {})
     gone = [k for k in unknown if k in removed]
     if len(gone) == 1:
@@ -159,17 +237,20 @@ def build(cls: type, data: Any, where: Where):
             "(what became of each: docs/settings.md, Removed settings)",
         )
     if unknown:
-        keys = sorted(n for n, f in fields.items() if not f.metadata.get("derived"))
+        keys = sorted(
+            file_keys.get(n, n) for n, f in fields.items() if not f.metadata.get("derived")
+        )
         close = difflib.get_close_matches(str(unknown[0]), keys, n=1)
         hint = f" (did you mean {close[0]}?)" if close else ""
         raise where.error(str(unknown[0]), f"unknown key{hint}; expected one of: {', '.join(keys)}")
+    data = {field_of[k]: v for k, v in data.items()}
     values = {}
     for name, f in fields.items():
         if name not in data:
             if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
-                raise where.error(name, "missing required key")
+                raise where.error(file_keys.get(name, name), "missing required key")
             continue
-        child = where.child(name)
+        child = where.child(file_keys.get(name, name))
         retired = getattr(cls, "removed_choices", {}).get(name, {})
         if isinstance(data[name], str) and data[name] in retired:
             why = retired[data[name]]

@@ -154,7 +154,8 @@ def folder_lock(folder: str | Path):
     at once instead of mixing its results with the first's. The lock is an advisory
     ``flock`` on ``folder/.mpipe.lock``; the kernel releases it when the holding process
     ends for any reason, so a killed run never leaves a stale lock. (Network file systems
-    may not honour ``flock`` across machines.)
+    may not honour ``flock`` across machines.) The file is removed when the run ends, so
+    a finished folder holds only results; a killed run leaves it, unlocked.
 
     Raises
     ------
@@ -163,20 +164,40 @@ def folder_lock(folder: str | Path):
     """
     folder = check_output_folder(folder)
     lock_path = folder / LOCK_NAME
-    fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666 & ~_umask())
+    fd = _acquire(lock_path, folder)
     try:
-        try:
-            _lock_fd(fd)
-        except BlockingIOError:
-            holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "unknown"
-            raise UserError(
-                f"{folder}: in use by another mpipe run (process {holder}); wait for it to "
-                "finish or choose another output folder"
-            ) from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
         yield folder
     finally:
+        # unlink while still locked: a run waiting on this file then sees it is gone
+        # (_acquire checks) and locks a new one, never a second holder of the folder
+        with contextlib.suppress(OSError):
+            os.unlink(lock_path)
+        _unlock_fd(fd)
+        os.close(fd)
+
+
+def _acquire(lock_path: Path, folder: Path) -> int:
+    """An open descriptor of ``lock_path``, locked, and still the file at that path."""
+    while True:
+        fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666 & ~_umask())
+        try:
+            _lock_fd(fd)
+        except BlockingIOError:
+            holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "unknown"
+            os.close(fd)
+            raise UserError(
+                f"{folder}: in use by another mpipe run (process {holder}); wait for it to "
+                "finish or choose another output folder"
+            ) from None
+        try:
+            same = os.fstat(fd).st_ino == os.stat(lock_path).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            return fd
+        # the holder removed the file between our open and our lock: take the new one
         _unlock_fd(fd)
         os.close(fd)
 

@@ -8,6 +8,7 @@ the stages. Log records and status lines go through :func:`write` and
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import logging
 import os
 import sys
@@ -134,3 +135,42 @@ def logging_redirect() -> Iterator[None]:
 
 
 __all__ = ["ProgressBar", "logging_redirect", "stage_timer", "write"]
+
+
+#: The prefix of log records made in this context (a take's name in a batch).
+_PREFIX: contextvars.ContextVar[str] = contextvars.ContextVar("mpipe_log_prefix", default="")
+
+
+@contextlib.contextmanager
+def log_prefix(prefix: str) -> Iterator[None]:
+    """Begin every log record made inside the block (this thread or task) with ``prefix``.
+
+    A batch runs takes side by side, and their library log lines interleave on one
+    terminal: each then carries its take's name (``[take] ...``), as the stage lines do.
+    A context variable holds the prefix, so takes in threads of one process (Dask) keep
+    their own.
+    """
+    _install_prefix_factory()
+    token = _PREFIX.set(prefix)
+    try:
+        yield
+    finally:
+        _PREFIX.reset(token)
+
+
+def _install_prefix_factory() -> None:
+    """Wrap the log-record factory once; it adds the context's prefix, when there is one."""
+    previous = logging.getLogRecordFactory()
+    if getattr(previous, "mpipe_prefix", False):
+        return
+
+    def factory(*args, **kwargs):
+        record = previous(*args, **kwargs)
+        prefix = _PREFIX.get()
+        if prefix:
+            # a % in a take's name must not be read as a format of the record's arguments
+            record.msg = (prefix.replace("%", "%%") if record.args else prefix) + str(record.msg)
+        return record
+
+    factory.mpipe_prefix = True  # type: ignore[attr-defined]
+    logging.setLogRecordFactory(factory)

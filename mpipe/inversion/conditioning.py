@@ -25,6 +25,7 @@ from scipy import signal
 
 from mpipe.core.filters import LowPass, apply_lowpass, highpass_zero_phase
 from mpipe.inversion.segments import assign_windows, segment_take
+from mpipe.inversion.span import check_span, span_samples
 from mpipe.measurement.impedance import impedance_curve
 
 
@@ -397,11 +398,10 @@ def plan_take(
     c = conditioning
     n = int(np.size(p))
     check_span(n, fs, c.edge_s, window_s, start_s, end_s)
-    first = c.edge_s if start_s is None else max(start_s, 0.0)
-    last = n / fs - c.edge_s if end_s is None else min(end_s, n / fs)
+    first, last = span_samples(n, fs, c.edge_s, start_s, end_s)
     window_n = int(round(window_s * fs))
     hop = max(int(round(hop_s * fs)), 1)
-    starts = list(range(int(round(first * fs)), int(round(last * fs)) - window_n + 1, hop))
+    starts = list(range(first, last - window_n + 1, hop))
     table = steady_windows(
         p, fs, starts, window_n, c.steady_tolerance, c.f0_min_hz, c.f0_max_hz, c.min_rms_pa
     )
@@ -442,47 +442,3 @@ def bore_resonances(calibration, count: int = 8, fmax_hz: float = 6000.0) -> lis
     """
     curve = impedance_curve(calibration, fmin=20.0, fmax=fmax_hz, df=1.0)
     return [r.frequency_hz for r in curve.resonances(count)]
-
-
-def check_span(
-    n: int, fs: float, edge_s: float, window_s: float, start_s: float | None, end_s: float | None
-) -> None:
-    """Refuse a span outside the take or too short for one window, saying why.
-
-    Parameters
-    ----------
-    n : int
-        Samples of the take.
-    fs : float
-        Sample rate, Hz.
-    edge_s, window_s : float
-        ``conditioning.edge_s`` and ``inversion.window_s``, s.
-    start_s, end_s : float or None
-        Span asked for, s (None: the take less ``edge_s``).
-
-    Raises
-    ------
-    ValueError
-        Naming the span, the take's length and the setting to change.
-    """
-    duration = n / fs
-    take = f"the take lasts {duration:.3f} s"
-    for name, value in (("start", start_s), ("end", end_s)):
-        if value is not None and not 0.0 <= value <= duration:
-            raise ValueError(f"{name} {value:g} s lies outside the take (0 to {duration:.3f} s)")
-    if start_s is not None and end_s is not None and end_s <= start_s:
-        raise ValueError(f"end {end_s:g} s is not after start {start_s:g} s ({take})")
-    first = edge_s if start_s is None else start_s
-    last = duration - edge_s if end_s is None else end_s
-    if last - first >= window_s:
-        return
-    if start_s is None or end_s is None:
-        raise ValueError(
-            f"conditioning.edge_s = {edge_s:g} s at each end leaves {max(last - first, 0):.3f} s "
-            f"of the {duration:.3f} s take, less than one window (inversion.window_s = "
-            f"{window_s:g} s); expected edge_s below {max((duration - window_s) / 2, 0):.3g} s"
-        )
-    raise ValueError(
-        f"the span {first:g}-{last:g} s is shorter than one window (inversion.window_s = "
-        f"{window_s:g} s; {take})"
-    )

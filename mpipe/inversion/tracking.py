@@ -33,6 +33,7 @@ from mpipe.inversion.conditioning import is_zero_mean
 from mpipe.inversion.execution import Job, dispatch, run_windows, stage_workers
 from mpipe.inversion.records import typed
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
+from mpipe.inversion.span import span_samples
 from mpipe.inversion.status import classify
 from mpipe.inversion.tables import histories_and_correlations, window_table
 from mpipe.inversion.window_errors import CORRELATION_COLUMNS
@@ -94,8 +95,7 @@ def plan_windows(
     """
     n = int(round(window_s * fs))
     hop = max(int(round(hop_s * fs)), 1)
-    first = max(int(round(start_s * fs)), 0)
-    last = n_samples if end_s is None else min(n_samples, int(round(end_s * fs)))
+    first, last = span_samples(n_samples, fs, 0.0, start_s, end_s)
     return list(range(first, last - n + 1, hop))
 
 

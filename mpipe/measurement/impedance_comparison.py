@@ -20,6 +20,8 @@ import numpy as np
 import pandas as pd
 import scipy.signal
 
+from mpipe.acoustics.bore import half_power_bandwidth
+
 
 def resonances(freqs: np.ndarray, z: np.ndarray, z0: float, count: int = 8,
                min_prominence_db: float = 3.0) -> pd.DataFrame:  # fmt: skip
@@ -42,7 +44,9 @@ def resonances(freqs: np.ndarray, z: np.ndarray, z0: float, count: int = 8,
     -------
     pandas.DataFrame
         ``frequency_hz``, ``level_db`` (parabolic interpolation of the dB curve through the
-        grid maximum and its neighbours) and ``bandwidth_hz`` (-3 dB, NaN when not found).
+        grid maximum and its neighbours) and ``bandwidth_hz`` (half-power, -3.01 dB, with its
+        crossings interpolated: :func:`mpipe.acoustics.bore.half_power_bandwidth`; NaN when
+        not found).
     """
     level = 20 * np.log10(np.maximum(np.abs(z) / z0, 1e-300))
     idx, _ = scipy.signal.find_peaks(level, prominence=min_prominence_db)
@@ -58,14 +62,7 @@ def resonances(freqs: np.ndarray, z: np.ndarray, z0: float, count: int = 8,
             f, lvl = float(x[1] + dx), float(np.polyval(coef, dx))
         else:
             f, lvl = float(x[1]), float(y[1])
-        above = level >= lvl - 3.0
-        lo = i
-        while lo > 0 and above[lo - 1]:
-            lo -= 1
-        hi = i
-        while hi < level.size - 1 and above[hi + 1]:
-            hi += 1
-        bw = float(freqs[hi] - freqs[lo]) if 0 < lo and hi < level.size - 1 else math.nan
+        bw = half_power_bandwidth(freqs, level, i, lvl)
         rows.append({"frequency_hz": f, "level_db": lvl, "bandwidth_hz": bw})
     return pd.DataFrame(rows, columns=["frequency_hz", "level_db", "bandwidth_hz"])
 

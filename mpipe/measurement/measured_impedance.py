@@ -49,7 +49,7 @@ from typing import Literal
 import numpy as np
 import yaml
 
-from mpipe.core.config import ConfigError, Where, build, load_yaml, positive, spec
+from mpipe.core.config import ConfigError, Where, build, load_yaml, parse_yaml, positive, spec
 from mpipe.core.errors import UserError
 from mpipe.core.io import write_text_atomic
 from mpipe.measurement.impedance_comparison import resonances
@@ -276,13 +276,14 @@ def _layout_in_file(path: Path, lines: list[str]) -> dict:
     if sidecar.exists() and sidecar != path:
         layout.update(load_yaml(sidecar))
     if header_lines:
+        text = "\n".join(h[1:] if h.startswith(" ") else h for h in header_lines)
         try:
-            parsed = yaml.safe_load("\n".join(h[1:] if h.startswith(" ") else h
-                                              for h in header_lines))  # fmt: skip
+            parsed = yaml.safe_load(text)
         except yaml.YAMLError:
-            parsed = None
+            parsed = None  # a free-text header: comments, not a layout
         if isinstance(parsed, dict) and set(parsed) & {"columns", "normalisation"}:
-            layout.update(parsed)
+            # a layout header: read again by the one loader, which refuses a key given twice
+            layout.update(parse_yaml(text, f"{path} (header)"))
     return layout
 
 

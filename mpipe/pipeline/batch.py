@@ -29,7 +29,7 @@ from pathlib import Path
 
 from mpipe.core.errors import UserError
 from mpipe.core.io import folder_lock
-from mpipe.core.progress import ProgressBar
+from mpipe.core.progress import ProgressBar, log_prefix
 from mpipe.core.workers import process_pool
 from mpipe.inversion.settings import ExecutorConfig
 from mpipe.pipeline.orchestration import (
@@ -82,10 +82,13 @@ def run_takes(
     if n < 2:
         for t, name in zip(takes, names, strict=True):
             t0 = time.perf_counter()
+            # several takes: each library log line says which (as the stage lines do)
+            prefix = f"[{name}] " if len(takes) > 1 else ""
             try:
-                result = run_take(
-                    cfg, cal_path, t, out, force, client, say, accept_failed_validation, name
-                )
+                with log_prefix(prefix):
+                    result = run_take(
+                        cfg, cal_path, t, out, force, client, say, accept_failed_validation, name
+                    )
             except TAKE_ERRORS as exc:
                 result = exc
             yield t, result, time.perf_counter() - t0
@@ -117,7 +120,7 @@ def _take_task(take, cfg, cal_path, out, force, accept_failed_validation):
     lines: list[str] = []
     t0 = time.perf_counter()
     # no bars from the workers: the batch's one progress view is the caller's
-    with contextlib.redirect_stderr(_NotATerminal(sys.stderr)):
+    with contextlib.redirect_stderr(_NotATerminal(sys.stderr)), log_prefix(f"[{name}] "):
         try:
             result = run_take_unlocked(
                 cfg, cal_path, take_paths, out, force, None, lines.append,

@@ -1,13 +1,15 @@
 """A finished run read back: its tables and signals with their units.
 
-``mpipe.load_run(OUT)`` reads what ``mpipe run`` wrote for one take (``OUT/<take>/``) into a
-frozen :class:`RunData`. The units of table columns and signals come from
+``mpipe.load_run(OUT)`` reads what ``mpipe run`` wrote for one take (``OUT/<take>/``), or
+what ``mpipe separate`` or ``mpipe invert`` wrote into their folder, into a frozen
+:class:`RunData`. The units of table columns and signals come from
 :func:`mpipe.core.units.unit_of`,
 which the HTML report also uses for its table headers.
 """
 
 from __future__ import annotations
 
+import html
 import json
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -38,7 +40,7 @@ SIGNALS = {
 }
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, repr=False)
 class RunData:
     """One take of a finished ``mpipe run``.
 
@@ -80,9 +82,47 @@ class RunData:
         val = self.manifests.get("validation")
         return None if val is None else val["summary"]["verdict"]
 
+    def _lines(self) -> list[tuple[str, str]]:
+        """(name, what) of the short descriptions (text and HTML)."""
+        out = [("folder", str(self.folder)), ("fs", f"{self.fs:g} Hz")]
+        if self.verdict is not None:
+            out.append(("validation", self.verdict))
+        windows = self.tables.get("windows")
+        if windows is not None and "status" in windows:
+            counts = windows["status"].value_counts()
+            out.append(("windows", ", ".join(f"{n} {s}" for s, n in counts.items()) or "none"))
+        for name, table in self.tables.items():
+            out.append((f"tables[{name!r}]", f"{len(table)} rows x {table.shape[1]} columns"))
+        for name, signal in self.signals.items():
+            length = f"{signal.shape[0]} samples" if signal.ndim else "a number"
+            out.append((f"signals[{name!r}]", f"{length} [{self.units.get(name, '')}]"))
+        return out
+
+    def __repr__(self) -> str:
+        # what is there, not every table and signal (a notebook printed megabytes)
+        body = "".join(f"\n  {name}: {what}" for name, what in self._lines())
+        return f"RunData({body}\n)"
+
+    def _repr_html_(self) -> str:
+        """The short description as an HTML table (for notebooks)."""
+        rows = "".join(
+            f"<tr><th style='text-align:left'>{html.escape(name)}</th>"
+            f"<td style='text-align:left'>{html.escape(what)}</td></tr>"
+            for name, what in self._lines()
+        )
+        return f"<table><caption>RunData</caption>{rows}</table>"
+
+
+#: Files that mark the folder of ``mpipe separate`` or ``mpipe invert`` (all files in it).
+COMMAND_FILES = ("windows.csv", "mouthpiece.npz")
+
+
+def _is_command_folder(folder: Path) -> bool:
+    return any((folder / name).exists() for name in COMMAND_FILES)
+
 
 def _take_folder(out: Path, take: str | None) -> Path:
-    if (out / "separation").is_dir():
+    if (out / "separation").is_dir() or _is_command_folder(out):
         return out
     if take is not None:
         folder = out / take
@@ -106,7 +146,10 @@ def _take_folder(out: Path, take: str | None) -> Path:
         if nested:
             names = ", ".join(str(p.relative_to(out)) for p in nested)
             raise ValueError(f"{out}: holds {len(nested)} takes ({names}); pass one's folder")
-        raise FileNotFoundError(f"{out}: no mpipe run output (no <take>/separation folder)")
+        raise FileNotFoundError(
+            f"{out}: no mpipe output (no <take>/separation folder of mpipe run, no "
+            "windows.csv of mpipe invert, no mouthpiece.npz of mpipe separate)"
+        )
     if len(takes) > 1:
         raise ValueError(f"{out}: holds {len(takes)} takes ({', '.join(takes)}); pass take=")
     return out / takes[0]
@@ -118,8 +161,10 @@ def load_run(out: str | Path, take: str | None = None) -> RunData:
     Parameters
     ----------
     out : str or Path
-        The run's output folder (``-o OUT``), one take's folder ``OUT/<take>``, or a folder
-        holding one run's folder (``make demo``'s ``demo_output``).
+        The run's output folder (``-o OUT``), one take's folder ``OUT/<take>``, a folder
+        holding one run's folder (``make demo``'s ``demo_output``), or the folder of
+        ``mpipe invert`` or ``mpipe separate`` (their files side by side; ``manifests``
+        then holds ``invert``'s ``run.json``).
     take : str, optional
         Take name, needed when ``out`` holds several takes.
 
@@ -135,14 +180,22 @@ def load_run(out: str | Path, take: str | None = None) -> RunData:
         When ``out`` holds several takes and ``take`` is not given.
     """
     folder = _take_folder(Path(out), take)
+    # mpipe run: one folder per stage; mpipe separate and invert: their files side by side
+    flat = not (folder / "separation").is_dir()
+
+    def where(stage: str, file: str) -> Path:
+        return folder / file if flat else folder / stage / file
+
     tables, units, manifests = {}, {}, {}
     for stage in ("separation", "translation", "validation", "conditioning", "inversion",
                   "resynthesis"):  # fmt: skip
         path = folder / stage / "manifest.json"
         if path.exists():
             manifests[stage] = json.loads(path.read_text())
+    if flat and (folder / "run.json").exists():
+        manifests["invert"] = json.loads((folder / "run.json").read_text())
     for name, (stage, file) in TABLES.items():
-        path = folder / stage / file
+        path = where(stage, file)
         if not path.exists():
             continue
         parquet = path.with_suffix(".parquet")
@@ -159,7 +212,7 @@ def load_run(out: str | Path, take: str | None = None) -> RunData:
         units.update({f"{name}.{c}": unit_of(c) for c in table.columns})
     signals, fs = {}, float("nan")
     for prefix, (stage, file) in SIGNALS.items():
-        path = folder / stage / file
+        path = where(stage, file)
         if not path.exists():
             continue
         with np.load(path) as data:

@@ -39,9 +39,12 @@ import numpy as np
 
 from mpipe.core.config import ConfigError, Where, between, build, load_yaml, positive, spec
 from mpipe.reed.controls import CURVE_FIELDS, Controls
-from mpipe.reed.parameters import ReedParameters
+from mpipe.reed.parameters import PLAUSIBLE, ReedParameters
 
 Breakpoints = tuple[tuple[float, ...], ...]
+#: Shortest sounding part of a note, s: the default ``conditioning.min_note_s``, below which
+#: the pipeline finds no note (a score of 10 000 notes of 2 ms played as one note).
+MIN_NOTE_S = 0.03
 #: Score keys of the curves (``lambda`` is the reed's ``lam``).
 CURVE_KEYS = {"p_m": "p_m", **{("lambda" if f == "lam" else f): f for f in CURVE_FIELDS}}
 _UNITS = {"p_m": "Pa", "k": "Pa/m", "S": "m^2", "y_m": "m", "lam": "m", "m": "kg/m^2"}
@@ -82,6 +85,8 @@ class Note:
     g: Breakpoints | None = spec("1/s", "damping rate", default=None)
     k_c: Breakpoints | None = spec("Pa/m^alpha", "contact stiffness", default=None)
 
+    file_keys = {"lam": "lambda"}  # as in reed files; ``lam`` in code and tables
+
     def _check(self, where: Where) -> None:
         if self.start is not None and self.gap:
             raise where.error("gap", "give start or gap, not both")
@@ -94,8 +99,15 @@ class Note:
                 f"{self.duration:g} s leaves no sounding part after the tongue hold "
                 f"({held:g} s) and the release ({self.release:g} s)",
             )
+        if self.duration - held < MIN_NOTE_S:
+            raise where.error(
+                "duration",
+                f"{self.duration:g} s sounds for {self.duration - held:g} s, shorter than "
+                f"{MIN_NOTE_S:g} s: mpipe finds no note in it (conditioning.min_note_s); "
+                "expected a longer note, or one note whose p_m curve plays the fast changes",
+            )
         for key, name in CURVE_KEYS.items():
-            _check_breakpoints(getattr(self, name), where.child(key), _UNITS.get(name, ""))
+            _check_breakpoints(getattr(self, name), where.child(key), name)
 
     @property
     def sound_offset(self) -> float:
@@ -103,18 +115,27 @@ class Note:
         return self.tongue_hold if self.tongued else 0.0
 
 
-def _check_breakpoints(points: Breakpoints | None, where: Where, unit: str) -> None:
+def _check_breakpoints(points: Breakpoints | None, where: Where, name: str) -> None:
+    """Refuse a curve that is not breakpoints of plausible values (as in a reed file)."""
     if points is None:
         return
     if not points:
         raise where.error(None, "expected a number or a list of [t, value] pairs")
+    unit = _UNITS.get(name, "")
+    lo, hi = PLAUSIBLE[name]
     times = []
     for i, pair in enumerate(points):
+        # a constant (one breakpoint) is named by its key alone: notes[0].p_m
+        at = where if len(points) == 1 else where.child(i)
         if len(pair) != 2:
-            raise where.child(i).error(None, f"expected a pair [t, value], got {list(pair)}")
+            raise at.error(None, f"expected a pair [t, value], got {list(pair)}")
         times.append(pair[0])
         if not pair[1] > 0:
-            raise where.child(i).error(None, f"expected a positive value, got {pair[1]:g} [{unit}]")
+            raise at.error(None, f"expected a positive value, got {pair[1]:g} [{unit}]")
+        if not lo <= pair[1] <= hi:
+            raise at.error(
+                None, f"implausible value {pair[1]:g} {unit}; expected a value in [{lo:g}, {hi:g}]"
+            )
     if times[0] < 0 or any(b < a for a, b in zip(times[:-1], times[1:], strict=True)):
         raise where.error(None, "breakpoint times must be >= 0 s and non-decreasing")
 
@@ -186,18 +207,13 @@ def score_from_mapping(data: Mapping[str, Any], source: str = "<score>") -> Scor
 
 
 def _curves_as_breakpoints(note: Any, where: Where) -> Any:
-    """A note mapping with ``lambda`` renamed and constant curves as one breakpoint."""
+    """A note mapping with constant curves as one breakpoint."""
     if not isinstance(note, Mapping):
         raise where.error(None, "expected a mapping (duration, p_m, ...)")
-    out = {}
-    for key, value in note.items():
-        name = CURVE_KEYS.get(key, key)
-        if key == "lam":
-            raise where.error(key, "unknown key; the slit width is 'lambda'")
-        if name in CURVE_KEYS.values() and _is_number(value):
-            value = [[0.0, float(value)]]
-        out[name] = value
-    return out
+    return {
+        key: [[0.0, float(value)]] if key in CURVE_KEYS and _is_number(value) else value
+        for key, value in note.items()
+    }
 
 
 def _is_number(value: Any) -> bool:
@@ -307,8 +323,13 @@ def _envelope(note: Note, local: np.ndarray) -> np.ndarray:
 
 
 def score_mapping(score: Score) -> dict[str, Any]:
-    """The score as a plain YAML-ready mapping (for a take's sidecar)."""
-    return dataclasses.asdict(score)
+    """The score as a plain YAML-ready mapping (for a take's sidecar), keyed as a score file."""
+    out = dataclasses.asdict(score)
+    out["notes"] = [
+        {Note.file_keys.get(key, key): value for key, value in note.items()}
+        for note in out["notes"]
+    ]
+    return out
 
 
 __all__ = [

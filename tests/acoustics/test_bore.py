@@ -125,3 +125,20 @@ def test_shipped_instrument_first_resonance_is_a_low_clarinet_note(
     estimate = shipped_air.c / (4 * (0.8182 + 0.8216 * 0.0075))
     assert got[0].frequency_hz == pytest.approx(estimate, rel=0.06)
     assert all(r.q > 10 for r in got)
+
+
+@pytest.mark.parametrize("q_true", [10.0, 25.0, 60.0])
+@pytest.mark.parametrize("df", [0.25, 0.5, 1.0, 2.0])
+def test_q_is_that_of_an_analytic_single_resonance(q_true, df):
+    # issue 33: `mpipe impedance` printed Q1 = 31.1 for a resonance whose Q is 25 (the band
+    # read from the grid points inside it). Q is f / (half-power bandwidth), which a
+    # single-degree-of-freedom resonance Z = R / (1 + jQ(f/f_r - f_r/f)) gives exactly;
+    # within 1 % on grids down to a third of the bandwidth (2 Hz for Q = 60 at 150 Hz)
+    from mpipe.acoustics.bore import find_resonances
+
+    freqs = np.arange(20.0, 1000.0, df)
+    z = 10.0 / (1 + 1j * q_true * (freqs / 150.0 - 150.0 / freqs))
+    (r,) = find_resonances(freqs, z, 1.0, 1)
+    assert r.frequency_hz == pytest.approx(150.0, rel=1e-4)
+    assert r.level_db == pytest.approx(20.0, abs=0.01)
+    assert r.q == pytest.approx(q_true, rel=0.01)

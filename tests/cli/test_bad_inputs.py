@@ -57,6 +57,53 @@ def _impedance_file(tmp_path: Path, columns, rows, normalisation="Z/Zc") -> Path
     return path
 
 
+def _twice(tmp_path: Path, name: str, text: str) -> Path:
+    """A YAML file ``name`` holding ``text`` (which gives a key twice)."""
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def _pipeline_twice(tmp_path: Path) -> Path:
+    # a second inversion: section, which PyYAML let wipe the first
+    text = PIPE.read_text().replace("../calibration/simplified_clarinet.yaml", str(CAL))
+    return _twice(tmp_path, "pipe.yaml", text + "inversion:\n  window_s: 0.03\n")
+
+
+def _fingering_twice(tmp_path: Path) -> Path:
+    # a fingering listed twice, which PyYAML let play the second bore
+    text = (ROOT / "calibration" / "four_hole_clarinet.yaml").read_text()
+    return _twice(
+        tmp_path, "cal.yaml", text.replace("  xxxo: [h4]\n", "  xxxo: [h4]\n  xxxo: [h3]\n")
+    )
+
+
+def _impedance_sidecar_twice(tmp_path: Path, header: bool) -> Path:
+    path = _impedance_file(
+        tmp_path,
+        ["frequency_hz", "re", "im"],
+        lambda f, zn, z0: np.column_stack([f, zn.real, zn.imag]),
+    )
+    layout = "columns: [frequency_hz, re, im]\nnormalisation: Z/Zc\nnormalisation: Z\n"
+    if header:
+        body = [ln for ln in path.read_text().splitlines(True) if not ln.startswith("#")]
+        path.write_text("".join(f"# {ln}\n" for ln in layout.splitlines()) + "".join(body))
+    else:
+        _twice(tmp_path, "z.yaml", layout)
+    return path
+
+
+def _score(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "score.yaml"
+    path.write_text(text)
+    return path
+
+
+def _synth_score(tp: Path, text: str) -> list[str]:
+    return ["synth-take", str(CAL), "--reed", str(REED), "--score", str(_score(tp, text)),
+            "-o", str(tp / "t.wav")]  # fmt: skip
+
+
 def _mag_phase(scale_phase):
     return lambda f, zn, z0: np.column_stack([f, np.abs(zn), scale_phase(np.angle(zn))])
 
@@ -155,6 +202,82 @@ CASES = [
             tp, ["frequency_hz", "magnitude", "phase_deg"], _mag_phase(lambda a: a)))],
         2,
         r"z.txt: the phase_deg column stays within ±π .* look like radians \(declare phase_rad\)",
+    ),
+    (
+        "pipeline-section-twice",
+        lambda tp: ["config", str(_pipeline_twice(tp))],
+        2,
+        r"pipe.yaml: key 'inversion' given twice \(lines 54 and \d+\); keep one",
+    ),
+    (
+        "calibration-fingering-twice",
+        lambda tp: ["impedance", str(_fingering_twice(tp))],
+        2,
+        r"cal.yaml: key 'xxxo' given twice \(lines 42 and 43\); keep one",
+    ),
+    (
+        "reed-key-twice",
+        lambda tp: ["simulate", str(CAL), "--reed", str(_twice(
+            tp, "reed.yaml", REED.read_text() + "p_m: 2000.0\n")),
+            "--duration", "0.01", "-o", str(tp / "s.npz")],
+        2,
+        r"reed.yaml: key 'p_m' given twice \(lines 11 and 18\); keep one",
+    ),
+    (
+        "score-note-key-twice",
+        lambda tp: ["synth-take", str(CAL), "--reed", str(REED), "--score", str(_twice(
+            tp, "score.yaml", "notes:\n  - duration: 0.3\n    p_m: 1800\n    p_m: 2200\n")),
+            "-o", str(tp / "t.wav")],
+        2,
+        r"score.yaml: key 'p_m' given twice \(lines 3 and 4\); keep one",
+    ),
+    (
+        "impedance-sidecar-key-twice",
+        lambda tp: ["impedance", str(CAL), "--measured", str(_impedance_sidecar_twice(tp, False))],
+        2,
+        r"z.yaml: key 'normalisation' given twice \(lines 2 and 3\); keep one",
+    ),
+    (
+        "impedance-header-key-twice",
+        lambda tp: ["impedance", str(CAL), "--measured", str(_impedance_sidecar_twice(tp, True))],
+        2,
+        r"z.txt \(header\): key 'normalisation' given twice \(lines 2 and 3\); keep one",
+    ),
+    (
+        "synth-take-duration-1e-6",
+        lambda tp: ["synth-take", str(CAL), "--reed", str(REED), "--duration", "1e-6",
+                    "-o", str(tp / "t.wav")],
+        2,
+        r"--duration: 1e-06 s holds fewer than two samples at 100000 Hz; expected at least "
+        r"2e-05 s",
+    ),
+    (
+        "score-gap-1e6",
+        lambda tp: _synth_score(tp, "notes:\n  - duration: 0.3\n    gap: 1.0e6\n"),
+        2,
+        r"score.yaml: the score's length: 1e\+06 s at --fs-model 100000 Hz needs about .* GiB "
+        r"of memory, this machine has .* GiB; expected at most \d+ s",
+    ),
+    (
+        "score-p_m-1e9",
+        lambda tp: _synth_score(tp, "notes:\n  - duration: 0.3\n    p_m: 1.0e9\n"),
+        2,
+        r"score.yaml: notes\[0\]\.p_m: implausible value 1e\+09 Pa; expected a value in "
+        r"\[1, 100000\]",
+    ),
+    (
+        "score-10000-notes-of-2-ms",
+        lambda tp: _synth_score(
+            tp, "notes:\n" + "  - {duration: 0.002, attack: 0, release: 0}\n" * 10000),
+        2,
+        r"score.yaml: notes\[0\]\.duration: 0.002 s sounds for 0.002 s, shorter than 0.03 s",
+    ),
+    (
+        "npz-two-channel-arrays",
+        lambda tp: ["invert", str(_mouthpiece(tp, p=np.zeros((50000, 2)))),
+                    "--pipeline", str(_pipeline(tp)), "-o", str(tp / "o")],
+        2,
+        r"mp.npz: key 'p' holds an array of shape \(50000, 2\); expected one signal \(1-D",
     ),
 ]  # fmt: skip
 
@@ -286,3 +409,14 @@ def test_run_takes_file_names_with_commas_and_tells_equal_names_apart(tmp_path):
 
     with pytest.raises(UserError, match="given twice"):
         take_names([[comma], [tmp_path / "." / "a,b.wav"]])
+
+
+def test_a_score_note_that_never_sounds_is_warned_of(tmp_path, capsys):
+    # issue 33: a note blown at 100 Pa (far below the blowing threshold, about a third of
+    # the closing pressure k y_m = 3464 Pa) was written without a word; a note at 1800 Pa
+    # sounds (the paper's take) and is not warned of
+    text = "notes:\n  - duration: 0.15\n    p_m: 100\n  - duration: 0.15\n    p_m: 1800\n"
+    assert main(_synth_score(tmp_path, text)) == 0
+    err = capsys.readouterr().err
+    assert "notes[0] (0.000-0.150 s) never sounds" in err
+    assert "notes[1]" not in err

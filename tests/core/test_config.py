@@ -113,3 +113,21 @@ def test_a_value_out_of_range_names_the_key_and_unit():
 @pytest.mark.parametrize("value", [1e-5, 0.1, 1 / 3, 8.23e10, -0.01, 2.4e-4, 1e300, 123456.0])
 def test_floats_are_written_so_that_yaml_reads_them_back_exactly(value):
     assert yaml.safe_load(f"x: {yaml_scalar(value)}")["x"] == value
+
+
+def test_a_key_given_twice_is_refused_with_its_lines_and_a_merge_is_not():
+    # Issue 33: PyYAML keeps the last of two equal keys without a word
+    from mpipe.core.config import ConfigError, parse_yaml
+
+    with pytest.raises(
+        ConfigError, match=r"^f.yaml: key 'b' given twice \(lines 2 and 4\); keep one$"
+    ):
+        parse_yaml("a: 1\nb: 2\nc: 3\nb: 4\n", "f.yaml")
+    with pytest.raises(ConfigError, match=r"key 'x' given twice \(lines 3 and 4\)"):
+        parse_yaml("a:\n  - y: 1\n    x: 2\n    x: 3\n", "f.yaml")  # nested in a list
+    with pytest.raises(ConfigError, match=r"key 'x' given twice \(line 1\)"):
+        parse_yaml("{x: 1, x: 2}", "f.yaml")  # a flow mapping on one line
+    # the same key in two different mappings is no duplicate; a merge may be overridden
+    assert parse_yaml("a: {x: 1}\nb: {x: 2}\n", "f.yaml") == {"a": {"x": 1}, "b": {"x": 2}}
+    merged = parse_yaml("base: &b {x: 1, y: 2}\nc:\n  <<: *b\n  x: 5\n", "f.yaml")
+    assert merged["c"] == {"x": 5, "y": 2}

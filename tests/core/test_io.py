@@ -62,3 +62,22 @@ def test_unwritable_system_folder_is_refused_even_for_root():
     # /proc refuses new files for every user, root included
     with pytest.raises(UserError, match="^/proc/self: output folder is not writable"):
         check_output_folder("/proc/self")
+
+
+def test_the_lock_file_is_gone_after_a_run_and_a_run_after_it_locks_again(tmp_path):
+    # issue 33: .mpipe.lock stayed in the output folder after a finished run
+    folder = tmp_path / "take"
+    with folder_lock(folder):
+        assert (folder / ".mpipe.lock").exists()  # held while the run writes
+        with pytest.raises(UserError, match="in use by another mpipe run"):
+            with folder_lock(folder):
+                pass
+    assert not (folder / ".mpipe.lock").exists()
+    with pytest.raises(RuntimeError):  # a run that fails removes it too
+        with folder_lock(folder):
+            raise RuntimeError("stage failed")
+    assert not [p.name for p in folder.iterdir()]
+    with folder_lock(folder):  # and the next run locks the folder as before
+        with pytest.raises(UserError, match="in use by another mpipe run"):
+            with folder_lock(folder):
+                pass

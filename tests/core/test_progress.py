@@ -55,3 +55,34 @@ def test_bars_are_silent_when_not_on_a_terminal():
     with stage_timer("separation", stream=shown, force=True):
         pass
     assert "separation" in shown.getvalue()
+
+
+def test_log_records_carry_the_prefix_of_their_own_thread(caplog):
+    # issue 33: a batch's library log lines interleaved without the take's name
+    import logging
+    import threading
+
+    from mpipe.core.progress import log_prefix
+
+    log = logging.getLogger("mpipe.inversion.somewhere")
+    started = threading.Barrier(2)
+
+    def take(name):
+        with log_prefix(f"[{name}] "):
+            started.wait()  # both takes inside their block at once
+            for i in range(20):
+                log.warning("window %d of %s", i, name)
+
+    with caplog.at_level(logging.WARNING):
+        threads = [threading.Thread(target=take, args=(n,)) for n in ("a", "b%s")]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        log.warning("after the batch")
+    messages = caplog.messages
+    assert len(messages) == 41
+    for name in ("a", "b%s"):
+        mine = [m for m in messages if m.endswith(f"of {name}")]
+        assert len(mine) == 20 and all(m.startswith(f"[{name}] window ") for m in mine)
+    assert messages[-1] == "after the batch"

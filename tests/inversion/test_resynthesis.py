@@ -109,7 +109,11 @@ def test_invert_command(setup, tmp_path, capsys):
         "0.34",
     ]
     assert main(args) == 0
-    assert "2 windows: 2 ok" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "2 windows: 2 ok" in printed
+    # issue 33: a summary, not the whole windows table (windows.csv holds it)
+    assert "t_start_s" not in printed and "n_evaluations" not in printed
+    assert "medians over the 2 ok windows: k " in printed and " Pa/m" in printed
     for name in (
         "windows.csv",
         "signals.png",
@@ -123,6 +127,11 @@ def test_invert_command(setup, tmp_path, capsys):
     assert main(args) == 2  # outputs exist, no --force
     assert "--force" in capsys.readouterr().err
     assert main([*args, "--force"]) == 0
+    # issue 33: exactly one window (0.30 - 0.28 < 0.02 in floating point) is one window
+    one = [*args[:-4], "--start", "0.28", "--end", "0.30", "--force"]
+    capsys.readouterr()
+    assert main(one) == 0
+    assert "1 windows: 1 ok" in capsys.readouterr().out
 
 
 def test_invert_command_bad_npz(tmp_path, capsys):

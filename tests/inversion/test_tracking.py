@@ -39,6 +39,9 @@ def test_plan_windows():
     assert plan_windows(10000, FS, 0.02, 0.02) == [0, 2000, 4000, 6000, 8000]
     assert plan_windows(10000, FS, 0.02, 0.01, start_s=0.03, end_s=0.08) == [3000, 4000, 5000, 6000]
     assert plan_windows(1000, FS, 0.02, 0.02) == []
+    # issue 33: a span of exactly one window holds it (0.42 - 0.40 < 0.02 in floating point)
+    for fs in (44_100.0, 51_200.0, 93_034.0, 96_000.0):
+        assert len(plan_windows(int(fs), fs, 0.02, 0.02, start_s=0.40, end_s=0.42)) == 1
 
 
 def test_progress_bar():

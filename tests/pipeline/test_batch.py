@@ -102,3 +102,28 @@ def test_a_batch_on_a_real_cluster_gives_each_take_its_own_table(
         name = t.audio.stem
         pd.testing.assert_frame_equal(_windows(alone / name), _windows(tmp_path / "b" / name))
         assert f"  {name}: ok;" in out
+
+
+def test_each_take_of_a_batch_names_itself_in_library_log_lines(monkeypatch, caplog, tmp_path):
+    # issue 33: the library's log lines (not only the stage lines) carry the take's name
+    import logging
+    from types import SimpleNamespace
+
+    import mpipe.pipeline.batch as batch
+
+    def fake_run_take(cfg, cal, take, out, *args):
+        logging.getLogger("mpipe.inversion.tracking").info("inverting %d windows", 3)
+        return "done"
+
+    monkeypatch.setattr(batch, "run_take", fake_run_take)
+    cfg = SimpleNamespace(executor=SimpleNamespace(workers=1))
+    takes = [[tmp_path / "one.flac"], [tmp_path / "two.flac"]]
+    with caplog.at_level(logging.INFO):
+        results = list(batch.run_takes(cfg, tmp_path / "cal.yaml", takes, tmp_path / "out"))
+        list(batch.run_takes(cfg, tmp_path / "cal.yaml", takes[:1], tmp_path / "out"))
+    assert [r for _, r, _ in results] == ["done", "done"]
+    assert caplog.messages == [
+        "[one] inverting 3 windows",
+        "[two] inverting 3 windows",
+        "inverting 3 windows",  # one take alone: its lines as before
+    ]

@@ -215,6 +215,22 @@ def test_every_door_gives_the_same_table(finished, take, pipeline, tmp_path):
         temperature_c=tr.temperature_c,
     ).tracking.table
 
+    # issue 33: load_run reads the folders of mpipe invert and mpipe separate too, and no
+    # finished command leaves its lock file behind (it is held while the command runs:
+    # tests/core/test_io.py)
+    from_invert, from_separate = mpipe.load_run(inv_dir), mpipe.load_run(sep_dir)
+    np.testing.assert_array_equal(from_invert.tables["windows"]["t_start_s"], via_cli["t_start_s"])
+    assert {"windows", "plan", "segments"} <= set(from_invert.tables)
+    assert from_invert.manifests["invert"]["mouthpiece"] == str(
+        (sep_dir / "mouthpiece.npz").resolve()
+    )
+    assert from_invert.unit("windows.k") == "Pa/m"
+    assert from_separate.fs == 100_000.0 and from_separate.unit("mouthpiece.p") == "Pa"
+    assert from_separate.signals["mouthpiece.p"].size == from_separate.signals["mouthpiece.u"].size
+    assert {"blocks", "impedance", "resonances"} <= set(from_separate.tables)
+    for folder in (sep_dir, inv_dir, run.folder):
+        assert not (folder / ".mpipe.lock").exists(), folder
+
     assert np.isfinite(via_run["kernel_temperature_se_c"]).all()  # fitted, with its SE
     for other in (via_cli, via_api):
         np.testing.assert_array_equal(other["t_start_s"], via_run["t_start_s"])
@@ -273,6 +289,24 @@ def test_load_run_gives_tables_and_signals_with_units(finished):
     assert numeric and not any(len(tok) > 17 for tok in numeric)
     with pytest.raises(TypeError):
         data.tables["windows"] = None
+
+
+def test_a_run_prints_short(finished):
+    # issue 33: printing a RunData dumped every table and signal
+    import mpipe
+
+    data = mpipe.load_run(finished[0])
+    text = repr(data)
+    assert text.startswith("RunData(") and len(text.splitlines()) < 30 and len(text) < 2500
+    n = len(data.tables["windows"])
+    assert f"tables['windows']: {n} rows x " in text
+    assert f"signals['mouthpiece.p']: {data.signals['mouthpiece.p'].size} samples [Pa]" in text
+    assert "validation: pass" in text and "fs: 100000 Hz" in text
+    statuses = data.tables["windows"]["status"].value_counts()
+    assert all(f"{count} {status}" in text for status, count in statuses.items())
+    html = data._repr_html_()
+    assert html.startswith("<table>") and "tables[&#x27;windows&#x27;]" in html
+    assert len(html) < 5000
 
 
 def test_load_run_finds_the_run_in_the_folder_above(finished, tmp_path):

@@ -67,12 +67,19 @@ def test_shipped_scores_load(setup):
         ({"notes": []}, r"notes: expected at least one note"),
         ({0: {"p_m": 1800}}, r"notes\[0\]\.duration: missing required key"),
         ({0: {"duration": 0.5, "pm": 1}}, r"notes\[0\]\.pm: unknown key"),
-        ({0: {"duration": 0.5, "lam": 0.01}}, r"notes\[0\]\.lam: unknown key.*'lambda'"),
+        ({0: {"duration": 0.5, "lam": 0.01}},
+         r"notes\[0\]\.lam: unknown key \(did you mean lambda\?"),
         ({0: {"duration": 0.5, "y_m": [[0, 4e-4], [0.1]]}},
          r"notes\[0\]\.y_m\[1\]: expected a pair"),
         ({0: {"duration": 0.5, "p_m": [[0.2, 1800], [0.1, 1900]]}},
          r"notes\[0\]\.p_m: breakpoint times must be"),
-        ({0: {"duration": 0.5, "p_m": -3}}, r"notes\[0\]\.p_m\[0\]: expected a positive"),
+        ({0: {"duration": 0.5, "p_m": -3}}, r"notes\[0\]\.p_m: expected a positive"),
+        ({0: {"duration": 0.5, "p_m": 1e9}},
+         r"notes\[0\]\.p_m: implausible value 1e\+09 Pa; expected a value in \[1, 100000\]"),
+        ({0: {"duration": 0.5, "y_m": [[0, 4e-4], [0.2, 0.5]]}},
+         r"notes\[0\]\.y_m\[1\]: implausible value 0.5 m"),
+        ({0: {"duration": 0.002, "attack": 0, "release": 0}},
+         r"notes\[0\]\.duration: 0.002 s sounds for 0.002 s, shorter than 0.03 s"),
         ({0: {"duration": 0.04, "tongued": True}}, r"notes\[0\]\.duration: 0\.04 s leaves"),
         ({0: {"duration": 0.5, "vibrato": {"rate": 500, "depth": 0.1}}},
          r"notes\[0\]\.vibrato\.rate: expected a value in"),
@@ -98,3 +105,15 @@ def test_a_take_shorter_than_its_score_is_refused(setup):
     *_, reed, _, _ = setup
     with pytest.raises(ConfigError, match="shorter than the score"):
         score_controls(score_from_mapping(PHRASE), reed, FS, duration_s=0.5)
+
+
+def test_a_take_sidecar_score_reads_back_as_a_score():
+    # the sidecar's score is keyed as a score file (a reed width `lambda`, not `lam`)
+    from mpipe.reed.score import score_mapping
+
+    score = score_from_mapping(
+        {"notes": [{"duration": 0.5, "lambda": [[0.0, 0.012], [0.3, 0.014]]}, {"duration": 0.4}]}
+    )
+    plain = yaml.safe_load(yaml.safe_dump(score_mapping(score)))
+    assert "lambda" in plain["notes"][0] and "lam" not in plain["notes"][0]
+    assert score_from_mapping(plain) == score

@@ -17,6 +17,7 @@ from mpipe.cli.commands import add_fingering_option
 from mpipe.core.errors import UserError
 from mpipe.core.io import check_writable, folder_lock, write_atomic, write_text_atomic
 from mpipe.core.resampling import resample
+from mpipe.core.units import unit_of
 from mpipe.inversion.conditioning import bore_resonances, plan_take
 from mpipe.inversion.execution import connect
 from mpipe.inversion.segments import segment_summary, with_played
@@ -103,8 +104,7 @@ def load_mouthpiece(path: str | Path) -> tuple[float, np.ndarray, np.ndarray, np
                 f"{np.array2string(fs_arr.ravel()[:3])}"
             )
         fs = float(fs_arr.ravel()[0])
-        p = _numeric(data, "p", path).astype(float).ravel()
-        u = _numeric(data, "u", path).astype(float).ravel()
+        p, u = (_one_channel(_numeric(data, key, path), key, path) for key in ("p", "u"))
         temperature = (
             _numeric(data, "temperature_c", path) if "temperature_c" in data.files else None
         )
@@ -113,6 +113,16 @@ def load_mouthpiece(path: str | Path) -> tuple[float, np.ndarray, np.ndarray, np
     if not (np.all(np.isfinite(p)) and np.all(np.isfinite(u))):
         raise UserError(f"{path}: p or u contains non-finite samples")
     return fs, p, u, temperature
+
+
+def _one_channel(arr: np.ndarray, key: str, path) -> np.ndarray:
+    """A 1-D float signal; an array of several channels (N x 2) is refused, not flattened."""
+    if sum(d > 1 for d in arr.shape) > 1:
+        raise UserError(
+            f"{path}: key {key!r} holds an array of shape {arr.shape}; expected one signal "
+            "(1-D, one value per sample): save one column, e.g. p[:, 0]"
+        )
+    return arr.astype(float).ravel()
 
 
 def _numeric(data, key: str, path) -> np.ndarray:
@@ -264,15 +274,28 @@ def _write_results(out: Path, plan, result, p, u, fs: float, kernel, air, inv) -
     rs.write_wav(out / "resynthesis.wav", res.p, fs)
 
 
+#: Windows not ok named one by one on the console; the rest are counted (windows.csv has all).
+MAX_LISTED = 5
+
+
 def _print_windows(table, out: Path) -> int:
-    """The per-window table and the windows not ok on stdout; 1 when none is ok."""
-    cols = ["t_start_s", "status", "k", "S", "y_m", "p_m", "m", "g", "lam", "k_c",
-            "relative_residual", "n_evaluations"]  # fmt: skip
-    sys.stdout.write(table[cols].to_string(index=False, float_format=lambda v: f"{v:.4g}"))
-    sys.stdout.write("\n")
-    for _, row in table[table["status"] != "ok"].iterrows():
+    """A summary on stdout (not the whole table: windows.csv has it); 1 when none is ok."""
+    ok = table[table["status"] == "ok"]
+    if len(ok):
+        medians = ", ".join(
+            f"{name} {ok[name].median():.4g} {unit_of(name)}".rstrip()
+            for name in ("k", "S", "y_m", "p_m", "lam", "m", "g", "k_c")
+            if name in ok
+        )
+        sys.stdout.write(f"medians over the {len(ok)} ok windows: {medians}\n")
+    bad = table[table["status"] != "ok"]
+    for _, row in bad.head(MAX_LISTED).iterrows():
         sys.stdout.write(f"window at {row['t_start_s']:.3f} s: {row['status']}: "
                          f"{row['status_reason']}\n")  # fmt: skip
+    if len(bad) > MAX_LISTED:
+        sys.stdout.write(
+            f"... and {len(bad) - MAX_LISTED} more windows not ok (windows.csv, status_reason)\n"
+        )
     n_ok = int((table["status"] == "ok").sum())
     sys.stdout.write(f"{summary_line(table)}; results in {out}\n")
     if n_ok == 0:

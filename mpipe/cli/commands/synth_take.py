@@ -16,6 +16,7 @@ from mpipe.cli.commands import add_fingering_option
 from mpipe.cli.virtual_takes import SynthOptions, make_take
 from mpipe.core.config import ConfigError
 from mpipe.core.errors import UserError
+from mpipe.reed.score import load_score
 
 
 def _numbers(text: str, count: int | tuple[int, ...], what: str) -> tuple[float, ...]:
@@ -164,10 +165,23 @@ def _add_player(p) -> None:
 BYTES_PER_MODEL_SAMPLE = 320
 
 
-def _check_duration(duration_s: float, fs_model: float) -> None:
-    """Refuse, before simulating, a duration that is not positive or will not fit in memory."""
+def _check_duration(
+    duration_s: float, fs_model: float, fs_out: float | None = None, what: str = "--duration"
+) -> None:
+    """Refuse, before simulating, a duration that is not positive or will not fit in memory.
+
+    ``what`` names the source of the length in the message: ``--duration``, or a score
+    (``SCORE.yaml: the score's length``).
+    """
     if not (math.isfinite(duration_s) and duration_s > 0):
-        raise UserError(f"--duration: expected a positive length in s, got {duration_s:g}")
+        raise UserError(f"{what}: expected a positive length in s, got {duration_s:g}")
+    # the recording needs two samples at each rate (a 1 us take was an IndexError)
+    shortest = 2.0 / min(fs_model, fs_out or fs_model)
+    if duration_s < shortest:
+        raise UserError(
+            f"{what}: {duration_s:g} s holds fewer than two samples at "
+            f"{min(fs_model, fs_out or fs_model):g} Hz; expected at least {shortest:.3g} s"
+        )
     need = duration_s * fs_model * BYTES_PER_MODEL_SAMPLE
     try:
         have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
@@ -176,7 +190,7 @@ def _check_duration(duration_s: float, fs_model: float) -> None:
     if need > 0.8 * have:
         longest = 0.8 * have / (fs_model * BYTES_PER_MODEL_SAMPLE)
         raise UserError(
-            f"--duration: {duration_s:g} s at --fs-model {fs_model:g} Hz needs about "
+            f"{what}: {duration_s:g} s at --fs-model {fs_model:g} Hz needs about "
             f"{need / 2**30:.3g} GiB of memory, this machine has {have / 2**30:.3g} GiB; "
             f"expected at most {longest:.0f} s"
         )
@@ -186,7 +200,12 @@ def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe synth-take``."""
     _resolve_player(args)
     if args.duration is not None:
-        _check_duration(args.duration, args.fs_model)
+        _check_duration(args.duration, args.fs_model, args.fs_out)
+    if args.score is not None:
+        # the score's notes and silences set the length: the same memory check, naming it
+        score = load_score(args.score)
+        _check_duration(score.duration, args.fs_model, args.fs_out,
+                        f"{args.score}: the score's length")  # fmt: skip
     temp = args.temperature
     if temp is not None:
         temp = temp[0] if len(temp) == 1 else (temp[0], temp[1])
