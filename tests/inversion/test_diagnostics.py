@@ -78,10 +78,26 @@ def test_a_front_end_temperature_asked_for_is_no_fallback():
     assert take_checks(_windows(), config, temperature_source="front end") == []
 
 
-def test_windows_not_ok_do_not_count_in_the_medians():
-    table = _windows(model_level_db=[0.0, 0.0, 0.0, 9.0, 9.0])
-    table.loc[3:, "status"] = "at-bound"
-    assert take_checks(table, CFG, temperature_source="fit") == []
+def test_windows_not_ok_count_in_the_medians_so_each_check_can_fire():
+    # mpipe <= 0.4 judged the ok windows only: a window above residual_limit is never ok,
+    # so a take all in a wrong basin (every window high-residual) passed
+    table = _windows(relative_residual=0.2)
+    table["status"] = "high-residual"
+    checks = take_checks(table, CFG, temperature_source="fit")
+    assert any("median relative residual 0.2 " in c for c in checks), checks
+    level = _windows(model_level_db=[0.0, 0.0, 1.5, 1.5, 1.5])
+    level.loc[2:, "status"] = "at-bound"
+    assert any("RMS level" in c for c in take_checks(level, CFG, temperature_source="fit"))
+
+
+def test_a_nan_median_does_not_pass():
+    # the model silent (no level, no period) in every window: never a pass
+    table = _windows(model_f0_cents=np.nan, model_level_db=np.nan)
+    checks = take_checks(table, CFG, temperature_source="fit")
+    assert any("playing frequency could be compared" in c for c in checks), checks
+    assert any("RMS level could be compared" in c for c in checks), checks
+    table = _windows(relative_residual=np.nan)
+    assert any("finite residual" in c for c in take_checks(table, CFG, temperature_source="fit"))
 
 
 def test_impedance_ratio_and_the_plausibility_of_the_flows_scale():
