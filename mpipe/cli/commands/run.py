@@ -21,7 +21,7 @@ from mpipe.measurement.calibration import load_calibration
 from mpipe.pipeline.batch import run_takes, summary_lines
 from mpipe.pipeline.orchestration import ValidationFailed, usable
 from mpipe.pipeline.settings import load_pipeline
-from mpipe.pipeline.take_calibration import take_calibrations
+from mpipe.pipeline.take_calibration import own_calibration, take_calibrations
 
 
 def add_parser(sub) -> None:
@@ -147,6 +147,9 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"{cal_path}: no such calibration file")
         # a bad calibration or fingering: one line before any work, not one per take
         load_calibration(cal_path, cfg.fingering)
+    for name, take, cal_path in zip(names, takes, cals, strict=True):
+        if cal_path == own_calibration(take):
+            write(f"[{name}] read with its own calibration {cal_path} (beside the take)")
     _check_lengths(takes, cfg)
     # a bad output path fails now, not after the computation
     check_output_folder(args.output)
