@@ -23,8 +23,9 @@ not fire):
   ``at-bound``, ``failed``, ``not-converged`` or ``high-residual``: the model cannot play
   it (a reed outside the search bounds, another fingering);
 - at least :data:`OUTLIER_MIN` windows (and :data:`OUTLIER_FRACTION` of the take) whose
-  residual is more than :data:`OUTLIER_FACTOR` times the take's median: something the
-  model does not play (another sound, a click, a manipulated signal);
+  residual is more than :data:`OUTLIER_FACTOR` times the take's lower quartile (its normal
+  level, even with half its windows far off): something the model does not play (another
+  sound, a click, a manipulated signal);
 - reasons found before the inversion (``extra``: e.g. a take read with a calibration
   other than the one its sidecar records, :mod:`mpipe.pipeline.take_calibration`).
 
@@ -51,8 +52,8 @@ MIN_AGREEING = 2
 NOTE_MIN_WINDOWS = 3
 #: Statuses of windows the model did not play: half a note of them and the note is flagged.
 UNPLAYED = ("at-bound", "failed", "not-converged", "high-residual")
-#: A window whose relative residual is more than this many times the take's median is an
-#: outlier (a right fit's windows stay within about 3x of the median: attacks, releases).
+#: A window whose relative residual is more than this many times the take's lower quartile
+#: is an outlier (a right fit's windows stay within 3x of it: attacks, releases, notes).
 OUTLIER_FACTOR = 10.0
 #: Outlier windows flag the take from this many on, and from this fraction of its windows.
 OUTLIER_MIN = 3
@@ -224,7 +225,8 @@ def _outlier_windows(table: pd.DataFrame) -> list[str]:
     finite = residual[np.isfinite(residual)]
     if not len(finite):
         return []
-    normal = float(finite.median())
+    # the lower quartile: the normal level even when half the windows are far off
+    normal = float(finite.quantile(0.25))
     far = finite[finite > OUTLIER_FACTOR * normal]
     if len(far) < max(OUTLIER_MIN, OUTLIER_FRACTION * len(finite)):
         return []
@@ -240,8 +242,8 @@ def _outlier_windows(table: pd.DataFrame) -> list[str]:
     )
     return [
         f"{len(far)} of {len(finite)} windows have a residual more than {OUTLIER_FACTOR:g}x the "
-        f"take's median {normal:.3g} (up to {float(far.max()) / normal:.0f}x){at}: something "
-        "the model does not play (another sound, a click, a manipulated signal)"
+        f"take's lower quartile {normal:.3g} (up to {float(far.max()) / normal:.0f}x){at}: "
+        "something the model does not play (another sound, a click, a manipulated signal)"
     ]
 
 
