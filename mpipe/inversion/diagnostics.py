@@ -207,8 +207,9 @@ def _unplayable_notes(table: pd.DataFrame) -> list[str]:
             continue
         kinds = rows.loc[bad, "status"].value_counts()
         which = ", ".join(f"{c} {s}" for s, c in kinds.items())
-        t = pd.to_numeric(rows.get("t_start_s", pd.Series(math.nan)), errors="coerce")
-        when = f" ({t.min():.2f}-{t.max() + 0.02:.2f} s)" if t.notna().any() else ""
+        t0 = pd.to_numeric(rows.get("t_start_s", pd.Series(math.nan)), errors="coerce")
+        t1 = pd.to_numeric(rows.get("t_end_s", t0), errors="coerce")
+        when = f" ({t0.min():.2f}-{t1.max():.2f} s)" if t0.notna().any() else ""
         reasons.append(
             f"the model cannot play note segment {g}{when}: {int(bad.sum())} of {len(rows)} "
             f"windows not ok ({which}): a reed outside the search bounds, or a bore or "
