@@ -22,8 +22,8 @@ not fire):
 - a note of at least :data:`NOTE_MIN_WINDOWS` windows of which at least half ended
   ``at-bound``, ``failed``, ``not-converged`` or ``high-residual``: the model cannot play
   it (a reed outside the search bounds, another fingering);
-- at least :data:`OUTLIER_MIN` windows (and :data:`OUTLIER_FRACTION` of the take) whose
-  residual is more than :data:`OUTLIER_FACTOR` times the take's lower quartile (its normal
+- at least :data:`OUTLIER_MIN` sustained windows (and :data:`OUTLIER_FRACTION` of them)
+  whose residual is more than :data:`OUTLIER_FACTOR` times the take's lower quartile (its normal
   level, even with half its windows far off): something the model does not play (another
   sound, a click, a manipulated signal);
 - reasons found before the inversion (``extra``: e.g. a take read with a calibration
@@ -52,9 +52,10 @@ MIN_AGREEING = 2
 NOTE_MIN_WINDOWS = 3
 #: Statuses of windows the model did not play: half a note of them and the note is flagged.
 UNPLAYED = ("at-bound", "failed", "not-converged", "high-residual")
-#: A window whose relative residual is more than this many times the take's lower quartile
-#: is an outlier (a right fit's windows stay within 3x of it: attacks, releases, notes).
-OUTLIER_FACTOR = 10.0
+#: A sustained window whose relative residual is more than this many times the take's
+#: lower quartile is an outlier (a right fit's sustained windows stayed within 3x of it on
+#: the good takes measured; its releases reach 24x, so onsets and releases are left out).
+OUTLIER_FACTOR = 5.0
 #: Outlier windows flag the take from this many on, and from this fraction of its windows.
 OUTLIER_MIN = 3
 OUTLIER_FRACTION = 0.02
@@ -219,10 +220,17 @@ def _unplayable_notes(table: pd.DataFrame) -> list[str]:
 
 
 def _outlier_windows(table: pd.DataFrame) -> list[str]:
-    """Windows whose residual is many times the take's median."""
+    """Sustained windows whose residual is many times the take's lower quartile.
+
+    Onsets and releases are left out when the table names the phases (and enough sustained
+    windows remain): a right fit leaves a release window at up to 24x the lower quartile.
+    """
     if "relative_residual" not in table:
         return []
-    residual = pd.to_numeric(table["relative_residual"], errors="coerce")
+    rows = table
+    if "phase" in table and (table["phase"] == "sustain").sum() >= 2 * OUTLIER_MIN:
+        rows = table[table["phase"] == "sustain"]
+    residual = pd.to_numeric(rows["relative_residual"], errors="coerce")
     finite = residual[np.isfinite(residual)]
     if not len(finite):
         return []
@@ -232,8 +240,8 @@ def _outlier_windows(table: pd.DataFrame) -> list[str]:
     if len(far) < max(OUTLIER_MIN, OUTLIER_FRACTION * len(finite)):
         return []
     t = (
-        pd.to_numeric(table.loc[far.index, "t_start_s"], errors="coerce")
-        if "t_start_s" in table
+        pd.to_numeric(rows.loc[far.index, "t_start_s"], errors="coerce")
+        if "t_start_s" in rows
         else None
     )
     at = (
@@ -242,9 +250,11 @@ def _outlier_windows(table: pd.DataFrame) -> list[str]:
         else " at " + ", ".join(f"{x:.2f}" for x in t.head(5)) + (" s, ..." if len(t) > 5 else " s")
     )
     return [
-        f"{len(far)} of {len(finite)} windows have a residual more than {OUTLIER_FACTOR:g}x the "
-        f"take's lower quartile {normal:.3g} (up to {float(far.max()) / normal:.0f}x){at}: "
-        "something the model does not play (another sound, a click, a manipulated signal)"
+        f"{len(far)} of {len(finite)} {'' if rows is table else 'sustained '}windows have a "
+        "residual more than "
+        f"{OUTLIER_FACTOR:g}x the take's lower quartile {normal:.3g} (up to "
+        f"{float(far.max()) / normal:.0f}x){at}: something the model does not play (another "
+        "sound, a click, a manipulated signal)"
     ]
 
 

@@ -167,13 +167,14 @@ def test_the_models_own_take_passes_and_processed_wrongly_it_ends_check(
     for words in ("median relative residual", "RMS level departs"):
         assert any(words in c for c in level.checks), (words, level.checks)
     assert level.tracking.table["take_checks"].str.contains("RMS level").all()
-    # three of the six windows with a noise burst at about 20x the take's normal residual
+    # the last three of the six windows under a noise burst, at about 100x the take's normal
+    # residual (a burst also spoils the next window's lead-in: the bursts are adjacent)
     burst = p.copy()
     rng = np.random.default_rng(8)
-    for s in STARTS[1::2]:
+    for s in STARTS[3:]:
         burst[s : s + 2000] += 0.1 * np.std(p) * rng.standard_normal(2000)
     far = _invert(burst, u, shipped_calibration)
-    assert any("3 of 6 windows have a residual more than 10x" in c for c in far.checks), far.checks
+    assert any("3 of 6 windows have a residual more than 5x" in c for c in far.checks), far.checks
 
 
 def test_a_note_the_model_cannot_play_ends_check_and_leaves_the_temperature_alone(
