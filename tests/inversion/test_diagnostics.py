@@ -188,4 +188,7 @@ def test_a_note_the_model_cannot_play_ends_check_and_leaves_the_temperature_alon
                    temperature="fit", temperature_windows=4)  # fmt: skip
     assert any("cannot play note segment 2" in c for c in done.checks), done.checks
     fit = done.temperature
-    assert fit.source == "fit" and abs(fit.temperature_c - 20.0) < 0.3, fit.line()
+    if fit.source == "fit":  # the note left out, the good note's temperature kept
+        assert abs(fit.temperature_c - 20.0) < 0.3, fit.line()
+    else:  # R(T) over both notes had no minimum: the fall back is a reason of its own
+        assert any("fit fell back" in c for c in done.checks), done.checks

@@ -82,7 +82,7 @@ def test_a_batch_side_by_side_gives_each_take_its_own_table(takes, alone, tmp_pa
     assert "4 takes:" in out and "  empty: failed" in out
     # the light search of these tests (2 short searches) may leave a cold start agreed by
     # one: a take-level CHECK; nothing else may be
-    checks = [line for line in out.splitlines() if "CHECK: " in line]
+    checks = [line for line in out.splitlines() if "]     CHECK: " in line]
     assert all("cold start's minimum" in line for line in checks), checks
     for t, p_m in zip(takes, PLAYERS, strict=True):
         name = t.audio.stem
