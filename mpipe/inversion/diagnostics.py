@@ -22,7 +22,7 @@ not fire):
 - a note of at least :data:`NOTE_MIN_WINDOWS` windows of which at least half ended
   ``at-bound``, ``failed``, ``not-converged`` or ``high-residual``: the model cannot play
   it (a reed outside the search bounds, another fingering);
-- at least :data:`OUTLIER_MIN` sustained windows (and :data:`OUTLIER_FRACTION` of them)
+- at least :data:`OUTLIER_MIN` steady windows (and :data:`OUTLIER_FRACTION` of them)
   whose residual is more than :data:`OUTLIER_FACTOR` times the take's lower quartile (its normal
   level, even with half its windows far off): something the model does not play (another
   sound, a click, a manipulated signal);
@@ -107,6 +107,7 @@ def take_checks(
     cold_starts_agreeing: int | None = None,
     notes: NoteTemperatures | None = None,
     extra: Sequence[str] = (),
+    steady: Sequence[bool] | None = None,
 ) -> list[str]:
     """Reasons, one line each, why a take's result should not pass (empty: none).
 
@@ -130,6 +131,9 @@ def take_checks(
         The notes' own kernel temperatures (:mod:`mpipe.inversion.note_temperature`).
     extra : sequence of str
         Reasons found before the inversion, kept first.
+    steady : sequence of bool or None
+        Which windows are steady (the plan's; else the table's ``phase`` is read): the
+        outlier windows are looked for among them.
 
     Returns
     -------
@@ -154,7 +158,7 @@ def take_checks(
         return reasons
     reasons += _playing_checks(table, config)
     reasons += _unplayable_notes(table)
-    reasons += _outlier_windows(table)
+    reasons += _outlier_windows(table, steady)
     return reasons
 
 
@@ -219,17 +223,22 @@ def _unplayable_notes(table: pd.DataFrame) -> list[str]:
     return reasons
 
 
-def _outlier_windows(table: pd.DataFrame) -> list[str]:
+def _outlier_windows(table: pd.DataFrame, steady: Sequence[bool] | None) -> list[str]:
     """Sustained windows whose residual is many times the take's lower quartile.
 
-    Onsets and releases are left out when the table names the phases (and enough sustained
-    windows remain): a right fit leaves a release window at up to 24x the lower quartile.
+    Onsets and releases are left out when the plan says which windows are steady (or the
+    table names the phases) and enough remain: a right fit leaves a release window at up
+    to 24x the lower quartile.
     """
     if "relative_residual" not in table:
         return []
-    rows = table
-    if "phase" in table and (table["phase"] == "sustain").sum() >= 2 * OUTLIER_MIN:
-        rows = table[table["phase"] == "sustain"]
+    if steady is not None and len(steady) == len(table):
+        held = np.asarray(steady, dtype=bool)
+    elif "phase" in table:
+        held = (table["phase"] == "sustain").to_numpy()
+    else:
+        held = np.ones(len(table), dtype=bool)
+    rows = table[held] if held.sum() >= 2 * OUTLIER_MIN else table
     residual = pd.to_numeric(rows["relative_residual"], errors="coerce")
     finite = residual[np.isfinite(residual)]
     if not len(finite):
@@ -250,7 +259,7 @@ def _outlier_windows(table: pd.DataFrame) -> list[str]:
         else " at " + ", ".join(f"{x:.2f}" for x in t.head(5)) + (" s, ..." if len(t) > 5 else " s")
     )
     return [
-        f"{len(far)} of {len(finite)} {'' if rows is table else 'sustained '}windows have a "
+        f"{len(far)} of {len(finite)} {'' if rows is table else 'steady '}windows have a "
         "residual more than "
         f"{OUTLIER_FACTOR:g}x the take's lower quartile {normal:.3g} (up to "
         f"{float(far.max()) / normal:.0f}x){at}: something the model does not play (another "
