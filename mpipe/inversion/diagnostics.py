@@ -22,7 +22,8 @@ not fire):
 - a note of at least :data:`NOTE_MIN_WINDOWS` windows of which at least half ended
   ``at-bound``, ``failed``, ``not-converged`` or ``high-residual``: the model cannot play
   it (a reed outside the search bounds, another fingering);
-- at least :data:`OUTLIER_MIN` steady windows (and :data:`OUTLIER_FRACTION` of them)
+- at least :data:`OUTLIER_MIN` windows inside their notes (and :data:`OUTLIER_FRACTION`
+  of them)
   whose residual is more than :data:`OUTLIER_FACTOR` times the take's lower quartile (its normal
   level, even with half its windows far off): something the model does not play (another
   sound, a click, a manipulated signal);
@@ -52,10 +53,12 @@ MIN_AGREEING = 2
 NOTE_MIN_WINDOWS = 3
 #: Statuses of windows the model did not play: half a note of them and the note is flagged.
 UNPLAYED = ("at-bound", "failed", "not-converged", "high-residual")
-#: A sustained window whose relative residual is more than this many times the take's
-#: lower quartile is an outlier (a right fit's sustained windows stayed within 3x of it on
-#: the good takes measured; its releases reach 24x, so onsets and releases are left out).
+#: A window inside its note whose relative residual is more than this many times the take's
+#: lower quartile is an outlier (a right fit's stayed within 3x of it on the good takes
+#: measured; its releases reach 24x, so each note's first and last windows are left out).
 OUTLIER_FACTOR = 5.0
+#: Windows left out at each end of a note by the outlier check.
+OUTLIER_EDGE = 2
 #: Outlier windows flag the take from this many on, and from this fraction of its windows.
 OUTLIER_MIN = 3
 OUTLIER_FRACTION = 0.02
@@ -107,7 +110,6 @@ def take_checks(
     cold_starts_agreeing: int | None = None,
     notes: NoteTemperatures | None = None,
     extra: Sequence[str] = (),
-    steady: Sequence[bool] | None = None,
 ) -> list[str]:
     """Reasons, one line each, why a take's result should not pass (empty: none).
 
@@ -131,9 +133,6 @@ def take_checks(
         The notes' own kernel temperatures (:mod:`mpipe.inversion.note_temperature`).
     extra : sequence of str
         Reasons found before the inversion, kept first.
-    steady : sequence of bool or None
-        Which windows are steady (the plan's; else the table's ``phase`` is read): the
-        outlier windows are looked for among them.
 
     Returns
     -------
@@ -158,7 +157,7 @@ def take_checks(
         return reasons
     reasons += _playing_checks(table, config)
     reasons += _unplayable_notes(table)
-    reasons += _outlier_windows(table, steady)
+    reasons += _outlier_windows(table)
     return reasons
 
 
@@ -223,21 +222,19 @@ def _unplayable_notes(table: pd.DataFrame) -> list[str]:
     return reasons
 
 
-def _outlier_windows(table: pd.DataFrame, steady: Sequence[bool] | None) -> list[str]:
-    """Sustained windows whose residual is many times the take's lower quartile.
+def _outlier_windows(table: pd.DataFrame) -> list[str]:
+    """Windows inside their notes whose residual is many times the take's lower quartile.
 
-    Onsets and releases are left out when the plan says which windows are steady (or the
-    table names the phases) and enough remain: a right fit leaves a release window at up
-    to 24x the lower quartile.
+    The first and last :data:`OUTLIER_EDGE` windows of each note (its attack and release)
+    are left out when enough windows remain: a right fit leaves a release window at up to
+    24x the lower quartile.
     """
     if "relative_residual" not in table:
         return []
-    if steady is not None and len(steady) == len(table):
-        held = np.asarray(steady, dtype=bool)
-    elif "phase" in table:
-        held = (table["phase"] == "sustain").to_numpy()
-    else:
-        held = np.ones(len(table), dtype=bool)
+    segments = table["segment"] if "segment" in table else pd.Series(0, index=table.index)
+    order = segments.groupby(segments).cumcount()
+    size = segments.map(segments.value_counts())
+    held = ((order >= OUTLIER_EDGE) & (order < size - OUTLIER_EDGE)).to_numpy()
     rows = table[held] if held.sum() >= 2 * OUTLIER_MIN else table
     residual = pd.to_numeric(rows["relative_residual"], errors="coerce")
     finite = residual[np.isfinite(residual)]
@@ -259,7 +256,7 @@ def _outlier_windows(table: pd.DataFrame, steady: Sequence[bool] | None) -> list
         else " at " + ", ".join(f"{x:.2f}" for x in t.head(5)) + (" s, ..." if len(t) > 5 else " s")
     )
     return [
-        f"{len(far)} of {len(finite)} {'' if rows is table else 'steady '}windows have a "
+        f"{len(far)} of {len(finite)} {'' if rows is table else 'inner '}windows have a "
         "residual more than "
         f"{OUTLIER_FACTOR:g}x the take's lower quartile {normal:.3g} (up to "
         f"{float(far.max()) / normal:.0f}x){at}: something the model does not play (another "
@@ -282,6 +279,7 @@ __all__ = [
     "IMPEDANCE_RATIO_RANGE",
     "MIN_AGREEING",
     "NOTE_MIN_WINDOWS",
+    "OUTLIER_EDGE",
     "OUTLIER_FACTOR",
     "OUTLIER_FRACTION",
     "OUTLIER_MIN",

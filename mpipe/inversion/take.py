@@ -153,7 +153,6 @@ def invert_take(
     checks = take_checks(
         table, config, temperature_source=fit.source, temperature_note=fit.note,
         cold_starts_agreeing=agreeing, notes=fit.notes, extra=extra_checks,
-        steady=plan.steady,
     )  # fmt: skip
     table["take_checks"] = "; ".join(checks)
     return TakeInversion(dataclasses.replace(result, table=table), fit, kernel, air, tuple(checks))
