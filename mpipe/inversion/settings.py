@@ -255,8 +255,9 @@ class InversionConfig:
     )
     residual_factor: float = spec(
         "",
-        "a window whose relative residual exceeds this multiple of the take's best is "
-        "high-residual",
+        "a window whose model-form residual (model_residual: its residual at the harmonics "
+        "beyond the noise) exceeds this multiple of its note's median, and its note's median "
+        "+ 5 MAD, and its own noise residual, is high-residual",
         between(1.0, 1e6),
         default=3.0,
     )
@@ -268,6 +269,15 @@ class InversionConfig:
         "flagged",
         between(1e-6, 10.0),
         default=0.10,
+    )
+    model_form_floor: float = spec(
+        "",
+        "model-form floor: the misfit the model is assumed to leave at least at every "
+        "harmonic, as a fraction of the measured pressure's amplitude there; propagated to "
+        "every quantity's <q>_se_model (measured on an independent simulator, OpenWInD: "
+        "docs/uncertainty.md)",
+        between(0.0, 1.0),
+        default=0.0,
     )
     pitch_limit_cents: float = spec(
         "cent",
