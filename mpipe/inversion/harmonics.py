@@ -52,19 +52,35 @@ BAND_ENERGY = 0.999
 F0_SEARCH = 0.004
 
 
-def smoothed_periodogram(x: np.ndarray, bins: int = SPECTRUM_BINS) -> np.ndarray:
-    """``|X_f|^2 / n`` on the one-sided DFT grid, averaged over ``bins`` neighbouring bins.
+def band_average(
+    values: np.ndarray, bins: int = SPECTRUM_BINS, use: np.ndarray | None = None
+) -> np.ndarray:
+    """Average of per-bin ``values`` over ``bins`` neighbouring one-sided DFT bins.
 
-    Mirrored at 0 and Nyquist. ``sum_f w_f P_f = ||x||^2`` before the average (w_f the
-    one-sided weights, :func:`one_sided_weights`). Unit: that of x squared.
+    Mirrored at 0 and Nyquist. ``use`` (bool per bin): only those bins enter the average
+    (a bin whose neighbourhood holds none of them keeps its own value).
     """
-    n = x.size
-    power = np.abs(np.fft.rfft(x)) ** 2 / n
     half = bins // 2
-    if half == 0 or power.size <= half + 1:
-        return power
-    padded = np.concatenate([power[1 : half + 1][::-1], power, power[-half - 1 : -1][::-1]])
-    return np.convolve(padded, np.ones(bins) / bins, mode="valid")[: power.size]
+    if half == 0 or values.size <= half + 1:
+        return values
+    mask = np.ones(values.size) if use is None else np.asarray(use, dtype=float)
+
+    def total(v: np.ndarray) -> np.ndarray:
+        padded = np.concatenate([v[1 : half + 1][::-1], v, v[-half - 1 : -1][::-1]])
+        return np.convolve(padded, np.ones(bins), mode="valid")[: v.size]
+
+    count = total(mask)
+    return np.where(count > 0, total(values * mask) / np.where(count > 0, count, 1), values)
+
+
+def periodogram(x: np.ndarray) -> np.ndarray:
+    """``|X_f|^2 / n`` on the one-sided DFT grid (``sum_f w_f P_f = ||x||^2``; x's unit^2)."""
+    return np.abs(np.fft.rfft(x, axis=0)) ** 2 / x.shape[0]
+
+
+def smoothed_periodogram(x: np.ndarray, bins: int = SPECTRUM_BINS) -> np.ndarray:
+    """:func:`periodogram` averaged over ``bins`` neighbouring bins (:func:`band_average`)."""
+    return band_average(periodogram(x), bins)
 
 
 def one_sided_weights(n: int) -> np.ndarray:
@@ -177,25 +193,37 @@ def split_residual(
     period = estimate_period(p, fs)
     if not period > 0:
         return None
-    top = min(band_top(j, fs), 0.5 * fs)
+    # the harmonics of the Jacobian's band and of the pressure's (a misfit sits where the
+    # note has power, and one left out of h would be counted as noise next to the band)
+    top = min(max(band_top(j, fs), band_top((p - p.mean())[:, None], fs)), 0.5 * fs)
     f0 = fs / period
     k = int(math.floor(top / f0 - 0.5))
     if k < 1:
         return None
     f0 = refine_f0(p - p.mean(), fs, f0, min(k, 10))
     k = max(1, int(math.floor(min(top, 0.5 * fs) / f0 - 0.5)))
-    h = _harmonic_fit(r, fs, f0, k)
+    basis, _ = np.linalg.qr(_design(n, fs, f0, k))
+    h = basis @ (basis.T @ r)
+    # share of a white noise's power at each bin that the harmonic fit takes into h
+    # (exactly: sum over the basis of |DFT|^2 / n), so e = r - h keeps 1 - held of it
+    held = periodogram(basis).sum(axis=1)
     freqs = np.fft.rfftfreq(n, 1 / fs)
     inband = (freqs >= 0.5 * f0) & (freqs <= (k + 0.5) * f0)
     band_dof = 2.0 * float(np.count_nonzero(inband))
-    noise_dof = band_dof - 2 * k - 1
+    noise_dof = 2.0 * float(np.sum(1.0 - held[inband]))
     if noise_dof < 1:
         return None
-    c = band_dof / noise_dof
     w = one_sided_weights(n)
-    noise = smoothed_periodogram(r - h) * np.where(inband, c, 1.0)
-    held = np.where(inband, 1.0 - 1.0 / c, 0.0) * noise
-    visible = np.clip(smoothed_periodogram(h) - held, 0.0, None)
+
+    # in the band the noise at a harmonic is averaged over the band's bins only: the noise
+    # below f0/2 (a slow drift) is where the Jacobian does not look
+    def average(values: np.ndarray) -> np.ndarray:
+        return np.where(inband, band_average(values, use=inband),
+                        band_average(values, use=~inband))  # fmt: skip
+
+    noise = average(periodogram(r - h)) / np.clip(average(1.0 - held), 1e-3, None)
+    expected = average(held) * noise  # the noise's share of h
+    visible = np.clip(average(periodogram(h)) - expected, 0.0, None)
     absorbed = (2 * k + 1) / max(2 * k + 1 - j.shape[1], 1)
     excess = visible * absorbed
     if floor > 0:
@@ -229,8 +257,10 @@ __all__ = [
     "F0_SEARCH",
     "ResidualSplit",
     "SPECTRUM_BINS",
+    "band_average",
     "band_top",
     "one_sided_weights",
+    "periodogram",
     "refine_f0",
     "smoothed_periodogram",
     "spectral_gram",
