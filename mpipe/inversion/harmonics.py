@@ -118,15 +118,25 @@ def _harmonic_fit(x: np.ndarray, fs: float, f0: float, harmonics: int) -> np.nda
 def refine_f0(p: np.ndarray, fs: float, f0: float, harmonics: int) -> float:
     """f0 (Hz) maximising the power of ``p``'s harmonic fit, near the given one.
 
-    A coarse scan over +-:data:`F0_SEARCH` and a parabola through the best three.
+    Three passes, each a 5-point scan and a parabola through the best three, from
+    +-:data:`F0_SEARCH` down to a sixteenth of it (the 30th harmonic needs f0 to 1e-4).
     """
-    grid = f0 * (1 + np.linspace(-F0_SEARCH, F0_SEARCH, 9))
-    power = [float(np.sum(_harmonic_fit(p, fs, f, harmonics) ** 2)) for f in grid]
-    i = int(np.clip(np.argmax(power), 1, grid.size - 2))
-    y0, y1, y2 = power[i - 1 : i + 2]
-    den = y0 - 2 * y1 + y2
-    step = 0.5 * (y0 - y2) / den if den < 0 else 0.0
-    return float(grid[i] + np.clip(step, -1, 1) * (grid[1] - grid[0]))
+    width = F0_SEARCH
+    for _ in range(3):
+        grid = f0 * (1 + np.linspace(-width, width, 5))
+        power = [float(np.sum(_harmonic_fit(p, fs, f, harmonics) ** 2)) for f in grid]
+        i = int(np.clip(np.argmax(power), 1, grid.size - 2))
+        y0, y1, y2 = power[i - 1 : i + 2]
+        den = y0 - 2 * y1 + y2
+        step = 0.5 * (y0 - y2) / den if den < 0 else 0.0
+        f0 = float(grid[i] + np.clip(step, -1, 1) * (grid[1] - grid[0]))
+        width /= 4
+    return f0
+
+
+def _count(top: float, f0: float, fs: float) -> int:
+    """Harmonics up to the band's top (the nearest), their half-spacing below Nyquist."""
+    return min(int(math.floor(top / f0 + 0.5)), int(math.floor(0.5 * fs / f0 - 0.5)))
 
 
 @dataclass(frozen=True)
@@ -197,11 +207,11 @@ def split_residual(
     # note has power, and one left out of h would be counted as noise next to the band)
     top = min(max(band_top(j, fs), band_top((p - p.mean())[:, None], fs)), 0.5 * fs)
     f0 = fs / period
-    k = int(math.floor(top / f0 - 0.5))
+    k = _count(top, f0, fs)
     if k < 1:
         return None
-    f0 = refine_f0(p - p.mean(), fs, f0, min(k, 10))
-    k = max(1, int(math.floor(min(top, 0.5 * fs) / f0 - 0.5)))
+    f0 = refine_f0(p - p.mean(), fs, f0, k)
+    k = max(1, _count(top, f0, fs))
     basis, _ = np.linalg.qr(_design(n, fs, f0, k))
     h = basis @ (basis.T @ r)
     # share of a white noise's power at each bin that the harmonic fit takes into h

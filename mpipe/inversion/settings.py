@@ -264,7 +264,7 @@ class InversionConfig:
     residual_limit: float = spec(
         "",
         "a window whose relative residual ||p - p_model|| / ||p|| exceeds this is "
-        "high-residual whatever the take's best (the model does not play what was played; "
+        "high-residual whatever its note's level (the model does not play what was played; "
         "at 45 dB SNR a right fit leaves about 0.005), and a take whose median does is "
         "flagged",
         between(1e-6, 10.0),

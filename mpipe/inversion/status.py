@@ -179,9 +179,7 @@ def window_status(row: dict, required: tuple[str, ...] = ("p_m", "p_M")) -> tupl
                            f"no standard errors: {note}")  # fmt: skip
         elif dof < 1:
             status = "low-dof" if status == "ok" else status
-            reasons.append(
-                f"dof = {dof:.3g} < 1: the residual cannot measure the noise, SEs rough"
-            )
+            reasons.append(f"dof = {dof:.3g} < 1: the residual cannot measure the noise, SEs rough")
         if math.isfinite(dof):
             bad = [q for q in required if not math.isfinite(_number(row.get(f"{q}_se")))]
             if bad:
@@ -199,9 +197,7 @@ def _number(value) -> float:
         return math.nan
 
 
-def classify(
-    table: pd.DataFrame, config: InversionConfig, segments=None
-) -> pd.DataFrame:
+def classify(table: pd.DataFrame, config: InversionConfig, segments=None) -> pd.DataFrame:
     """Final status of every window of a take, judging its residual against its note's.
 
     Parameters
