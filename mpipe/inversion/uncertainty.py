@@ -20,10 +20,15 @@ periodogram ``|R_f|^2 / n`` averaged over :data:`SPECTRUM_BINS` neighbouring bin
 frequency's noise is weighted by how much the parameters' signature holds there. For white
 noise of variance s^2 this is ``s^2 J^T J`` (Parseval), the Gauss-Newton covariance.
 
-The fit removes from the residual the noise along its p directions, which for a coloured
-noise are p of its ``n_eff = n / tau`` effective samples (``tau = 1 + 2 sum rho_k``, the
-integrated autocorrelation time, summed by Geyer's initial positive sequence): ``B`` is
-scaled by ``n_eff / (n_eff - p)``, the coloured analogue of ``n / (n - p)``.
+**Where the noise is measured.** Given the window's pressure, the noise spectrum is measured
+at the note's harmonics and the residual's misfit there is a component of its own (the
+model form): :mod:`mpipe.inversion.harmonics`, ``Covariance.cov_model``; the degrees of
+freedom are those of the harmonics' band. Without a period (or without the pressure) the
+noise is the residual's whole smoothed periodogram and ``B`` is scaled by
+``n_eff / (n_eff - p)``, ``n_eff = n / tau`` (``tau = 1 + 2 sum rho_k``, the integrated
+autocorrelation time, summed by Geyer's initial positive sequence): the coloured analogue of
+``n / (n - p)``, which a drift below the first harmonic inflates (mpipe <= 0.4 used it
+always).
 
 Why not ``s^2 (J^T J)^-1`` with ``s^2 = ||r||^2 / (n_eff - p)`` (mpipe <= 0.3): that
 inflates the noise uniformly by ``tau``, which is right only when the noise spectrum is
