@@ -26,6 +26,7 @@ import pandas as pd
 
 from mpipe.core.io import CSV_FLOAT_FORMAT, write_atomic
 from mpipe.core.units import unit_of
+from mpipe.inversion.budget import COMPONENTS, component_column
 from mpipe.inversion.combinations import COMBINATIONS
 from mpipe.inversion.settings import PARAMETER_NAMES
 from mpipe.inversion.uncertainty import SE_PARAMETERS
@@ -74,18 +75,34 @@ _PARAMETER_MEANINGS = {
 }
 
 
+#: What each component of the budget holds (mpipe.inversion.budget; docs/uncertainty.md).
+_COMPONENT_MEANINGS = {
+    "noise": "the noise at the note's harmonics (NaN: no SE)",
+    "model": "the model's misfit at the harmonics beyond the noise, and the floor",
+    "rate": "the model's discretisation at its sample rate",
+    "temperature": "the kernel temperature's SE, shared by the take",
+    "frontend": "the front end's propagation estimate and microphone positions, shared",
+    "calibration": "the microphones' calibration, shared by the take",
+}
+
+
 def _uncertainty_columns() -> list[Column]:
     names = (*SE_PARAMETERS, *(c.name for c in COMBINATIONS))
     cols = [_col(c.name, FLOAT, f"combination {c.description}") for c in COMBINATIONS]
     cols += [_col(f"{n}_se", FLOAT, f"standard error of {n} (inf: undetermined, NaN: none)")
              for n in names]  # fmt: skip
+    cols += [Column(component_column(n, c), FLOAT, unit_of(n),
+                    f"{c} component of {n}'s standard uncertainty: {_COMPONENT_MEANINGS[c]}")
+             for n in names for c in COMPONENTS]  # fmt: skip
     cols += [_col(f"determined_{n}", FLAG, f"{n}'s relative SE is below determined_limit")
              for n in names]  # fmt: skip
     return [
         *cols,
         _col("residual_sigma", FLOAT, "standard deviation of the residual"),
-        _col("n_eff", FLOAT, "effective number of independent residual samples"),
-        _col("dof", FLOAT, "n_eff minus the free parameters (NaN: no standard errors)"),
+        _col("n_eff", FLOAT, "real degrees of freedom of the Jacobian's band (noise estimate)"),
+        _col("dof", FLOAT, "those left to measure the noise (NaN: no standard errors)"),
+        _col("noise_residual", FLOAT, "relative residual the noise alone would leave"),
+        _col("model_residual", FLOAT, "relative residual at the harmonics beyond the noise"),
         _col("uncertainty_note", TEXT, "what is fixed, undetermined or not valid, and why"),
     ]
 

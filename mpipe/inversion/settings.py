@@ -255,19 +255,29 @@ class InversionConfig:
     )
     residual_factor: float = spec(
         "",
-        "a window whose relative residual exceeds this multiple of the take's best is "
-        "high-residual",
+        "a window whose model-form residual (model_residual: its residual at the harmonics "
+        "beyond the noise) exceeds this multiple of its note's median, and its note's median "
+        "+ 5 MAD, and its own noise residual, is high-residual",
         between(1.0, 1e6),
         default=3.0,
     )
     residual_limit: float = spec(
         "",
         "a window whose relative residual ||p - p_model|| / ||p|| exceeds this is "
-        "high-residual whatever the take's best (the model does not play what was played; "
+        "high-residual whatever its note's level (the model does not play what was played; "
         "at 45 dB SNR a right fit leaves about 0.005), and a take whose median does is "
         "flagged",
         between(1e-6, 10.0),
         default=0.10,
+    )
+    model_form_floor: float = spec(
+        "",
+        "model-form floor: the misfit the model is assumed to leave at least at every "
+        "harmonic, as a fraction of the measured pressure's amplitude there; propagated to "
+        "every quantity's <q>_se_model (measured on an independent simulator, OpenWInD: "
+        "docs/uncertainty.md)",
+        between(0.0, 1.0),
+        default=0.0,
     )
     pitch_limit_cents: float = spec(
         "cent",

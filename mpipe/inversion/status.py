@@ -17,17 +17,24 @@ sanity checks. Otherwise, in order of precedence:
     The residual is so coloured that it carries fewer effective samples than one more
     than the free parameters (``dof = n_eff - p < 1``): it cannot measure the noise, and
     the standard errors, computed with one degree of freedom, are rough.
+``undetermined``
+    The window's p_m or p_M (those searched) has no finite combined standard error: the data
+    do not determine it (a null direction), so its value cannot be reported as measured
+    (``status_reason`` says which).
 ``high-residual``
-    The relative residual ||p - p_model|| / ||p|| exceeds ``residual_factor`` times the
-    take's best: the model fits this window far worse than others of the same take, so it
-    probably sits in another local minimum or the window is not steady. For a window softer
-    than the best one (an attack, a release, a diminuendo) the take's best is taken at the
-    noise floor: its smallest residual in Pa (``f2``) over the window's own ||p||, when that
-    is larger (at most ``residual_factor`` times the best), so a window is not flagged for
-    being soft, while one that holds little but noise still is. A window is high-residual
-    too when its relative residual exceeds ``residual_limit`` whatever the take's best: the
-    model does not play what was played (a whole take in a wrong basin has no better window
-    to compare with).
+    The window's residual is not explained by its noise plus its note's own model-form
+    level. Each window's residual is split at the note's harmonics
+    (:mod:`mpipe.inversion.harmonics`): ``noise_residual`` is the relative residual its
+    noise alone leaves, ``model_residual`` the relative misfit at the harmonics beyond it.
+    Over the windows of a note (``segment``; the take when the note has fewer than
+    :data:`MIN_NOTE` windows) the model-form level is robust: its median M and
+    ``1.4826 MAD`` s. A window is high-residual when its ``model_residual`` exceeds
+    ``residual_factor`` x M, M + :data:`MAD_FACTOR` s, and its own ``noise_residual``: the
+    model fits it worse than the note's other windows by more than the noise can explain.
+    Both sides scale alike with the model's own misfit (which moves with the sample rate),
+    so the rule does not. A window is high-residual too when its relative residual
+    ``||p - p_model|| / ||p||`` exceeds ``residual_limit``: the model does not play what was
+    played (a whole note in a wrong basin has no better window to compare with).
 
 ``status_reason`` lists every check that failed, so a window can be both not converged and
 at a bound.
@@ -43,7 +50,34 @@ import pandas as pd
 from mpipe.inversion.settings import InversionConfig
 
 #: The statuses, best first.
-STATUSES = ("ok", "high-residual", "low-dof", "no-errors", "at-bound", "not-converged", "failed")
+STATUSES = (
+    "ok",
+    "high-residual",
+    "undetermined",
+    "low-dof",
+    "no-errors",
+    "at-bound",
+    "not-converged",
+    "failed",
+)
+
+#: Statuses a cold retry can fix (another basin); the others keep their warm result.
+RETRIED = ("high-residual", "not-converged")
+
+#: A note with fewer windows than this is judged with the take's windows.
+MIN_NOTE = 4
+
+#: Robust standard deviations (1.4826 MAD) above the note's median model-form level.
+MAD_FACTOR = 5.0
+
+
+def required_quantities(config: InversionConfig) -> tuple[str, ...]:
+    """The reported quantities a window must give a finite SE to be ok: p_m and p_M if searched."""
+    free = set(config.search_parameters)
+    out = ["p_m"] if "p_m" in free else []
+    if free & {"k", "y_m"}:
+        out.append("p_M")
+    return tuple(out)
 
 
 def search_bounds(config: InversionConfig, max_p: float) -> np.ndarray:
@@ -110,7 +144,7 @@ def on_bounds(values: dict, bounds: np.ndarray, config: InversionConfig) -> list
     return hits
 
 
-def window_status(row: dict) -> tuple[str, str]:
+def window_status(row: dict, required: tuple[str, ...] = ("p_m", "p_M")) -> tuple[str, str]:
     """Provisional status of one window from its own row (no comparison with the take).
 
     Parameters
@@ -118,7 +152,9 @@ def window_status(row: dict) -> tuple[str, str]:
     row : dict
         A row with ``error``, ``optimiser_converged``, ``optimiser_message``,
         ``at_bound`` and, when the window has been through the error analysis, ``dof``
-        (NaN: no standard errors) and ``uncertainty_note``.
+        (NaN: no standard errors), ``uncertainty_note`` and the ``<q>_se``.
+    required : tuple of str
+        Quantities whose combined SE must be finite (:func:`required_quantities`).
 
     Returns
     -------
@@ -143,9 +179,14 @@ def window_status(row: dict) -> tuple[str, str]:
                            f"no standard errors: {note}")  # fmt: skip
         elif dof < 1:
             status = "low-dof" if status == "ok" else status
-            reasons.append(
-                f"n_eff - p = {dof:.3g} < 1: the residual cannot measure the noise, SEs rough"
-            )
+            reasons.append(f"dof = {dof:.3g} < 1: the residual cannot measure the noise, SEs rough")
+        if math.isfinite(dof):
+            bad = [q for q in required if not math.isfinite(_number(row.get(f"{q}_se")))]
+            if bad:
+                status = "undetermined" if status == "ok" else status
+                reasons.append(
+                    f"no finite standard error for {', '.join(bad)}: not determined by the data"
+                )
     return status, "; ".join(reasons)
 
 
@@ -156,16 +197,19 @@ def _number(value) -> float:
         return math.nan
 
 
-def classify(table: pd.DataFrame, config: InversionConfig) -> pd.DataFrame:
-    """Final status of every window of a take, comparing its residual with the take's best.
+def classify(table: pd.DataFrame, config: InversionConfig, segments=None) -> pd.DataFrame:
+    """Final status of every window of a take, judging its residual against its note's.
 
     Parameters
     ----------
     table : pandas.DataFrame
         Per-window rows (``error``, ``optimiser_converged``, ``optimiser_message``,
-        ``at_bound``, ``relative_residual``).
+        ``at_bound``, ``relative_residual``, and ``model_residual``, ``noise_residual``
+        where the residual was split at the harmonics).
     config : InversionConfig
-        ``residual_factor``.
+        ``residual_factor``, ``residual_limit`` and the searched parameters.
+    segments : sequence of int, optional
+        Each row's note (default: the table's ``segment`` column, else one note).
 
     Returns
     -------
@@ -173,33 +217,13 @@ def classify(table: pd.DataFrame, config: InversionConfig) -> pd.DataFrame:
         A copy with ``status`` and ``status_reason`` set.
     """
     out = table.copy()
-    provisional = [window_status(r) for r in out.to_dict("records")]
+    required = required_quantities(config)
+    provisional = [window_status(r, required) for r in out.to_dict("records")]
     status = [s for s, _ in provisional]
     reasons = [r for _, r in provisional]
-    rr = pd.to_numeric(out["relative_residual"], errors="coerce").to_numpy(dtype=float)
-    f2 = (
-        pd.to_numeric(out["f2"], errors="coerce").to_numpy(dtype=float)
-        if "f2" in out
-        else np.full(rr.size, np.nan)
-    )
-    clean = np.array([s == "ok" for s in status])
-    use = clean if clean.any() else np.array([s != "failed" for s in status])
-    pool = rr[use][np.isfinite(rr[use])]
-    floor = f2[use][np.isfinite(f2[use])]
-    best = float(pool.min()) if pool.size else math.nan
-    # the residual a window may have: the take's best relative residual at its own level,
-    # and never less than the take's smallest residual in Pa (the noise floor: a soft
-    # window of an attack or a release is not worse for being soft)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        norm_p = f2 / rr
-    allowed = np.where(
-        np.isfinite(norm_p) & (floor.size > 0),
-        np.maximum(best, (floor.min() if floor.size else 0.0) / norm_p),
-        best,
-    )
-    # at most residual_factor x the best: a window so soft that noise is all it holds
-    # (the first periods of an attack) determines nothing and is not ok
-    allowed = np.minimum(allowed, config.residual_factor * best)
+    rr = _column(out, "relative_residual")
+    allowed = _allowed_model_residual(out, status, config, segments)
+    mr, nr = _column(out, "model_residual"), _column(out, "noise_residual")
     for i, value in enumerate(rr):
         if status[i] == "failed":
             continue
@@ -209,11 +233,11 @@ def classify(table: pd.DataFrame, config: InversionConfig) -> pd.DataFrame:
                 f"relative residual {value:.3g} > inversion.residual_limit "
                 f"{config.residual_limit:g}: the model does not play what was played"
             )
-        elif value > config.residual_factor * allowed[i]:
-            floor_note = "" if allowed[i] == best else " (its noise floor at this level)"
+        elif mr[i] > allowed[i] and mr[i] > nr[i]:
             why = (
-                f"relative residual {value:.3g} > {config.residual_factor:g} x the take's "
-                f"best {allowed[i]:.3g}{floor_note}"
+                f"model-form residual {mr[i]:.3g} > {allowed[i]:.3g}, its note's level "
+                f"(max of {config.residual_factor:g} x median, median + {MAD_FACTOR:g} MAD), "
+                f"and > its noise residual {nr[i]:.3g}"
             )
         if why:
             reasons[i] = "; ".join(r for r in (reasons[i], why) if r)
@@ -221,6 +245,34 @@ def classify(table: pd.DataFrame, config: InversionConfig) -> pd.DataFrame:
     out["status"] = status
     out["status_reason"] = reasons
     return out
+
+
+def _column(table: pd.DataFrame, name: str) -> np.ndarray:
+    if name not in table:
+        return np.full(len(table), np.nan)
+    return pd.to_numeric(table[name], errors="coerce").to_numpy(dtype=float)
+
+
+def _allowed_model_residual(table, status, config, segments) -> np.ndarray:
+    """The model-form residual each window's note allows (NaN: no judgement)."""
+    mr = _column(table, "model_residual")
+    if segments is None:
+        segments = table["segment"] if "segment" in table else np.zeros(len(table), dtype=int)
+    seg = pd.to_numeric(pd.Series(list(segments)), errors="coerce").fillna(-1).to_numpy()
+    usable = np.array([s != "failed" for s in status]) & np.isfinite(mr)
+
+    def level(values: np.ndarray) -> float:
+        median = float(np.median(values))
+        spread = 1.4826 * float(np.median(np.abs(values - median)))
+        return max(config.residual_factor * median, median + MAD_FACTOR * spread)
+
+    take = level(mr[usable]) if usable.any() else math.nan
+    allowed = np.full(mr.size, np.nan)
+    for g in np.unique(seg):
+        mine = seg == g
+        pool = mr[mine & usable]
+        allowed[mine] = level(pool) if pool.size >= MIN_NOTE else take
+    return allowed
 
 
 def count(table: pd.DataFrame) -> dict[str, int]:
@@ -237,10 +289,14 @@ def summary_line(table: pd.DataFrame) -> str:
 
 
 __all__ = [
+    "MAD_FACTOR",
+    "MIN_NOTE",
+    "RETRIED",
     "STATUSES",
     "classify",
     "count",
     "on_bounds",
+    "required_quantities",
     "search_bounds",
     "summary_line",
     "window_status",

@@ -11,8 +11,9 @@ table whichever is used:
    (:func:`mpipe.inversion.temperature.fit_temperature`; ``inversion.temperature``);
 3. every window started from its note's cold start on the kernel at the fitted
    temperature (:func:`mpipe.inversion.tracking.track`);
-4. the temperature's share added to every standard error
-   (:func:`mpipe.inversion.temperature.widen_standard_errors`);
+4. the uncertainty budget: the temperature's component of every quantity
+   (:func:`mpipe.inversion.temperature.temperature_components`) beside the windows' own
+   (noise, model form), combined into every ``<q>_se`` (:func:`mpipe.inversion.budget.combine`);
 5. the take-level checks (:func:`mpipe.inversion.diagnostics.take_checks`, with the
    notes' own temperatures and ``extra_checks``): each reason
    in :attr:`TakeInversion.checks` and in the table's ``take_checks`` column;
@@ -31,12 +32,13 @@ import numpy as np
 import pandas as pd
 
 from mpipe.acoustics.air import Air
+from mpipe.inversion.budget import combine
 from mpipe.inversion.diagnostics import check_plausible, take_checks
 from mpipe.inversion.execution import stage_workers
 from mpipe.inversion.kernel import bore_kernel, take_temperature
 from mpipe.inversion.segments import reed_openings
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
-from mpipe.inversion.temperature import TemperatureFit, fit_temperature, widen_standard_errors
+from mpipe.inversion.temperature import TemperatureFit, fit_temperature, temperature_components
 from mpipe.inversion.tracking import RunOptions, Tracking, WindowPlan, detect_zero_mean, track
 from mpipe.measurement.calibration import Calibration
 from mpipe.reed.bore_kernel import BoreKernel
@@ -143,7 +145,9 @@ def invert_take(
         p, u, fs, kernel, air.rho, config, executor, windows=plan,
         anchor=dict(fit.anchors) or None, options=options,
     )  # fmt: skip
-    table = widen_standard_errors(result.table, fit, config.determined_limit)
+    # the budget: the take-wide components beside the windows' own, then one combination
+    table = temperature_components(result.table, fit)
+    table = combine(table, config.determined_limit)
     openings, _ = reed_openings(table, p, fs)  # what the reed did: h(t), time shut
     table = pd.concat([table, openings], axis=1)
     if fit.anchor is not None and len(table):

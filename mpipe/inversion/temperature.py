@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from mpipe.inversion.budget import combine, component_column
 from mpipe.inversion.coldstart import map_tasks
 from mpipe.inversion.combinations import COMBINATION_NAMES, combination_values
 from mpipe.inversion.kernel import bore_kernel
@@ -41,7 +42,6 @@ from mpipe.inversion.note_temperature import (
     scatter_se,
     window_minima,
 )
-from mpipe.inversion.records import flags
 from mpipe.inversion.segments import pick_by_segment, pick_windows, window_count
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
 from mpipe.inversion.temperature_profile import COARSE_C, FINE_C, Profile, memo_start, settle
@@ -395,8 +395,13 @@ def _sensitivity(rows_lo: Sequence[Mapping], rows_hi: Sequence[Mapping], h: floa
     return out
 
 
-def widen_standard_errors(table: pd.DataFrame, fit: TemperatureFit, limit: float) -> pd.DataFrame:
-    """Add the kernel temperature's share to every ``<name>_se`` of a windows table.
+def temperature_components(table: pd.DataFrame, fit: TemperatureFit) -> pd.DataFrame:
+    """The kernel temperature's component of every quantity's budget, ``<q>_se_temperature``.
+
+    ``|x| |d ln x / dT| se_T`` (x's unit): the profile estimate's share of the variance,
+    ``(d theta / dT)^2 Var(T)``, the same error for every window of the take. NaN (the
+    component does not apply) when the temperature was not fitted or a sensitivity is not
+    finite. The combination is :func:`mpipe.inversion.budget.combine`.
 
     Parameters
     ----------
@@ -404,40 +409,37 @@ def widen_standard_errors(table: pd.DataFrame, fit: TemperatureFit, limit: float
         Windows table of :func:`mpipe.inversion.tracking.track`.
     fit : TemperatureFit
         The take's kernel temperature.
-    limit : float
-        Relative SE under which a quantity is determined (``inversion.determined_limit``).
 
     Returns
     -------
     DataFrame
-        A copy with ``kernel_temperature_c`` and ``kernel_temperature_se_c`` (degC), and
-        ``<name>_se`` = sqrt(se^2 + (x dlnx/dT se_T)^2) with ``determined_<name>``
-        re-evaluated; the SEs are unchanged when the temperature was not fitted.
+        A copy with ``kernel_temperature_c``, ``kernel_temperature_se_c`` (degC) and the
+        component columns.
     """
     out = table.copy()
     out["kernel_temperature_c"] = fit.temperature_c
     out["kernel_temperature_se_c"] = fit.se_c
-    if fit.source != "fit" or not math.isfinite(fit.se_c):
-        return out
+    fitted = fit.source == "fit" and math.isfinite(fit.se_c)
     for name in WIDENED:
-        col = f"{name}_se"
-        if (
-            col not in out
-            or name not in out
-            or not math.isfinite(fit.sensitivity.get(name, math.nan))
-        ):
+        col = component_column(name, "temperature")
+        sens = fit.sensitivity.get(name, math.nan) if fitted else math.nan
+        if name not in out or not math.isfinite(sens):
+            out[col] = math.nan
             continue
         x = pd.to_numeric(out[name], errors="coerce").to_numpy(dtype=float)
-        se = pd.to_numeric(out[col], errors="coerce").to_numpy(dtype=float)
-        share = np.abs(x) * abs(fit.sensitivity[name]) * fit.se_c
-        widened = np.where(np.isfinite(se), np.hypot(se, share), se)  # inf and NaN stay
-        out[col] = widened
-        det = f"determined_{name}"
-        if det in out:
-            was = flags(out, det)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                out[det] = was & np.isfinite(widened) & (widened / np.abs(x) < limit)
+        out[col] = np.abs(x) * abs(sens) * fit.se_c
     return out
+
+
+def widen_standard_errors(table: pd.DataFrame, fit: TemperatureFit, limit: float) -> pd.DataFrame:
+    """:func:`temperature_components`, then :func:`mpipe.inversion.budget.combine`."""
+    out = temperature_components(table, fit)
+    for name in WIDENED:
+        # a table without its budget (an earlier mpipe's): its SE is the window's own
+        noise = component_column(name, "noise")
+        if noise not in out and f"{name}_se" in out:
+            out[noise] = out[f"{name}_se"]
+    return combine(out, limit)
 
 
 __all__ = [
@@ -445,6 +447,7 @@ __all__ = [
     "fit_temperature",
     "pick_by_segment",
     "pick_windows",
+    "temperature_components",
     "widen_standard_errors",
     "window_count",
 ]

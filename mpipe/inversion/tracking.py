@@ -6,10 +6,11 @@ The first window is cold-started: step 1 on both branches, then the global searc
 window starts from that one result and runs the local search to its tolerance, so a
 window's answer depends only on its own data and on the take's cold start, whatever the
 number of workers or the executor (local processes or a Dask cluster,
-:mod:`mpipe.inversion.execution`). A window that is not ``ok`` after its warm start gets a
-cold start of its own. Each window then gets a status (:mod:`mpipe.inversion.status`); a
-failed window is recorded with its error and the run goes on. One window's inversion is
-:mod:`mpipe.inversion.window`; the table and its files are :mod:`mpipe.inversion.tables`.
+:mod:`mpipe.inversion.execution`). A window that is ``high-residual`` or ``not-converged``
+after its warm start gets a cold start of its own. Each window then gets a status
+(:mod:`mpipe.inversion.status`); a failed window is recorded with its error and the run goes
+on. One window's inversion is :mod:`mpipe.inversion.window`; the table and its files are
+:mod:`mpipe.inversion.tables`.
 
 References
 ----------
@@ -34,7 +35,7 @@ from mpipe.inversion.execution import Job, dispatch, run_windows, stage_workers
 from mpipe.inversion.records import typed
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.span import span_samples
-from mpipe.inversion.status import classify
+from mpipe.inversion.status import RETRIED, classify
 from mpipe.inversion.tables import histories_and_correlations, window_table
 from mpipe.inversion.window_errors import CORRELATION_COLUMNS
 from mpipe.reed.bore_kernel import BoreKernel
@@ -234,9 +235,9 @@ def track(
     The first window is cold-started (see :func:`mpipe.inversion.window.invert_window`);
     every other window is started from its result, so each window's answer depends only on
     its own data and on that one shared start: 1 or N workers, local processes or Dask give
-    the same table. Windows whose status is not ``ok`` after their warm start are then given
-    a cold start of their own (``config.retry_cold``), and every window gets its final
-    status from :func:`mpipe.inversion.status.classify`.
+    the same table. Windows ``high-residual`` or ``not-converged`` after their warm start
+    are then given a cold start of their own (``config.retry_cold``), and every window gets
+    its final status from :func:`mpipe.inversion.status.classify`.
 
     Parameters
     ----------
@@ -305,10 +306,11 @@ def track(
     if anchor is not None and not isinstance(anchor, Mapping):
         anchors = {int(g): anchor for g in set(segments)}
     results = _cold_then_warm(job, starts, segments, anchors, update, **run)
-    table = classify(window_table(results), config)
+    in_time = [g for _, g in sorted(zip(starts, segments, strict=True))]
+    table = classify(window_table(results), config, in_time)
     if config.retry_cold:
-        table = _retry_not_ok(job, results, table, **run)
-    table["segment"] = [g for _, g in sorted(zip(starts, segments, strict=True))]
+        table = _retry_not_ok(job, results, table, in_time, **run)
+    table["segment"] = in_time
     histories, correlations = histories_and_correlations(results)
     table["window"] = np.arange(len(table))
     return Tracking(
@@ -366,18 +368,20 @@ def _cold_then_warm(
 
 
 def _retry_not_ok(
-    job: Job, results: list, table: pd.DataFrame, *, executor, workers, client
+    job: Job, results: list, table: pd.DataFrame, segments: list, *, executor, workers, client
 ) -> pd.DataFrame:
-    """Cold-start the warm windows that are not ok (``results`` updated in place).
+    """Cold-start the warm windows a retry can fix (``results`` updated in place).
 
+    Only ``high-residual`` and ``not-converged`` windows (:data:`RETRIED`): another basin
+    may fit them. A ``low-dof``, ``at-bound``, ``no-errors`` or ``undetermined`` window is
+    what its data make it, and a cold start cannot change that: it keeps its warm result.
     Returns the table classified again (the same table when no window needed a retry).
     """
     redo = [
         i
         for i, (row, _) in enumerate(results)
-        if table.loc[i, "status"] not in ("ok", "failed") and row["warm"]
-        and not row["retried_cold"]
-    ]  # fmt: skip
+        if table.loc[i, "status"] in RETRIED and row["warm"] and not row["retried_cold"]
+    ]
     if not redo:
         return table
     log.info("%d windows not ok after their warm start: cold-starting them", len(redo))
@@ -385,7 +389,7 @@ def _retry_not_ok(
     again = dispatch(job, items, None, executor, workers, client, None)
     for i, new in zip(redo, sorted(again, key=lambda r: r[0]["t_start_s"]), strict=True):
         results[i] = new
-    return classify(window_table(results), job.config)
+    return classify(window_table(results), job.config, segments)
 
 
 __all__ = [

@@ -20,10 +20,15 @@ periodogram ``|R_f|^2 / n`` averaged over :data:`SPECTRUM_BINS` neighbouring bin
 frequency's noise is weighted by how much the parameters' signature holds there. For white
 noise of variance s^2 this is ``s^2 J^T J`` (Parseval), the Gauss-Newton covariance.
 
-The fit removes from the residual the noise along its p directions, which for a coloured
-noise are p of its ``n_eff = n / tau`` effective samples (``tau = 1 + 2 sum rho_k``, the
-integrated autocorrelation time, summed by Geyer's initial positive sequence): ``B`` is
-scaled by ``n_eff / (n_eff - p)``, the coloured analogue of ``n / (n - p)``.
+**Where the noise is measured.** Given the window's pressure, the noise spectrum is measured
+at the note's harmonics and the residual's misfit there is a component of its own (the
+model form): :mod:`mpipe.inversion.harmonics`, ``Covariance.cov_model``; the degrees of
+freedom are those of the harmonics' band. Without a period (or without the pressure) the
+noise is the residual's whole smoothed periodogram and ``B`` is scaled by
+``n_eff / (n_eff - p)``, ``n_eff = n / tau`` (``tau = 1 + 2 sum rho_k``, the integrated
+autocorrelation time, summed by Geyer's initial positive sequence): the coloured analogue of
+``n / (n - p)``, which a drift below the first harmonic inflates (mpipe <= 0.4 used it
+always).
 
 Why not ``s^2 (J^T J)^-1`` with ``s^2 = ||r||^2 / (n_eff - p)`` (mpipe <= 0.3): that
 inflates the noise uniformly by ``tau``, which is right only when the noise spectrum is
@@ -61,18 +66,15 @@ C. J. Geyer, "Practical Markov chain Monte Carlo", Statistical Science 7(4):473-
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from mpipe.inversion.harmonics import SPECTRUM_BINS, spectral_gram, split_residual
 from mpipe.inversion.least_squares import DIFF_STEP
-
-#: Periodogram bins averaged into the residual's noise spectrum (50 Hz apart on a 20 ms
-#: window: 250 Hz, narrower than the spacing of the note's harmonics' signatures and wide
-#: enough to tame the periodogram's 100 % scatter; 3 to 9 bins change RMS z by < 3 %).
-SPECTRUM_BINS = 5
 
 #: Singular values below this fraction of the largest mark a null direction. A forward
 #: difference of step 1e-4 in log parameters leaves the Jacobian of an exactly invariant
@@ -194,7 +196,15 @@ class Covariance:
     n_eff : float
         ``n / tau``.
     dof : float
-        ``n_eff - p``, the residual's degrees of freedom (below 1: the SEs are rough).
+        Degrees of freedom of the noise estimate (below 1: the SEs are rough): with the
+        harmonic split, the band's ``N_b - 2K - 1``; without it (no period), ``n_eff - p``.
+    cov_model : ndarray or None
+        Model-form covariance of ``ln x`` (the sandwich with the residual's excess spectrum
+        at the harmonics and the floor, :mod:`mpipe.inversion.harmonics`); None without a
+        period (the component does not apply).
+    noise_residual, model_residual : float
+        Relative residual the noise alone leaves, and the misfit beyond it at the
+        harmonics (NaN without a period).
     """
 
     names: tuple[str, ...]
@@ -206,9 +216,12 @@ class Covariance:
     tau: float
     n_eff: float
     dof: float
+    cov_model: np.ndarray | None = None
+    noise_residual: float = math.nan
+    model_residual: float = math.nan
 
     def log_se(self, exponents: np.ndarray, tol: float = 1e-3) -> float:
-        """Standard error of ``e . ln x``.
+        """Standard error of ``e . ln x`` (the noise component).
 
         Infinite when ``e`` has a component along a null direction larger than ``tol``
         times its norm.
@@ -220,6 +233,12 @@ class Covariance:
         if self.null.size and np.max(np.abs(self.null @ e)) > tol * norm:
             return math.inf
         return math.sqrt(max(float(e @ self.cov @ e), 0.0))
+
+    def model_form(self) -> Covariance | None:
+        """The model-form component as a covariance of its own (None when it does not apply)."""
+        if self.cov_model is None:
+            return None
+        return dataclasses.replace(self, cov=self.cov_model, cov_model=None)
 
     def correlation(self) -> np.ndarray:
         """Correlation matrix of ``ln x`` over the determined directions.
@@ -269,6 +288,9 @@ def covariance(
     names: Sequence[str],
     *,
     rcond: float = RCOND,
+    pressure: np.ndarray | None = None,
+    fs: float | None = None,
+    floor: float = 0.0,
 ) -> Covariance:
     """Covariance of the log parameters from the Jacobian and residual at the solution.
 
@@ -282,6 +304,14 @@ def covariance(
         Parameter names of the columns.
     rcond : float
         Relative singular-value threshold of a null direction.
+    pressure : ndarray, optional
+        Measured pressure over the window, Pa, and ``fs`` its sample rate, Hz: with both,
+        the noise is measured at the harmonics and the model-form component is computed
+        (:func:`mpipe.inversion.harmonics.split_residual`); without them, or when the
+        window has no period, the noise is the residual's whole spectrum inflated by
+        ``n_eff / (n_eff - p)`` and there is no model-form component.
+    floor : float
+        Model-form floor, relative to the pressure's amplitude at each harmonic.
 
     Returns
     -------
@@ -300,14 +330,28 @@ def covariance(
     tau = integrated_autocorrelation(r)
     n_eff = n / tau
     dof = n_eff - p
-    # Below one degree of freedom the noise is not measured: one is used so the result
-    # stays finite (and large), and the status says the SEs are rough.
-    inflation = n_eff / max(dof, 1.0)
     sigma = float(np.linalg.norm(r)) / math.sqrt(max(dof, 1.0))
     _, sv, vt = np.linalg.svd(j, full_matrices=False)
     keep = sv > rcond * (sv[0] if sv.size and sv[0] > 0 else 1.0)
     a_inv = (vt[keep].T / sv[keep] ** 2) @ vt[keep]
-    cov = a_inv @ (inflation * noise_weighted_gram(j, r)) @ a_inv
+    split = None
+    if pressure is not None and fs is not None and np.size(pressure) == n:
+        split = split_residual(r, np.asarray(pressure, dtype=float), j, fs, floor=floor)
+    extra: dict = {}
+    if split is not None:
+        gram = spectral_gram(j, split.noise)
+        cov_model = a_inv @ spectral_gram(j, split.excess) @ a_inv
+        n_eff, dof = split.band_dof, split.noise_dof
+        extra = dict(
+            cov_model=0.5 * (cov_model + cov_model.T),
+            noise_residual=split.noise_residual,
+            model_residual=split.model_residual,
+        )
+    else:
+        # Below one degree of freedom the noise is not measured: one is used so the result
+        # stays finite (and large), and the status says the SEs are rough.
+        gram = noise_weighted_gram(j, r) * (n_eff / max(dof, 1.0))
+    cov = a_inv @ gram @ a_inv
     return Covariance(
         names=tuple(names),
         cov=0.5 * (cov + cov.T),
@@ -318,6 +362,7 @@ def covariance(
         tau=tau,
         n_eff=n_eff,
         dof=dof,
+        **extra,
     )
 
 

@@ -27,7 +27,12 @@ from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWind
 from mpipe.inversion.records import Correlation, WindowRecord
 from mpipe.inversion.rosenbrock import SearchResult, rosenbrock
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
-from mpipe.inversion.status import on_bounds, search_bounds, window_status
+from mpipe.inversion.status import (
+    on_bounds,
+    required_quantities,
+    search_bounds,
+    window_status,
+)
 from mpipe.inversion.step1 import Step1Result, step1
 from mpipe.inversion.tables import blank_row
 from mpipe.inversion.uncertainty import SE_PARAMETERS, covariance, log_jacobian
@@ -228,7 +233,8 @@ def invert_window(
         log.warning("window at %.4f s failed: %s", start / fs, exc)
         row["error"] = f"{type(exc).__name__}: {exc}"
     row["wall_time_s"] = time.perf_counter() - t0
-    row.update(zip(("status", "status_reason"), window_status(row), strict=True))
+    status = window_status(row, required_quantities(config))
+    row.update(zip(("status", "status_reason"), status, strict=True))
     return WindowOutcome(row=row, step1=s1, search=search, reed=reed)
 
 
@@ -372,7 +378,10 @@ def _uncertainty(
     else:
         res = objective.residuals(search.x)
         jac = log_jacobian(objective.residuals, search.x, r0=res, upper=bounds[:, 1])
-    cov = covariance(jac, res, names)
+    cov = covariance(
+        jac, res, names, pressure=objective.target.p, fs=objective.target.fs,
+        floor=config.model_form_floor,
+    )  # fmt: skip
     invalid = {
         hit.split("=")[0]: f"estimate on its {hit.split('=')[1]} bound: the Gauss-Newton "
         "covariance assumes an interior minimum"

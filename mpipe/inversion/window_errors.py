@@ -14,6 +14,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from mpipe.inversion.budget import QUANTITIES, WINDOW_COMPONENTS, combine_row, component_column
 from mpipe.inversion.combinations import (
     COMBINATION_NAMES,
     combination_errors,
@@ -63,9 +64,10 @@ def window_uncertainty(
     Returns
     -------
     dict
-        ``<name>_se`` and ``determined_<name>`` for every parameter and combination,
-        the combinations' values, ``residual_sigma`` (Pa), ``n_eff``, ``dof``
-        (``n_eff - p``) and ``uncertainty_note``.
+        ``<name>_se`` (combined, :mod:`mpipe.inversion.budget`), its window components
+        ``<name>_se_noise`` and ``<name>_se_model``, and ``determined_<name>`` for every
+        parameter and combination, the combinations' values, ``residual_sigma`` (Pa),
+        ``n_eff``, ``dof``, ``noise_residual``, ``model_residual`` and ``uncertainty_note``.
     """
     invalid = dict(invalid or {})
     row: dict = {}
@@ -77,13 +79,22 @@ def window_uncertainty(
         scaled = {
             n for n, w in zip(SE_PARAMETERS, scale_direction(SE_PARAMETERS), strict=True) if w
         }
-    row.update(_parameter_errors(cov, values, free, scaled, invalid, limit))
-    row.update(combination_errors(cov, comb, free, invalid, limit))
+    model = cov.model_form() if cov is not None else None
+    for component, c in (("noise", cov), ("model", model)):
+        errors = _parameter_errors(c, values, free, scaled, invalid, limit)
+        errors.update(combination_errors(c, comb, free, invalid, limit))
+        for q in QUANTITIES:
+            row[component_column(q, component)] = errors[f"{q}_se"]
+            if component == "noise":
+                row[f"determined_{q}"] = errors[f"determined_{q}"]
+    combine_row(row, limit, values)
     notes = []
     if cov is not None:
         row["residual_sigma"] = cov.sigma
         row["n_eff"] = cov.n_eff
         row["dof"] = cov.dof
+        row["noise_residual"] = cov.noise_residual
+        row["model_residual"] = cov.model_residual
         notes += _covariance_notes(cov, free, scaled, scale_gauge, alpha)
     for name, reason in invalid.items():
         notes.append(f"{name}: no valid SE ({reason})")
@@ -151,9 +162,11 @@ def uncertainty_columns() -> tuple[str, ...]:
     cols = [*COMBINATION_NAMES]
     for name in (*SE_PARAMETERS, *COMBINATION_NAMES):
         cols.append(f"{name}_se")
+    cols += [component_column(q, c) for q in QUANTITIES for c in WINDOW_COMPONENTS]
     for name in (*SE_PARAMETERS, *COMBINATION_NAMES):
         cols.append(f"determined_{name}")
-    return (*cols, "residual_sigma", "n_eff", "dof", "uncertainty_note")
+    return (*cols, "residual_sigma", "n_eff", "dof", "noise_residual", "model_residual",
+            "uncertainty_note")  # fmt: skip
 
 
 #: Columns of the long-format correlation table.

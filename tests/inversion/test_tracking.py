@@ -207,3 +207,24 @@ def test_each_note_gets_its_own_cold_start_and_its_own_answer(take):
     two = track(sim.p, sim.u, FS, kernel, rho, LIGHT, ExecutorConfig(workers=2), windows=windows)
     cols = ["t_start_s", "segment", "status", "p_m", "k", "f2", "warm"]
     pd.testing.assert_frame_equal(two.table[cols], t[cols])
+
+
+def test_windows_a_cold_start_cannot_fix_keep_their_warm_result(take):
+    # p_m's lower bound above the truth: every window ends on it (at-bound), which no cold
+    # start can change; none is retried (each cost 5-25x a warm window). A search stopped
+    # on its budget (not-converged) is retried.
+    from mpipe.inversion.settings import ParameterBounds
+
+    kernel, rho, sim = take
+    windows = WindowPlan.span(sim.p.size, FS, LIGHT, start_s=0.26)
+    peak = min(float(sim.p[s : s + 2000].max()) for s in windows.starts)
+    lower = 1.1 * TABLE1.p_m / peak  # p_m's lower bound scales with the window's peak
+    tight = replace(LIGHT, bounds=replace(ParameterBounds(), p_m=(lower, 2.0)))
+    out = track(sim.p, sim.u, FS, kernel, rho, tight, ExecutorConfig(workers=1), windows=windows)
+    at_bound = out.table["status"] == "at-bound"
+    assert at_bound.sum() >= len(out.table) - 1, out.table["status"].tolist()
+    assert not out.table.loc[at_bound, "retried_cold"].any()
+    starved = replace(LIGHT, warm_max_evaluations=2)
+    out = track(sim.p, sim.u, FS, kernel, rho, starved, ExecutorConfig(workers=1),
+                windows=windows)  # fmt: skip
+    assert out.table["retried_cold"].sum() >= 1

@@ -303,3 +303,102 @@ def test_error_bars_of_the_reed_model_are_honest_under_lowpassed_noise(kernel):
     covered = np.sum(np.abs(z) <= 2, axis=0)
     assert np.all(covered >= 4), dict(zip(names, covered, strict=True))
     assert 0.4 < math.sqrt(np.mean(z**2)) < 1.8, z
+
+
+def _harmonic_case(n=2000, f0=150.0):
+    """Jacobian columns at a note's harmonics and a measured pressure with that period.
+
+    150 Hz: three whole periods in the window, so a drift at 50 Hz or DC is orthogonal to
+    every column (the Jacobian does not see it at all).
+    """
+    t = np.arange(n) / FS
+    rng = np.random.default_rng(0)
+    # each column a reed parameter's signature: spread over the first eight harmonics
+    j = np.column_stack([
+        sum(rng.normal() * np.sin(2 * np.pi * f0 * h * t + rng.uniform(0, 6.3))
+            for h in range(1, 9))
+        for _ in range(5)
+    ])  # fmt: skip
+    p = 1000.0 * sum(np.sin(2 * np.pi * f0 * h * t + 0.3 * h) / h for h in range(1, 12))
+    return j, p
+
+
+def test_a_drift_below_the_harmonics_does_not_widen_the_noise_component():
+    """White noise (1 Pa) at the harmonics, plus a drift 5x stronger below the first one.
+
+    The drift (a random offset and 50 Hz component, Gaussian) is orthogonal to the
+    Jacobian's columns, so the least-squares estimate's true covariance is the white one,
+    ``(J^T J)^-1``. The noise component measured at the harmonics must stay honest: RMS z
+    in [0.8, 1.25] for every parameter and median SE within 15 % of the true one in each
+    of 3 seeds of 100 windows (all must pass), RMS z in [0.9, 1.1] over the 300; while the
+    factor n_eff / (n_eff - p) of the residual's autocorrelation (mpipe <= 0.4) widens the
+    bars by more than 1.5x.
+    """
+    j, p = _harmonic_case()
+    n = j.shape[0]
+    t = np.arange(n) / FS
+    drift = np.column_stack([np.ones(n), np.cos(2 * np.pi * 50 * t), np.sin(2 * np.pi * 50 * t)])
+    a_inv = np.linalg.inv(j.T @ j)
+    true_se = np.sqrt(np.diag(a_inv))
+    names = [f"x{i}" for i in range(j.shape[1])]
+    pooled = []
+    for seed in (1, 2, 3):
+        rng = np.random.default_rng(seed)
+        z, ratio, widened = [], [], []
+        for _ in range(100):
+            e = rng.standard_normal(n) + drift @ (5.0 * rng.standard_normal(3))
+            theta = a_inv @ j.T @ e
+            r = e - j @ theta
+            cov = covariance(-j, r, names, pressure=p, fs=FS)
+            se = np.sqrt(np.diag(cov.cov))
+            z.append(theta / se)
+            ratio.append(se / true_se)
+            widened.append(np.sqrt(np.diag(covariance(-j, r, names).cov)) / se)
+        rms = np.sqrt(np.mean(np.array(z) ** 2, axis=0))
+        assert np.all((rms > 0.8) & (rms < 1.25)), (seed, rms)
+        assert np.all(np.abs(np.median(ratio, axis=0) - 1) < 0.15), np.median(ratio, axis=0)
+        assert np.median(widened) > 1.5, np.median(widened)
+        pooled += z
+    assert 0.9 < np.sqrt(np.mean(np.array(pooled) ** 2)) < 1.1
+
+
+def test_a_misfit_at_the_harmonics_gets_a_model_component_that_scales_with_it():
+    """A residual with a model mismatch at the harmonics (not along J) on top of white noise.
+
+    Without it the model component is small beside the noise one; with a mismatch whose
+    level is about 10x the noise's in the band the model component is several times the
+    noise one, and doubling the mismatch doubles it (within 15 %); the noise component does
+    not move (within 15 %): the mismatch is at the harmonics, the noise between them.
+    Three noise seeds, all must pass.
+    """
+    j, p = _harmonic_case()
+    n = j.shape[0]
+    t = np.arange(n) / FS
+    names = [f"x{i}" for i in range(j.shape[1])]
+    misfit = sum(np.cos(2 * np.pi * 150.0 * h * t + 0.7 * h) for h in range(1, 9))
+    misfit -= j @ np.linalg.lstsq(j, misfit, rcond=None)[0]  # the fit absorbs its J part
+    misfit *= 10 / np.sqrt(np.mean(misfit**2))  # 10x the noise's RMS (white, 1 Pa)
+    for seed in (4, 5, 6):
+        noise = np.random.default_rng(seed).standard_normal(n)
+        noise -= j @ np.linalg.lstsq(j, noise, rcond=None)[0]
+        out = {}
+        for a in (0.0, 1.0, 2.0):
+            cov = covariance(-j, noise + a * misfit, names, pressure=p, fs=FS)
+            out[a] = (np.sqrt(np.diag(cov.cov)), np.sqrt(np.diag(cov.cov_model)))
+        assert np.all(out[0.0][1] < 0.5 * out[0.0][0]), out[0.0]
+        assert np.all(out[1.0][1] > 3 * out[1.0][0]), out[1.0]
+        np.testing.assert_allclose(out[2.0][1] / out[1.0][1], 2.0, rtol=0.15)
+        np.testing.assert_allclose(out[1.0][0] / out[0.0][0], 1.0, rtol=0.15)
+    # the relative levels the status judges: the misfit is seen, the noise is not moved
+    cov = covariance(-j, noise + misfit, names, pressure=p, fs=FS)
+    assert cov.model_residual > 5 * cov.noise_residual
+
+
+def test_the_model_form_floor_is_a_fraction_of_the_pressure_at_the_harmonics():
+    j, p = _harmonic_case()
+    names = [f"x{i}" for i in range(j.shape[1])]
+    r = np.random.default_rng(7).standard_normal(j.shape[0]) * 1e-6  # no noise, no misfit
+    se = [np.sqrt(np.diag(covariance(-j, r, names, pressure=p, fs=FS, floor=f).cov_model))
+          for f in (0.01, 0.02)]  # fmt: skip
+    np.testing.assert_allclose(se[1] / se[0], 2.0, rtol=1e-6)  # linear in the floor
+    assert np.all(se[0] > 0)
