@@ -196,7 +196,7 @@ def segment_tables(segments: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     for name in SEGMENT_QUANTITIES:
         if f"{name}_median" not in notes:
             continue
-        med, se = notes[f"{name}_median"].to_numpy(float), notes[f"{name}_median_se"]
+        med, se = notes[f"{name}_median"].to_numpy(float), notes[f"{name}_se"]
         unit = unit_of(name)
         header = f"{name} [{unit}]" if unit and unit != "–" else name
         params[header] = [f"{fmt(m, 4)} ± {fmt(e, 2)}" if np.isfinite(e) else fmt(m, 4)
