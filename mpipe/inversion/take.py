@@ -12,7 +12,9 @@ table whichever is used:
 3. every window started from its note's cold start on the kernel at the fitted
    temperature (:func:`mpipe.inversion.tracking.track`);
 4. the temperature's share added to every standard error
-   (:func:`mpipe.inversion.temperature.widen_standard_errors`);
+   (:func:`mpipe.inversion.temperature.widen_standard_errors`), and the take-wide
+   components of the front end and the microphones' calibration
+   (:mod:`mpipe.inversion.shared_errors`);
 5. the take-level checks (:func:`mpipe.inversion.diagnostics.take_checks`): each reason
    in :attr:`TakeInversion.checks` and in the table's ``take_checks`` column;
 6. the fitted reed's opening in every window: ``h_mean``, ``h_min`` (m) and
@@ -35,6 +37,12 @@ from mpipe.inversion.execution import stage_workers
 from mpipe.inversion.kernel import bore_kernel, take_temperature
 from mpipe.inversion.segments import reed_openings
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
+from mpipe.inversion.shared_errors import (
+    FrontEnd,
+    fold_shared,
+    shared_components,
+    temperature_columns,
+)
 from mpipe.inversion.temperature import TemperatureFit, fit_temperature, widen_standard_errors
 from mpipe.inversion.tracking import RunOptions, Tracking, WindowPlan, detect_zero_mean, track
 from mpipe.measurement.calibration import Calibration
@@ -59,6 +67,9 @@ class TakeInversion:
     checks : tuple of str
         Why the take as a whole should not pass, one line each (empty: nothing found); see
         :mod:`mpipe.inversion.diagnostics`.
+    shared : dict
+        The take-wide components' inputs (:func:`mpipe.inversion.shared_errors.shared_components`):
+        the sensitivity's uncertainty and the front end's parameters with their effects.
     """
 
     tracking: Tracking
@@ -66,6 +77,7 @@ class TakeInversion:
     kernel: BoreKernel
     air: Air
     checks: tuple[str, ...] = ()
+    shared: dict = dataclasses.field(default_factory=dict)
 
 
 def invert_take(
@@ -79,6 +91,7 @@ def invert_take(
     windows: WindowPlan | Sequence[int] | pd.DataFrame,
     temperature_c: np.ndarray | float | None = None,
     options: RunOptions | None = None,
+    front_end: FrontEnd | None = None,
 ) -> TakeInversion:
     """Invert the planned windows of a take (see the module docstring for the steps).
 
@@ -105,6 +118,9 @@ def invert_take(
     options : RunOptions, optional
         Progress bar, Dask client, checkpoint folder
         (:class:`mpipe.inversion.tracking.RunOptions`).
+    front_end : FrontEnd, optional
+        The front end's estimate with its SEs: its share of every SE (``<q>_se_frontend``)
+        is measured; None leaves that component out.
 
     Returns
     -------
@@ -139,6 +155,12 @@ def invert_take(
         anchor=dict(fit.anchors) or None, options=options,
     )  # fmt: skip
     table = widen_standard_errors(result.table, fit, config.determined_limit)
+    table = temperature_columns(table, fit)
+    table, shared = shared_components(
+        p, u, fs, table, calibration, config, zero_mean=zero_mean, kernel_c=fit.temperature_c,
+        refit_kernel=fit.source == "fit", front=front_end,
+    )  # fmt: skip
+    table = fold_shared(table, config.determined_limit, ("frontend", "calibration"))
     openings, _ = reed_openings(table, p, fs)  # what the reed did: h(t), time shut
     table = pd.concat([table, openings], axis=1)
     if fit.anchor is not None and len(table):
@@ -150,7 +172,9 @@ def invert_take(
         cold_starts_agreeing=agreeing,
     )  # fmt: skip
     table["take_checks"] = "; ".join(checks)
-    return TakeInversion(dataclasses.replace(result, table=table), fit, kernel, air, tuple(checks))
+    return TakeInversion(
+        dataclasses.replace(result, table=table), fit, kernel, air, tuple(checks), shared
+    )
 
 
 def _first_agreeing(table) -> int | None:
