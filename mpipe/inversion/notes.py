@@ -7,7 +7,8 @@ root sum of squares of components that behave differently under averaging:
 - ``noise`` (Type A): the windows' scatter about the median, as the SE of a median of a
   serially correlated series, ``1.2533 sigma / sqrt(n_eff)`` with ``sigma`` = 1.4826 MAD
   and ``n_eff = n / tau``, ``tau`` the integrated autocorrelation time of the window series
-  (Geyer's initial positive sequence, :func:`mpipe.inversion.uncertainty.integrated_autocorrelation`).
+  (Geyer's initial positive sequence,
+  :func:`mpipe.inversion.uncertainty.integrated_autocorrelation`).
   It is never below what the windows' own noise implies, ``median(se_noise) / sqrt(n)``:
   a zero MAD (identical windows) does not give +-0;
 - ``model`` (Type B): the model-form error is the same mismatch of the same model in every

@@ -74,6 +74,14 @@ _PARAMETER_MEANINGS = {
 }
 
 
+#: Take-wide components of the budget written by mpipe.inversion.shared_errors.
+_SHARED_COMPONENTS = {
+    "temperature": "the kernel temperature's SE",
+    "frontend": "the front end's propagation estimate (theta's SEs)",
+    "calibration": "the microphones' sensitivity uncertainty",
+}
+
+
 def _uncertainty_columns() -> list[Column]:
     names = (*SE_PARAMETERS, *(c.name for c in COMBINATIONS))
     cols = [_col(c.name, FLOAT, f"combination {c.description}") for c in COMBINATIONS]
@@ -81,6 +89,9 @@ def _uncertainty_columns() -> list[Column]:
              for n in names]  # fmt: skip
     cols += [_col(f"determined_{n}", FLAG, f"{n}'s relative SE is below determined_limit")
              for n in names]  # fmt: skip
+    for comp, what in _SHARED_COMPONENTS.items():
+        cols += [_col(f"{n}_se_{comp}", FLOAT, f"{n}'s SE from {what} (take-wide)")
+                 for n in names]  # fmt: skip
     return [
         *cols,
         _col("residual_sigma", FLOAT, "standard deviation of the residual"),

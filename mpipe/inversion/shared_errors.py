@@ -23,7 +23,7 @@ window as ``<q>_se_<component>`` (same unit as q) for every parameter and combin
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +39,7 @@ from mpipe.inversion.uncertainty import SE_PARAMETERS
 from mpipe.inversion.window import invert_window
 from mpipe.measurement.calibration import Calibration
 from mpipe.measurement.separation.perturbation import reseparate
+from mpipe.measurement.separation.settings import SeparationConfig
 from mpipe.measurement.translation import TranslationConfig, translate
 from mpipe.reed.parameters import ReedParameters
 
@@ -85,6 +86,21 @@ class FrontEnd:
     level_se: np.ndarray
     band_hz: float
     translation: TranslationConfig
+
+    @classmethod
+    def of(
+        cls, mouthpiece: Mapping, separation: SeparationConfig, translation: TranslationConfig
+    ) -> FrontEnd | None:
+        """The front end of a mouthpiece file's arrays; None without theta's SEs.
+
+        ``mouthpiece`` holds ``p0, u0, temperature_c, theta_level, theta_level_se``.
+        """
+        if "theta_level_se" not in mouthpiece:
+            return None
+        m = mouthpiece
+        return cls(m["p0"], m["u0"], m["temperature_c"], np.asarray(m["theta_level"], float),
+                   np.asarray(m["theta_level_se"], float),
+                   separation.band_edge_hz + separation.band_taper_hz, translation)  # fmt: skip
 
 
 def sensitivity_se_db(calibration: Calibration) -> tuple[float, str]:
