@@ -22,6 +22,7 @@ window as ``<q>_se_<component>`` (same unit as q) for every parameter and combin
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -54,7 +55,7 @@ DEFAULT_SENSITIVITY_SE_DB = 0.15
 #: Names of the front end's parameters, in the order of :class:`FrontEnd`'s arrays.
 FRONTEND_NAMES = ("temperature", "eta", "mach", "position")
 #: Ok windows the front end's sensitivity is measured on.
-FRONTEND_WINDOWS = 4
+FRONTEND_WINDOWS = 3
 #: Half-spacing of the kernel temperatures of the re-fit, degC.
 KERNEL_STEP_C = 0.25
 
@@ -140,11 +141,19 @@ class _Refit:
     zero_mean: bool
     starts: Sequence[int]
     warm: Sequence[ReedParameters]
+    kernels: dict = dataclasses.field(default_factory=dict)  # T degC -> (kernel, air)
+
+    def kernel(self, t: float):
+        """The bore kernel and air at ``t`` degC, built once per temperature."""
+        key = round(float(t), 6)
+        if key not in self.kernels:
+            self.kernels[key] = bore_kernel(self.calibration, self.fs, key)
+        return self.kernels[key]
 
 
 def _logs(refit: _Refit, p, u, t: float) -> tuple[float, np.ndarray]:
     """``R`` (Pa^2) and ``ln q`` (windows x quantities) of the windows re-fitted at ``t`` degC."""
-    kernel, air = bore_kernel(refit.calibration, refit.fs, t)
+    kernel, air = refit.kernel(t)
     total, logs = 0.0, []
     for start, warm in zip(refit.starts, refit.warm, strict=True):
         out = invert_window(p, u, refit.fs, start, kernel, air.rho, refit.config,
