@@ -4,7 +4,6 @@ import numpy as np
 
 from mpipe.measurement.separation.perturbation import reseparate
 from mpipe.measurement.separation.waves import Geometry, Theta, separation_filters
-
 from tests.measurement.separation.separation_fields import CAL, FS, band_nrmse, random_take
 
 N = 2**14
