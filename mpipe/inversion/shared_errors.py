@@ -310,7 +310,7 @@ def shared_components(
 
 
 def temperature_columns(table: pd.DataFrame, fit: TemperatureFit) -> pd.DataFrame:
-    """``<q>_se_temperature`` = ``|q| |d ln q/dT| se_T`` where the table has none yet.
+    """``<q>_se_temperature`` = ``|q| |d ln q/dT| se_T`` where the table has none yet (or NaN).
 
     The kernel temperature's share (already folded into ``<q>_se`` by
     :func:`mpipe.inversion.temperature.widen_standard_errors`), as its own column so that a
@@ -322,7 +322,8 @@ def temperature_columns(table: pd.DataFrame, fit: TemperatureFit) -> pd.DataFram
     for name in QUANTITIES:
         col = f"{name}_se_temperature"
         sens = fit.sensitivity.get(name, math.nan)
-        if name in out and col not in out and math.isfinite(sens):
+        empty = col not in out or pd.to_numeric(out[col], errors="coerce").isna().all()
+        if name in out and empty and math.isfinite(sens):
             x = pd.to_numeric(out[name], errors="coerce").to_numpy(dtype=float)
             out[col] = np.abs(x) * abs(sens) * fit.se_c
     return out

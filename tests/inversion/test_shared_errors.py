@@ -71,3 +71,17 @@ def test_folding_adds_the_components_once_and_keeps_undetermined_ses():
     assert out["p_M_se"].iloc[0] == pytest.approx(0.05)
     assert np.isinf(out["p_M_se"].iloc[1]) and np.isnan(out["p_M_se"].iloc[2])
     assert out["determined_p_M"].tolist() == [True, False, False]
+
+
+def test_the_temperature_component_fills_an_empty_column_and_keeps_a_written_one():
+    from mpipe.inversion.shared_errors import temperature_columns
+    from mpipe.inversion.temperature import TemperatureFit
+
+    fit = TemperatureFit(20.0, 0.2, "fit", 19.0, sensitivity={"S": 0.2, "p_M": -0.01})
+    table = pd.DataFrame({"S": [1e-4], "S_se_temperature": [np.nan], "p_M": [3000.0],
+                          "p_M_se_temperature": [7.0]})  # fmt: skip
+    out = temperature_columns(table, fit)
+    assert out["S_se_temperature"].iloc[0] == pytest.approx(1e-4 * 0.2 * 0.2)
+    assert out["p_M_se_temperature"].iloc[0] == 7.0  # written by the window budget: kept
+    held = temperature_columns(table, TemperatureFit(20.0, math.nan, "front end", 20.0))
+    assert np.isnan(held["S_se_temperature"].iloc[0])
