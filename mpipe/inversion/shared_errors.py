@@ -55,7 +55,7 @@ DEFAULT_SENSITIVITY_SE_DB = 0.15
 #: Names of the front end's parameters, in the order of :class:`FrontEnd`'s arrays.
 FRONTEND_NAMES = ("temperature", "eta", "mach", "position")
 #: Ok windows the front end's sensitivity is measured on.
-FRONTEND_WINDOWS = 3
+FRONTEND_WINDOWS = 6
 #: Half-spacing of the kernel temperatures of the re-fit, degC.
 KERNEL_STEP_C = 0.25
 
