@@ -4,7 +4,8 @@ A note's value of a quantity q is the median of q over the note's ``ok`` windows
 standard uncertainty (GUM JCGM 100:2008: the combined standard uncertainty u_c) is the
 root sum of squares of components that behave differently under averaging:
 
-- ``noise`` (Type A): the windows' scatter about the median, as the SE of a median of a
+- ``noise`` (Type A): the windows' scatter (about the straight line through them in time:
+  a crescendo's change is the playing, not an error), as the SE of a median of a
   serially correlated series, ``1.2533 sigma / sqrt(n_eff)`` with ``sigma`` = 1.4826 MAD
   and ``n_eff = n / tau``, ``tau`` the integrated autocorrelation time of the window series
   (Geyer's initial positive sequence,
@@ -68,7 +69,9 @@ def window_noise_se(table: pd.DataFrame, name: str) -> np.ndarray:
     return np.sqrt(np.maximum(total, 0.0))
 
 
-def scatter_se(x: np.ndarray, floor: float = 0.0) -> tuple[float, float]:
+def scatter_se(
+    x: np.ndarray, floor: float = 0.0, t: np.ndarray | None = None
+) -> tuple[float, float]:
     """SE of the median of a serially correlated window series, and its n_eff.
 
     Parameters
@@ -77,6 +80,10 @@ def scatter_se(x: np.ndarray, floor: float = 0.0) -> tuple[float, float]:
         The windows' values in time order (finite), any unit.
     floor : float
         Lower bound of the SE, same unit (the windows' own noise over sqrt(n)).
+    t : ndarray, optional
+        The windows' times, s: the scatter is then taken about the straight line through
+        them (a crescendo's steady change is the playing, not an error of the windows);
+        with fewer than ``MIN_SCATTER + 2`` windows, about the median.
 
     Returns
     -------
@@ -89,8 +96,11 @@ def scatter_se(x: np.ndarray, floor: float = 0.0) -> tuple[float, float]:
     n = x.size
     if n < MIN_SCATTER:
         return (floor if n else math.nan), float(n)
-    sigma = 1.4826 * float(np.median(np.abs(x - np.median(x))))
-    tau = integrated_autocorrelation(x)
+    resid = x - np.median(x)
+    if t is not None and n >= MIN_SCATTER + 2 and np.ptp(t) > 0:
+        resid = x - np.polyval(np.polyfit(t, x, 1), t)
+    sigma = 1.4826 * float(np.median(np.abs(resid - np.median(resid))))
+    tau = integrated_autocorrelation(resid)
     n_eff = n / max(tau, 1.0)
     se = MEDIAN_EFFICIENCY * sigma / math.sqrt(n_eff)
     return (se if math.isnan(floor) else max(se, floor)), n_eff
@@ -120,7 +130,8 @@ def note_budget(windows: pd.DataFrame, name: str) -> dict[str, float]:
     # inf (undetermined) counts: a quantity most windows cannot determine has no finite SE
     known = noise[~np.isnan(noise)]
     floor = float(np.median(known)) / math.sqrt(x.size) if known.size else math.nan
-    se_noise, n_eff = scatter_se(x, floor) if x.size else (math.nan, 0.0)
+    t = _numbers(windows, "t_start_s")[keep] if "t_start_s" in windows else None
+    se_noise, n_eff = scatter_se(x, floor, t) if x.size else (math.nan, 0.0)
     comps = {"noise": se_noise}
     for comp in ("model", *SHARED):
         col = f"{name}_se_{comp}"

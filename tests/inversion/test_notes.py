@@ -93,3 +93,14 @@ def test_note_summary_keeps_each_note_apart_and_uses_ok_windows_only():
     out = note_summary(segs, table, ("q",))
     assert out["q_median"].tolist() == [1.0, 2.0] and out["ok_windows"].tolist() == [3, 4]
     assert out["q_se"].tolist() == pytest.approx([0.1 / math.sqrt(3), 0.1 / 2])
+
+
+def test_a_crescendos_steady_change_is_not_counted_as_scatter():
+    # 50 windows rising by 20 % of the value over the note, each with an independent
+    # error of SE 0.05: the note's noise SE is that of the errors (1.2533 x 0.05 / sqrt(50)
+    # = 0.0089, within 30 %), not of the rise (about 0.1)
+    rng = np.random.default_rng(4)
+    t = 0.02 * np.arange(50)
+    w = pd.DataFrame({"t_start_s": t, "q": 10.0 + 2.0 * t + rng.normal(0, 0.05, t.size)})
+    b = note_budget(w, "q")
+    assert b["q_se_noise"] == pytest.approx(1.2533 * 0.05 / math.sqrt(50), rel=0.3)
