@@ -39,6 +39,12 @@ and the fractions of windows within 1 SE (0.683) and 2 SE (0.954; asked [0.92, 0
     .venv/bin/python benchmarks/bench_uncertainty.py --coverage --seeds 20 \
         [--snrs 45,60] [--kinds steady,swell] [--duration 1.0] [--out DIR]
 
+It also prints, per note (:func:`mpipe.inversion.notes.note_summary`: the median over
+the note's ok windows and its combined SE, the take-wide components added once), the
+fraction of (note, quantity) pairs within 2 note SE of the truth (the median of the note's
+windows' truths; asked 0.90-0.98). The front end's estimate is passed to ``invert_take``
+(``front_end=``), as ``mpipe run`` does.
+
 Each take's table is kept in ``DIR/coverage/`` so an interrupted run resumes.
 """
 
