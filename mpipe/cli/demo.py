@@ -22,11 +22,14 @@ import pandas as pd
 
 from mpipe.cli.examples import example_take
 from mpipe.cli.main import main as cli_main
+from mpipe.inversion.combinations import combination_values
 from mpipe.inversion.records import flags, read_windows
+from mpipe.measurement.calibration import load_calibration
 
 ROOT = Path(__file__).resolve().parents[2]
 CALIBRATION = ROOT / "calibration" / "simplified_clarinet.yaml"
 PIPELINE = ROOT / "pipelines" / "simplified_clarinet.yaml"
+TRUTH_KEYS = {"lam": "lambda"}
 PARAMETERS = (
     ("k", "k", "Pa/m"),
     ("S", "S", "m^2"),
@@ -72,6 +75,26 @@ def truth_table(windows: pd.DataFrame, truth: dict, fs: float) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def note_table(notes: pd.DataFrame, truth: dict, true_p_m: float, calibration) -> pd.DataFrame:
+    """Each note's p_M, gamma and zeta (median over its ok windows) +- its combined SE.
+
+    Beside the truth (zeta with the calibration's entry impedance and air at the take's
+    true temperature; p_m the mean over the ok windows), and z = (value - truth) / SE:
+    within +-2 for about 95 % of honest error bars.
+    """
+    air = calibration.air_properties(float(np.asarray(truth["temperature_c"]).ravel()[0]))
+    values = {k: float(truth[f"reed_{TRUTH_KEYS.get(k, k)}"]) for k, _, _ in PARAMETERS}
+    values.update(p_m=true_p_m, y_c=float(truth["reed_y_c"]))
+    true = {**values, **combination_values(values, calibration.bore.entry_impedance(air), air.rho)}
+    rows = []
+    for number, (_, note) in enumerate(notes[notes["label"] == "note"].iterrows(), start=1):
+        for name in ("p_m", "p_M", "gamma", "zeta"):
+            value, se = float(note[f"{name}_median"]), float(note[f"{name}_se"])
+            rows.append({"note": number, "quantity": name, "true": true[name], "value": value,
+                         "se": se, "z": (value - true[name]) / se})  # fmt: skip
+    return pd.DataFrame(rows)
+
+
 def main(out_dir: Path = ROOT / "demo_output") -> int:
     """Run the demo and return an exit code."""
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -99,6 +122,11 @@ def main(out_dir: Path = ROOT / "demo_output") -> int:
     table = truth_table(windows, truth, float(truth["fs_model"]))
     print("\nRecovered reed parameters (median over the ok windows) beside the truth:")
     print(table.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+    notes = pd.read_csv(out_dir / "run" / name / "inversion" / "segments.csv")
+    true_p_m = float(table.loc[table["parameter"] == "p_m", "true"].iloc[0])
+    per_note = note_table(notes, truth, true_p_m, load_calibration(files.calibration))
+    print("\nEach note's value (median over its ok windows) +- its combined standard uncertainty:")
+    print(per_note.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
     print(f"\nreport: {out_dir / 'run' / name / 'report.html'}")
     return 0
 

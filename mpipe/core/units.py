@@ -100,12 +100,14 @@ def unit_of(name: str) -> str:
         return ""  # flags and counts (determined_k_c is no temperature)
     if name.endswith("_se") and name[: -len("_se")] in UNITS:
         return UNITS[name[: -len("_se")]]  # a standard error has its quantity's unit
-    head, sep, _ = name.partition("_se_")
-    if sep and head in UNITS:
-        return UNITS[head]  # a component of a standard error (<q>_se_<component>)
-    for stat in ("_median_se", "_window_se", "_median"):  # a segment's summary of a quantity
+    for stat in ("_window_se", "_median"):  # a segment's summary of a quantity
         if name.endswith(stat) and name[: -len(stat)] in UNITS:
             return UNITS[name[: -len(stat)]]
+    if name.endswith("_n_eff"):
+        return ""  # a note's effective number of windows
+    head, sep, _ = name.rpartition("_se_")  # a component of a budget: <q>_se_<component>
+    if sep and head in UNITS:
+        return UNITS[head]
     for suffix, unit in SUFFIX_UNITS:
         if name.endswith(suffix) and len(name) > len(suffix):
             return unit

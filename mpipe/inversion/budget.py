@@ -42,6 +42,8 @@ COMPONENTS = (
     "noise",
     "model",
     "temperature",
+    "frontend",
+    "calibration",
 )
 
 #: The quantities that carry a budget, in the table's order.

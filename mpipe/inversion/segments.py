@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 
 from mpipe.core.io import write_atomic
+from mpipe.inversion.notes import note_summary
 from mpipe.inversion.settings import PARAMETER_NAMES
 from mpipe.measurement.pitch import f0_track, note_name, pitch_cents, regime
 from mpipe.reed.opening import opening, opening_summary
@@ -264,14 +265,14 @@ def with_played(table: pd.DataFrame, plan: pd.DataFrame) -> pd.DataFrame:
 
 
 def segment_summary(segments: pd.DataFrame, table: pd.DataFrame) -> pd.DataFrame:
-    """Each segment's own result: windows, ok windows, medians and their standard errors.
+    """Each segment's own result: windows, ok windows, and per quantity its value and budget.
 
-    For each quantity of :data:`SUMMARISED` over the segment's ``ok`` windows:
-    ``<name>_median``; ``<name>_median_se``, the standard error of that median as a
-    statistic of the windows (``1.2533 sigma / sqrt(n)``, sigma from the median absolute
-    deviation: it includes the playing's own change over the note, a crescendo for
-    instance), NaN for fewer than 3 ok windows; and ``<name>_window_se``, the median of the
-    windows' own standard errors.
+    For each quantity of :data:`SUMMARISED` (and f_r, Q_r) over the segment's ``ok``
+    windows: ``<name>_median`` (the note's value), ``<name>_se`` (its combined standard
+    uncertainty: the windows' scatter with their serial correlation, never below their own
+    noise over sqrt(n), and the model-form and take-wide components added once), the
+    components ``<name>_se_<component>``, ``<name>_n_eff`` and ``<name>_window_se`` (the
+    median of the windows' own SE); see :func:`mpipe.inversion.notes.note_summary`.
 
     Parameters
     ----------
@@ -285,28 +286,7 @@ def segment_summary(segments: pd.DataFrame, table: pd.DataFrame) -> pd.DataFrame
     pandas.DataFrame
         ``segments`` with ``windows, ok_windows`` and the columns above.
     """
-    out = segments.copy()
-    seg = table["segment"] if "segment" in table else pd.Series(0, index=table.index)
-    ok = table["status"].astype(str) == "ok"
-    out["windows"] = [int((seg == g).sum()) for g in out["segment"]]
-    out["ok_windows"] = [int(((seg == g) & ok).sum()) for g in out["segment"]]
-    for name in SUMMARISED:
-        if name not in table:
-            continue
-        med, se, wse = [], [], []
-        for g in out["segment"]:
-            sel = (seg == g) & ok
-            x = pd.to_numeric(table.loc[sel, name], errors="coerce").dropna().to_numpy(float)
-            med.append(float(np.median(x)) if x.size else math.nan)
-            mad = 1.4826 * float(np.median(np.abs(x - np.median(x)))) if x.size else math.nan
-            se.append(1.2533 * mad / math.sqrt(x.size) if x.size >= 3 else math.nan)
-            col = f"{name}_se"
-            w = pd.to_numeric(table.loc[sel, col], errors="coerce").dropna() if col in table else []
-            wse.append(float(np.median(w)) if len(w) else math.nan)
-        out[f"{name}_median"] = med
-        out[f"{name}_median_se"] = se
-        out[f"{name}_window_se"] = wse
-    return out
+    return note_summary(segments, table, (*SUMMARISED, "f_r", "Q_r"))
 
 
 def reed_openings(table: pd.DataFrame, p: np.ndarray, fs: float) -> tuple[pd.DataFrame, np.ndarray]:

@@ -193,7 +193,7 @@ def segment_lines(summary: pd.DataFrame) -> list[str]:
     for number, (_, r) in enumerate(note_segments(summary).iterrows(), start=1):
         parts = []
         for name, unit in (("p_m", " Pa"), ("p_M", " Pa"), ("gamma", ""), ("zeta", "")):
-            med, se = r.get(f"{name}_median", math.nan), r.get(f"{name}_median_se", math.nan)
+            med, se = r.get(f"{name}_median", math.nan), r.get(f"{name}_se", math.nan)
             if np.isfinite(med):
                 parts.append(f"{name} {med:.4g}" + (f" +- {se:.2g}" if np.isfinite(se) else "")
                              + unit)  # fmt: skip

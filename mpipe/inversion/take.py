@@ -13,7 +13,9 @@ table whichever is used:
    temperature (:func:`mpipe.inversion.tracking.track`);
 4. the uncertainty budget: the temperature's component of every quantity
    (:func:`mpipe.inversion.temperature.temperature_components`) beside the windows' own
-   (noise, model form), combined into every ``<q>_se`` (:func:`mpipe.inversion.budget.combine`);
+   (noise, model form) and the take-wide components of the front end and the
+   microphones' calibration (:mod:`mpipe.inversion.shared_errors`), combined into every ``<q>_se``
+   (:func:`mpipe.inversion.budget.combine`);
 5. the take-level checks (:func:`mpipe.inversion.diagnostics.take_checks`, with the
    notes' own temperatures and ``extra_checks``): each reason
    in :attr:`TakeInversion.checks` and in the table's ``take_checks`` column;
@@ -38,6 +40,7 @@ from mpipe.inversion.execution import stage_workers
 from mpipe.inversion.kernel import bore_kernel, take_temperature
 from mpipe.inversion.segments import reed_openings
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
+from mpipe.inversion.shared_errors import FrontEnd, shared_components
 from mpipe.inversion.temperature import TemperatureFit, fit_temperature, temperature_components
 from mpipe.inversion.tracking import RunOptions, Tracking, WindowPlan, detect_zero_mean, track
 from mpipe.measurement.calibration import Calibration
@@ -62,6 +65,9 @@ class TakeInversion:
     checks : tuple of str
         Why the take as a whole should not pass, one line each (empty: nothing found); see
         :mod:`mpipe.inversion.diagnostics`.
+    shared : dict
+        The take-wide components' inputs (:func:`mpipe.inversion.shared_errors.shared_components`):
+        the sensitivity's uncertainty and the front end's parameters with their effects.
     """
 
     tracking: Tracking
@@ -69,8 +75,11 @@ class TakeInversion:
     kernel: BoreKernel
     air: Air
     checks: tuple[str, ...] = ()
+    shared: dict = dataclasses.field(default_factory=dict)
 
 
+# More than ten parameters: the public door of a take's inversion; what the front end found
+# (its temperature, its estimate's SEs, checks before the inversion) is keyword-only.
 def invert_take(
     p: np.ndarray,
     u: np.ndarray,
@@ -83,6 +92,7 @@ def invert_take(
     temperature_c: np.ndarray | float | None = None,
     options: RunOptions | None = None,
     extra_checks: Sequence[str] = (),
+    front_end: FrontEnd | None = None,
 ) -> TakeInversion:
     """Invert the planned windows of a take (see the module docstring for the steps).
 
@@ -112,6 +122,9 @@ def invert_take(
     extra_checks : sequence of str
         Reasons found before the inversion why the take should not pass (e.g. a
         calibration other than the take's own), kept first among its checks.
+    front_end : FrontEnd, optional
+        The front end's estimate with its SEs: its share of every SE (``<q>_se_frontend``)
+        is measured; None leaves that component out.
 
     Returns
     -------
@@ -147,6 +160,10 @@ def invert_take(
     )  # fmt: skip
     # the budget: the take-wide components beside the windows' own, then one combination
     table = temperature_components(result.table, fit)
+    table, shared = shared_components(
+        p, u, fs, table, calibration, config, zero_mean=zero_mean, kernel_c=fit.temperature_c,
+        refit_kernel=fit.source == "fit", front=front_end,
+    )  # fmt: skip
     table = combine(table, config.determined_limit)
     openings, _ = reed_openings(table, p, fs)  # what the reed did: h(t), time shut
     table = pd.concat([table, openings], axis=1)
@@ -159,7 +176,9 @@ def invert_take(
         cold_starts_agreeing=agreeing, notes=fit.notes, extra=extra_checks,
     )  # fmt: skip
     table["take_checks"] = "; ".join(checks)
-    return TakeInversion(dataclasses.replace(result, table=table), fit, kernel, air, tuple(checks))
+    return TakeInversion(
+        dataclasses.replace(result, table=table), fit, kernel, air, tuple(checks), shared
+    )
 
 
 def _first_agreeing(table) -> int | None:

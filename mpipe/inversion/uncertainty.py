@@ -73,6 +73,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mpipe.core.statistics import integrated_autocorrelation
 from mpipe.inversion.harmonics import SPECTRUM_BINS, spectral_gram, split_residual
 from mpipe.inversion.least_squares import DIFF_STEP
 
@@ -84,43 +85,6 @@ RCOND = 1e-3
 
 #: Parameters that may carry a standard error, in the table's order.
 SE_PARAMETERS = ("k", "S", "y_m", "p_m", "m", "g", "lam", "k_c", "y_c")
-
-
-def integrated_autocorrelation(r: np.ndarray) -> float:
-    """Integrated autocorrelation time ``tau = 1 + 2 sum rho_k`` of a residual, samples.
-
-    The sum is truncated by Geyer's initial positive sequence: pairs
-    ``rho_{2m} + rho_{2m+1}`` are added while they are positive. The autocorrelation is
-    the biased (divided by n) estimate about the mean, computed by FFT.
-
-    Parameters
-    ----------
-    r : ndarray
-        Residual, any unit.
-
-    Returns
-    -------
-    float
-        tau >= 1 (a negatively correlated residual is not credited with more than n
-        samples).
-
-    References
-    ----------
-    Geyer 1992, section 3.3.
-    """
-    x = np.asarray(r, dtype=float)
-    x = x - x.mean()
-    n = x.size
-    if n < 4 or not np.any(x):
-        return 1.0
-    size = 1 << int(math.ceil(math.log2(2 * n)))
-    spec = np.fft.rfft(x, size)
-    acov = np.fft.irfft(spec * np.conj(spec), size)[:n]
-    rho = acov / acov[0]
-    pairs = rho[: 2 * (n // 2)].reshape(-1, 2).sum(axis=1)
-    stop = np.flatnonzero(pairs <= 0)
-    m = int(stop[0]) if stop.size else pairs.size
-    return max(-1.0 + 2.0 * float(pairs[:m].sum()), 1.0)
 
 
 def log_jacobian(
@@ -402,7 +366,6 @@ __all__ = [
     "SE_PARAMETERS",
     "SPECTRUM_BINS",
     "covariance",
-    "integrated_autocorrelation",
     "log_jacobian",
     "noise_weighted_gram",
     "scale_direction",

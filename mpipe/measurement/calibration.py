@@ -70,6 +70,14 @@ class Microphone:
     sensitivity: float = spec(
         "Pa", "pressure per unit of the recorded signal", positive, default=1.0
     )
+    sensitivity_se_db: float | None = spec(
+        "dB",
+        "standard uncertainty of the sensitivity (the first microphone's sets the take's "
+        "common scale; null: 0.15 dB assumed, a pistonphone calibration's, see "
+        "docs/uncertainty.md)",
+        between(0.0, 6.0),
+        default=None,
+    )
     calibration: str | None = spec(
         "",
         "optional CSV (frequency_hz, magnitude, phase_deg) of the complex relative "

@@ -27,6 +27,7 @@ from mpipe.inversion.kernel import bore_kernel, table_temperature, take_temperat
 from mpipe.inversion.records import read_windows
 from mpipe.inversion.segments import plot_segments, reed_openings, segment_summary, with_played
 from mpipe.inversion.settings import PARAMETER_NAMES
+from mpipe.inversion.shared_errors import FrontEnd
 from mpipe.inversion.status import count as count_status
 from mpipe.inversion.status import summary_line
 from mpipe.inversion.tables import segment_lines, why_no_window, write_correlations, write_table
@@ -107,7 +108,8 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
         write_npz_atomic(
             folder / "reference.npz", fs=np.float64(take.fs), p0=sep.p0, u0=sep.u0,
             temperature_c=temps, mic_noise_psd=sep.noise_psd,
-            theta_median=np.array([th.c, th.eta, th.mach]),
+            theta_median=np.array([th.c, th.eta, th.mach]), **({} if sep.track is None else {
+                "theta_level": sep.track.level, "theta_level_se": sep.track.level_se}),
         )  # fmt: skip
         write_csv(folder / "blocks.csv", sep.blocks)
         track = sep.track
@@ -153,6 +155,7 @@ def _stage_translation(folder_sep: Path, cal: Calibration, cfg: PipelineConfig):
         write_npz_atomic(
             folder / "mouthpiece.npz", fs=np.float64(fs), p=tr.p, u=tr.u, p0=tr.p0, u0=tr.u0,
             temperature_c=tr.temperature_c, **noise,
+            **{k: ref[k] for k in ("theta_level", "theta_level_se") if k in ref},
         )  # fmt: skip
         write_atomic(folder / "mouthpiece.wav", lambda t: write_mouthpiece_wav(t, tr.p, tr.u, fs))
         summary = {"p_rms_pa": float(np.std(tr.p)), "u_rms_m3_s": float(np.std(tr.u))}
@@ -246,6 +249,7 @@ def _stage_inversion(
                 temperature_c=mp.get("temperature_c"),
                 options=RunOptions(progress=bar, client=client, checkpoint=checkpoint),
                 extra_checks=checks,
+                front_end=FrontEnd.of(mp, cfg.separation, cfg.translation),
             )  # fmt: skip
         finally:
             bar.close()
@@ -285,6 +289,7 @@ def _stage_inversion(
             "temperature": take.temperature.summary(),
             "temperature_line": take.temperature.line(),
             "take_checks": list(take.checks),
+            "shared_errors": take.shared,
             "segment_lines": segment_lines(per_segment),
         }
         return outputs, summary

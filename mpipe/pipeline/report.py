@@ -19,6 +19,7 @@ import pandas as pd
 from mpipe.core.units import unit_of
 from mpipe.inversion.coverage import summary as uncertainty_summary
 from mpipe.inversion.records import read_windows
+from mpipe.pipeline.budget_table import budget_tables
 from mpipe.pipeline.html_report import Figure, Section, fmt, write_report
 
 #: Reed parameters summarised at the top of a take's report, in this order.
@@ -176,8 +177,8 @@ def segment_tables(segments: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     (played, parameters)
         ``played``: segment, start, duration, note, f0, regime, SPL, ok windows of windows;
         ``parameters``: segment and ``"median ± SE"`` of :data:`SEGMENT_QUANTITIES` over the
-        note's ok windows (SE of the median over the windows, see
-        :func:`mpipe.inversion.segments.segment_summary`).
+        note's ok windows (the note's combined standard uncertainty, see
+        :func:`mpipe.inversion.notes.note_summary`).
     """
     notes = segments[segments["label"] == "note"] if "label" in segments else segments
     played = pd.DataFrame({
@@ -196,7 +197,7 @@ def segment_tables(segments: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     for name in SEGMENT_QUANTITIES:
         if f"{name}_median" not in notes:
             continue
-        med, se = notes[f"{name}_median"].to_numpy(float), notes[f"{name}_median_se"]
+        med, se = notes[f"{name}_median"].to_numpy(float), notes[f"{name}_se"]
         unit = unit_of(name)
         header = f"{name} [{unit}]" if unit and unit != "–" else name
         params[header] = [f"{fmt(m, 4)} ± {fmt(e, 2)}" if np.isfinite(e) else fmt(m, 4)
@@ -242,8 +243,9 @@ def _summary_section(
             ("What was played, note by note: start (s), duration (s), nearest note and its "
              "deviation (cents), playing frequency (Hz), regime (from the bore's resonances), "
              "sound pressure level in the mouthpiece (dB re 20 µPa), ok windows.", played),
-            ("Each note's own result: median ± standard error of the median over the note's "
-             "ok windows (the SE includes the playing's own change over the note).", per_note),
+            ("Each note's own result: median over the note's ok windows ± its combined "
+             "standard uncertainty (the budget of each note follows).", per_note),
+            *budget_tables(notes),
         ]  # fmt: skip
     if len(notes) > 1:
         summary_text += (

@@ -215,13 +215,18 @@ def _write_audio(path: Path, take: VirtualTake, calibration: Calibration, subtyp
 
 
 def _write_calibration_copy(files: TakeFiles, calibration: Calibration, sens: np.ndarray) -> None:
-    """The calibration with the file's sensitivities ``sens`` (Pa per full-scale unit)."""
+    """The calibration with the file's sensitivities ``sens`` (Pa per full-scale unit).
+
+    Their stated uncertainty is 0 dB: the virtual recorder knows them exactly.
+    """
     mics = []
     for i, mic in enumerate(calibration.microphones):
         table = None
         if files.mic_calibrations and i > 0:
             table = files.mic_calibrations[i - 1].name
-        mics.append(dataclasses.replace(mic, sensitivity=float(sens[i]), calibration=table))
+        # the virtual recording's sensitivities are exact: no calibration uncertainty
+        mics.append(dataclasses.replace(mic, sensitivity=float(sens[i]), calibration=table,
+                                        sensitivity_se_db=0.0))  # fmt: skip
     cal_copy = dataclasses.replace(calibration, microphones=tuple(mics))
     header = (
         f"# Calibration for {files.audio.name}, written by mpipe {__version__} (synth-take).\n"

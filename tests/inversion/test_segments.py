@@ -117,8 +117,8 @@ def test_segment_summary_gives_each_note_its_own_median():
     assert np.isnan(out["p_m_median"].iloc[1]) and out["windows"].iloc[1] == 0
     assert list(out["ok_windows"]) == [3, 0, 3]
     assert out["p_m_window_se"].iloc[0] == 5.0
-    # median SE: 1.2533 x 1.4826 x MAD / sqrt(n), MAD 10 Pa on 3 windows
-    assert out["p_m_median_se"].iloc[0] == pytest.approx(1.2533 * 1.4826 * 10 / np.sqrt(3))
+    # 3 windows are too few for their scatter: the windows' own SE over sqrt(n)
+    assert out["p_m_se"].iloc[0] == pytest.approx(5.0 / np.sqrt(3))
 
 
 def test_played_columns_join_by_window_start():

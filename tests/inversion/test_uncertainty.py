@@ -14,7 +14,6 @@ from mpipe.inversion.least_squares import trust_region
 from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWindow
 from mpipe.inversion.uncertainty import (
     covariance,
-    integrated_autocorrelation,
     log_jacobian,
     scale_direction,
 )
@@ -29,20 +28,6 @@ TABLE1 = ReedParameters(
     k=8.66e6, S=7.62e-5, y_m=4e-4, p_m=1800.0, lam=0.013, m=0.05, g=3000.0, k_c=8.23e10
 )
 CLOSURE = dataclasses.replace(TABLE1, y_c=TABLE1.y_m)
-
-
-def test_integrated_autocorrelation_of_white_and_ar1_noise():
-    # AR(1) with coefficient phi: tau = (1 + phi) / (1 - phi) exactly.
-    rng = np.random.default_rng(3)
-    n = 40_000
-    for phi in (0.0, 0.5, 0.8):
-        e = rng.standard_normal(n)
-        x = np.empty(n)
-        x[0] = e[0]
-        for i in range(1, n):
-            x[i] = phi * x[i - 1] + e[i]
-        expected = (1 + phi) / (1 - phi)
-        assert integrated_autocorrelation(x) == pytest.approx(expected, rel=0.15)
 
 
 def test_coverage_on_lowpassed_noise_matches_monte_carlo():

@@ -44,7 +44,7 @@ def test_segment_tables_give_each_note_its_own_line():
         "regime": ["silence", "fundamental", "silence", "fundamental"],
         "spl_db": [110.0, 154.4, 110.0, 156.0], "windows": [0, 17, 0, 19],
         "ok_windows": [0, 13, 0, 15], "p_m_median": [np.nan, 1807.0, np.nan, 2001.0],
-        "p_m_median_se": [np.nan, 3.0, np.nan, np.nan],
+        "p_m_se": [np.nan, 3.0, np.nan, np.nan],
     })  # fmt: skip
     played, params = segment_tables(segs)
     assert list(played["segment"]) == [1, 3]
