@@ -98,6 +98,9 @@ def unit_of(name: str) -> str:
         return ""  # flags and counts (determined_k_c is no temperature)
     if name.endswith("_se") and name[: -len("_se")] in UNITS:
         return UNITS[name[: -len("_se")]]  # a standard error has its quantity's unit
+    head, sep, _ = name.partition("_se_")
+    if sep and head in UNITS:
+        return UNITS[head]  # a component of a standard error (<q>_se_<component>)
     for stat in ("_median_se", "_window_se", "_median"):  # a segment's summary of a quantity
         if name.endswith(stat) and name[: -len(stat)] in UNITS:
             return UNITS[name[: -len(stat)]]

@@ -27,6 +27,7 @@ import pandas as pd
 from mpipe.core.io import CSV_FLOAT_FORMAT, write_atomic
 from mpipe.core.units import unit_of
 from mpipe.inversion.combinations import COMBINATIONS
+from mpipe.inversion.discretisation import QUANTITIES as RATE_QUANTITIES
 from mpipe.inversion.settings import PARAMETER_NAMES
 from mpipe.inversion.uncertainty import SE_PARAMETERS
 
@@ -139,8 +140,19 @@ _INVERSION: tuple[Column, ...] = (
     _col("error", TEXT, "why the window has no estimate (empty: it has one)"),
     _col("take_checks", TEXT, "take-level checks that failed"),
 )
-#: Columns the later stages add: the fitted reed's opening, what was played.
+#: Columns the later stages add: the model's discretisation (issue 34's budget, ``rate``
+#: component, :mod:`mpipe.inversion.discretisation`), the fitted reed's opening, what was
+#: played.
 _LATER: tuple[Column, ...] = (
+    *(
+        _col(
+            f"{q}_se_rate",
+            FLOAT,
+            f"rate component of {q}'s standard uncertainty: the model's discretisation at "
+            "its sample rate (shared by the take; inf: rate below the lowest bounded)",
+        )
+        for q in RATE_QUANTITIES
+    ),  # fmt: skip
     _col("h_mean", FLOAT, "mean opening of the fitted reed"),
     _col("h_min", FLOAT, "smallest opening of the fitted reed"),
     _col(
