@@ -41,12 +41,13 @@ QUANTITIES = ("k", "S", "y_m", "p_m", "m", "g", "lam", "k_c", *COMBINATION_NAMES
 #: Reference frequency of the error model, Hz: the band the fit compares (the
 #: translation's low-pass cut-off). Neither the playing frequency nor the reed's resonance
 #: collapsed the measured biases better (the stiffer reed, f_r 2.76 kHz, had smaller
-#: biases than the Table 1 reed's 2.09 kHz; the four-hole bore's xxoo note, 30 % higher,
-#: the same as its xxxx note).
+#: biases than the Table 1 reed's 2.09 kHz; the four-hole bore's xxoo note, whose first
+#: resonance is 19 % higher, 0.94 times its xxxx note's at 44.1 kHz, not 1.24 times).
 F_REF_HZ = 7250.0
 #: Order of the bound in 1/fs: the least-squares slope of the largest |bias| over the six
-#: cases against log(F_REF_HZ / fs), median over the quantities (1.35-1.45 for a single
-#: loud note; not 2: the reed's flow follows its displacement one step late).
+#: cases against log(F_REF_HZ / fs), median over the quantities (1.3-1.45 for one loud
+#: note alone). Not the second order of the reed's centred differences alone: some part
+#: of the scheme errs at first order (which part was not isolated).
 ORDER = 1.26
 #: c_q of the bound: the largest measured |bias| (fs / F_REF_HZ)^ORDER over the six cases
 #: and the fitted rates, rounded up to three digits (the relative bias at fs = F_REF_HZ).
