@@ -375,7 +375,7 @@ class InversionConfig:
         "rates are resampled to it when read (mpipe run), mouthpiece signals at other "
         "rates when inverted (mpipe invert). At least "
         f"{LOWEST_RATE_HZ:g} Hz: below it the model's discretisation bias is not bounded "
-        "(docs/uncertainty.md, \"The model's rate\"); its share of every error bar falls "
+        '(docs/uncertainty.md, "The model\'s rate"); its share of every error bar falls '
         f"as rate^-{ORDER:g}",
         check_model_rate,
         default=100_000.0,
