@@ -19,7 +19,9 @@ relative bias of quantity q is at most
 with ORDER and c_q from the measurement (c_q: the largest measured |bias| scaled to
 F_REF_HZ). Taken per the GUM as a rectangular distribution on [-b, b] (JCGM 100:2008,
 4.3.7), its standard uncertainty is ``u_q = b_q |q| / sqrt(3)``: the column
-``<q>_se_rate`` of every window (q's unit), shared by all windows of a take (one rate).
+``<q>_se_rate`` of every window (q's unit), shared by all windows of a take (one rate);
+issue 34's budget (``mpipe.inversion.budget``, component ``rate``) combines it into
+``<q>_se``.
 Below :data:`LOWEST_RATE_HZ` the measurement bounds nothing: a pipeline file setting
 ``inversion.sample_rate`` lower is refused (:func:`check_model_rate`), and
 :func:`rate_errors` of a table made there gives inf (no bound).
@@ -124,46 +126,6 @@ def rate_errors(table: pd.DataFrame, fs_model: float) -> pd.DataFrame:
     return out
 
 
-def widen_by_rate(table: pd.DataFrame, limit: float) -> pd.DataFrame:
-    """Fold ``<q>_se_rate`` into ``<q>_se`` (root sum of squares), until the budget does.
-
-    Issue 34's budget combines every component in one place
-    (``mpipe.inversion.budget.combine``, with ``rate`` in its ``COMPONENTS``); until it is
-    merged, this folds the rate component in as
-    :func:`mpipe.inversion.temperature.widen_standard_errors` folds the temperature's: a
-    finite SE becomes ``hypot(se, se_rate)``; NaN and inf SEs stay; inf ``se_rate`` (a
-    rate below the lowest) makes the SE inf. ``determined_<q>`` can only turn false.
-
-    Parameters
-    ----------
-    table : pandas.DataFrame
-        Windows table with ``<q>_se`` and ``<q>_se_rate``.
-    limit : float
-        Relative SE under which a quantity is determined (``inversion.determined_limit``).
-
-    Returns
-    -------
-    pandas.DataFrame
-        A copy.
-    """
-    out = table.copy()
-    for q in QUANTITIES:
-        col, rate = f"{q}_se", f"{q}_se_rate"
-        if col not in out or rate not in out:
-            continue
-        se = pd.to_numeric(out[col], errors="coerce").to_numpy(dtype=float)
-        share = pd.to_numeric(out[rate], errors="coerce").to_numpy(dtype=float)
-        widened = np.where(np.isfinite(se) & ~np.isnan(share), np.hypot(se, share), se)
-        out[col] = widened
-        det = f"determined_{q}"
-        if det in out:
-            x = np.abs(pd.to_numeric(out[q], errors="coerce").to_numpy(dtype=float))
-            with np.errstate(invalid="ignore", divide="ignore"):
-                within = np.isfinite(widened) & (widened / x < limit)
-            out[det] = out[det].astype(bool).to_numpy() & within
-    return out
-
-
 def check_model_rate(value: float) -> str | None:
     """The check of ``inversion.sample_rate``: None, or why the rate is refused."""
     if not value <= 1e6:
@@ -222,5 +184,4 @@ __all__ = [
     "rate_errors",
     "relative_bound",
     "relative_uncertainty",
-    "widen_by_rate",
 ]

@@ -13,7 +13,8 @@ table whichever is used:
    temperature (:func:`mpipe.inversion.tracking.track`);
 4. the temperature's share added to every standard error
    (:func:`mpipe.inversion.temperature.widen_standard_errors`), and the model's
-   discretisation at fs (``<q>_se_rate``, :mod:`mpipe.inversion.discretisation`);
+   discretisation at fs as its own column ``<q>_se_rate``
+   (:mod:`mpipe.inversion.discretisation`; the budget combines it);
 5. the take-level checks (:func:`mpipe.inversion.diagnostics.take_checks`): each reason
    in :attr:`TakeInversion.checks` and in the table's ``take_checks`` column;
 6. the fitted reed's opening in every window: ``h_mean``, ``h_min`` (m) and
@@ -32,7 +33,7 @@ import pandas as pd
 
 from mpipe.acoustics.air import Air
 from mpipe.inversion.diagnostics import check_plausible, take_checks
-from mpipe.inversion.discretisation import rate_errors, widen_by_rate
+from mpipe.inversion.discretisation import rate_errors
 from mpipe.inversion.execution import stage_workers
 from mpipe.inversion.kernel import bore_kernel, take_temperature
 from mpipe.inversion.segments import reed_openings
@@ -141,8 +142,7 @@ def invert_take(
         anchor=dict(fit.anchors) or None, options=options,
     )  # fmt: skip
     table = widen_standard_errors(result.table, fit, config.determined_limit)
-    # the model's discretisation at fs: <q>_se_rate, folded into <q>_se (issue 34's budget)
-    table = widen_by_rate(rate_errors(table, fs), config.determined_limit)
+    table = rate_errors(table, fs)  # <q>_se_rate: the budget's rate component (issue 34)
     openings, _ = reed_openings(table, p, fs)  # what the reed did: h(t), time shut
     table = pd.concat([table, openings], axis=1)
     if fit.anchor is not None and len(table):
