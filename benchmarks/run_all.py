@@ -49,6 +49,7 @@ QUICK_ARGS = {
     "bench_openwind": ["--duration", "1"],
     "bench_segments": ["--seeds", "0"],
     "bench_dask": ["--runs", "2", "--batch", "2", "--duration", "1"],
+    "bench_rate": ["--cases", "shipped", "--rates", "44100,100000", "--variants", "scheme"],
 }
 
 #: Units where a smaller value is better (the ratio shown is then baseline / value).

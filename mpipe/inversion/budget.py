@@ -41,6 +41,7 @@ from mpipe.inversion.uncertainty import SE_PARAMETERS
 COMPONENTS = (
     "noise",
     "model",
+    "rate",
     "temperature",
     "frontend",
     "calibration",

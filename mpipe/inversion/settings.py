@@ -14,6 +14,7 @@ from typing import Literal
 from mpipe.core.config import Where, between, positive, spec
 from mpipe.core.filters import LowPass, design_lowpass
 from mpipe.inversion.conditioning_settings import ConditioningConfig as ConditioningConfig
+from mpipe.inversion.discretisation import LOWEST_RATE_HZ, ORDER, check_model_rate
 from mpipe.measurement.translation import TranslationConfig
 
 #: Reed parameters that step 2 may optimise (physics.md I); y_c and alpha stay fixed.
@@ -380,10 +381,13 @@ class InversionConfig:
     )
     sample_rate: float = spec(
         "Hz",
-        "sample rate of the whole pipeline: takes recorded at other rates are resampled "
-        "to it when read (mpipe run), mouthpiece signals at other rates when inverted "
-        "(mpipe invert)",
-        between(1e3, 1e6),
+        "sample rate of the whole pipeline and of the model: takes recorded at other "
+        "rates are resampled to it when read (mpipe run), mouthpiece signals at other "
+        "rates when inverted (mpipe invert). At least "
+        f"{LOWEST_RATE_HZ:g} Hz: below it the model's discretisation bias is not bounded "
+        '(docs/uncertainty.md, "The model\'s rate"); its share of every error bar falls '
+        f"as rate^-{ORDER:g}",
+        check_model_rate,
         default=100_000.0,
     )
 

@@ -13,7 +13,8 @@ table whichever is used:
    temperature (:func:`mpipe.inversion.tracking.track`);
 4. the uncertainty budget: the temperature's component of every quantity
    (:func:`mpipe.inversion.temperature.temperature_components`) beside the windows' own
-   (noise, model form) and the take-wide components of the front end and the
+   (noise, model form), the model's discretisation at fs
+   (:mod:`mpipe.inversion.discretisation`) and the take-wide components of the front end and the
    microphones' calibration (:mod:`mpipe.inversion.shared_errors`), combined into every ``<q>_se``
    (:func:`mpipe.inversion.budget.combine`);
 5. the take-level checks (:func:`mpipe.inversion.diagnostics.take_checks`, with the
@@ -36,6 +37,7 @@ import pandas as pd
 from mpipe.acoustics.air import Air
 from mpipe.inversion.budget import combine
 from mpipe.inversion.diagnostics import check_plausible, take_checks
+from mpipe.inversion.discretisation import rate_errors
 from mpipe.inversion.execution import stage_workers
 from mpipe.inversion.kernel import bore_kernel, take_temperature
 from mpipe.inversion.segments import reed_openings
@@ -164,6 +166,7 @@ def invert_take(
         p, u, fs, table, calibration, config, zero_mean=zero_mean, kernel_c=fit.temperature_c,
         refit_kernel=fit.source == "fit", front=front_end,
     )  # fmt: skip
+    table = rate_errors(table, fs)  # the model's discretisation at fs
     table = combine(table, config.determined_limit)
     openings, _ = reed_openings(table, p, fs)  # what the reed did: h(t), time shut
     table = pd.concat([table, openings], axis=1)

@@ -133,6 +133,14 @@ CASES = [
         r"machine has .* GiB; expected at most \d+ s",
     ),
     (
+        "model-rate-below-the-lowest-bounded",
+        lambda tp: ["invert", str(_mouthpiece(tp)), "--pipeline",
+                    str(_pipeline(tp, inversion__sample_rate=22050)), "-o", str(tp / "o")],
+        2,
+        r"pipe.yaml: inversion.sample_rate: 22050 Hz is below 32000 Hz, the lowest model rate "
+        r"whose discretisation error the uncertainty budget bounds",
+    ),
+    (
         "start-outside-the-take",
         lambda tp: ["invert", str(_mouthpiece(tp)), "--pipeline", str(_pipeline(tp)),
                     "-o", str(tp / "o"), "--start", "5"],
