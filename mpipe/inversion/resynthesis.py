@@ -17,6 +17,7 @@ Chatziioannou & van Walstijn 2012, Figs. 7-9 and 11; physics.md J ("Resynthesis"
 from __future__ import annotations
 
 import logging
+import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,6 +37,7 @@ from mpipe.inversion.objective import (  # noqa: E402
     run_model,
 )
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig  # noqa: E402
+from mpipe.inversion.status_words import reason_words
 from mpipe.inversion.step1 import (
     Step1Result,  # noqa: E402
     step1,
@@ -213,7 +215,8 @@ def plot_signals(
     a2.set_ylabel("flow [m³/s]")
     a2.set_xlabel("time [s]")
     if title:
-        a1.set_title(title, fontsize=9, color="k" if status == "ok" else "tab:red")
+        color = "k" if status == "ok" else "tab:red"
+        a1.set_title(textwrap.fill(title, 110), fontsize=9, color=color)
     return save_figure(fig, path)
 
 
@@ -365,7 +368,7 @@ def window_words(row: pd.Series | dict) -> str:
     """``"window 12 at 1.130 s (sustain): status ok"``, with the reason when not ok."""
     phase = str(row.get("phase", "") or "")
     status = str(row.get("status", "") or "")
-    reason = str(row.get("status_reason", "") or "")
+    reason = reason_words(row)
     head = f"window {int(row['window'])} at {float(row['t_start_s']):.3f} s"
     head += f" ({phase})" if phase and phase != "nan" else ""
     words = f"{head}: status {status}" if status else head
