@@ -74,6 +74,8 @@ def note_figure(signals, fs: float, row: pd.Series, title: str):
     a_u.set_xlabel(f"time after the window's start {t0:.3f} s [ms]")
     a_up.plot(p[show], u[show], color="0.6", lw=2.2, label="measured")
     a_up.plot(p_res[show], u_res[show], color="k", lw=0.9, label="resynthesised")
+    for ax in (a_u, a_up):
+        ax.ticklabel_format(axis="y", style="sci", scilimits=(0, 0))  # u in 10^-5 m^3/s
     a_up.set_xlabel("p [Pa]")
     a_up.set_ylabel("u [m³/s]")
     a_up.grid(alpha=0.3)

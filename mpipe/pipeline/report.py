@@ -219,9 +219,7 @@ def _summary_section(
         f"{fmt(val['band_error_db'], 3)} dB). {inv.get('status_line', '')}. A window is ok "
         "when the search met its tolerance, no parameter sits on a search bound and its "
         "residual is within a few times the take's best. Median relative residual of the "
-        f"model pressure {fmt(med_res, 3)}. Air temperature: {_temperature_words(val, inv)} "
-        "In the parameter table, iqr_pct is the interquartile range (q75 − q25) over the "
-        "median, %, over the ok windows."
+        f"model pressure {fmt(med_res, 3)}. Air temperature: {_temperature_words(val, inv)}"
     )
     if val.get("failures"):
         summary_text += "\n\nValidation failures: " + "; ".join(val["failures"]) + "."

@@ -21,6 +21,9 @@ from mpipe.inversion.status_words import reason_words
 from mpipe.measurement.pitch import note_name
 from mpipe.pipeline.html_report import Figure, fmt
 
+#: No-break space: a value and its SE, or a note and its cents, stay on one line of a cell.
+NBSP = "\u00a0"
+
 #: Caption of the per-window table.
 WINDOW_CAPTION = (
     "Per-window results: the window's note (numbered as in the notes table), phase, playing "
@@ -36,7 +39,8 @@ WINDOW_QUANTITIES = ("p_m", "p_M", "gamma", "zeta", "k", "S", "y_m", "lam", "m",
 def value_se(value: float, se: float) -> str:
     """``"1800 ± 26"``; ``"3136 (undetermined)"`` for an infinite SE, the value alone for none.
 
-    The SE is rounded to two significant digits, the value to four.
+    The SE is rounded to two significant digits, the value to four; the parts are joined by
+    no-break spaces (:data:`NBSP`).
     """
     if value is None or not np.isfinite(value):
         return "–"
@@ -44,8 +48,8 @@ def value_se(value: float, se: float) -> str:
         return fmt(float(value), 4)
     se = float(se)
     if math.isinf(se):
-        return f"{fmt(float(value), 4)} (undetermined)"
-    return f"{fmt(float(value), 4)} ± {fmt(se, 2)}"
+        return f"{fmt(float(value), 4)}{NBSP}(undetermined)"
+    return f"{fmt(float(value), 4)}{NBSP}±{NBSP}{fmt(se, 2)}"
 
 
 def pitch_name(f0_hz: float, pitch_cents: float) -> str:
@@ -53,7 +57,7 @@ def pitch_name(f0_hz: float, pitch_cents: float) -> str:
     if not (np.isfinite(f0_hz) and np.isfinite(pitch_cents) and f0_hz > 0):
         return ""
     a4 = f0_hz / 2.0 ** (pitch_cents / 1200.0)
-    return note_name(f0_hz, a4)
+    return note_name(f0_hz, a4).replace(" ", NBSP)
 
 
 def note_numbers(windows: pd.DataFrame, segments: pd.DataFrame | None) -> list:

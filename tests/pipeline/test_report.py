@@ -67,7 +67,7 @@ def test_window_table_gives_each_value_with_its_se_note_pitch_and_reason_in_word
     })  # fmt: skip
     segments = pd.DataFrame({"segment": [0, 1, 2, 3],
                              "label": ["silence", "note", "silence", "note"]})  # fmt: skip
-    table = window_table(windows, segments)
+    table = window_table(windows, segments).replace("\u00a0", " ", regex=True)  # no-break
     assert list(table["note"]) == [1, 2]  # numbered as the notes table numbers them
     assert list(table["p_m"]) == ["1800 ± 26", "1927 (undetermined)"]
     assert list(table["p_M"]) == ["3468 ± 88", "–"]

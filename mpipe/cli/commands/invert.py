@@ -22,6 +22,7 @@ from mpipe.inversion.conditioning import bore_resonances, plan_take
 from mpipe.inversion.execution import connect
 from mpipe.inversion.segments import segment_summary, with_played
 from mpipe.inversion.status import summary_line
+from mpipe.inversion.status_words import reason_words
 from mpipe.inversion.tables import segment_lines, write_correlations, write_table
 from mpipe.inversion.take import RunOptions, WindowPlan, invert_take
 from mpipe.inversion.tracking import ProgressBar
@@ -295,7 +296,7 @@ def _print_windows(table, out: Path) -> int:
     bad = table[table["status"] != "ok"]
     for _, row in bad.head(MAX_LISTED).iterrows():
         sys.stdout.write(f"window at {row['t_start_s']:.3f} s: {row['status']}: "
-                         f"{row['status_reason']}\n")  # fmt: skip
+                         f"{reason_words(row)}\n")  # fmt: skip
     if len(bad) > MAX_LISTED:
         sys.stdout.write(
             f"... and {len(bad) - MAX_LISTED} more windows not ok (windows.csv, status_reason)\n"
