@@ -37,19 +37,32 @@ WINDOW_QUANTITIES = ("p_m", "p_M", "gamma", "zeta", "k", "S", "y_m", "lam", "m",
 
 
 def value_se(value: float, se: float) -> str:
-    """``"1800 ± 26"``; ``"3136 (undetermined)"`` for an infinite SE, the value alone for none.
+    """``"1800 ± 26"``, ``"(8.83 ± 0.12)×10⁶"``; ``"3136 (undetermined)"`` for an infinite SE.
 
-    The SE is rounded to two significant digits, the value to four; the parts are joined by
-    no-break spaces (:data:`NBSP`).
+    The SE keeps two significant digits and the value is given to the same decimal place
+    (the GUM's practice); values outside 0.01 to 99999 share a power of ten with their SE.
+    Without an SE (a fixed quantity) the value alone, to four significant digits. The parts
+    are joined by no-break spaces (:data:`NBSP`).
     """
     if value is None or not np.isfinite(value):
         return "–"
-    if se is None or (isinstance(se, float) and math.isnan(se)):
-        return fmt(float(value), 4)
+    value = float(value)
+    if se is None or math.isnan(float(se)):
+        return fmt(value, 4)
     se = float(se)
     if math.isinf(se):
-        return f"{fmt(float(value), 4)}{NBSP}(undetermined)"
-    return f"{fmt(float(value), 4)}{NBSP}±{NBSP}{fmt(se, 2)}"
+        return f"{fmt(value, 4)}{NBSP}(undetermined)"
+    if se <= 0 or value == 0:
+        return f"{fmt(value, 4)}{NBSP}±{NBSP}{fmt(se, 2)}"
+    power = math.floor(math.log10(abs(value)))
+    scale = 0 if -2 <= power <= 4 else power
+    v, e = value / 10.0**scale, se / 10.0**scale
+    places = min(max(1 - math.floor(math.log10(e)), 0), 12)
+    text = f"{v:.{places}f}{NBSP}±{NBSP}{e:.{places}f}"
+    return text if scale == 0 else f"({text})×10{str(scale).translate(_SUPERSCRIPT)}"
+
+
+_SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
 
 
 def pitch_name(f0_hz: float, pitch_cents: float) -> str:

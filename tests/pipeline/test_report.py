@@ -251,3 +251,17 @@ def test_report_of_a_fingered_phrase_renders_headless(fingered_run, tmp_path):
         (pixels[..., 1] > 0.9) & (pixels[..., 0] < 0.9)
     )
     assert badge.sum() > 500
+
+
+def test_a_value_is_given_to_the_decimal_place_of_its_two_digit_se():
+    from mpipe.pipeline.report_windows import value_se
+
+    def plain(v, se):
+        return value_se(v, se).replace("\u00a0", " ")
+
+    assert plain(3205.0, 240.0) == "3205 ± 240"  # not 3205 ± 2.4e+02
+    assert plain(0.5381, 0.017) == "0.538 ± 0.017"
+    assert plain(8.834e6, 9.6e4) == "(8.834 ± 0.096)×10⁶"
+    assert plain(7.688e-5, 3e-6) == "(7.69 ± 0.30)×10⁻⁵"
+    assert plain(3136.0, np.inf) == "3136 (undetermined)"
+    assert plain(2.4e-4, np.nan) == "0.00024"  # held fixed: no ± at all
