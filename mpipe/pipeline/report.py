@@ -19,9 +19,8 @@ import pandas as pd
 from mpipe.core.units import unit_of
 from mpipe.inversion.coverage import summary as uncertainty_summary
 from mpipe.inversion.records import read_windows
-from mpipe.inversion.status_words import reason_words
 from mpipe.pipeline.html_report import Figure, Section, fmt, write_report
-from mpipe.pipeline.report_windows import WINDOW_CAPTION, resynthesis_figures, window_table
+from mpipe.pipeline.report_windows import WINDOW_CAPTION, reasons, resynthesis_figures, window_table
 
 #: Reed parameters summarised at the top of a take's report, in this order.
 SUMMARY_PARAMETERS = ("k", "S", "y_m", "p_m", "lam", "m", "g", "k_c")
@@ -79,7 +78,7 @@ def flag_windows(windows: pd.DataFrame) -> pd.DataFrame:
             "window": bad["window"].to_numpy(),
             "t_start_s": bad["t_start_s"].to_numpy(),
             "status": bad["status"].to_numpy(),
-            "reason": [reason_words(r) for _, r in bad.iterrows()],
+            "reason": reasons(bad),
         }
     )
 

@@ -116,8 +116,13 @@ def window_table(windows: pd.DataFrame, segments: pd.DataFrame | None = None) ->
         se = _floats(windows, f"{name}_se")
         out[name] = [value_se(v, e) for v, e in zip(_floats(windows, name), se, strict=True)]
     out["relative_residual"] = _floats(windows, "relative_residual")
-    out["reason"] = [reason_words(r) for _, r in windows.iterrows()]
+    out["reason"] = reasons(windows)
     return out
+
+
+def reasons(windows: pd.DataFrame) -> list[str]:
+    """Each window's status reason in words (:func:`mpipe.inversion.status_words.reason_words`)."""
+    return [reason_words(r) for _, r in windows.iterrows()]
 
 
 def resynthesis_figures(folder: Path) -> tuple[Figure, ...]:
@@ -165,6 +170,7 @@ __all__ = [
     "WINDOW_QUANTITIES",
     "note_numbers",
     "pitch_name",
+    "reasons",
     "resynthesis_figures",
     "value_se",
     "window_table",
