@@ -1,37 +1,67 @@
 """Take-level checks: what the windows' statuses, one by one, cannot see.
 
-Each window's status (:mod:`mpipe.inversion.status`) compares it with its own search and
-with the take's best window. A take can still be wrong as a whole with every window
-``ok``; :func:`take_checks` lists each such reason in one line:
+Each window's status (:mod:`mpipe.inversion.status`) judges it on its own and against the
+take. A take can still be wrong as a whole; :func:`take_checks` lists each such reason in
+one line. Every check is judged on every window inverted (not only the ``ok`` ones: a
+window above ``residual_limit`` is never ``ok``, so a check on the ok windows alone could
+not fire):
 
 - the kernel temperature was to be fitted and the fit fell back to the temperature the
   signals carry (then the reed parameters carry its error: S -21 % on the demo's take for
   a kernel 1.1 degC off, and the SEs leave it out);
+- the notes' own kernel temperatures disagree, or a note was left out of the take's
+  (:mod:`mpipe.inversion.note_temperature`);
 - the take's cold start found its minimum with fewer than :data:`MIN_AGREEING` of its
   short local searches (a narrow basin, possibly the wrong one);
-- the model's playing frequency or RMS level, median over the ok windows, departs from the
+- the median relative residual exceeds ``inversion.residual_limit`` (a take whose every
+  window sits in the same wrong basin: a wrong bore, fingering or calibration);
+- the model's playing frequency or RMS level, median over the windows, departs from the
   measured one by more than ``inversion.pitch_limit_cents`` / ``level_limit_db``
-  (per window: :func:`playing_difference`);
-- the median relative residual of the ok windows exceeds ``inversion.residual_limit``
-  (a take whose every window sits in the same wrong basin has no better window to be
-  compared with).
+  (per window: :func:`playing_difference`), or cannot be compared in most windows (the
+  model silent or aperiodic; a NaN median never passes);
+- a note of at least :data:`NOTE_MIN_WINDOWS` windows of which at least half ended
+  ``at-bound``, ``failed``, ``not-converged`` or ``high-residual``: the model cannot play
+  it (a reed outside the search bounds, another fingering);
+- at least :data:`OUTLIER_MIN` windows inside their notes (and :data:`OUTLIER_FRACTION`
+  of them)
+  whose residual is more than :data:`OUTLIER_FACTOR` times the take's lower quartile (its normal
+  level, even with half its windows far off): something the model does not play (another
+  sound, a click, a manipulated signal);
+- reasons found before the inversion (``extra``: e.g. a take read with a calibration
+  other than the one its sidecar records, :mod:`mpipe.pipeline.take_calibration`).
 
-A take with any of them is not PASS (the report's verdict is CHECK); the reasons go to the
-console, to the ``take_checks`` column of the windows table and to the report.
+A take with any of them is CHECK, never PASS, and ``mpipe run`` ends with exit status 1;
+the reasons go to the console, to the ``take_checks`` column of the windows table, to the
+manifest and to the report.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
 
 from mpipe.inversion.conditioning import estimate_period
+from mpipe.inversion.note_temperature import NoteTemperatures
 from mpipe.inversion.settings import InversionConfig
 
 #: A cold start whose minimum fewer of its short local searches reached is flagged.
 MIN_AGREEING = 2
+#: A note is judged on its own from this many windows.
+NOTE_MIN_WINDOWS = 3
+#: Statuses of windows the model did not play: half a note of them and the note is flagged.
+UNPLAYED = ("at-bound", "failed", "not-converged", "high-residual")
+#: A window inside its note whose relative residual is more than this many times the take's
+#: lower quartile is an outlier (a right fit's stayed within 3x of it on the good takes
+#: measured; its releases reach 24x, so each note's first and last windows are left out).
+OUTLIER_FACTOR = 5.0
+#: Windows left out at each end of a note by the outlier check.
+OUTLIER_EDGE = 2
+#: Outlier windows flag the take from this many on, and from this fraction of its windows.
+OUTLIER_MIN = 3
+OUTLIER_FRACTION = 0.02
 
 #: Plausible ``|P(f0)| / (Z_c |U(f0)|)`` at the mouthpiece: a reed plays near a resonance
 #: of the bore, where |Z_in| / Z_c is about 3 to 50 (15 on the shipped instrument); a flow
@@ -78,6 +108,8 @@ def take_checks(
     temperature_source: str,
     temperature_note: str = "",
     cold_starts_agreeing: int | None = None,
+    notes: NoteTemperatures | None = None,
+    extra: Sequence[str] = (),
 ) -> list[str]:
     """Reasons, one line each, why a take's result should not pass (empty: none).
 
@@ -85,7 +117,7 @@ def take_checks(
     ----------
     table : pandas.DataFrame
         The take's windows (``status``, ``relative_residual``, ``model_f0_cents``,
-        ``model_level_db``).
+        ``model_level_db``, ``segment``, ``t_start_s``).
     config : InversionConfig
         ``temperature`` (was a fit asked for), ``residual_limit``, ``pitch_limit_cents``,
         ``level_limit_db``.
@@ -97,61 +129,161 @@ def take_checks(
     cold_starts_agreeing : int or None
         Short searches of the take's cold start that reached its minimum (None: no global
         cold start).
+    notes : NoteTemperatures or None
+        The notes' own kernel temperatures (:mod:`mpipe.inversion.note_temperature`).
+    extra : sequence of str
+        Reasons found before the inversion, kept first.
 
     Returns
     -------
     list of str
     """
-    reasons = []
+    reasons = [r for r in extra if r]
     if config.temperature == "fit" and temperature_source != "fit":
         reasons.append(
             "the kernel temperature fit fell back to the "
             f"{temperature_source}'s temperature ({temperature_note or 'not fitted'}): the "
             "reed parameters carry its error and the SEs leave it out"
         )
+    if notes is not None and notes.reason():
+        reasons.append(notes.reason())
     if cold_starts_agreeing is not None and cold_starts_agreeing < MIN_AGREEING:
         reasons.append(
             f"the cold start's minimum was reached by {cold_starts_agreeing} of its "
             f"{config.local_starts} short searches (fewer than {MIN_AGREEING}): a narrow basin, "
             "possibly a wrong one"
         )
-    ok = table[table["status"] == "ok"] if "status" in table else table.iloc[:0]
-    if not len(ok):
+    if not len(table):
         return reasons
+    reasons += _playing_checks(table, config)
+    reasons += _unplayable_notes(table)
+    reasons += _outlier_windows(table)
+    return reasons
+
+
+def _playing_checks(table: pd.DataFrame, config: InversionConfig) -> list[str]:
+    """Residual, playing frequency and level, judged on every window inverted."""
+    reasons = []
+    n = len(table)
+    residual = _values(table, "relative_residual")
+    if not residual.size:
+        return [f"no window of {n} has a finite residual: the model plays none of them"]
+    median = float(np.median(residual))
+    if median > config.residual_limit:
+        reasons.append(
+            f"median relative residual {median:.3g} of the {residual.size} windows > "
+            f"inversion.residual_limit {config.residual_limit:g}: the model does not play "
+            "what was played (a wrong basin, or a bore, fingering or flow that does not match)"
+        )
     checks = (
         ("model_f0_cents", config.pitch_limit_cents, "cent", "playing frequency",
          "inversion.pitch_limit_cents"),
         ("model_level_db", config.level_limit_db, "dB", "RMS level", "inversion.level_limit_db"),
     )  # fmt: skip
     for column, limit, unit, what, key in checks:
-        median = _median(ok, column)
+        values = _values(table, column)
+        if column in table and 2 * values.size < residual.size:
+            reasons.append(
+                f"the model's {what} could be compared with the measured one in only "
+                f"{values.size} of {residual.size} windows (the model silent or not periodic)"
+            )
+            continue
+        median = float(np.median(values)) if values.size else math.nan
         if abs(median) > limit:
             reasons.append(
                 f"the model's {what} departs from the measured one by {median:+.3g} {unit} "
-                f"(median over the ok windows; {key} {limit:g})"
+                f"(median over {values.size} windows; {key} {limit:g})"
             )
-    residual = _median(ok, "relative_residual")
-    if residual > config.residual_limit:
+    return reasons
+
+
+def _unplayable_notes(table: pd.DataFrame) -> list[str]:
+    """Notes of which at least half the windows are at a bound, failed or far off."""
+    if "status" not in table:
+        return []
+    segments = table["segment"] if "segment" in table else pd.Series(0, index=table.index)
+    reasons = []
+    for g, rows in table.groupby(segments, sort=True):
+        if len(rows) < NOTE_MIN_WINDOWS:
+            continue
+        bad = rows["status"].isin(UNPLAYED)
+        if 2 * int(bad.sum()) < len(rows):
+            continue
+        kinds = rows.loc[bad, "status"].value_counts()
+        which = ", ".join(f"{c} {s}" for s, c in kinds.items())
+        t0 = pd.to_numeric(rows.get("t_start_s", pd.Series(math.nan)), errors="coerce")
+        t1 = pd.to_numeric(rows.get("t_end_s", t0), errors="coerce")
+        when = f" ({t0.min():.2f}-{t1.max():.2f} s)" if t0.notna().any() else ""
         reasons.append(
-            f"median relative residual {residual:.3g} of the ok windows > "
-            f"inversion.residual_limit {config.residual_limit:g}: the model does not play "
-            "what was played (a wrong basin, or a bore or flow that does not match)"
+            f"the model cannot play note segment {g}{when}: {int(bad.sum())} of {len(rows)} "
+            f"windows not ok ({which}): a reed outside the search bounds, or a bore or "
+            "fingering that does not match this note"
         )
     return reasons
 
 
-def _median(table: pd.DataFrame, column: str) -> float:
+def _outlier_windows(table: pd.DataFrame) -> list[str]:
+    """Windows inside their notes whose residual is many times the take's lower quartile.
+
+    The first and last :data:`OUTLIER_EDGE` windows of each note (its attack and release)
+    are left out when enough windows remain: a right fit leaves a release window at up to
+    24x the lower quartile.
+    """
+    if "relative_residual" not in table:
+        return []
+    segments = table["segment"] if "segment" in table else pd.Series(0, index=table.index)
+    order = segments.groupby(segments).cumcount()
+    size = segments.map(segments.value_counts())
+    held = ((order >= OUTLIER_EDGE) & (order < size - OUTLIER_EDGE)).to_numpy()
+    rows = table[held] if held.sum() >= 2 * OUTLIER_MIN else table
+    residual = pd.to_numeric(rows["relative_residual"], errors="coerce")
+    finite = residual[np.isfinite(residual)]
+    if not len(finite):
+        return []
+    # the lower quartile: the normal level even when half the windows are far off
+    normal = float(finite.quantile(0.25))
+    far = finite[finite > OUTLIER_FACTOR * normal]
+    if len(far) < max(OUTLIER_MIN, OUTLIER_FRACTION * len(finite)):
+        return []
+    t = (
+        pd.to_numeric(rows.loc[far.index, "t_start_s"], errors="coerce")
+        if "t_start_s" in rows
+        else None
+    )
+    at = (
+        ""
+        if t is None
+        else " at " + ", ".join(f"{x:.2f}" for x in t.head(5)) + (" s, ..." if len(t) > 5 else " s")
+    )
+    return [
+        f"{len(far)} of {len(finite)} {'' if rows is table else 'inner '}windows have a "
+        "residual more than "
+        f"{OUTLIER_FACTOR:g}x the take's lower quartile {normal:.3g} (up to "
+        f"{float(far.max()) / normal:.0f}x){at}: something the model does not play (another "
+        "sound, a click, a manipulated signal)"
+    ]
+
+
+def _values(table: pd.DataFrame, column: str) -> np.ndarray:
+    """The finite values of a column over the windows with a finite residual."""
     if column not in table:
-        return math.nan
+        return np.array([])
+    use = pd.to_numeric(table.get("relative_residual", table[column]), errors="coerce")
     values = pd.to_numeric(table[column], errors="coerce").to_numpy(dtype=float)
-    values = values[np.isfinite(values)]
-    return float(np.median(values)) if values.size else math.nan
+    values = values[np.isfinite(use.to_numpy(dtype=float))]
+    return values[np.isfinite(values)]
 
 
 __all__ = [
     "FLOW_RMS_RANGE",
     "IMPEDANCE_RATIO_RANGE",
     "MIN_AGREEING",
+    "NOTE_MIN_WINDOWS",
+    "OUTLIER_EDGE",
+    "OUTLIER_FACTOR",
+    "OUTLIER_FRACTION",
+    "OUTLIER_MIN",
+    "UNPLAYED",
     "PRESSURE_RANGE",
     "check_plausible",
     "impedance_ratio",

@@ -13,7 +13,8 @@ table whichever is used:
    temperature (:func:`mpipe.inversion.tracking.track`);
 4. the temperature's share added to every standard error
    (:func:`mpipe.inversion.temperature.widen_standard_errors`);
-5. the take-level checks (:func:`mpipe.inversion.diagnostics.take_checks`): each reason
+5. the take-level checks (:func:`mpipe.inversion.diagnostics.take_checks`, with the
+   notes' own temperatures and ``extra_checks``): each reason
    in :attr:`TakeInversion.checks` and in the table's ``take_checks`` column;
 6. the fitted reed's opening in every window: ``h_mean``, ``h_min`` (m) and
    ``closed_fraction`` (:func:`mpipe.inversion.segments.reed_openings`).
@@ -79,6 +80,7 @@ def invert_take(
     windows: WindowPlan | Sequence[int] | pd.DataFrame,
     temperature_c: np.ndarray | float | None = None,
     options: RunOptions | None = None,
+    extra_checks: Sequence[str] = (),
 ) -> TakeInversion:
     """Invert the planned windows of a take (see the module docstring for the steps).
 
@@ -105,6 +107,9 @@ def invert_take(
     options : RunOptions, optional
         Progress bar, Dask client, checkpoint folder
         (:class:`mpipe.inversion.tracking.RunOptions`).
+    extra_checks : sequence of str
+        Reasons found before the inversion why the take should not pass (e.g. a
+        calibration other than the take's own), kept first among its checks.
 
     Returns
     -------
@@ -147,7 +152,7 @@ def invert_take(
     agreeing = fit.cold_starts_agreeing if fit.anchor is not None else _first_agreeing(table)
     checks = take_checks(
         table, config, temperature_source=fit.source, temperature_note=fit.note,
-        cold_starts_agreeing=agreeing,
+        cold_starts_agreeing=agreeing, notes=fit.notes, extra=extra_checks,
     )  # fmt: skip
     table["take_checks"] = "; ".join(checks)
     return TakeInversion(dataclasses.replace(result, table=table), fit, kernel, air, tuple(checks))

@@ -1,13 +1,9 @@
 """The temperature of the bore model, fitted to the playing, and its share of the error bars.
 
-The model's reflection function is built at one air temperature (:mod:`mpipe.inversion.kernel`).
-The reed parameters are very sensitive to it: on the demo's take, a kernel 1.1 degC too cold
-(the wave separation's estimate, 18.9 +- 1.3 degC for a true 20 degC) gave S -21 % and lam
--14 %, against +1.5 % and -1.9 % at the true temperature, because the search bends the reed
-to make the model's too-slow bore play the measured period. The same fit is also the
-sharpest thermometer available: the total residual of step 2 over a few windows has a
-clear minimum in the kernel temperature (0.1 degC wide on that take), where the front end's
-estimate from 2 cm of microphone spacing is a degree wide.
+The reed parameters are very sensitive to the temperature the model's reflection function
+is built at (:mod:`mpipe.inversion.kernel`): on the demo's take a kernel 1.1 degC too cold
+gave S -21 % and lam -14 %. The step-2 residual over a few windows has a clear minimum in
+that temperature (0.1 degC wide there), the sharpest thermometer available.
 
 :func:`fit_temperature` therefore profiles the step-2 residual over the kernel temperature:
 ``R(T) = sum over K windows of F2^2`` with each window's reed re-fitted at every T (warm
@@ -18,8 +14,9 @@ windows' ``residual_sigma``: ``Delta chi^2 = Delta R / (|r|^2 / (n_eff - p)) = 1
 and :func:`widen_standard_errors` adds the temperature's share to every ``<name>_se``:
 ``se^2 + (x * dlnx/dT * se_T)^2`` with the sensitivity measured at ``T +- h``.
 
-The fitted temperature is an effective one: it also absorbs small errors of the bore model
-(geometry, radiation), which is what keeps them out of the reed parameters. A fit far from
+Each note's own temperature is read from its windows, and a note that disagrees with the
+others is left out of the take's (:mod:`mpipe.inversion.note_temperature`). The fitted
+temperature is an effective one (it absorbs small errors of the bore model); a fit far from
 the front end's estimate is reported (``note``), as it points at the calibration.
 """
 
@@ -29,7 +26,7 @@ import dataclasses
 import functools
 import logging
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,9 +35,16 @@ import pandas as pd
 from mpipe.inversion.coldstart import map_tasks
 from mpipe.inversion.combinations import COMBINATION_NAMES, combination_values
 from mpipe.inversion.kernel import bore_kernel
+from mpipe.inversion.note_temperature import (
+    NoteTemperatures,
+    notes_from_triple,
+    scatter_se,
+    window_minima,
+)
 from mpipe.inversion.records import flags
 from mpipe.inversion.segments import pick_by_segment, pick_windows, window_count
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
+from mpipe.inversion.temperature_profile import COARSE_C, FINE_C, Profile, memo_start, settle
 from mpipe.inversion.tracking import WindowPlan
 from mpipe.inversion.uncertainty import SE_PARAMETERS
 from mpipe.inversion.window import invert_window
@@ -49,9 +53,6 @@ from mpipe.reed.parameters import ReedParameters
 
 log = logging.getLogger(__name__)
 
-#: Spacing of the coarse and the fine triples of :func:`_settle`, degC.
-COARSE_C = 1.0
-FINE_C = 0.25
 #: The fit's cold start is made again at the fitted temperature when the fit ended farther
 #: than this from it, degC, at most ``RESTARTS`` times.
 RESTART_C = 0.5
@@ -95,8 +96,12 @@ class TemperatureFit:
         Segment -> its first fitted window's reed at the fitted temperature: the start of
         every window of that segment (a segment missing here gets its own cold start).
     per_segment_c : dict
-        Segment -> the temperature its own fitted windows point at (the mean of their
-        minima of F2^2 in T), degC: whether one temperature holds over the take's notes.
+        Segment -> the temperature its own fitted windows point at (the inverse-variance
+        mean of their minima of F2^2 in T), degC: whether one temperature holds over the
+        take's notes.
+    notes : NoteTemperatures or None
+        Each note's temperature with its SE, their chi-square, and the notes left out of
+        the take's temperature (:mod:`mpipe.inversion.note_temperature`).
     """
 
     temperature_c: float
@@ -111,6 +116,7 @@ class TemperatureFit:
     cold_starts_agreeing: int | None = None
     anchors: Mapping[int, ReedParameters] = dataclasses.field(default_factory=dict)
     per_segment_c: Mapping[int, float] = dataclasses.field(default_factory=dict)
+    notes: NoteTemperatures | None = None
 
     def summary(self) -> dict:
         """JSON-ready record for manifests and the report."""
@@ -124,6 +130,7 @@ class TemperatureFit:
             "note": self.note,
             "cold_starts_agreeing": self.cold_starts_agreeing,
             "per_segment_c": {str(g): t for g, t in self.per_segment_c.items()},
+            "notes": None if self.notes is None else self.notes.summary(),
         }
 
     def line(self) -> str:
@@ -134,79 +141,12 @@ class TemperatureFit:
                 f"kernel temperature {self.temperature_c:.2f} degC ({self.source}; not fitted: "
                 f"{why}); the standard errors leave out the temperature's uncertainty"
             )
-        notes = (
-            "; each note's own: " + ", ".join(f"{t:.2f}" for t in self.per_segment_c.values())
-            if len(self.per_segment_c) > 1
-            else ""
-        )
+        notes = "" if self.notes is None else self.notes.words()
         return (
             f"kernel temperature {self.temperature_c:.2f} +- {self.se_c:.2f} degC, fitted on "
             f"{self.windows} windows (front end {self.front_end_c:.2f} degC){notes}"
             + (f"; {self.note}" if self.note else "")
         )
-
-
-@dataclass
-class _Profile:
-    """Memo of ``R(T)``: the windows' solutions at every temperature tried."""
-
-    solve: Callable[[float, Sequence[ReedParameters]], tuple[float, list, list]]
-    anchor: list[ReedParameters]
-    tried: dict = dataclasses.field(default_factory=dict)  # T -> (R, reeds, rows)
-
-    def __call__(self, t: float) -> float:
-        t = round(float(t), 4)
-        if t not in self.tried:
-            near = min(self.tried, key=lambda s: abs(s - t)) if self.tried else None
-            warm = self.anchor if near is None else self.tried[near][1]
-            self.tried[t] = self.solve(t, warm)
-        return self.tried[t][0]
-
-
-def _parabola_vertex(x: Sequence[float], y: Sequence[float]) -> tuple[float, float]:
-    """Vertex abscissa and curvature ``a`` of the parabola ``a (x - x0)^2 + c`` through 3 points."""
-    a, b, _ = np.polyfit(np.asarray(x) - x[1], y, 2)
-    if a <= 0:
-        return math.nan, a
-    return x[1] - b / (2 * a), a
-
-
-def _settle(profile: _Profile, t0: float, lo: float, hi: float, max_evaluations: int):
-    """Minimum of ``profile`` by parabolas through three points.
-
-    R(T) is close to a parabola near its minimum (a sum of squares of residuals nearly
-    linear in T there). A coarse triple ``t0 + (-1, 0, 1) degC`` is walked downhill until it
-    brackets the minimum; a fine triple of half-spacing ``FINE_C`` around the coarse
-    parabola's vertex then gives the vertex, the curvature and the sensitivities, and is
-    re-centred while the vertex moves by more than ``FINE_C / 2``.
-
-    Returns
-    -------
-    (vertex degC, curvature Pa^2/degC^2, centre of the fine triple degC) or None
-    """
-    mid = t0
-    while True:  # coarse: bracket the minimum
-        triple = (max(mid - COARSE_C, lo), mid, min(mid + COARSE_C, hi))
-        values = [profile(t) for t in triple]
-        best = triple[int(np.argmin(values))]
-        if best == mid or best in (lo, hi) or len(profile.tried) >= max_evaluations:
-            break
-        mid = best
-    vertex, _ = _parabola_vertex(triple, values)
-    centre = mid if not math.isfinite(vertex) else min(max(vertex, triple[0]), triple[2])
-    for step in range(3):  # fine: settle the vertex
-        triple = (centre - FINE_C, centre, centre + FINE_C)
-        values = [profile(t) for t in triple]
-        vertex, curvature = _parabola_vertex(triple, values)
-        if not all(math.isfinite(v) for v in values) or not math.isfinite(vertex):
-            return None
-        # never further than the triple's reach from its (evaluated) centre
-        vertex = min(max(vertex, centre - 2 * FINE_C), centre + 2 * FINE_C)
-        if abs(vertex - centre) <= FINE_C / 2 or len(profile.tried) >= max_evaluations:
-            break
-        if step < 2:
-            centre = vertex  # the last triple's centre stays the evaluated one
-    return vertex, curvature, centre
 
 
 def fit_temperature(
@@ -286,23 +226,24 @@ def fit_temperature(
         return dataclasses.replace(
             base, note=f"the fit ran to the edge of its range ({lo:.1f}..{hi:.1f} degC): not used"
         )
-    rows = profile.tried[round(centre, 4)][2]
-    dofs = [r["dof"] if r.get("dof", 0) > 0 else math.nan for r in rows]
-    # as each window's SEs: the residual's degrees of freedom are n_eff - p (a window
-    # without them counts as one, never as white)
-    dof = float(np.nanmedian(dofs)) if np.isfinite(dofs).any() else 1.0
-    sigma2 = profile(centre) / (max(dof, 1.0) * len(chosen))
-    # R(T) = R0 + a (T - T0)^2 and Delta chi^2 = Delta R / sigma_eff^2 = 1 at 1 SE, with
-    # sigma_eff^2 = |r|^2 / (n_eff - p) per window, as the windows' residual_sigma^2
-    se = math.sqrt(sigma2 / curvature)
-    # Errors of the signals that differ from window to window (the front end's, the model's)
-    # move each window's own minimum; their scatter bounds the SE from below when the noise
-    # alone would claim more precision than the windows agree to.
-    se = max(se, _scatter_se(profile, centre))
-    lower, upper = (
-        profile.tried[round(centre - FINE_C, 4)][2],
-        profile.tried[round(centre + FINE_C, 4)][2],
-    )
+    notes = notes_from_triple(_triple(profile, centre), centre, FINE_C, groups)
+    first_reeds = profile.tried[round(centre, 4)][1]
+    keep = [g not in notes.excluded for g in groups]
+    if notes.excluded:
+        solve_kept = functools.partial(
+            _solve, p, u, fs, calibration, [s for s, k in zip(chosen, keep, strict=True) if k],
+            config, zero_mean,
+        )  # fmt: skip
+        again = _without(profile, settled, notes, keep, groups, solve_kept, (lo, hi), config)
+        if again is None:
+            return dataclasses.replace(
+                base, note="the fit without the notes left out has no minimum: not fitted",
+                notes=notes,
+            )  # fmt: skip
+        profile, (best, curvature, centre), notes = again
+    n_kept = sum(keep)
+    se = _standard_error(profile, centre, curvature)
+    lower, upper = _triple(profile, centre)[0], _triple(profile, centre)[2]
     note = f"cold start repeated at {t_cold:.2f} degC" if len(runs) > 1 else ""
     if abs(best - front_end_c) > 3.0:
         note = (note + "; " if note else "") + (
@@ -310,16 +251,63 @@ def fit_temperature(
             "the calibration's bore geometry"
         )
     log.info("kernel temperature fitted: %.3f +- %.3f degC (%d evaluations on %d windows)",
-             best, se, len(evaluations), len(chosen))  # fmt: skip
-    reeds = profile.tried[round(centre, 4)][1]
-    anchors = {}
-    for g, reed in zip(groups, reeds, strict=True):
-        anchors.setdefault(g, reed)  # each segment's first fitted window
+             best, se, len(profile.tried), n_kept)  # fmt: skip
+    # each note's first fitted window's reed: a note left out keeps its own from the first fit
+    anchors: dict[int, ReedParameters] = {}
+    reeds = iter(profile.tried[round(centre, 4)][1])
+    for g, k, reed in zip(groups, keep, first_reeds, strict=True):
+        anchors.setdefault(g, next(reeds) if k else reed)
+    evaluations = tuple(sorted((t, v[0]) for t, v in profile.tried.items()))
     return TemperatureFit(
-        best, se, "fit", front_end_c, _sensitivity(lower, upper, FINE_C), len(chosen),
-        evaluations, note, reeds[0], _agreeing(first.row), anchors,
-        _per_segment(profile, centre, groups),
+        best, se, "fit", front_end_c, _sensitivity(lower, upper, FINE_C), n_kept,
+        evaluations, note, anchors[groups[0]], _agreeing(first.row), anchors,
+        dict(notes.temperature_c), notes,
     )  # fmt: skip
+
+
+def _without(profile, settled, notes, keep, groups, solve, bounds, config):
+    """``(profile, settled, notes)`` of R(T) over the notes kept, or None without a minimum.
+
+    The new profile starts from the memo of the first (its windows' solutions so far) and
+    settles with fine triples only from where the memo puts its minimum, so only the
+    temperatures the minimum moved to cost new evaluations (none when it did not move).
+    """
+    lo, hi = bounds
+    sub = profile.subset(keep, solve)
+    start = memo_start(sub)
+    if not math.isfinite(start):
+        return None
+    again = settle(sub, start, lo, hi, len(sub.tried) + config.temperature_evaluations, False)
+    if again is None or again[1] <= 0 or not lo + COARSE_C <= again[0] <= hi - COARSE_C:
+        return None
+    kept = [g for g, k in zip(groups, keep, strict=True) if k]
+    test = notes_from_triple(_triple(sub, again[2]), again[2], FINE_C, kept)
+    notes = dataclasses.replace(
+        notes, chi2=test.first_chi2, dof=test.first_dof, p_value=test.first_p
+    )
+    return sub, again, notes
+
+
+def _standard_error(profile: Profile, centre: float, curvature: float) -> float:
+    """SE of the fitted temperature from the curvature of R, bounded by the windows' scatter."""
+    rows = profile.tried[round(centre, 4)][2]
+    dofs = [r["dof"] if r.get("dof", 0) > 0 else math.nan for r in rows]
+    # as each window's SEs: the residual's degrees of freedom are n_eff - p (a window
+    # without them counts as one, never as white)
+    dof = float(np.nanmedian(dofs)) if np.isfinite(dofs).any() else 1.0
+    sigma2 = profile(centre) / (max(dof, 1.0) * len(rows))
+    # R(T) = R0 + a (T - T0)^2 and Delta chi^2 = Delta R / sigma_eff^2 = 1 at 1 SE, with
+    # sigma_eff^2 = |r|^2 / (n_eff - p) per window, as the windows' residual_sigma^2
+    se = math.sqrt(sigma2 / curvature)
+    # Errors of the signals that differ from window to window (the front end's, the model's)
+    # move each window's own minimum; their scatter bounds the SE from below when the noise
+    # alone would claim more precision than the windows agree to.
+    return max(se, scatter_se(window_minima(_triple(profile, centre), centre, FINE_C)[0]))
+
+
+def _triple(profile: Profile, centre: float) -> list:
+    """The windows' rows at ``centre - FINE_C``, ``centre``, ``centre + FINE_C``."""
+    return [profile.tried[round(centre + d, 4)][2] for d in (-FINE_C, 0.0, FINE_C)]
 
 
 def _cold_starts(p, u, fs, firsts, zero_mean, kernel, rho, config) -> dict:
@@ -375,46 +363,13 @@ def _profiles(solve, cold, calibration, fs, config, groups, t_cold, lo, hi):
         # the take's agreement is its least agreed note's: one poorly agreed cold start
         # is enough to doubt the take (the first note alone would hide the others)
         first = min(colds.values(), key=lambda c: _agreeing(c.row) or math.inf)
-        profile = _Profile(solve, [colds[g].reed for g in groups])
-        settled = _settle(profile, t_cold, lo, hi, config.temperature_evaluations)
+        profile = Profile(solve, [colds[g].reed for g in groups])
+        settled = settle(profile, t_cold, lo, hi, config.temperature_evaluations)
         runs.append((profile, settled, first, t_cold))
         if settled is None or abs(settled[0] - t_cold) <= RESTART_C:
             break
         t_cold = min(max(settled[0], lo), hi)
     return runs, error
-
-
-def _window_minima(profile: _Profile, centre: float) -> list[float]:
-    """Each fitted window's own minimum of F2^2 in T (degC; NaN where it has none)."""
-    triple = [profile.tried[round(centre + d, 4)][2] for d in (-FINE_C, 0.0, FINE_C)]
-    minima = []
-    for rows in zip(*triple, strict=True):
-        vertex, _ = _parabola_vertex(
-            (centre - FINE_C, centre, centre + FINE_C), [r["f2"] ** 2 for r in rows]
-        )
-        minima.append(
-            min(max(vertex, centre - 4 * COARSE_C), centre + 4 * COARSE_C)
-            if math.isfinite(vertex)
-            else math.nan
-        )
-    return minima
-
-
-def _scatter_se(profile: _Profile, centre: float) -> float:
-    """Standard error of the mean of the windows' own minima in T, degC (0 for < 3 windows)."""
-    minima = [m for m in _window_minima(profile, centre) if math.isfinite(m)]
-    if len(minima) < 3:
-        return 0.0
-    return float(np.std(minima, ddof=1) / math.sqrt(len(minima)))
-
-
-def _per_segment(profile: _Profile, centre: float, groups: Sequence[int]) -> dict[int, float]:
-    """Each note's own temperature: the mean of its fitted windows' minima, degC."""
-    out: dict[int, list[float]] = {}
-    for g, m in zip(groups, _window_minima(profile, centre), strict=True):
-        if math.isfinite(m):
-            out.setdefault(int(g), []).append(m)
-    return {g: float(np.mean(v)) for g, v in out.items()}
 
 
 def _agreeing(row: Mapping) -> int | None:

@@ -57,7 +57,7 @@ def batch_workers(cfg: PipelineConfig, n_takes: int, client=None) -> int:
 
 def run_takes(
     cfg: PipelineConfig,
-    cal_path: Path,
+    cal_path: Path | Sequence[Path],
     takes: Sequence[Sequence[Path]],
     out: str | Path,
     force: bool = False,
@@ -68,7 +68,9 @@ def run_takes(
 ) -> Iterator[tuple[Sequence[Path], TakeRun | Exception, float]]:
     """Run every take; yield ``(take paths, TakeRun or the error that ended it, wall s)``.
 
-    ``names`` are the takes' folders under ``out`` (default: :func:`take_name` of each).
+    ``names`` are the takes' folders under ``out`` (default: :func:`take_name` of each);
+    ``cal_path`` is one calibration for every take, or one per take (in the takes' order:
+    :func:`mpipe.pipeline.take_calibration.take_calibrations`).
 
     One take, or one worker: one take after the other, as :func:`run_take` (its windows
     spread over the workers or the cluster), and takes of one name (one output folder).
@@ -76,18 +78,23 @@ def run_takes(
     lines said when it finishes.
     """
     names = [take_name(t) for t in takes] if names is None else list(names)
+    cals = (
+        [Path(c) for c in cal_path]
+        if isinstance(cal_path, list | tuple)
+        else [Path(cal_path)] * len(takes)
+    )
     n = batch_workers(cfg, len(takes), client)
     if len(set(names)) < len(names):
         n = 1  # two takes of one name write one folder: one after the other, as before
     if n < 2:
-        for t, name in zip(takes, names, strict=True):
+        for t, name, cal in zip(takes, names, cals, strict=True):
             t0 = time.perf_counter()
             # several takes: each library log line says which (as the stage lines do)
             prefix = f"[{name}] " if len(takes) > 1 else ""
             try:
                 with log_prefix(prefix):
                     result = run_take(
-                        cfg, cal_path, t, out, force, client, say, accept_failed_validation, name
+                        cfg, cal, t, out, force, client, say, accept_failed_validation, name
                     )
             except TAKE_ERRORS as exc:
                 result = exc
@@ -101,10 +108,10 @@ def run_takes(
             locks.enter_context(folder_lock(Path(out) / name))
         one = dataclasses.replace(cfg, executor=ExecutorConfig(kind="local", workers=1))
         # absolute paths: a worker's working folder is not this process's
-        args = (one, Path(cal_path).resolve(), Path(out).resolve(), force,
-                accept_failed_validation)  # fmt: skip
+        args = (one, Path(out).resolve(), force, accept_failed_validation)
         paths = [
-            ([Path(p).resolve() for p in t], name) for t, name in zip(takes, names, strict=True)
+            ([Path(p).resolve() for p in t], name, cal.resolve())
+            for t, name, cal in zip(takes, names, cals, strict=True)
         ]
         if client is not None:
             done = _on_dask(client, paths, args, say)
@@ -114,9 +121,9 @@ def run_takes(
             yield takes[i], result, wall
 
 
-def _take_task(take, cfg, cal_path, out, force, accept_failed_validation):
+def _take_task(take, cfg, out, force, accept_failed_validation):
     """One take on a worker (the caller holds its folder lock); its lines are returned."""
-    take_paths, name = take
+    take_paths, name, cal_path = take
     lines: list[str] = []
     t0 = time.perf_counter()
     # no bars from the workers: the batch's one progress view is the caller's
@@ -157,7 +164,7 @@ def _on_processes(n: int, takes, args, say):
 def _on_dask(client, takes, args, say):
     from distributed import as_completed
 
-    check_shared_files(client, takes, args[1], args[2])
+    check_shared_files(client, [(t, n) for t, n, _ in takes], [c for *_, c in takes], args[1])
     futures = {
         client.submit(_take_task, t, *args, pure=False, retries=1): i
         for i, t in enumerate(takes)
@@ -179,7 +186,7 @@ def _as_they_end(futures: dict, completed, say):
         bar.close()
 
 
-def check_shared_files(client, takes, cal_path: Path, out: str | Path) -> None:
+def check_shared_files(client, takes, cal_path: Path | Sequence[Path], out: str | Path) -> None:
     """Raise a one-line UserError unless every Dask worker sees the batch's files.
 
     The workers read the takes and the calibration and write into ``out``: a file written
@@ -187,7 +194,8 @@ def check_shared_files(client, takes, cal_path: Path, out: str | Path) -> None:
     """
     probe = Path(out) / f".mpipe-probe-{uuid.uuid4().hex}"
     probe.write_text("mpipe\n")
-    paths = [str(probe.resolve()), str(Path(cal_path).resolve())]
+    cals = cal_path if isinstance(cal_path, list | tuple) else [cal_path]
+    paths = [str(probe.resolve()), *sorted({str(Path(c).resolve()) for c in cals})]
     paths += [str(Path(p).resolve()) for t, _ in takes for p in t]
     try:
         seen = client.run(_missing, paths)

@@ -44,6 +44,7 @@ from mpipe.pipeline import report
 from mpipe.pipeline.manifest import PARTIAL, StageRecord, run_stage
 from mpipe.pipeline.report import plot_blocks
 from mpipe.pipeline.settings import PipelineConfig
+from mpipe.pipeline.take_calibration import sidecar_check
 
 log = logging.getLogger(__name__)
 
@@ -219,7 +220,9 @@ def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig)
     return work
 
 
-def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: PipelineConfig, client):
+def _stage_inversion(
+    mouthpiece: Path, plan: Path, cal: Calibration, cfg: PipelineConfig, client, checks=()
+):
 
     # lazy: the resynthesis module loads matplotlib (~0.4 s of every command's start-up)
     from mpipe.inversion import resynthesis as rs
@@ -243,6 +246,7 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
                 p, u, fs, cal, inv, cfg.executor, windows=WindowPlan.of(chosen),
                 temperature_c=mp.get("temperature_c"),
                 options=RunOptions(progress=bar, client=client, checkpoint=checkpoint),
+                extra_checks=checks,
             )  # fmt: skip
         finally:
             bar.close()
@@ -463,8 +467,10 @@ def run_take_unlocked(
     say(f"[{name}]     {cond.summary['to_invert']} of {cond.summary['windows']} windows to invert")
     plan = d["conditioning"] / "plan.csv"
     inv_inputs = {"mouthpiece": mouthpiece, "plan": plan, "blocks": blocks, **cal_inputs}
+    # a take read with sensitivities other than those its sidecar records is CHECK
+    mismatch = sidecar_check(take_paths, cal)
     inv = stage(5, "inversion", inv_inputs, cfg.inversion,
-                _stage_inversion(mouthpiece, plan, cal, cfg, client))  # fmt: skip
+                _stage_inversion(mouthpiece, plan, cal, cfg, client, (mismatch,)))  # fmt: skip
     say(f"[{name}]     {inv.summary['temperature_line']}")
     for line in inv.summary.get("segment_lines", []):
         say(f"[{name}]     {line}")

@@ -8,25 +8,26 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from mpipe.inversion.note_temperature import (
+    notes_from_triple,
+    parabola_vertex,
+    scatter_se,
+    window_minima,
+)
 from mpipe.inversion.temperature import (
-    COARSE_C,
-    FINE_C,
     TemperatureFit,
-    _parabola_vertex,
-    _Profile,
-    _scatter_se,
-    _settle,
     pick_windows,
     widen_standard_errors,
 )
+from mpipe.inversion.temperature_profile import COARSE_C, FINE_C, Profile, settle
 
 
 def test_parabola_vertex_and_curvature_are_exact_on_a_parabola():
     x = (19.0, 19.5, 20.5)
     y = [3.0 * (t - 19.8) ** 2 + 7.0 for t in x]
-    vertex, a = _parabola_vertex(x, y)
+    vertex, a = parabola_vertex(x, y)
     assert vertex == pytest.approx(19.8, abs=1e-9) and a == pytest.approx(3.0, rel=1e-9)
-    vertex, a = _parabola_vertex(x, [-v for v in y])  # a maximum is not a minimum
+    vertex, a = parabola_vertex(x, [-v for v in y])  # a maximum is not a minimum
     assert math.isnan(vertex) and a < 0
 
 
@@ -65,13 +66,13 @@ def _quadratic_profile(t_true: float, noise: float = 0.0, seed: int = 0):
         r = 1e6 * (t - t_true) ** 2 + 5e5 + noise * rng.standard_normal()
         return r, list(warm), []
 
-    return _Profile(solve, [None])
+    return Profile(solve, [None])
 
 
 @pytest.mark.parametrize("t0", [14.0, 18.5, 20.0, 23.0])
 def test_settle_finds_the_minimum_from_either_side(t0):
     profile = _quadratic_profile(20.3)
-    vertex, curvature, centre = _settle(profile, t0, t0 - 8, t0 + 8, 30)
+    vertex, curvature, centre = settle(profile, t0, t0 - 8, t0 + 8, 30)
     assert vertex == pytest.approx(20.3, abs=1e-6) and curvature == pytest.approx(1e6)
     assert abs(centre - vertex) <= FINE_C / 2
     # coarse steps of COARSE_C, then one or two fine triples
@@ -81,14 +82,14 @@ def test_settle_finds_the_minimum_from_either_side(t0):
 def test_settle_tolerates_a_noisy_profile_and_reports_no_minimum_on_a_ramp():
     # noise of 1 % of the rise over one fine step moves the vertex by a few hundredths
     noisy = _quadratic_profile(20.3, noise=0.01 * 1e6 * FINE_C**2, seed=1)
-    vertex, _, _ = _settle(noisy, 19.0, 11.0, 27.0, 30)
+    vertex, _, _ = settle(noisy, 19.0, 11.0, 27.0, 30)
     assert vertex == pytest.approx(20.3, abs=0.05)
 
     def ramp(t, warm):
         return 1e5 * t + 1e6, list(warm), []
 
     # falling towards low T: the search walks to the edge, where fit_temperature refuses it
-    settled = _settle(_Profile(ramp, [None]), 20.0, 12.0, 28.0, 30)
+    settled = settle(Profile(ramp, [None]), 20.0, 12.0, 28.0, 30)
     assert settled is None or not 12.0 + COARSE_C <= settled[0] <= 28.0 - COARSE_C
 
 
@@ -202,8 +203,8 @@ def test_settle_returns_a_fine_triple_that_was_evaluated():
         def rough(t, warm, phase=phase, t0=t0):
             return 1 + 0.1 * (t - t0) ** 2 + 0.036 * np.sin(56 * t + phase), list(warm), []
 
-        profile = _Profile(rough, [None])
-        settled = _settle(profile, 0.0, -8.0, 8.0, 20)
+        profile = Profile(rough, [None])
+        settled = settle(profile, 0.0, -8.0, 8.0, 20)
         if settled is None:
             continue
         settled_seeds += 1
@@ -213,40 +214,40 @@ def test_settle_returns_a_fine_triple_that_was_evaluated():
     assert settled_seeds >= 15, settled_seeds
 
 
+def _triple_of(minima, centre, curvature=2.0, floor=1.0, dof=None):
+    """The fit's last triple of rows for windows whose F2^2 are parabolas in T."""
+    return [
+        [
+            {
+                "f2": math.sqrt(curvature * (t - m) ** 2 + floor),
+                **({} if dof is None else {"dof": dof}),
+            }
+            for m in minima
+        ]
+        for t in (centre - FINE_C, centre, centre + FINE_C)
+    ]
+
+
 def test_scatter_se_is_the_standard_error_of_the_windows_own_minima():
     # four windows, each a parabola in T with its own minimum: the scatter SE is the SD of
-    # the minima over sqrt(4)
+    # the minima over sqrt(4); each window's own SE is sqrt(s^2 / a) with s^2 = F2^2 / dof
     minima = np.array([19.8, 20.1, 20.3, 19.9])
     centre = 20.0
-
-    def rows_at(t):
-        return [{"f2": math.sqrt(2.0 * (t - m) ** 2 + 1.0)} for m in minima]
-
-    profile = _Profile(lambda t, warm: (0.0, list(warm), rows_at(t)), [None])
-    for d in (-FINE_C, 0.0, FINE_C):
-        profile(centre + d)
+    found, ses = window_minima(_triple_of(minima, centre, dof=4.0), centre, FINE_C)
+    assert found == pytest.approx(list(minima), abs=1e-9)
+    f2_centre = 2.0 * (centre - minima) ** 2 + 1.0
+    assert ses == pytest.approx(list(np.sqrt(f2_centre / 4.0 / 2.0)), rel=1e-9)
     expected = np.std(minima, ddof=1) / 2
-    assert _scatter_se(profile, centre) == pytest.approx(expected, rel=1e-9)
+    assert scatter_se(found) == pytest.approx(expected, rel=1e-9)
     # fewer than three windows: no scatter to measure
-    few = _Profile(lambda t, warm: (0.0, list(warm), rows_at(t)[:2]), [None])
-    for d in (-FINE_C, 0.0, FINE_C):
-        few(centre + d)
-    assert _scatter_se(few, centre) == 0.0
+    assert scatter_se(found[:2]) == 0.0
 
 
 def test_each_notes_own_temperature_is_its_windows_minimum():
     # three windows of two notes whose residuals are parabolas in T with minima at 19.9,
     # 20.1 (note 1) and 20.6 (note 4): each note's own temperature is its windows' mean
-    from mpipe.inversion.temperature import _per_segment
-
+    # (equal SEs: the plain mean)
     minima = (19.9, 20.1, 20.6)
-
-    def solve(t, warm):
-        rows = [{"f2": math.sqrt(1e4 * (t - m) ** 2 + 1.0)} for m in minima]
-        return sum(r["f2"] ** 2 for r in rows), list(warm), rows
-
-    profile = _Profile(solve, [None] * 3)
-    for t in (20.0 - FINE_C, 20.0, 20.0 + FINE_C):
-        profile(t)
-    own = _per_segment(profile, 20.0, [1, 1, 4])
-    assert own == pytest.approx({1: 20.0, 4: 20.6}, abs=1e-9)
+    notes = notes_from_triple(_triple_of(minima, 20.0, curvature=1e4), 20.0, FINE_C, [1, 1, 4])
+    assert notes.temperature_c[4] == pytest.approx(20.6, abs=1e-9)
+    assert 19.9 < notes.temperature_c[1] < 20.1

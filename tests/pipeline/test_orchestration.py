@@ -1,5 +1,6 @@
 """``mpipe run`` end to end on a short virtual take: accuracy, resuming, errors."""
 
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -345,10 +346,14 @@ def test_failed_validation_stops_the_run_and_separate_exits_non_zero(
     with np.load(tmp_path / "s" / "mouthpiece.npz") as mp:
         assert {"u_noise_freq_hz", "u_noise_psd", "p_noise_psd"} <= set(mp.files)
         assert mp["u_noise_psd"].shape == mp["u_noise_freq_hz"].shape
-    # mpipe run stops before the inversion, and says how to go on
+    # mpipe run stops before the inversion, and says how to go on (the take alone, without
+    # its own calibration beside it: it would be read with that one)
     pipe = tmp_path / "pipe.yaml"
     pipe.write_text(f"calibration: {wrong_bore}\nexecutor: {{kind: local, workers: 1}}\n")
-    code = main(["run", str(pipe), str(take.audio), "-o", str(tmp_path / "r")])
+    (tmp_path / "bare").mkdir()
+    audio = tmp_path / "bare" / take.audio.name
+    shutil.copy(take.audio, audio)
+    code = main(["run", str(pipe), str(audio), "-o", str(tmp_path / "r")])
     err = capsys.readouterr().err
     assert code == 1 and "stopped before the inversion" in err  # a result, not a usage error
     assert "--accept-failed-validation" in err
@@ -361,7 +366,7 @@ def test_failed_validation_stops_the_run_and_separate_exits_non_zero(
         raise ValueError("probe: inversion reached")
 
     monkeypatch.setattr(orch, "_stage_inversion", probe)
-    code = main(["run", str(pipe), str(take.audio), "-o", str(tmp_path / "r"),
+    code = main(["run", str(pipe), str(audio), "-o", str(tmp_path / "r"),
                  "--accept-failed-validation"])  # fmt: skip
     assert reached and "inverting despite the FAILED validation" in capsys.readouterr().out
 

@@ -185,7 +185,7 @@ def _run(args: argparse.Namespace) -> int:
     code = _print_windows(table, out)
     for reason in take.checks:
         sys.stdout.write(f"CHECK: {reason}\n")
-    return code
+    return 1 if take.checks else code
 
 
 def _at_inversion_rate(

@@ -21,6 +21,7 @@ from mpipe.measurement.calibration import load_calibration
 from mpipe.pipeline.batch import run_takes, summary_lines
 from mpipe.pipeline.orchestration import ValidationFailed, usable
 from mpipe.pipeline.settings import load_pipeline
+from mpipe.pipeline.take_calibration import own_calibration, take_calibrations
 
 
 def add_parser(sub) -> None:
@@ -45,8 +46,9 @@ def add_parser(sub) -> None:
     p.add_argument(
         "--calibration",
         metavar="FILE.yaml",
-        help="calibration file to use instead of the pipeline's (e.g. a virtual take's copy; "
-        "default: the pipeline's)",
+        help="calibration file for the takes without their own (TAKE.calibration.yaml beside "
+        "TAKE, as synth-take writes, is always used for its take; a FILE that differs from a "
+        "take's own is refused). Default: the pipeline's",
     )
     p.add_argument("--force", action="store_true", help="redo finished stages and windows")
     add_fingering_option(p)
@@ -132,14 +134,22 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_pipeline(args.pipeline, check_calibration=args.calibration is None)
     if args.fingering is not None:
         cfg = dataclasses.replace(cfg, fingering=args.fingering)
-    cal_path = Path(args.calibration) if args.calibration else cfg.calibration_path
-    if not cal_path.is_file():
-        raise UserError(f"{cal_path}: no such calibration file")
-
-    # a bad calibration or fingering: one line before any work, not one per take
-    load_calibration(cal_path, cfg.fingering)
+    given = Path(args.calibration) if args.calibration else None
+    if given is not None and not given.is_file():
+        raise UserError(f"{given}: no such calibration file")
     takes = [take_arguments(t) for t in args.takes]
     names = take_names(takes)
+    # each take's own calibration beside it, else the one given, else the pipeline's; a
+    # mix the command line cannot resolve is refused before any work
+    cals = take_calibrations(takes, given, cfg.calibration_path, cfg.fingering)
+    for cal_path in dict.fromkeys(cals):
+        if not cal_path.is_file():
+            raise UserError(f"{cal_path}: no such calibration file")
+        # a bad calibration or fingering: one line before any work, not one per take
+        load_calibration(cal_path, cfg.fingering)
+    for name, take, cal_path in zip(names, takes, cals, strict=True):
+        if cal_path == own_calibration(take):
+            write(f"[{name}] read with its own calibration {cal_path} (beside the take)")
     _check_lengths(takes, cfg)
     # a bad output path fails now, not after the computation
     check_output_folder(args.output)
@@ -150,12 +160,12 @@ def run(args: argparse.Namespace) -> int:
         # one client for every take of this call: the takes share the cluster; an
         # unreachable scheduler is one line (exit 2) before any work
         client = connect(cfg.executor.scheduler)
-    failed = []
+    failed, checked = [], []
     outcomes = []
     try:
         name_of = {id(t): name for t, name in zip(takes, names, strict=True)}
         for t, result, wall in run_takes(
-            cfg, cal_path, takes, args.output, args.force, client, say=write,
+            cfg, cals, takes, args.output, args.force, client, say=write,
             accept_failed_validation=args.accept_failed_validation, names=names,
         ):  # fmt: skip
             outcomes.append((t, result, wall))
@@ -171,6 +181,8 @@ def run(args: argparse.Namespace) -> int:
             elif not usable(result):
                 failed.append(t[0])
                 write(f"[{name}] failed: no window has status ok (no usable result)")
+            elif result.records["inversion"].summary.get("take_checks"):
+                checked.append(t[0])
     finally:
         if client is not None:
             client.close()
@@ -181,5 +193,7 @@ def run(args: argparse.Namespace) -> int:
         print("\n".join(summary_lines(outcomes, [names[order[id(o[0])]] for o in outcomes])))
     if failed:
         print(f"{len(failed)} of {len(takes)} takes failed: {', '.join(map(str, failed))}")
-        return 1
-    return 0
+    if checked:
+        # a take-level reason (the CHECK lines above): the result is not to be used as it is
+        print(f"{len(checked)} of {len(takes)} takes CHECK: {', '.join(map(str, checked))}")
+    return 1 if failed or checked else 0
