@@ -1,5 +1,8 @@
 """One figure per note: two periods of measured and resynthesised p and u (Figs. 9, 11).
 
+Also the overlays of whole windows spread over the take (:func:`plot_overlays`), each
+titled with its window's status.
+
 For each note the window that shows it best (:func:`mpipe.inversion.resynthesis.pick_window`:
 ok, in the sustain, nearest the note's middle) is drawn over its last two periods: p(t) and
 u(t) with the resynthesis overlaid, and u against p (the loop the reed's flow makes), with
@@ -19,7 +22,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from mpipe.inversion.resynthesis import pick_window, save_figure, two_periods, window_words
+from mpipe.inversion.resynthesis import (
+    pick_window,
+    plot_signals,
+    save_figure,
+    two_periods,
+    window_words,
+)
 from mpipe.inversion.tracks_plot import note_label, note_rows
 
 
@@ -134,4 +143,48 @@ def plot_notes(
     return outputs
 
 
-__all__ = ["note_figure", "plot_note", "plot_notes"]
+def plot_overlays(
+    table: pd.DataFrame,
+    measured: tuple[np.ndarray, np.ndarray],
+    resynthesised: tuple[np.ndarray, np.ndarray],
+    fs: float,
+    count: int,
+    folder: str | Path,
+) -> dict[str, str]:
+    """Write ``overlay_<i>.png``: ``count`` whole windows spread over the take, with status.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        Per-window results; windows with an estimate are picked evenly in time order.
+    measured, resynthesised : tuple of ndarray
+        ``(p, u)`` of the take, Pa and m^3/s.
+    fs : float
+        Sample rate, Hz.
+    count : int
+        Windows to draw (``resynthesis.overlay_windows``).
+    folder : str or Path
+        Output folder.
+
+    Returns
+    -------
+    dict
+        Output name (``overlay_<i>``) -> file name.
+    """
+    ok = table[table["error"] == ""]
+    if not len(ok):
+        return {}
+    t = np.arange(len(measured[0])) / fs
+    outputs = {}
+    for j, idx in enumerate(np.unique(np.linspace(0, len(ok) - 1, count).round()).astype(int)):
+        row = ok.iloc[idx]
+        cut = slice(int(round(row["t_start_s"] * fs)), int(round(row["t_end_s"] * fs)))
+        name = f"overlay_{j + 1}.png"
+        plot_signals(t[cut], measured[0][cut], measured[1][cut], resynthesised[0][cut],
+                     resynthesised[1][cut], Path(folder) / name, window_words(row),
+                     row["status"])  # fmt: skip
+        outputs[f"overlay_{j + 1}"] = name
+    return outputs
+
+
+__all__ = ["note_figure", "plot_note", "plot_notes", "plot_overlays"]

@@ -374,7 +374,7 @@ def _parameters_section(
     inv = records["inversion"].summary
     inv_root = root / "inversion"
     captions = {
-        "tracks.png": "Reed parameters and their combinations per window from step 2 against "
+        "tracks.png": "Reed parameters per window from step 2, and their combinations, against "
         "time (s), each panel in its SI unit (k Pa/m, S m², y_m m, p_m Pa, λ m, m kg/m², "
         "g 1/s, k_c Pa/m^alpha), with the fitted reed's mean opening h_mean (m) and the "
         "fraction of the time it is shut. Each axis is set by the ok windows; a window that "

@@ -3,7 +3,7 @@
 import numpy as np
 import pandas as pd
 
-from mpipe.inversion.note_figures import note_figure, plot_notes
+from mpipe.inversion.note_figures import note_figure, plot_notes, plot_overlays
 
 FS = 10_000.0
 
@@ -28,6 +28,10 @@ def test_a_figure_per_note_labelled_with_the_windows_status(tmp_path):
         "note": ["G2 +10 c", "", "G2 +10 c"], "f0_hz": [100.0, np.nan, 100.0],
     })  # fmt: skip
     out = plot_notes(table, segments, (p, u), (0.98 * p, u), FS, tmp_path, "xxxx")
+    # whole windows spread over the take: the first and the last with an estimate
+    spread = plot_overlays(table.assign(error=["", "", "", "x"]), (p, u), (p, u), FS, 2, tmp_path)
+    assert spread == {"overlay_1": "overlay_1.png", "overlay_2": "overlay_2.png"}
+    assert (tmp_path / "overlay_2.png").read_bytes()[:4] == b"\x89PNG"
     assert out == {"note_1": "flow_pressure_note_1.png", "note_2": "flow_pressure_note_2.png"}
     assert (tmp_path / out["note_2"]).read_bytes()[:4] == b"\x89PNG"
     # the second note has no ok window: the one with the smaller residual, in red, says why

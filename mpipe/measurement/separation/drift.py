@@ -78,7 +78,7 @@ class TrackChoice:
             return f"Effective temperature held at {t:.2f} {deg} (not estimated)."
         head = f"Effective temperature {t:.2f} {pm} {se:.2f} {deg} over the take"
         if self.model == "constant":
-            return f"{head}, one value: {self._no_drift_words(deg, pm)}"
+            return f"{head}, one value; {self._no_drift_words(deg, pm)}"
         shape = "linear" if self.model == "linear" else "not linear (smoothed track)"
         return (
             f"{head}; the data show a drift of {dt:+.2f} {pm} {dse:.2f} {deg} over "
@@ -97,7 +97,7 @@ class TrackChoice:
         level = self.drift_level
         where = f"separation.drift_level = {level:g}" if np.isfinite(level) else "the level"
         words = (
-            f"no drift at the test's level (joint test of temperature, losses and Mach over "
+            f"no drift at the test level (joint test of temperature, losses and Mach over "
             f"{self.span_s:.1f} s: p = {self.p_drift:.2g}, a drift needs p below {where})."
         )
         if not (np.isfinite(dse) and dse > 0):
