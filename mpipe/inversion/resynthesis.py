@@ -142,8 +142,9 @@ def two_periods(p: np.ndarray, fs: float, f0_hz: float, periods: int = 2) -> sli
 
     The end of a window is shown rather than its start, where the model's resynthesis
     settles from its history. The slice starts at the latest upward crossing of the mean
-    that leaves ``periods`` periods before the window's end; without a playing frequency, or
-    when the window holds fewer periods, it is the whole window.
+    that leaves ``periods`` periods before the window's end (without one, the slice is the
+    window's last ``periods`` periods); without a playing frequency, or when the window
+    holds fewer periods, it is the whole window.
 
     Parameters
     ----------
