@@ -6,7 +6,8 @@ Figures (matplotlib, Agg backend, PNG), after the paper:
 - flow against pressure difference with the step-1 fits of both branches (Fig. 8):
   :func:`plot_flow_pressure`;
 - objective history of step 2 (Fig. 7): :func:`plot_history`;
-- parameter tracks over the take: :func:`plot_tracks`.
+- parameter tracks over the take: :mod:`mpipe.inversion.tracks_plot`;
+- one or two periods of each note: :mod:`mpipe.inversion.note_figures`.
 
 References
 ----------
@@ -16,6 +17,7 @@ Chatziioannou & van Walstijn 2012, Figs. 7-9 and 11; physics.md J ("Resynthesis"
 from __future__ import annotations
 
 import logging
+import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,16 +30,14 @@ import pandas as pd  # noqa: E402
 import soundfile
 
 from mpipe.core.io import write_atomic  # noqa: E402
-from mpipe.core.units import unit_of
-from mpipe.inversion.combinations import COMBINATIONS
 from mpipe.inversion.flow_fit import flow_signals  # noqa: E402
 from mpipe.inversion.objective import (  # noqa: E402
     ObjectiveSettings,
     TargetWindow,
     run_model,
 )
-from mpipe.inversion.records import flags  # noqa: E402
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig  # noqa: E402
+from mpipe.inversion.status_words import reason_words
 from mpipe.inversion.step1 import (
     Step1Result,  # noqa: E402
     step1,
@@ -137,6 +137,43 @@ def resynthesise(
     return Resynthesis(fs=fs, p=p_out, u=u_out)
 
 
+def two_periods(p: np.ndarray, fs: float, f0_hz: float, periods: int = 2) -> slice:
+    """The last ``periods`` periods of a window, from an upward zero crossing of its p.
+
+    The end of a window is shown rather than its start, where the model's resynthesis
+    settles from its history. The slice starts at the latest upward crossing of the mean
+    that leaves ``periods`` periods before the window's end (without one, the slice is the
+    window's last ``periods`` periods); without a playing frequency, or when the window
+    holds fewer periods, it is the whole window.
+
+    Parameters
+    ----------
+    p : ndarray
+        Pressure over the window, Pa.
+    fs : float
+        Sample rate, Hz.
+    f0_hz : float
+        Playing frequency, Hz (NaN: unknown).
+    periods : int
+        Periods to show.
+
+    Returns
+    -------
+    slice
+    """
+    p = np.asarray(p, dtype=float)
+    if not (np.isfinite(f0_hz) and f0_hz > 0):
+        return slice(0, p.size)
+    n = int(round(periods * fs / f0_hz))
+    if n >= p.size:
+        return slice(0, p.size)
+    x = p - np.mean(p)
+    up = np.flatnonzero((x[:-1] < 0) & (x[1:] >= 0)) + 1
+    up = up[up + n <= p.size]
+    start = int(up[-1]) if up.size else p.size - n
+    return slice(start, start + n)
+
+
 def plot_signals(
     t: np.ndarray,
     p: np.ndarray,
@@ -145,6 +182,7 @@ def plot_signals(
     u_res: np.ndarray,
     path: str | Path,
     title: str = "",
+    status: str = "ok",
 ) -> Path:
     """Target against resynthesised pressure and flow (paper Figs. 9 and 11).
 
@@ -159,7 +197,10 @@ def plot_signals(
     path : str or Path
         PNG file, written atomically.
     title : str
-        Figure title.
+        Figure title: which window, and its status (see
+        :func:`mpipe.inversion.note_figures.window_words`).
+    status : str
+        The window's status; a window that is not ok gets its title in red.
 
     Returns
     -------
@@ -175,8 +216,9 @@ def plot_signals(
     a2.set_ylabel("flow [m³/s]")
     a2.set_xlabel("time [s]")
     if title:
-        a1.set_title(title)
-    return _save(fig, path)
+        color = "k" if status == "ok" else "tab:red"
+        a1.set_title(textwrap.fill(title, 110), fontsize=9, color=color)
+    return save_figure(fig, path)
 
 
 def plot_flow_pressure(
@@ -186,8 +228,15 @@ def plot_flow_pressure(
     s1: Step1Result,
     path: str | Path,
     zero_mean: bool = False,
+    f0_hz: float = np.nan,
+    title: str = "",
 ) -> Path:
     """Flow against pressure difference with the step-1 fits of both branches (Fig. 8).
+
+    The measured flow is drawn over the window's last two periods in time order (a loop);
+    each branch's fit is drawn as its quasi-static characteristic ``c1 d1 + c2 d2`` (a
+    smooth curve of Δp, the reed's steady flow) and, as dots on its own samples, the full
+    fit with the ``dp/dt`` term.
 
     Parameters
     ----------
@@ -201,31 +250,40 @@ def plot_flow_pressure(
         PNG file.
     zero_mean : bool
         The flow is zero-mean; the fitted curves are centred like the fit.
+    f0_hz : float
+        Playing frequency, Hz (NaN: the whole window is drawn).
+    title : str
+        Which window, and its status.
 
     Returns
     -------
     Path
     """
     d = np.column_stack(flow_signals(p, s1.p_m, fs, s1.rho))
-    if zero_mean:
-        d = d - d.mean(axis=0)
+    mean = d.mean(axis=0) if zero_mean else np.zeros(3)
+    d = d - mean
     dp = s1.p_m - np.asarray(p)
-    fig, ax = plt.subplots(figsize=(6, 4.5))
-    ax.plot(dp, u, ".", color="0.7", ms=3, label="target")
-    for name, mask, style in (("closing", d[:, 2] < 0, "k-"), ("opening", d[:, 2] > 0, "k--")):
+    show = two_periods(p, fs, f0_hz)
+    fig, ax = plt.subplots(figsize=(6.5, 4.8))
+    ax.plot(dp[show], np.asarray(u)[show], "-", color="0.6", lw=2, label="measured (two periods)")
+    grid = np.linspace(dp[show].min(), dp[show].max(), 200)
+    g1, g2, _ = flow_signals(s1.p_m - grid, s1.p_m, fs, s1.rho)
+    for name, mask, style in (("closing", d[:, 2] < 0, "-"), ("opening", d[:, 2] > 0, "--")):
         fit = s1.branch(name)
-        order = np.argsort(dp[mask])
-        ax.plot(
-            dp[mask][order],
-            (d[mask] @ fit.c)[order],
-            style,
-            lw=1,
-            label=f"step 1, {name} (k={fit.k:.3g} Pa/m)",
-        )
-    ax.set_xlabel("pressure difference p_m - p [Pa]")
-    ax.set_ylabel("flow [m³/s]")
-    ax.legend(fontsize=8)
-    return _save(fig, path)
+        curve = fit.c[0] * (g1 - mean[0]) + fit.c[1] * (g2 - mean[1]) - fit.c[2] * mean[2]
+        ax.plot(grid, curve, "k" + style, lw=1,
+                label=f"step 1, {name}: quasi-static (k = {fit.k:.3g} Pa/m)")  # fmt: skip
+        on = np.zeros(dp.size, bool)
+        on[show] = True
+        on &= mask
+        marker = "k." if name == "closing" else "kx"
+        ax.plot(dp[on], d[on] @ fit.c, marker, ms=3, label=f"step 1, {name}: with dp/dt term")
+    ax.set_xlabel("pressure difference Δp = p_m − p [Pa]")
+    ax.set_ylabel("flow u [m³/s]")
+    ax.legend(fontsize=7)
+    if title:
+        ax.set_title(title, fontsize=9)
+    return save_figure(fig, path)
 
 
 def plot_history(history: np.ndarray, path: str | Path, f1: float | None = None) -> Path:
@@ -250,112 +308,7 @@ def plot_history(history: np.ndarray, path: str | Path, f1: float | None = None)
     ax.set_ylabel("F2 [Pa]")
     if f1 is not None:
         ax.set_title(f"step 1 F1 = {f1:.3g} (m³/s)²")
-    return _save(fig, path)
-
-
-def plot_tracks(table: pd.DataFrame, path: str | Path) -> Path:
-    """Every parameter and identifiable combination against window time, with error bands.
-
-    The band is the estimate plus or minus two standard errors (``<name>_se`` columns,
-    where present), taken in log space for a positive estimate (``x exp(+-2 se / x)``, which
-    never crosses zero); the lines break between segments (notes) and across gaps, so no
-    line is drawn through a silence. Windows where a quantity is undetermined (relative
-    standard error above the limit, or infinite) are drawn as open circles, determined ones
-    as filled dots;
-    a panel whose quantity is undetermined in most windows says so in its title. Windows
-    whose status is not ok are drawn in grey.
-
-    Parameters
-    ----------
-    table : pandas.DataFrame
-        Per-window results.
-    path : str or Path
-        PNG file.
-
-    Returns
-    -------
-    Path
-    """
-    t = (0.5 * (table["t_start_s"] + table["t_end_s"])).to_numpy(dtype=float)
-    names = [*PARAMETER_NAMES, "y_c", *(c.name for c in COMBINATIONS), "h_mean",
-             "closed_fraction", "relative_residual"]  # fmt: skip
-    names = [n for n in names if n in table]
-    ncol = 4
-    nrow = -(-len(names) // ncol)
-    fig, axes = plt.subplots(nrow, ncol, sharex=True, figsize=(13, 2.3 * nrow + 0.6))
-    ok = (
-        (table["status"].astype(str) == "ok").to_numpy()
-        if "status" in table
-        else np.ones(len(t), bool)
-    )
-    brk = _breaks(table, t)
-    for ax, name in zip(axes.ravel(), names, strict=False):
-        x = pd.to_numeric(table[name], errors="coerce").to_numpy(dtype=float)
-        title = f"{name} [{unit_of(name) or '-'}]"
-        se_col, det_col = f"{name}_se", f"determined_{name}"
-        if se_col in table:
-            se = pd.to_numeric(table[se_col], errors="coerce").to_numpy(dtype=float)
-            band = np.isfinite(se) & ok
-            lo, hi = _band(x, se)
-            ax.fill_between(
-                _split(t, brk), _split(np.where(band, lo, np.nan), brk),
-                _split(np.where(band, hi, np.nan), brk),
-                color="tab:blue", alpha=0.25, lw=0, label="±2 SE",
-            )  # fmt: skip
-            det = flags(table, det_col)
-            if np.isnan(se[ok]).all():
-                title += " fixed"
-                det = np.ones(len(t), bool)
-            elif not ok.any() or det[ok].mean() < 0.5:
-                title += " UNDETERMINED"
-        else:
-            det = np.ones(len(t), bool)
-        ax.plot(_split(t, brk), _split(x, brk), "-", color="0.6", lw=0.6)
-        ax.plot(t[ok & det], x[ok & det], "k.", ms=5)
-        ax.plot(t[ok & ~det], x[ok & ~det], "o", mfc="none", mec="tab:red", ms=4)
-        ax.plot(t[~ok], x[~ok], ".", color="0.7", ms=4)
-        ax.set_title(title, fontsize=9, color="tab:red" if "UNDET" in title else "k")
-        ax.tick_params(labelsize=7)
-    for ax in axes.ravel()[len(names) :]:
-        ax.set_visible(False)
-    for ax in axes[-1]:
-        ax.set_xlabel("time [s]")
-    fig.suptitle(
-        "estimate (dots: determined; open red: undetermined; grey: status not ok), band ±2 SE "
-        "(in log space for positive quantities); lines break between notes and at gaps",
-        fontsize=9,
-    )
-    return _save(fig, path)
-
-
-def _breaks(table: pd.DataFrame, t: np.ndarray) -> np.ndarray:
-    """Indices before which a track breaks: a new segment, or a gap over 1.5 hops."""
-    if len(t) < 2:
-        return np.array([], dtype=int)
-    step = np.diff(t)
-    gap = step > 1.5 * np.median(step)
-    if "segment" in table:
-        seg = pd.to_numeric(table["segment"], errors="coerce").to_numpy(dtype=float)
-        gap |= np.diff(seg) != 0
-    return np.flatnonzero(gap) + 1
-
-
-def _split(x: np.ndarray, breaks: np.ndarray) -> np.ndarray:
-    """``x`` with a NaN inserted at each break (matplotlib draws no line across it)."""
-    return np.insert(np.asarray(x, dtype=float), breaks, np.nan)
-
-
-def _band(x: np.ndarray, se: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The ±2 SE band; for a positive estimate in log space, ``x exp(±2 se / x)``.
-
-    A positive quantity (a stiffness, an area, a pressure) has a positive band whatever its
-    standard error: the linear band ``x - 2 se`` would cross zero for a relative SE over 50 %.
-    """
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        rel = np.where(x > 0, se / x, np.nan)
-        lo = np.where(x > 0, x * np.exp(-2 * rel), x - 2 * se)
-        hi = np.where(x > 0, x * np.exp(2 * rel), x + 2 * se)
-    return lo, hi
+    return save_figure(fig, path)
 
 
 def write_wav(path: str | Path, p: np.ndarray, fs: float, full_scale: float | None = None) -> Path:
@@ -384,7 +337,8 @@ def write_wav(path: str | Path, p: np.ndarray, fs: float, full_scale: float | No
     )
 
 
-def _save(fig, path: str | Path) -> Path:
+def save_figure(fig, path: str | Path) -> Path:
+    """Write a matplotlib figure as a PNG atomically (110 dpi) and close it."""
     fig.tight_layout()
     try:
         return write_atomic(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
@@ -392,7 +346,37 @@ def _save(fig, path: str | Path) -> Path:
         plt.close(fig)
 
 
-def plot_first_window(
+def pick_window(rows: pd.DataFrame) -> pd.Series | None:
+    """The window that shows a note best: ok, in the sustain, nearest the note's middle.
+
+    Falls back to any ok window nearest the middle, then to the inverted window with the
+    smallest relative residual (its status then says why it is not ok); None when no
+    window of ``rows`` has an estimate.
+    """
+    rows = rows[rows["error"] == ""] if "error" in rows else rows
+    if not len(rows):
+        return None
+    mid = 0.5 * (rows["t_start_s"].min() + rows["t_end_s"].max())
+    ok = rows[rows["status"] == "ok"] if "status" in rows else rows
+    steady = ok[ok["phase"] == "sustain"] if "phase" in ok else ok
+    for pool in (steady, ok):
+        if len(pool):
+            return pool.loc[(pool["t_start_s"] - mid).abs().idxmin()]
+    return rows.loc[pd.to_numeric(rows["relative_residual"]).idxmin()]
+
+
+def window_words(row: pd.Series | dict) -> str:
+    """``"window 12 at 1.130 s (sustain): status ok"``, with the reason when not ok."""
+    phase = str(row.get("phase", "") or "")
+    status = str(row.get("status", "") or "")
+    reason = reason_words(row)
+    head = f"window {int(row['window'])} at {float(row['t_start_s']):.3f} s"
+    head += f" ({phase})" if phase and phase != "nan" else ""
+    words = f"{head}: status {status}" if status else head
+    return words + (f" ({reason})" if status != "ok" and reason and reason != "nan" else "")
+
+
+def plot_fit_figures(
     table: pd.DataFrame,
     histories: dict,
     p: np.ndarray,
@@ -403,10 +387,11 @@ def plot_first_window(
     zero_mean: bool,
     folder: str | Path,
 ) -> dict[str, str]:
-    """Figures 7 and 8 of the paper for the first inverted window of a take.
+    """Figures 7 and 8 of the paper for the window that shows the first note best.
 
-    Writes ``flow_pressure.png`` (flow against pressure difference with both step-1 fits)
-    and, when the window's search history is known, ``history.png``.
+    Writes ``flow_pressure.png`` (flow against pressure difference with both step-1 fits,
+    over two periods) and, when the window's search history is known, ``history.png``, for
+    the window :func:`pick_window` picks from the first note (an ok window in its sustain).
 
     Parameters
     ----------
@@ -433,18 +418,20 @@ def plot_first_window(
         Output name -> file name of the figures written.
     """
     folder = Path(folder)
-    ok = table[table["error"] == ""]
-    if not len(ok):
+    rows = table
+    if "segment" in table and table["segment"].notna().any():
+        rows = table[table["segment"] == table.loc[table["error"] == "", "segment"].min()]
+    first = pick_window(rows)
+    if first is None:
         return {}
-    first = ok.iloc[0]
     i0, i1 = int(round(first["t_start_s"] * fs)), int(round(first["t_end_s"] * fs))
     s1 = step1(
         p[i0:i1], u[i0:i1], fs, rho=rho, lam=config.lam,
         zero_mean=zero_mean, p_m=config.step1_p_m, y_c=config.y_c,
     )  # fmt: skip
-    plot_flow_pressure(
-        p[i0:i1], u[i0:i1], fs, s1, folder / "flow_pressure.png", zero_mean=zero_mean
-    )
+    f0 = float(first.get("f0_hz", np.nan))
+    plot_flow_pressure(p[i0:i1], u[i0:i1], fs, s1, folder / "flow_pressure.png",
+                       zero_mean, f0, "step 1 of " + window_words(first))  # fmt: skip
     outputs = {"flow_pressure": "flow_pressure.png"}
     w = int(first["window"])
     if w in histories:

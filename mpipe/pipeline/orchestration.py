@@ -229,6 +229,7 @@ def _stage_inversion(
 
     # lazy: the resynthesis module loads matplotlib (~0.4 s of every command's start-up)
     from mpipe.inversion import resynthesis as rs
+    from mpipe.inversion.tracks_plot import plot_tracks
 
     inv = cfg.inversion
 
@@ -259,13 +260,13 @@ def _stage_inversion(
         write_csv(folder / "segments.csv", per_segment)
         written = write_table(table, folder)
         write_correlations(result.correlations, folder)
-        rs.plot_tracks(table, folder / "tracks.png")
+        plot_tracks(table, folder / "tracks.png", per_segment, cal.fingering)
         outputs = {"windows": "windows.csv", "tracks": "tracks.png", "segments": "segments.csv"}
         outputs["correlations"] = "correlations.csv"
         if any(w.suffix == ".parquet" for w in written):
             outputs["windows_parquet"] = "windows.parquet"
         outputs.update(
-            rs.plot_first_window(
+            rs.plot_fit_figures(
                 table, result.histories, p, u, fs, air.rho, inv, result.zero_mean, folder
             )
         )
@@ -301,6 +302,7 @@ def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
 
     # lazy: the resynthesis module loads matplotlib (~0.4 s of every command's start-up)
     from mpipe.inversion import resynthesis as rs
+    from mpipe.inversion.note_figures import plot_notes, plot_overlays
 
     def work(folder: Path):
         mp = _load_npz(mouthpiece)
@@ -318,16 +320,10 @@ def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
         filled = np.nan_to_num(res.p)
         rs.write_wav(folder / "resynthesis.wav", filled, fs, cfg.resynthesis.wav_full_scale_pa)
         outputs = {"signals": "resynthesis.npz", "wav": "resynthesis.wav"}
-        ok = table[table["error"] == ""]
-        t = np.arange(p.size) / fs
-        picks = np.unique(np.linspace(0, len(ok) - 1, cfg.resynthesis.overlay_windows).round())
-        for j, idx in enumerate(picks.astype(int) if len(ok) else []):
-            row = ok.iloc[idx]
-            i0, i1 = int(round(row["t_start_s"] * fs)), int(round(row["t_end_s"] * fs))
-            name = f"overlay_{j + 1}.png"
-            rs.plot_signals(t[i0:i1], p[i0:i1], u[i0:i1], res.p[i0:i1], res.u[i0:i1],
-                            folder / name, title=f"window at {row['t_start_s']:.3f} s")  # fmt: skip
-            outputs[f"overlay_{j + 1}"] = name
+        signals = ((p, u), (res.p, res.u))
+        outputs.update(plot_overlays(table, *signals, fs, cfg.resynthesis.overlay_windows, folder))
+        segments = pd.read_csv(windows.parent / "segments.csv")
+        outputs.update(plot_notes(table, segments, *signals, fs, folder, cal.fingering))
         mask = np.isfinite(res.p)
         rel = (
             float(np.linalg.norm(p[mask] - res.p[mask]) / np.linalg.norm(p[mask]))

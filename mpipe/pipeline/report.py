@@ -21,6 +21,7 @@ from mpipe.inversion.coverage import summary as uncertainty_summary
 from mpipe.inversion.records import read_windows
 from mpipe.pipeline.budget_table import budget_tables
 from mpipe.pipeline.html_report import Figure, Section, fmt, write_report
+from mpipe.pipeline.report_windows import WINDOW_CAPTION, reasons, resynthesis_figures, window_table
 
 #: Reed parameters summarised at the top of a take's report, in this order.
 SUMMARY_PARAMETERS = ("k", "S", "y_m", "p_m", "lam", "m", "g", "k_c")
@@ -78,7 +79,7 @@ def flag_windows(windows: pd.DataFrame) -> pd.DataFrame:
             "window": bad["window"].to_numpy(),
             "t_start_s": bad["t_start_s"].to_numpy(),
             "status": bad["status"].to_numpy(),
-            "reason": [("" if pd.isna(r) else str(r)) for r in bad["status_reason"]],
+            "reason": reasons(bad),
         }
     )
 
@@ -107,11 +108,6 @@ def overall_verdict(
     if n_ok < n:
         return f"CHECK: {n_ok} of {n} windows ok, {n - n_ok} not ok (see their reasons)", "check"
     return f"PASS: validation passed, all {n} windows ok", "pass"
-
-
-#: Columns of the per-window table shown in a take's report.
-WINDOW_COLUMNS = ("window", "t_start_s", "status", "k", "S", "y_m", "p_m", "m", "g", "lam",
-                  "k_c", "f2", "relative_residual", "n_evaluations", "status_reason")  # fmt: skip
 
 
 def _read_csv(path: Path) -> pd.DataFrame:
@@ -158,7 +154,7 @@ def write_take_report(
     summary = _summary_section(records, windows, segments)
     sections = [
         _measurement_section(root, records, resonances, harmonics),
-        _parameters_section(root, records, windows),
+        _parameters_section(root, records, windows, segments),
         _resynthesis_section(root, records),
         _run_section(records, take_paths, cal_path, version, plan),
     ]
@@ -223,9 +219,7 @@ def _summary_section(
         f"{fmt(val['band_error_db'], 3)} dB). {inv.get('status_line', '')}. A window is ok "
         "when the search met its tolerance, no parameter sits on a search bound and its "
         "residual is within a few times the take's best. Median relative residual of the "
-        f"model pressure {fmt(med_res, 3)}. Air temperature: {_temperature_words(val, inv)} "
-        "In the parameter table, iqr_pct is the interquartile range (q75 − q25) over the "
-        "median, %, over the ok windows."
+        f"model pressure {fmt(med_res, 3)}. Air temperature: {_temperature_words(val, inv)}"
     )
     if val.get("failures"):
         summary_text += "\n\nValidation failures: " + "; ".join(val["failures"]) + "."
@@ -249,8 +243,8 @@ def _summary_section(
         ]  # fmt: skip
     if len(notes) > 1:
         summary_text += (
-            f"\n\nThe take holds {len(notes)} notes: each has its own result above; a median "
-            "over the whole take would describe none of them and is not given (the "
+            f"\n\nThe take holds {len(notes)} notes: each has its own result in the tables "
+            "below; a median over the whole take would describe none of them and is not given (the "
             "uncertainty table below gives only each quantity's typical standard error of "
             "one window)."
         )
@@ -375,20 +369,26 @@ def _resonance_words(resonances: pd.DataFrame) -> str:
     )
 
 
-def _parameters_section(root: Path, records: dict, windows: pd.DataFrame) -> Section:
+def _parameters_section(
+    root: Path, records: dict, windows: pd.DataFrame, segments: pd.DataFrame | None = None
+) -> Section:
     """The reed parameters over time: the inversion's figures and the per-window table."""
     inv = records["inversion"].summary
     inv_root = root / "inversion"
     captions = {
-        "tracks.png": "Reed parameters per window from step 2 against time (s); each panel "
-        "in its SI unit (k Pa/m, S m², y_m m, p_m Pa, λ m, m kg/m², g 1/s, k_c Pa/m^alpha), with "
-        "the fitted reed's mean opening h_mean (m) and the fraction of the time it is shut; "
-        "lines break between notes, bands are ±2 SE in log space.",
-        "flow_pressure.png": "First inverted window: volume flow u (m³/s) against the "
-        "pressure difference Δp = p_m − p (Pa), with the step-1 fits of the closing and "
-        "opening branches (paper Fig. 8).",
-        "history.png": "First inverted window: best step-2 objective F2 (Pa) after each "
-        "model evaluation (paper Fig. 7).",
+        "tracks.png": "Reed parameters per window from step 2, and their combinations, against "
+        "time (s), each panel in its SI unit (k Pa/m, S m², y_m m, p_m Pa, λ m, m kg/m², "
+        "g 1/s, k_c Pa/m^alpha), with the fitted reed's mean opening h_mean (m) and the "
+        "fraction of the time it is shut. Each axis is set by the ok windows; a window that "
+        "is not ok and lies off that scale is a grey triangle at the edge (the panel title "
+        "counts them). Bands: ±2 combined standard uncertainties (log space). The notes are "
+        "shaded and numbered, and named above the figure with their pitch in Hz.",
+        "flow_pressure.png": "Step 1 on a sustained ok window of the first note (its status in "
+        "the title): volume flow u (m³/s) against the pressure difference Δp = p_m − p (Pa) "
+        "over two periods, with each branch's quasi-static fit (lines) and its fit with the "
+        "dp/dt term (dots, crosses) (paper Fig. 8).",
+        "history.png": "The same window: best step-2 objective F2 (Pa) after each model "
+        "evaluation (paper Fig. 7).",
     }
     inv_figs = tuple(
         Figure(inv_root / f, c) for f, c in captions.items() if (inv_root / f).exists()
@@ -398,35 +398,30 @@ def _parameters_section(root: Path, records: dict, windows: pd.DataFrame) -> Sec
         inv_figs = (
             Figure(played, "What was played: the mouthpiece level (dB re 20 µPa) with the "
                    "silence threshold, and the pitch (cents re A4) against time (s); the "
-                   "notes found are shaded and numbered as in segments.csv."),
+                   "notes found are shaded and numbered as in segments.csv (each note's "
+                   "pitch in Hz and its name: the notes table and the tracks)."),
             *inv_figs,
         )  # fmt: skip
-    show = [c for c in WINDOW_COLUMNS if c in windows.columns]
     return Section(
         "Reed parameters over time",
         f"Flow treated as "
         f"{'zero-mean (measured)' if inv['zero_mean_flow'] else 'carrying its mean (model)'}.",
         None,
         inv_figs,
-        (("Per-window results.", windows[show]),),
+        ((WINDOW_CAPTION, window_table(windows, segments)),),
     )
 
 
 def _resynthesis_section(root: Path, records: dict) -> Section:
-    """The resynthesis: its residual and the overlays of target and resynthesised signals."""
+    """The resynthesis: its residual, each note's two periods and the overlays."""
     res = records["resynthesis"].summary
-    overlays = tuple(
-        Figure(p, "Target (measured) and resynthesised mouthpiece pressure (Pa) and flow "
-               f"(m³/s) over one window ({p.stem.replace('_', ' ')}; paper Figs. 9, 11).")
-        for p in sorted((root / "resynthesis").glob("overlay_*.png"))
-    )  # fmt: skip
     return Section(
         "Resynthesis",
         "Relative residual of the resynthesised pressure over the inverted windows: "
         f"{fmt(res['relative_residual_p'], 3)}. The resynthesised pressure is in "
         "resynthesis/resynthesis.wav.",
         None,
-        overlays,
+        resynthesis_figures(root / "resynthesis"),
     )
 
 

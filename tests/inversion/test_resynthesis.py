@@ -14,6 +14,7 @@ from mpipe.inversion.records import window_frame
 from mpipe.inversion.settings import InversionConfig
 from mpipe.inversion.step1 import step1
 from mpipe.inversion.tables import blank_row
+from mpipe.inversion.tracks_plot import plot_tracks
 from mpipe.measurement.calibration import load_calibration
 from mpipe.reed.bore_kernel import prepare_bore
 from mpipe.reed.model import simulate
@@ -75,7 +76,7 @@ def test_plots_and_wav(setup, tmp_path):
         rs.plot_signals(t[sl], sim.p[sl], sim.u[sl], sim.p[sl], sim.u[sl], tmp_path / "s.png"),
         rs.plot_flow_pressure(sim.p[sl], sim.u[sl], FS, s1, tmp_path / "f.png"),
         rs.plot_history(np.geomspace(100, 1, 50), tmp_path / "h.png"),
-        rs.plot_tracks(table_of(TABLE1, [30000, 32000]), tmp_path / "t.png"),
+        plot_tracks(table_of(TABLE1, [30000, 32000]), tmp_path / "t.png"),
     ]
     for p in paths:
         assert p.read_bytes()[:4] == b"\x89PNG"
@@ -142,19 +143,32 @@ def test_invert_command_bad_npz(tmp_path, capsys):
     assert "missing key 'u'" in capsys.readouterr().err
 
 
-def test_track_bands_stay_positive_and_lines_break_between_notes():
+def test_two_periods_end_the_window_from_an_upward_crossing():
+    # 250 Hz sine over a 20 ms window: two periods are 800 samples, the last ones that
+    # start where the pressure crosses its mean upwards
+    n = np.arange(2000)
+    p = 300.0 * np.sin(2 * np.pi * 250.0 * (n + 37) / FS)
+    show = rs.two_periods(p, FS, 250.0)
+    assert show.stop - show.start == 800 and show.stop <= 2000
+    assert p[show.start - 1] < 0 <= p[show.start]
+    assert show.start + 400 + 800 > 2000  # no later crossing leaves two periods
+    assert rs.two_periods(p, FS, np.nan) == slice(0, 2000)  # no pitch: the whole window
+    assert rs.two_periods(p, FS, 80.0) == slice(0, 2000)  # fewer than two periods
 
-    from mpipe.inversion.resynthesis import _band, _breaks, _split
 
-    x = np.array([1.0, 2.0, 4.0])
-    se = np.array([0.001, 2.0, 40.0])  # relative SE 0.1 %, 100 %, 1000 %
-    lo, hi = _band(x, se)
-    assert np.all(lo > 0)  # a linear band would reach -2, -76
-    np.testing.assert_allclose([lo[0], hi[0]], [1 - 0.002, 1 + 0.002], rtol=1e-5)  # linear
-    np.testing.assert_allclose(lo * hi, x**2)  # symmetric in log space
-    neg_lo, _ = _band(np.array([-1.0]), np.array([0.1]))
-    assert neg_lo[0] == pytest.approx(-1.2)  # not positive: the linear band
-    table = pd.DataFrame({"segment": [1, 1, 1, 3, 3, 3]})
-    t = np.array([0.1, 0.12, 0.14, 0.5, 0.52, 0.58])
-    np.testing.assert_array_equal(_breaks(table, t), [3, 5])  # a new note; a 60 ms gap
-    assert np.isnan(_split(t, _breaks(table, t))[[3, 6]]).all()
+def test_the_note_is_shown_by_an_ok_sustain_window_and_every_label_says_its_status():
+    rows = pd.DataFrame({
+        "window": [0, 1, 2, 3], "t_start_s": [0.1, 0.12, 0.14, 0.16],
+        "t_end_s": [0.12, 0.14, 0.16, 0.18], "error": ["", "", "", ""],
+        "phase": ["onset", "sustain", "sustain", "release"],
+        "status": ["ok", "ok", "ok", "not-converged"], "relative_residual": [0.1, 0.2, 0.3, 0.01],
+        "status_reason": ["", "", "", "the search stopped at its budget"],
+    })  # fmt: skip
+    assert rs.pick_window(rows)["window"] == 2  # nearest the middle (0.14 s) of the sustain
+    bad = rows.assign(status="high-residual")
+    assert rs.pick_window(bad)["window"] == 3  # none ok: the smallest residual, not ok
+    assert rs.pick_window(rows.assign(error="x")) is None
+    words = rs.window_words(rows.iloc[3])
+    assert words.startswith("window 3 at 0.160 s (release): status not-converged")
+    assert "budget" in words
+    assert rs.window_words(rows.iloc[1]).endswith("status ok")

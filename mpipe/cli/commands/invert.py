@@ -22,6 +22,7 @@ from mpipe.inversion.conditioning import bore_resonances, plan_take
 from mpipe.inversion.execution import connect
 from mpipe.inversion.segments import segment_summary, with_played
 from mpipe.inversion.status import summary_line
+from mpipe.inversion.status_words import reason_words
 from mpipe.inversion.tables import segment_lines, write_correlations, write_table
 from mpipe.inversion.take import RunOptions, WindowPlan, invert_take
 from mpipe.inversion.tracking import ProgressBar
@@ -165,7 +166,7 @@ def _run(args: argparse.Namespace) -> int:
     table = result.table
     log.info("%s", take.temperature.line())
     out.mkdir(parents=True, exist_ok=True)
-    _write_results(out, plan, result, p, u, fs, kernel, air, inv)
+    _write_results(out, plan, result, p, u, fs, kernel, air, inv, cal.fingering)
     run_info = {
         "mpipe_version": __version__,
         "mouthpiece": str(Path(args.mouthpiece).resolve()),
@@ -241,9 +242,12 @@ def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
     return (plan, segments), take
 
 
-def _write_results(out: Path, plan, result, p, u, fs: float, kernel, air, inv) -> None:
+def _write_results(
+    out: Path, plan, result, p, u, fs: float, kernel, air, inv, fingering=None
+) -> None:
     """Tables, the resynthesis (plots and WAV) and the parameter tracks into ``out``."""
     from mpipe.inversion import resynthesis as rs  # lazy: it imports matplotlib (~0.5 s)
+    from mpipe.inversion.tracks_plot import plot_tracks
 
     plan, segments = plan
     table = with_played(result.table, plan)
@@ -267,10 +271,11 @@ def _write_results(out: Path, plan, result, p, u, fs: float, kernel, air, inv) -
             res.p[i0:i1],
             res.u[i0:i1],
             out / "signals.png",
-            title=f"window at {first['t_start_s']:.3f} s",
+            title=rs.window_words(first),
+            status=first["status"],
         )
-    rs.plot_first_window(table, result.histories, p, u, fs, air.rho, inv, result.zero_mean, out)
-    rs.plot_tracks(table, out / "tracks.png")
+    rs.plot_fit_figures(table, result.histories, p, u, fs, air.rho, inv, result.zero_mean, out)
+    plot_tracks(table, out / "tracks.png", summary, fingering)
     rs.write_wav(out / "resynthesis.wav", res.p, fs)
 
 
@@ -291,7 +296,7 @@ def _print_windows(table, out: Path) -> int:
     bad = table[table["status"] != "ok"]
     for _, row in bad.head(MAX_LISTED).iterrows():
         sys.stdout.write(f"window at {row['t_start_s']:.3f} s: {row['status']}: "
-                         f"{row['status_reason']}\n")  # fmt: skip
+                         f"{reason_words(row)}\n")  # fmt: skip
     if len(bad) > MAX_LISTED:
         sys.stdout.write(
             f"... and {len(bad) - MAX_LISTED} more windows not ok (windows.csv, status_reason)\n"

@@ -54,6 +54,8 @@ class TrackChoice:
         p-value of the line against the smoother (small: the change is not linear).
     span_s : float
         Time between the first and the last trusted block, s.
+    drift_level : float
+        The test level the choice was made at (``separation.drift_level``; NaN: unknown).
     """
 
     model: str
@@ -66,6 +68,7 @@ class TrackChoice:
     p_drift: float
     p_curve: float
     span_s: float
+    drift_level: float = float("nan")
 
     def sentence(self, deg: str = "degC", pm: str = "+-") -> str:
         """Whether the data show a drift of the temperature, in words (``deg``: its unit)."""
@@ -75,18 +78,42 @@ class TrackChoice:
             return f"Effective temperature held at {t:.2f} {deg} (not estimated)."
         head = f"Effective temperature {t:.2f} {pm} {se:.2f} {deg} over the take"
         if self.model == "constant":
-            return (
-                f"{head}; the data do not show a drift (change over {self.span_s:.1f} s "
-                f"{dt:+.2f} {pm} {dse:.2f} {deg}; joint test of temperature, losses and Mach "
-                f"p = {self.p_drift:.2g}, a drift needs p below separation.drift_level): one "
-                "value for the take."
-            )
+            return f"{head}, one value; {self._no_drift_words(deg, pm)}"
         shape = "linear" if self.model == "linear" else "not linear (smoothed track)"
         return (
             f"{head}; the data show a drift of {dt:+.2f} {pm} {dse:.2f} {deg} over "
             f"{self.span_s:.1f} s (joint test of temperature, losses and Mach p = "
             f"{self.p_drift:.2g}), {shape}."
         )
+
+    def _no_drift_words(self, deg: str, pm: str) -> str:
+        """Why one value: the joint test's result first, then the line's change and its weight.
+
+        The change of the straight line is given with how many standard errors it is from
+        none and its p-value alone, so that a change of 2 SE is not read as a drift the
+        sentence then denies: both numbers are judged at the same level.
+        """
+        dt, dse = self.change[0], self.change_se[0]
+        level = self.drift_level
+        where = f"separation.drift_level = {level:g}" if np.isfinite(level) else "the level"
+        words = (
+            f"no drift at the test level (joint test of temperature, losses and Mach over "
+            f"{self.span_s:.1f} s: p = {self.p_drift:.2g}, a drift needs p below {where})."
+        )
+        if not (np.isfinite(dse) and dse > 0):
+            return words
+        z = abs(dt) / dse
+        p_alone = float(2.0 * stats.norm.sf(z))
+        words += (
+            f" A straight line through the blocks changes by {dt:+.2f} {pm} {dse:.2f} {deg}, "
+            f"{z:.1f} standard errors from none (p = {p_alone:.2g} for the temperature alone"
+        )
+        if np.isfinite(level) and p_alone < level:
+            return words + (
+                ", below the level: the temperature alone suggests a change of that size, "
+                "which the joint test does not confirm; read the take's value with it in mind)."
+            )
+        return words + ", not below the level either)."
 
     def summary(self) -> dict:
         """JSON-safe take-level figures (degC): model, value, SE, drift, its SE, in words."""
@@ -275,4 +302,6 @@ def choose_track(
     lev_se[idx] = np.sqrt(np.maximum(np.diag(use_c)[:p], 0.0))
     change[idx] = b1[p:] * span
     change_se[idx] = np.sqrt(np.maximum(np.diag(c1)[p:], 0.0)) * span
-    return TrackChoice(model, values, se, lev, lev_se, change, change_se, p_drift, p_curve, span)
+    return TrackChoice(
+        model, values, se, lev, lev_se, change, change_se, p_drift, p_curve, span, level
+    )

@@ -132,3 +132,33 @@ def test_steady_take_has_one_value_and_a_drift_is_followed():
         )
     assert flat >= 3
     assert followed >= 3
+
+
+def _choice(model, change, change_se, p_drift, level=0.01):
+    from mpipe.measurement.separation.drift import TrackChoice
+
+    def first(x):
+        return np.array([x, 0.0, 0.0, 0.0])
+
+    blocks = np.zeros((3, 4))
+    return TrackChoice(model, blocks, blocks, first(20.17), first(0.43), first(change),
+                       first(change_se), p_drift, 1.0, 2.6, level)  # fmt: skip
+
+
+def test_the_drift_sentence_judges_the_change_at_the_tests_own_level():
+    # issue 33: "+5.52 +- 2.50 degC ... the data do not show a drift" read as a contradiction.
+    # The change is 2.21 SE from none: p = 2 (1 - Phi(2.208)) = 0.0272 alone, above 0.01.
+    words = _choice("constant", 5.52, 2.50, 0.44).sentence()
+    assert "the data do not show a drift" not in words
+    assert "p = 0.44, a drift needs p below separation.drift_level = 0.01" in words
+    assert "+5.52 +- 2.50 degC, 2.2 standard errors from none (p = 0.027" in words
+    assert "not below the level either" in words
+    # 3.2 SE alone is below the level: the sentence says so instead of denying it
+    strong = _choice("constant", 8.0, 2.5, 0.02).sentence()
+    assert "(p = 0.0014 for the temperature alone, below the level" in strong
+    assert "does not confirm" in strong
+    # a drift the test takes is stated as one
+    assert (
+        "the data show a drift of +8.00 +- 2.50 degC"
+        in _choice("linear", 8.0, 2.5, 1e-4).sentence()
+    )
