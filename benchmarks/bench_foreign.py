@@ -310,9 +310,12 @@ def own_take(folder: Path, duration: float, snr: float, rates, workers: int, reu
     from mpipe.reed.take_files import take_file_paths
 
     files = take_file_paths(stem)
-    if reuse and all((folder / f"out_own_{lb}" / stem.stem / "bench_run.json").exists()
-                     for lb, _ in rates):  # fmt: skip
-        return {lb: run_mpipe(None, files, folder / f"out_own_{lb}", True) for lb, _ in rates}
+    if reuse:
+        return {
+            lb: run_mpipe(None, files, folder / f"out_own_{lb}", True)
+            for lb, _ in rates
+            if (folder / f"out_own_{lb}" / stem.stem / "bench_run.json").exists()
+        }
     cmd = [sys.executable, "-m", "mpipe.cli.main", "synth-take", str(CAL), "--reed", str(REED),
            "--duration", str(duration), "--swell", "0.45", "--snr", str(snr), "--fs-out",
            str(int(RECORD_FS)), "-o", str(stem), "--force"]  # fmt: skip
@@ -446,6 +449,8 @@ def simulate_all(geos, plays, reeds, cache: Path, jobs: int) -> dict:
 
 def run_one(spec, folder: Path, workers: int, reuse: bool):
     g, p, snr, label, rate, files = spec
+    if reuse and not (folder / f"out_{label}" / files.audio.stem / "bench_run.json").exists():
+        return None, None
     pipe = pipeline_file(folder, files.calibration, rate, workers, f"{files.audio.stem}_{label}")
     run = run_mpipe(pipe, files, folder / f"out_{label}", reuse)
     truth = np.load(files.truth)
@@ -465,6 +470,8 @@ def run_all_takes(specs, folder: Path, args):
         futs = {pool.submit(run_one, s, folder, args.workers, args.reuse): s for s in specs}
         for fut in as_completed(futs):
             row, okw = fut.result()
+            if row is None:  # --reuse: not run in the kept folder
+                continue
             rows.append(row)
             frames[row["geometry"], row["playing"], row["snr"], row["rate"]] = okw
             print_row(row)
