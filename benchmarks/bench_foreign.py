@@ -403,7 +403,7 @@ def main(argv: list[str] | None = None) -> int:
             for p in plays:
                 for snr in args.snrs:
                     stem = f"{g.name}_{p.name}_{snr}"
-                    seed = int(fsim.sim_key(g, p, reeds[g.name], RECORD_FS)[:6], 16) + len(snr)
+                    seed = int(sims[g.name, p.name].stem[-6:], 16) + len(snr)
                     files = fsim.write_take(sims[g.name, p.name], folder, stem, g, p,
                                             reeds[g.name], SNRS[snr], RECORD_FS, seed,
                                             cals[g.name])  # fmt: skip

@@ -11,10 +11,10 @@ pressure p_M = k y_m. OpenWInD 0.12 accepts no time-varying reed parameter but t
 pressure, so its reed cannot be held shut by a tongue: the two "tongued" notes are
 articulated by the breath (p_m to zero in 5 ms, 0.15 s of silence, a 10 ms attack).
 
-The simulation runs at the smallest multiple of the recording rate (48 kHz by default) that
-OpenWInD's CFL condition allows (at least twice it), and is cached as ``.npz`` under the cache
-folder, keyed by a hash of everything that defines it; the recordings (resampled to the
-recording rate, noise added per SNR) are made from the cache.
+The simulation runs at the smallest multiple of the recording rate (48 kHz by default) at or
+above :data:`SIM_RATE_MIN` that OpenWInD's CFL condition allows, and is cached as ``.npz``
+under the cache folder, keyed by a hash of everything that defines it; the recordings
+(resampled to the recording rate, noise added per SNR) are made from the cache.
 """
 
 from __future__ import annotations
@@ -33,6 +33,11 @@ import yaml
 
 #: Bump when the simulation changes in a way the hashed settings do not show.
 SIM_VERSION = 1
+#: Lowest simulation rate, Hz. OpenWInD's time scheme (theta = 1/4) lowers a frequency by
+#: about (omega dt)^2 / 12: at 96 kHz that is 0.14 % at 2 kHz, a sound speed that mpipe's
+#: front end reads as up to 1.3 degC too warm on a loud clean take (20.0 -> 21.3 degC along
+#: a crescendo, SE 0.002 degC); at 432 kHz the same front end reads 20.0-20.1 degC.
+SIM_RATE_MIN = 384_000.0
 #: OpenWInD's air (its defaults, written out so mpipe's calibration can hold the same).
 HUMIDITY, CO2 = 0.5, 4.2e-4
 TEMPERATURE_C = 20.0
@@ -225,14 +230,13 @@ def _physics(geometry: Geometry, reed_dict: dict):
                              humidity=HUMIDITY, carbon=CO2, **extra)  # fmt: skip
 
 
-def sim_key(geometry: Geometry, playing: Playing, reed, record_fs: float) -> str:
+def sim_key(geometry: Geometry, playing: Playing, reed, record_fs: float, fs_sim: float) -> str:
     """A hash of everything that defines a simulation (the code of its curves included)."""
     import openwind
 
-    code = "".join(inspect.getsource(f) for f in (controls, _physics, simulate))
-
+    code = "".join(inspect.getsource(f) for f in (controls, _physics))
     blob = json.dumps([SIM_VERSION, openwind.__version__, code, dataclasses.asdict(geometry),
-                       dataclasses.asdict(playing), reed.to_mapping(), record_fs, HOLD,
+                       dataclasses.asdict(playing), reed.to_mapping(), record_fs, fs_sim, HOLD,
                        CUT_S, ATTACK_S, RELEASE_S, HUMIDITY, CO2, TEMPERATURE_C],
                       sort_keys=True, default=str)  # fmt: skip
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
@@ -249,17 +253,17 @@ def simulate(geometry: Geometry, playing: Playing, reed, record_fs: float, cache
     from openwind import TemporalSolver
     from openwind.temporal import RecordingDevice
 
-    cache.mkdir(parents=True, exist_ok=True)
-    path = (
-        cache / f"{geometry.name}_{playing.name}_{sim_key(geometry, playing, reed, record_fs)}.npz"
-    )
-    if path.exists():
-        return path
     pm, _ = controls(playing, reed.k * reed.y_m)
     reed_dict = openwind_reed(reed, lambda t: float(pm(t)))
     solver = TemporalSolver(_physics(geometry, reed_dict))
-    factor = max(2, math.ceil(1.0 / (solver.get_dt() * record_fs) - 1e-9))
+    least = math.ceil(SIM_RATE_MIN / record_fs - 1e-9)
+    factor = max(least, math.ceil(1.0 / (solver.get_dt() * record_fs) - 1e-9))
     fs_sim = factor * record_fs
+    key = sim_key(geometry, playing, reed, record_fs, fs_sim)
+    path = cache / f"{geometry.name}_{playing.name}_{key}.npz"
+    if path.exists():
+        return path
+    cache.mkdir(parents=True, exist_ok=True)
     positions = np.array(geometry.mics)
     pipe = next(tp for tp in solver.t_pipes if tp.pipe.on_main_bore and _holds(tp, positions))
     pipe.set_interp(np.asarray(pipe.pipe.get_local_x(positions), dtype=float))
