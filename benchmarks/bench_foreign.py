@@ -396,11 +396,13 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{g.name}: {g.label}; reed {reeds[g.name].k:.4g} Pa/m, y_m "
                   f"{reeds[g.name].y_m:.4g} m; calibration against OpenWInD's impedance: "
                   f"worst resonance {df:.3f} %, peak level {dl:.2f} dB")  # fmt: skip
-        sims = simulate_all(geos, plays, reeds, cache, args.jobs)
+        sims = simulate_all(geos, plays, reeds, cache, args.jobs, args.reuse)
         rates = [(r, RECORD_FS if r == "own" else None) for r in args.rates]
         specs = []
         for g in geos:
             for p in plays:
+                if (g.name, p.name) not in sims:  # --reuse: not simulated
+                    continue
                 for snr in args.snrs:
                     stem = f"{g.name}_{p.name}_{snr}"
                     seed = int(sims[g.name, p.name].stem[-6:], 16) + len(snr)
@@ -429,10 +431,13 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def simulate_all(geos, plays, reeds, cache: Path, jobs: int) -> dict:
+def simulate_all(geos, plays, reeds, cache: Path, jobs: int, only_cached: bool = False) -> dict:
+    """The cached simulation of each geometry and playing, run where missing (or left out)."""
     todo = [(g, p) for g in geos for p in plays]
     out = {}
     t0 = time.perf_counter()
+    if only_cached:
+        todo = [(g, p) for g, p in todo if fsim.cached(g, p, reeds[g.name], RECORD_FS, cache)]
     with ProcessPoolExecutor(max(1, jobs)) as pool:
         futs = {pool.submit(fsim.simulate, g, p, reeds[g.name], RECORD_FS, cache): (g, p)
                 for g, p in todo}  # fmt: skip

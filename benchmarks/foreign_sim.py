@@ -242,6 +242,26 @@ def sim_key(geometry: Geometry, playing: Playing, reed, record_fs: float, fs_sim
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
 
+def _solver(geometry: Geometry, playing: Playing, reed, record_fs: float, cache: Path):
+    """(OpenWInD's solver, p_m function, rate factor, cache path) of one simulation."""
+    from bench_openwind import openwind_reed
+    from openwind import TemporalSolver
+
+    pm, _ = controls(playing, reed.k * reed.y_m)
+    reed_dict = openwind_reed(reed, lambda t: float(pm(t)))
+    solver = TemporalSolver(_physics(geometry, reed_dict))
+    least = math.ceil(SIM_RATE_MIN / record_fs - 1e-9)
+    factor = max(least, math.ceil(1.0 / (solver.get_dt() * record_fs) - 1e-9))
+    key = sim_key(geometry, playing, reed, record_fs, factor * record_fs)
+    return solver, pm, factor, cache / f"{geometry.name}_{playing.name}_{key}.npz"
+
+
+def cached(geometry: Geometry, playing: Playing, reed, record_fs: float, cache: Path):
+    """The cached simulation's path, or None when it has not been run."""
+    path = _solver(geometry, playing, reed, record_fs, cache)[3]
+    return path if path.exists() else None
+
+
 def simulate(geometry: Geometry, playing: Playing, reed, record_fs: float, cache: Path) -> Path:
     """OpenWInD's run of one geometry and playing, cached; the ``.npz`` path.
 
@@ -249,20 +269,12 @@ def simulate(geometry: Geometry, playing: Playing, reed, record_fs: float, cache
     (n, 3), the entry pressure ``p``, flow ``u`` (positive into the bore: OpenWInD's sign
     turned), reed opening ``y`` and mouth pressure ``pm``, in SI units.
     """
-    from bench_openwind import openwind_reed
-    from openwind import TemporalSolver
     from openwind.temporal import RecordingDevice
 
-    pm, _ = controls(playing, reed.k * reed.y_m)
-    reed_dict = openwind_reed(reed, lambda t: float(pm(t)))
-    solver = TemporalSolver(_physics(geometry, reed_dict))
-    least = math.ceil(SIM_RATE_MIN / record_fs - 1e-9)
-    factor = max(least, math.ceil(1.0 / (solver.get_dt() * record_fs) - 1e-9))
-    fs_sim = factor * record_fs
-    key = sim_key(geometry, playing, reed, record_fs, fs_sim)
-    path = cache / f"{geometry.name}_{playing.name}_{key}.npz"
+    solver, pm, factor, path = _solver(geometry, playing, reed, record_fs, cache)
     if path.exists():
         return path
+    fs_sim = factor * record_fs
     cache.mkdir(parents=True, exist_ok=True)
     positions = np.array(geometry.mics)
     pipe = next(tp for tp in solver.t_pipes if tp.pipe.on_main_bore and _holds(tp, positions))
