@@ -516,7 +516,8 @@ def own_timing(rows, folder: Path, rates, workers: int, reuse: bool) -> dict:
     own = own_take(folder, duration, SNRS[snr] or 45.0, rates, workers, reuse)
     out = {}
     print(
-        f"\ninversion stage time, foreign crescendo ({snr} dB) against an own virtual "
+        f"\ninversion stage time, foreign crescendo ({'clean' if snr == 'clean' else snr + ' dB'}) "
+        "against an own virtual "
         f"crescendo of {duration:g} s (shipped bore, +45 %, 45 dB), s:"
     )
     for label, _ in rates:
@@ -526,7 +527,8 @@ def own_timing(rows, folder: Path, rates, workers: int, reuse: bool) -> dict:
         ratio = float(np.mean(foreign)) / own[label]["inversion_s"] if foreign else float("nan")
         out[label] = {"foreign_s": foreign, "own_s": own[label]["inversion_s"], "ratio": ratio}
         print(f"  rate {label}: foreign {', '.join(f'{v:.1f}' for v in foreign)}; own "
-              f"{own[label]['inversion_s']:.1f}; ratio {ratio:.2f} (target <= 1)")  # fmt: skip
+              f"{own[label]['inversion_s']:.1f}; ratio {ratio:.2f} (target <= 1; runs made at "
+              "different times on a shared machine compare their loads too)")  # fmt: skip
     return out
 
 
