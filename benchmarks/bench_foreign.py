@@ -508,27 +508,26 @@ def print_form(rows, form: dict) -> None:
 
 
 def own_timing(rows, folder: Path, rates, workers: int, reuse: bool) -> dict:
+    """Inversion time of every foreign crescendo against an own 45 dB one, per rate."""
     mine = [r for r in rows if r["playing"] == "crescendo"]
     if not mine:
         return {}
-    snr = next((s for s in ("45", "60", "clean") if any(r["snr"] == s for r in mine)), "45")
     duration = fsim.PLAYINGS["crescendo"].duration
-    own = own_take(folder, duration, SNRS[snr] or 45.0, rates, workers, reuse)
+    own = own_take(folder, duration, 45.0, rates, workers, reuse)
     out = {}
-    print(
-        f"\ninversion stage time, foreign crescendo ({'clean' if snr == 'clean' else snr + ' dB'}) "
-        "against an own virtual "
-        f"crescendo of {duration:g} s (shipped bore, +45 %, 45 dB), s:"
-    )
+    print(f"\ninversion stage time of each foreign crescendo against an own virtual crescendo "
+          f"of {duration:g} s (shipped bore, +45 %, 45 dB), s (runs made at different times "
+          "on a shared machine compare their loads too):")  # fmt: skip
     for label, _ in rates:
-        if label not in own:
+        foreign = {f"{r['geometry']} {r['snr']}": r["inversion_s"] for r in mine
+                   if r["rate"] == label}  # fmt: skip
+        if label not in own or not foreign:
             continue
-        foreign = [r["inversion_s"] for r in mine if r["rate"] == label and r["snr"] == snr]
-        ratio = float(np.mean(foreign)) / own[label]["inversion_s"] if foreign else float("nan")
+        ratio = float(np.median(list(foreign.values()))) / own[label]["inversion_s"]
         out[label] = {"foreign_s": foreign, "own_s": own[label]["inversion_s"], "ratio": ratio}
-        print(f"  rate {label}: foreign {', '.join(f'{v:.1f}' for v in foreign)}; own "
-              f"{own[label]['inversion_s']:.1f}; ratio {ratio:.2f} (target <= 1; runs made at "
-              "different times on a shared machine compare their loads too)")  # fmt: skip
+        print(f"  rate {label}: foreign " + ", ".join(f"{k} {v:.1f}" for k, v in foreign.items())
+              + f"; own {own[label]['inversion_s']:.1f}; median ratio {ratio:.2f} "
+              "(target <= 1)")  # fmt: skip
     return out
 
 
