@@ -35,6 +35,7 @@ against an own virtual take of the same length (``mpipe synth-take``, shipped ca
 from __future__ import annotations
 
 import argparse
+import html
 import json
 import re
 import subprocess
@@ -95,7 +96,7 @@ def verdict(take: Path) -> str:
     if not path.exists():
         return "?"
     m = re.search(r"\b(PASS|CHECK|FAIL)(:[^<]{0,160})?", path.read_text(errors="replace"))
-    return m.group(0).strip() if m else "?"
+    return html.unescape(m.group(0).strip()) if m else "?"
 
 
 def stage_wall(take: Path, stage: str) -> float:
