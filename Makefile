@@ -4,6 +4,9 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 TEST_STAMP := $(VENV)/.installed-test
+BENCH_STAMP := $(VENV)/.installed-bench
+# OpenWInD (GPL-3): the benchmarks' independent simulator, never a dependency of the package
+OPENWIND := openwind==0.12.4
 
 .PHONY: demo test lint bench clean
 
@@ -29,7 +32,11 @@ lint: $(TEST_STAMP)
 test: lint
 	$(BIN)/python -m pytest
 
-bench: $(TEST_STAMP)
+$(BENCH_STAMP): $(TEST_STAMP)
+	$(BIN)/python -m pip install --quiet "$(OPENWIND)"
+	touch $@
+
+bench: $(BENCH_STAMP)
 	$(BIN)/python benchmarks/run_all.py
 
 clean:

@@ -47,6 +47,7 @@ QUICK_ARGS = {
     "bench_uncertainty": ["--paths", "adaptive"],
     "bench_playing": ["--seeds", "1", "--skip-long"],
     "bench_openwind": ["--duration", "1"],
+    "bench_foreign": ["--quick"],
     "bench_segments": ["--seeds", "0"],
     "bench_dask": ["--runs", "2", "--batch", "2", "--duration", "1"],
     "bench_rate": ["--cases", "shipped", "--rates", "44100,100000", "--variants", "scheme"],

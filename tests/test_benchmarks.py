@@ -72,3 +72,35 @@ def test_a_failing_benchmark_fails_the_run(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(run_all, "HERE", tmp_path)
     assert run_all.main([]) == 1
     assert "FAILED: bench_broken (exit 3)" in capsys.readouterr().out
+
+
+def _bench_foreign():
+    sys.path.insert(0, str(BENCH))
+    spec = importlib.util.spec_from_file_location("bench_foreign", BENCH / "bench_foreign.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_foreign_suite_reads_todays_and_a_budgets_per_note_columns():
+    import pandas as pd
+
+    foreign = _bench_foreign()
+    today = pd.DataFrame(columns=["segment", "p_m_median", "p_m_median_se", "p_m_window_se"])
+    assert foreign.note_columns(today, "p_m") == ("p_m_median", "p_m_median_se")
+    budget = pd.DataFrame(columns=["segment", "p_M_note", "p_M_note_se", "p_M_median_se"])
+    assert foreign.note_columns(budget, "p_M") == ("p_M_note", "p_M_note_se")
+    assert foreign.note_columns(today, "p_M") == (None, None)
+
+
+def test_foreign_suite_quick_selection_and_bad_names():
+    foreign = _bench_foreign()
+    args = foreign.parse(["--quick"])
+    assert (args.geometries, args.snrs, args.rates) == (["cylinder"], ["45"], ["own"])
+    assert len(args.playings) == 2
+    out = subprocess.run(
+        [sys.executable, str(BENCH / "bench_foreign.py"), "--geometries", "tuba"],
+        capture_output=True,
+        text=True,
+    )
+    assert out.returncode == 2 and "--geometries: unknown tuba" in out.stderr
