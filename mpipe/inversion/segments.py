@@ -375,6 +375,13 @@ def pick_by_segment(
     return [s for s, _ in chosen], [g for _, g in chosen]
 
 
+def note_label(row) -> str:
+    """A note's label on the plots: its number, name and f0 in Hz (``"1: G#2 +8 c, 104.0 Hz"``)."""
+    f0 = float(row["f0_hz"])
+    hz = f", {f0:.1f} Hz" if math.isfinite(f0) else ""
+    return f"{int(row['segment'])}: {row['note']}{hz}"
+
+
 def plot_segments(segments: pd.DataFrame, tracks: dict, path, a4_hz: float = 440.0):
     """What was played: the level with its silence threshold, and the pitch, notes shaded.
 
@@ -387,7 +394,7 @@ def plot_segments(segments: pd.DataFrame, tracks: dict, path, a4_hz: float = 440
     path : str or Path
         PNG file (written atomically).
     a4_hz : float
-        Reference of the pitch axis, Hz.
+        A4 of the take, Hz (the segment table's note names and cents already follow it).
     """
     import matplotlib
 
@@ -400,14 +407,16 @@ def plot_segments(segments: pd.DataFrame, tracks: dict, path, a4_hz: float = 440
                  label="silence threshold")  # fmt: skip
     ax_l.set_ylabel("level [dB re 20 µPa]")
     ax_l.legend(loc="lower right", fontsize=8)
-    ax_p.plot(tracks["t_f0_s"], pitch_cents(tracks["f0_hz"], a4_hz), ".", ms=2, color="k")
-    ax_p.set_ylabel(f"pitch [cent re A4 = {a4_hz:g} Hz]")
+    # the pitch in Hz (what an acoustician compares with the bore's resonances); each note's
+    # label gives its name and its cents against A4 too
+    ax_p.plot(tracks["t_f0_s"], tracks["f0_hz"], ".", ms=2, color="k")
+    ax_p.set_ylabel("f0 [Hz]")
     ax_p.set_xlabel("time [s]")
     for _, s in segments[segments["label"] == "note"].iterrows():
         for ax in (ax_l, ax_p):
             ax.axvspan(s["start_s"], s["end_s"], color="tab:green", alpha=0.12, lw=0)
             ax.axvline(s["start_s"], color="tab:green", lw=0.6)
-        ax_p.annotate(f"{int(s['segment'])}: {s['note']}", (s["start_s"], 1.0),
+        ax_p.annotate(note_label(s), (s["start_s"], 1.0),
                       xycoords=("data", "axes fraction"), va="top", fontsize=7)  # fmt: skip
     for ax in (ax_l, ax_p):
         ax.grid(alpha=0.3)
@@ -433,6 +442,7 @@ __all__ = [
     "note_segments",
     "pick_by_segment",
     "pick_windows",
+    "note_label",
     "plot_segments",
     "reed_openings",
     "segment_summary",

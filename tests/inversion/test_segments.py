@@ -97,6 +97,20 @@ def test_the_segments_figure_is_drawn(tmp_path):
     assert plot_segments(segs, tracks, tmp_path / "s.png").stat().st_size > 10_000
 
 
+def test_a_note_is_labelled_with_its_f0_in_hz():
+    from mpipe.inversion.segments import note_label
+
+    x, _ = phrase(2)
+    _, segs = plan_take(x, FS, COND, 0.02, 0.02)
+    notes = segs[segs["label"] == "note"]
+    for _, row in notes.iterrows():
+        label = note_label(row)
+        # the label's Hz is the note's measured f0, and its name that f0's
+        assert label.endswith(f"{row['f0_hz']:.1f} Hz") and row["note"] in label
+    silent = {"segment": 3, "note": "", "f0_hz": float("nan")}
+    assert note_label(silent) == "3: "
+
+
 def test_steady_selection_keeps_the_papers_rule():
     x, _ = phrase(1)
     cond = ConditioningConfig(select="steady")
