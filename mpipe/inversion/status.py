@@ -34,7 +34,12 @@ sanity checks. Otherwise, in order of precedence:
     Both sides scale alike with the model's own misfit (which moves with the sample rate),
     so the rule does not. A window is high-residual too when its relative residual
     ``||p - p_model|| / ||p||`` exceeds ``residual_limit``: the model does not play what was
-    played (a whole note in a wrong basin has no better window to compare with).
+    played (a whole note in a wrong basin has no better window to compare with). And a
+    window is high-residual when its relative residual exceeds ``residual_factor`` x that of
+    a neighbour of its note (the window before or after it): a model mismatch changes
+    smoothly from window to window, a wrong basin does not. This catches a wrong minimum
+    whose misfit falls between the measured harmonics (the model's period differs), where
+    the split counts it as noise, and a note with too few windows for a robust level.
 
 ``status_reason`` lists every check that failed, so a window can be both not converged and
 at a bound.
@@ -223,6 +228,7 @@ def classify(table: pd.DataFrame, config: InversionConfig, segments=None) -> pd.
     reasons = [r for _, r in provisional]
     rr = _column(out, "relative_residual")
     allowed = _allowed_model_residual(out, status, config, segments)
+    neighbour = _neighbour_residual(rr, status, out, segments)
     mr, nr = _column(out, "model_residual"), _column(out, "noise_residual")
     for i, value in enumerate(rr):
         if status[i] == "failed":
@@ -239,6 +245,11 @@ def classify(table: pd.DataFrame, config: InversionConfig, segments=None) -> pd.
                 f"(max of {config.residual_factor:g} x median, median + {MAD_FACTOR:g} MAD), "
                 f"and > its noise residual {nr[i]:.3g}"
             )
+        elif value > config.residual_factor * neighbour[i]:
+            why = (
+                f"relative residual {value:.3g} > {config.residual_factor:g} x its neighbour's "
+                f"{neighbour[i]:.3g} in the note: another minimum"
+            )
         if why:
             reasons[i] = "; ".join(r for r in (reasons[i], why) if r)
             status[i] = "high-residual" if status[i] == "ok" else status[i]
@@ -251,6 +262,20 @@ def _column(table: pd.DataFrame, name: str) -> np.ndarray:
     if name not in table:
         return np.full(len(table), np.nan)
     return pd.to_numeric(table[name], errors="coerce").to_numpy(dtype=float)
+
+
+def _neighbour_residual(rr, status, table, segments) -> np.ndarray:
+    """The smaller relative residual of each window's neighbours in its note (inf: none)."""
+    if segments is None:
+        segments = table["segment"] if "segment" in table else np.zeros(len(table), dtype=int)
+    seg = pd.to_numeric(pd.Series(list(segments)), errors="coerce").fillna(-1).to_numpy()
+    usable = np.array([s != "failed" for s in status]) & np.isfinite(rr)
+    out = np.full(rr.size, np.inf)
+    for i in range(rr.size):
+        for j in (i - 1, i + 1):
+            if 0 <= j < rr.size and usable[j] and seg[j] == seg[i]:
+                out[i] = min(out[i], rr[j])
+    return out
 
 
 def _allowed_model_residual(table, status, config, segments) -> np.ndarray:

@@ -93,9 +93,13 @@ class RunData:
             out.append(("windows", ", ".join(f"{n} {s}" for s, n in counts.items()) or "none"))
         for name, table in self.tables.items():
             out.append((f"tables[{name!r}]", f"{len(table)} rows x {table.shape[1]} columns"))
+        # signals of one length on one line: a run holds a dozen, most the take's length
+        by_length: dict[str, list[str]] = {}
         for name, signal in self.signals.items():
-            length = f"{signal.shape[0]} samples" if signal.ndim else "a number"
-            out.append((f"signals[{name!r}]", f"{length} [{self.units.get(name, '')}]"))
+            length = f"{signal.shape[0]} samples" if signal.ndim else "numbers"
+            by_length.setdefault(length, []).append(f"{name} [{self.units.get(name, '')}]")
+        for length, names in by_length.items():
+            out.append((f"signals ({length})", ", ".join(names)))
         return out
 
     def __repr__(self) -> str:

@@ -143,3 +143,22 @@ def test_a_window_without_a_finite_p_m_or_p_M_se_is_not_ok():
     # p_m not searched: only p_M is asked for
     fixed = InversionConfig(free=("k", "S", "y_m", "m", "g"))
     assert list(classify(pd.DataFrame(rows), fixed)["status"]) == ["ok", "undetermined", "ok"]
+
+
+def test_a_window_far_above_its_neighbours_is_high_residual_a_smooth_mismatch_is_not():
+    # a batch test's take (three windows, light search): two windows in another minimum
+    # whose misfit falls off the harmonics (noise_residual 7x the good window's) were ok at
+    # p_m -15 %; each is 8x its neighbour's relative residual
+    config = InversionConfig()
+    rr = [0.0094, 0.0012, 0.0103]
+    table = pd.DataFrame([_row(relative_residual=r, model_residual=0.8 * r,
+                               noise_residual=0.7 * r) for r in rr])  # fmt: skip
+    out = classify(table, config)
+    assert out["status"].tolist() == ["high-residual", "ok", "high-residual"]
+    assert "neighbour" in out["status_reason"].iloc[0]
+    # a crescendo's mismatch growing smoothly 0.1 % -> 1 % over 30 windows (a foreign
+    # simulator's take), and a vibrato's swinging by 2x every 10 windows: all ok
+    for rr in (np.geomspace(0.001, 0.01, 30), 0.003 * (1.5 + 0.5 * np.sin(np.arange(40) / 1.6))):
+        table = pd.DataFrame([_row(relative_residual=r, model_residual=0.9 * r,
+                                   noise_residual=0.1 * r) for r in rr])  # fmt: skip
+        assert (classify(table, config)["status"] == "ok").all()
