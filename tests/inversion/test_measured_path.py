@@ -119,9 +119,8 @@ def test_the_error_bars_are_neither_too_wide_nor_too_narrow(results):
         truth = {**TRUTH, **combination_values(TRUTH, done.kernel.z0, done.air.rho)}
         for name in ("k", "y_m", "p_m", "p_M", "gamma"):
             x, se = ok[name].to_numpy(float), ok[f"{name}_se"].to_numpy(float)
-            se = np.sqrt(
-                se**2 - RATE_OUT * np.nan_to_num(ok[f"{name}_se_rate"].to_numpy(float)) ** 2
-            )
+            rate = np.nan_to_num(ok[f"{name}_se_rate"].to_numpy(float))
+            se = np.sqrt(se**2 - rate**2)
             z += list(np.log(x / truth[name]) / (se / x))
     rms = float(np.sqrt(np.mean(np.square(z))))
     print(f"RMS z over {len(z)} (window, quantity) pairs: {rms:.2f}")
