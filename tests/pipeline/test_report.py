@@ -209,6 +209,15 @@ def test_report_of_a_fingered_phrase_tables_and_figures(fingered_run):
             assert "\u00a0±\u00a0" in cell, cell  # every ok window carries its SE
         assert row[heads.index("pitch")].startswith(("A#2", "B2", "C3")), row
     assert "n_eff - p = -" not in text and "dof = -" not in text
+    # each note's uncertainty budget (issue 34): p_m, p_M, gamma, zeta with u_c and components
+    head = "Uncertainty budget of note"
+    budgets = [t for t in pages.tables if t["caption"].split(". ", 1)[1].startswith(head)]
+    assert len(budgets) == 2
+    for found in budgets:
+        heads_b = " ".join(found["headers"])
+        assert "u_c" in heads_b and all(c in heads_b for c in ("noise", "model", "rate"))
+        names = {r[0] for r in found["rows"] if r}
+        assert {"p_m", "p_M", "gamma", "zeta"} <= names, names
     # each note's two periods, labelled with the window's status, and the overlays
     notes = re.findall(r"<figcaption>Figure \d+\. Note (\d): two periods", text)
     assert notes == ["1", "2"]
