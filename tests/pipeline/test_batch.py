@@ -70,6 +70,12 @@ def alone(takes, tmp_path_factory):
     return folder
 
 
+def _light_search_checks(line: str) -> bool:
+    """A CHECK line of what the light search can cause: a narrow cold start, and its note."""
+    reason = line.split("CHECK: ", 1)[1]
+    return reason.startswith(("the cold start's minimum", "the model cannot play note"))
+
+
 def test_a_batch_side_by_side_gives_each_take_its_own_table(takes, alone, tmp_path, capsys):
     pipe = _pipeline(tmp_path, takes[0], 2)
     assert batch_workers(load_pipeline(pipe), len(takes)) == 2
@@ -81,16 +87,19 @@ def test_a_batch_side_by_side_gives_each_take_its_own_table(takes, alone, tmp_pa
     out = capsys.readouterr().out
     assert "4 takes:" in out and "  empty: failed" in out
     # the light search of these tests (2 short searches) may leave a cold start agreed by
-    # one: a take-level CHECK; nothing else may be
+    # one, in a wrong minimum: a take-level CHECK naming it (and the note whose windows it
+    # left not ok); nothing else may be
     checks = [line for line in out.splitlines() if "]     CHECK: " in line]
-    assert all("cold start's minimum" in line for line in checks), checks
+    assert all(_light_search_checks(line) for line in checks), "\n".join(checks)
     for t, p_m in zip(takes, PLAYERS, strict=True):
         name = t.audio.stem
         batch = _windows(tmp_path / "batch" / name)
         pd.testing.assert_frame_equal(_windows(alone / name), batch)
         assert f"[{name}] 5/6 inversion: done" in out and f"  {name}: ok;" in out
-        # each take read with its own calibration (found beside it): its p_m is right
-        assert abs(batch["p_m"].median() / p_m - 1) < 0.05, (name, batch["p_m"].median())
+        # each take read with its own calibration (found beside it): its p_m is right in the
+        # windows called ok (a wrong minimum of the light search is flagged, not ok)
+        ok = batch[batch["status"] == "ok"]
+        assert len(ok) and abs(ok["p_m"].median() / p_m - 1) < 0.05, (name, ok["p_m"].median())
     # resumable as a single run: everything skipped the second time
     code = main(["run", str(pipe), *good, "-o", str(tmp_path / "batch")])
     assert code == (1 if checks else 0)  # a CHECK is exit status 1
@@ -151,7 +160,7 @@ def test_a_batch_on_a_real_cluster_gives_each_take_its_own_table(
     out = capsys.readouterr().out
     # only the light search's cold-start CHECK may end it with exit status 1
     checks = [line for line in out.splitlines() if "]     CHECK: " in line]
-    assert all("cold start's minimum" in line for line in checks), checks
+    assert all(_light_search_checks(line) for line in checks), "\n".join(checks)
     assert code == (1 if checks else 0)
     for t in takes:
         name = t.audio.stem
