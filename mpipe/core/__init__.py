@@ -14,6 +14,8 @@ filters
     Filters shared by the measurement chain and the model comparison.
 workers
     Worker processes that end with their parent.
+cluster
+    A Dask scheduler's address checked, and whether it answers as a scheduler.
 progress
     Progress bars (tqdm) for long stages.
 """

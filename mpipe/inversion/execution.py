@@ -22,6 +22,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from mpipe import __version__
+from mpipe.core.cluster import check_scheduler, require_dask
 from mpipe.core.errors import UserError
 from mpipe.core.workers import manager as worker_manager
 from mpipe.core.workers import process_pool
@@ -35,8 +36,8 @@ from mpipe.reed.parameters import ReedParameters
 
 log = logging.getLogger(__name__)
 
-#: Time allowed to reach a Dask scheduler, s.
-CONNECT_TIMEOUT_S = 10.0
+#: Time allowed to reach a Dask scheduler and to hear its greeting, s.
+CONNECT_TIMEOUT_S = 5.0
 #: Reruns of a Dask task whose window search raised (a worker killed mid-task is rerun by
 #: the scheduler, up to its ``distributed.scheduler.allowed-failures``).
 TASK_RETRIES = 2
@@ -216,7 +217,7 @@ def _track_processes(job, groups, warm, workers, update):
 def _track_dask(job, groups, warm, executor, client, update):
     own = client is None
     if own:
-        client = connect(executor.scheduler)
+        client = connect(executor.scheduler, executor.connect_timeout_s)
     try:
         if job.checkpoint is None:
             parts = gather_in_order(client, job, groups, warm, update)
@@ -259,7 +260,7 @@ def _dask_checkpointed(client, job: Job, groups, warm, update) -> list:
     return results
 
 
-def connect(scheduler: str, timeout_s: float | None = None):
+def connect(scheduler: str, timeout_s: float | None = None, option: str = "executor.scheduler"):
     """A Dask client of ``scheduler``, or one clear line when it cannot be used.
 
     Checked before any work: the scheduler answers within ``timeout_s``, and every worker
@@ -271,7 +272,10 @@ def connect(scheduler: str, timeout_s: float | None = None):
     scheduler : str
         Address of the scheduler, e.g. ``tcp://10.0.0.5:8786``.
     timeout_s : float, optional
-        Time allowed for the connection, s (default ``CONNECT_TIMEOUT_S``).
+        Time allowed to connect and to hear the scheduler's greeting, s (default
+        ``CONNECT_TIMEOUT_S``).
+    option : str
+        The option or key that gave the address, named in the errors.
 
     Returns
     -------
@@ -280,17 +284,28 @@ def connect(scheduler: str, timeout_s: float | None = None):
     Raises
     ------
     UserError
-        When the scheduler cannot be reached or a worker runs another mpipe version.
+        When Dask is not installed, the address is malformed, the scheduler cannot be
+        reached or is not a Dask scheduler (:func:`mpipe.core.cluster.check_scheduler`),
+        or a worker runs another mpipe version.
     """
+    timeout_s = CONNECT_TIMEOUT_S if timeout_s is None else timeout_s
+    require_dask()
+    # the address, the port and the scheduler's greeting checked first: Dask's client
+    # waits minutes on a silent port and misreads an HTTP reply (issue 32)
+    address = check_scheduler(scheduler, timeout_s, option)
     from distributed import Client
 
-    timeout_s = CONNECT_TIMEOUT_S if timeout_s is None else timeout_s
     try:
-        client = Client(scheduler, timeout=f"{timeout_s:g}s", set_as_default=False)
+        client = Client(address, timeout=f"{timeout_s:g}s", set_as_default=False)
     except (OSError, TimeoutError) as exc:
         raise UserError(
-            f"executor.scheduler: cannot reach the Dask scheduler at {scheduler} within "
+            f"{option}: cannot reach the Dask scheduler at {scheduler} within "
             f"{timeout_s:g} s ({type(exc).__name__}); start it (dask scheduler) or fix the address"
+        ) from None
+    except Exception as exc:  # it greets as Dask does, but does not serve a client
+        raise UserError(
+            f"{option}: {address} greets as Dask does but is not a scheduler a client can use "
+            f"({type(exc).__name__}: {exc}); a worker's address?"
         ) from None
     try:
         versions = client.run(_mpipe_version)

@@ -11,6 +11,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Literal
 
+from mpipe.core.cluster import parse_scheduler
 from mpipe.core.config import Where, between, positive, spec
 from mpipe.core.filters import LowPass, design_lowpass
 from mpipe.inversion.conditioning_settings import ConditioningConfig as ConditioningConfig
@@ -433,10 +434,21 @@ class ExecutorConfig:
         between(0, 100000),
         default=0,
     )
+    connect_timeout_s: float = spec(
+        "s",
+        "time allowed to reach the Dask scheduler and to hear its greeting (kind: dask)",
+        between(0.1, 600.0),
+        default=5.0,
+    )
 
     def _check(self, where: Where) -> None:
         if self.kind == "dask" and not self.scheduler:
             raise where.error("scheduler", "executor kind 'dask' needs a scheduler address")
+        if self.scheduler:
+            try:
+                parse_scheduler(self.scheduler)
+            except ValueError as exc:
+                raise where.error("scheduler", f"malformed scheduler address {exc}") from None
 
 
 @dataclass(frozen=True)

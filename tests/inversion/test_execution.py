@@ -2,6 +2,7 @@
 
 import os
 import signal
+import sys
 from pathlib import Path
 
 import pandas as pd
@@ -144,6 +145,53 @@ def test_an_unreachable_scheduler_is_one_line_before_any_work(tmp_path, monkeypa
     assert main(["run", str(pipe), str(take_file), "-o", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and address in err[0] and "cannot reach" in err[0], err
+    assert not list((tmp_path / "out").rglob("*.*"))  # no work done, not even a lock
+
+
+def _run_on(tmp_path, executor: str) -> tuple[int, float]:
+    """``mpipe run`` with ``executor`` (a YAML flow mapping): exit status, start time."""
+    import time
+
+    from mpipe.cli.main import main
+
+    pipe = tmp_path / "pipe.yaml"
+    cal = ROOT / "calibration" / "simplified_clarinet.yaml"
+    pipe.write_text(f"calibration: {cal}\nexecutor: {executor}\n")
+    take_file = tmp_path / "take.wav"
+    take_file.write_bytes(b"")  # never read: the scheduler is checked first
+    t0 = time.perf_counter()
+    status = main(["run", str(pipe), str(take_file), "-o", str(tmp_path / "out")])
+    return status, t0
+
+
+@pytest.mark.parametrize(
+    ("case", "expected"),
+    [
+        ("http", "not a Dask scheduler: it sent nothing within 0.5 s"),
+        ("malformed", "executor.scheduler: malformed scheduler address 'tcp://10.0.0.5'"),
+        ("missing", "executor.kind: dask needs Dask's distributed package"),
+    ],
+)
+def test_a_scheduler_that_cannot_serve_is_one_line_and_exit_2(
+    case, expected, tmp_path, monkeypatch, capsys
+):
+    import time
+
+    from tests.core.test_cluster import http_server
+
+    with http_server() as address:
+        if case == "malformed":
+            address = "tcp://10.0.0.5"
+        if case == "missing":
+            monkeypatch.setitem(sys.modules, "distributed", None)  # as if not installed
+        status, t0 = _run_on(
+            tmp_path, f"{{kind: dask, scheduler: '{address}', connect_timeout_s: 0.5}}"
+        )
+        wall = time.perf_counter() - t0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1 and expected in err[0], err
+    assert case in ("malformed", "missing") or address in err[0]
+    assert wall < 5.0  # not Dask's minutes
     assert not list((tmp_path / "out").rglob("*.*"))  # no work done, not even a lock
 
 

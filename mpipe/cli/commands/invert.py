@@ -227,7 +227,7 @@ def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
         )
     client = None
     if cfg.executor.kind == "dask":  # an unreachable scheduler: one line before any work
-        client = connect(cfg.executor.scheduler)
+        client = connect(cfg.executor.scheduler, cfg.executor.connect_timeout_s)
     bar = ProgressBar(len(starts))
     try:
         take = invert_take(p, u, fs, cal, inv, cfg.executor, windows=WindowPlan.of(chosen),

@@ -159,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
     if cfg.executor.kind == "dask":
         # one client for every take of this call: the takes share the cluster; an
         # unreachable scheduler is one line (exit 2) before any work
-        client = connect(cfg.executor.scheduler)
+        client = connect(cfg.executor.scheduler, cfg.executor.connect_timeout_s)
     failed, checked = [], []
     outcomes = []
     try:
