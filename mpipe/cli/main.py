@@ -31,6 +31,7 @@ COMMANDS = (
     "separate",
     "invert",
     "run",
+    "session",
 )
 
 
