@@ -9,6 +9,12 @@ settings
     The pipeline file: which calibration, and every stage's settings.
 orchestration
     ``mpipe run``: every stage over one or more takes, resumable.
+batch
+    Several takes side by side, each take's stages on a worker of its own.
+session
+    A recording session's file: its takes, each with its calibration and fingering.
+session_table
+    A session's tables: one row per note per take, one row per take.
 manifest
     What a finished stage used and produced (input hashes), so a run can resume.
 report
