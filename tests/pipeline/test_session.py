@@ -99,9 +99,7 @@ def test_a_session_resolves_each_takes_calibration_and_fingering(folder):
          r"takes\[0\] \(\.\./up\): name: '\.\./up' cannot be a folder name"),
     ],
 )  # fmt: skip
-def test_a_bad_session_file_is_one_line_naming_file_take_and_key(
-    folder, text, expected, capsys
-):
+def test_a_bad_session_file_is_one_line_naming_file_take_and_key(folder, text, expected, capsys):
     path = _write(folder, text)
     with pytest.raises(UserError, match=expected):
         load_session(path)
@@ -180,8 +178,11 @@ def resumed(session):
         assert main(["session", str(path), "-o", str(out), "--workers", "1"]) == 130
     finally:
         mp.undo()
-    killed = {"said": said, "tables": (out / "session.csv").exists(),
-              "resynthesis": (out / "open_h4" / "resynthesis" / "manifest.json").exists()}  # fmt: skip
+    killed = {
+        "said": said,
+        "tables": (out / "session.csv").exists(),
+        "resynthesis": (out / "open_h4" / "resynthesis" / "manifest.json").exists(),
+    }
     said_again = []
     mp.setattr(session_command, "write", said_again.append)
     try:
