@@ -119,6 +119,31 @@ def test_a_calibration_other_than_the_takes_own_is_refused(folder):
         load_session(path)
 
 
+@pytest.mark.parametrize(
+    ("option", "expected"),
+    [
+        (["--scheduler", "tcp://10.0.0.5"], "--scheduler: malformed scheduler address"),
+        (["--scheduler", "HTTP"], "--scheduler: tcp://127.0.0.1:"),
+        (["--workers", "0"], "--workers: expected a number in 1-4096, got 0"),
+    ],
+)
+def test_where_the_takes_run_is_checked_before_any_work(folder, option, expected, capsys):
+    from tests.core.test_cluster import http_server
+
+    pipe = folder / "pipeline.yaml"
+    data = yaml.safe_load(pipe.read_text())
+    data["executor"]["connect_timeout_s"] = 0.5
+    pipe.write_text(yaml.safe_dump(data))
+    path = _write(folder, "pipeline: pipeline.yaml\ntakes: [a.wav]\n")
+    with http_server() as address:
+        argv = [a.replace("HTTP", address) for a in option]
+        assert main(["session", str(path), "-o", str(folder / "out"), *argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and expected in err[0], err
+    assert option[1] != "HTTP" or "not a Dask scheduler: it sent nothing" in err[0]
+    assert not (folder / "out").exists()
+
+
 def test_a_notes_verdict():
     row = {"segment": 2, "windows": 4, "ok_windows": 4}
     assert note_verdict(row, "pass", [])[0] == "PASS"
