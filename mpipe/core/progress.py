@@ -86,6 +86,10 @@ class ProgressBar:
         """Count ``n`` more items and redraw."""
         self._bar.update(n)
 
+    def describe(self, desc: str) -> None:
+        """Change the label in front of the bar (e.g. to the item under way) and redraw."""
+        self._bar.set_description_str(desc)
+
     def close(self) -> None:
         """Finish the bar."""
         self._bar.close()

@@ -134,6 +134,7 @@ def _one_after_another(cfgs, cals, takes, names, out, force, client, say, accept
     try:
         for t, name, cal, cfg in zip(takes, names, cals, cfgs, strict=True):
             t0 = time.perf_counter()
+            bar.describe(f"takes ({name})")
             with _take_scope(name):
                 try:
                     result = run_take(cfg, cal, t, out, force, client, say, accept, name)
@@ -151,8 +152,8 @@ def _take_scope(name: str) -> Iterator[None]:
 
     One BLAS thread: the harmonic fits of the uncertainty budget solve (4800, 61) least
     squares; a threaded BLAS on a machine whose cores are taken (the other takes, other
-    users) took 1.35 s a solve against 0.02 s on one thread (measured on the 2-core
-    development machine at load 20; a take's inversion 374 s against 25 s).
+    users) took 1.35 s a solve against 0.02 s on one thread (measured on the shared 2-core
+    development machine; a 0.62 s take's inversion stage 374 s against 25 s).
     """
     with (
         contextlib.redirect_stderr(_NotATerminal(sys.stderr)),

@@ -86,3 +86,12 @@ def test_log_records_carry_the_prefix_of_their_own_thread(caplog):
         mine = [m for m in messages if m.endswith(f"of {name}")]
         assert len(mine) == 20 and all(m.startswith(f"[{name}] window ") for m in mine)
     assert messages[-1] == "after the batch"
+
+
+def test_a_bar_names_the_item_under_way():
+    shown = io.StringIO()
+    bar = ProgressBar(3, stream=shown, force=True, desc="takes", unit="take")
+    bar.describe("takes (scale_p)")
+    bar.update()
+    assert "takes (scale_p)" in bar.text() and "1/3" in bar.text()
+    bar.close()
