@@ -16,7 +16,9 @@
    level near that end (its first and last periodic frames), so a quiet note keeps its
    own edges and breath noise around a note is left out; and it ends where its level
    falls for good ``edge_db`` below its level over the 50 ms before (a room's
-   reverberation after a note is periodic too, but decays from well below it);
+   reverberation after a note is periodic too, but decays from well below it; a sound at
+   the note's pitch, ``edge_db`` below it, starting within 0.15 s of its end, is its
+   echo, not a note);
 4. pitch steps (:func:`pitch_cuts`): inside a note, the median pitch over ``25 ms`` before
    and after each frame, taken ``glide_s / 2`` plus half an f0 frame away from it, differ
    by more than ``pitch_jump_cents``: a legato change of note (instantaneous, or glided
@@ -27,7 +29,7 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.ndimage import maximum_filter1d
+from scipy.ndimage import maximum_filter1d, median_filter
 
 #: Length of the span whose median pitch is compared on each side of a frame, s.
 SIDE_S = 0.025
@@ -35,6 +37,12 @@ SIDE_S = 0.025
 PEAK_FRACTION = 0.8
 #: Span over which a note's level is remembered when looking for its final decay, s.
 DROP_S = 0.05
+#: Span past a note's first periodic frame (before its last) that gives its own level, s.
+REF_S = 0.2
+#: Span over which the level after a note's decay is smoothed before looking for a rise, s.
+RIPPLE_S = 0.02
+#: Longest delay after a note within which a softer sound at its pitch is its echo, s.
+ECHO_S = 0.15
 
 
 def level_envelope(p: np.ndarray, fs: float, frame_s: float, step_s: float = 1e-3):
@@ -93,16 +101,25 @@ def _valleys(level: np.ndarray, depth: float, shortest: int) -> list[tuple[int, 
 
 
 def _trim(a: int, b: int, level, t, periodic_t, frame_s: float, depth: float):
-    """A stretch ``[a, b)`` of the level narrowed to its note's edges, or None (no note)."""
+    """A stretch ``[a, b)`` of the level narrowed to its first note's edges, or None (no note).
+
+    The note lies within half an f0 frame of its periodic frames (a blowing pressure's rise
+    before the oscillation grows is not yet the note), where its level is within ``depth``
+    of its own level near each end, and ends where its level falls for good.
+    """
     inside = periodic_t[(periodic_t >= t[a]) & (periodic_t < t[b - 1])]
     if inside.size < 2:
         return None
+    first = max(a, int(np.searchsorted(t, inside[0] - frame_s / 2)))
+    last = min(b, int(np.searchsorted(t, inside[-1] + frame_s / 2)))
     ends = []
     for centre, side in ((inside[0], 1), (inside[-1], -1)):
-        near = (t >= centre - frame_s / 2) & (t <= centre + frame_s / 2)
+        # the note's own level past its attack (before its release): its first (last) REF_S
+        lo, hi = sorted((centre, centre + side * REF_S))
+        near = (t >= max(lo, inside[0])) & (t <= min(hi, inside[-1]))
         ref = float(np.percentile(level[near], 90)) if near.any() else 0.0
-        loud = np.flatnonzero(level[a:b] >= depth * ref)
-        ends.append(a + (loud[0] if side > 0 else loud[-1] + 1) if loud.size else None)
+        loud = np.flatnonzero(level[first:last] >= depth * ref)
+        ends.append(first + (loud[0] if side > 0 else loud[-1] + 1) if loud.size else None)
     if ends[0] is None or ends[1] is None or ends[1] <= ends[0]:
         return None
     return ends[0], _decay_start(level, ends[0], ends[1], t, depth)
@@ -164,17 +181,50 @@ def note_spans(t, level, threshold, centres, f0, frame_s, conditioning, duration
             *[x for v in _valleys(level[a:b], depth, shortest) for x in (a + v[0], a + v[1])],
             b,
         ]
-        for a1, b1 in zip(cuts[::2], cuts[1::2], strict=True):
-            if b1 - a1 < 2:
+        pieces = list(zip(cuts[::2], cuts[1::2], strict=True))
+        while pieces:
+            a1, b1 = pieces.pop(0)
+            kept = _trim(a1, b1, level, t, periodic_t, frame_s, depth) if b1 - a1 > 1 else None
+            if kept is None:
                 continue
-            kept = _trim(a1, b1, level, t, periodic_t, frame_s, depth)
-            if kept is None or (kept[1] - kept[0]) * step < c.min_note_s:
+            if kept[1] < b1:  # after the note's decay, from its lowest point, another may
+                # sound: where the level rises again by edge_db (a decay's ripple does not;
+                # smoothed over RIPPLE_S, as two decays interfering make deep short notches)
+                tail = median_filter(level[kept[1] : b1], max(int(RIPPLE_S / step), 1))
+                low = int(np.argmin(tail))
+                if tail[low:].max() * np.sqrt(depth) >= tail[low]:
+                    pieces.insert(0, (kept[1] + low, b1))
+            if (kept[1] - kept[0]) * step >= c.min_note_s:
+                end = t[-1] + step if duration is None else duration
+                last = end if kept[1] == level.size else float(t[kept[1] - 1] + step)
+                spans.append((float(t[kept[0]]), last))
+    return _without_echoes(spans, t, level, centres, f0, depth, c.pitch_jump_cents)
+
+
+def _without_echoes(spans, t, level, centres, f0, depth: float, jump: float):
+    """The spans less those that are the reverberation of the note before them.
+
+    An echo: it starts within :data:`ECHO_S` of that note's end, stays ``depth`` below that
+    note's level (90th percentile) and plays its pitch (within ``jump`` cents).
+    """
+
+    def loudness(a, b):
+        sel = level[(t >= a) & (t < b)]
+        return (float(np.max(sel)), float(np.percentile(sel, 90))) if sel.size else (0.0, 0.0)
+
+    def pitch(a, b):
+        sel = f0[(centres >= a) & (centres < b) & np.isfinite(f0)]
+        return float(np.median(sel)) if sel.size else np.nan
+
+    out = []
+    for a, b in spans:
+        if out:
+            a0, b0 = out[-1]
+            close = a - b0 < ECHO_S and loudness(a, b)[0] < depth * loudness(a0, b0)[1]
+            if close and abs(1200 * np.log2(pitch(a, b) / pitch(a0, b0))) < jump:
                 continue
-            end = t[-1] + step if duration is None else duration
-            spans.append(
-                (float(t[kept[0]]), end if kept[1] == level.size else float(t[kept[1] - 1] + step))
-            )
-    return spans
+        out.append((a, b))
+    return out
 
 
 def _side_medians(times, cents, gap: float, side: float):
@@ -218,6 +268,28 @@ def pitch_cuts(start, end, centres, cents, frame_s, conditioning) -> list[float]
         last = cuts[-1] if cuts else start
         if cut - last >= c.min_note_s and end - cut >= c.min_note_s:
             cuts.append(cut)
+    return _distinct(start, end, cuts, times, track, c.pitch_jump_cents)
+
+
+def _distinct(start, end, cuts, times, track, jump: float) -> list[float]:
+    """The cuts whose two segments differ in median pitch by more than ``jump`` (cent).
+
+    A noisy f0 track (a soft note in breath noise) can step for a moment; the notes on
+    either side of a real step differ as wholes.
+    """
+    cuts = list(cuts)
+    changed = True
+    while changed and cuts:
+        changed = False
+        edges = [start, *cuts, end]
+        medians = [np.nanmedian(track[(times >= a) & (times < b)]) if np.isfinite(
+            track[(times >= a) & (times < b)]).any() else np.nan
+            for a, b in zip(edges[:-1], edges[1:], strict=True)]  # fmt: skip
+        for i, cut in enumerate(cuts):
+            if not abs(medians[i + 1] - medians[i]) > jump:
+                cuts.remove(cut)
+                changed = True
+                break
     return cuts
 
 
