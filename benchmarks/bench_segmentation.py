@@ -208,7 +208,8 @@ def openwind_cases(cache: Path) -> list[Case]:
         path = simulate_openwind(name, kind, planned, cache)
         sim = np.load(path)
         p = sim["p"]
-        out.append(Case(f"openwind {name}", "openwind", p, notes_fn(p, planned)))
+        spans = [(a, b) for a, b, _ in planned]
+        out.append(Case(f"openwind {name}", "openwind", p, notes_fn(p, spans)))
     return out
 
 

@@ -188,8 +188,8 @@ def note_spans(t, level, threshold, centres, f0, frame_s, conditioning, duration
             if kept is None:
                 continue
             if kept[1] < b1:  # after the note's decay, from its lowest point, another may
-                # sound: where the level rises again by edge_db (a decay's ripple does not;
-                # smoothed over RIPPLE_S, as two decays interfering make deep short notches)
+                # sound: where the level rises again by edge_db / 2 (a decay's ripple does
+                # not; smoothed over RIPPLE_S, as two decays interfering make deep notches)
                 tail = median_filter(level[kept[1] : b1], max(int(RIPPLE_S / step), 1))
                 low = int(np.argmin(tail))
                 if tail[low:].max() * np.sqrt(depth) >= tail[low]:
@@ -199,6 +199,12 @@ def note_spans(t, level, threshold, centres, f0, frame_s, conditioning, duration
                 last = end if kept[1] == level.size else float(t[kept[1] - 1] + step)
                 spans.append((float(t[kept[0]]), last))
     return _without_echoes(spans, t, level, centres, f0, depth, c.pitch_jump_cents)
+
+
+def _median_f0(centres, f0, a: float, b: float) -> float:
+    """Median f0 (Hz) of the periodic frames centred in ``[a, b]`` (NaN without one)."""
+    sel = f0[(centres >= a) & (centres <= b) & np.isfinite(f0)]
+    return float(np.median(sel)) if sel.size else np.nan
 
 
 def _without_echoes(spans, t, level, centres, f0, depth: float, jump: float):
@@ -212,16 +218,13 @@ def _without_echoes(spans, t, level, centres, f0, depth: float, jump: float):
         sel = level[(t >= a) & (t < b)]
         return (float(np.max(sel)), float(np.percentile(sel, 90))) if sel.size else (0.0, 0.0)
 
-    def pitch(a, b):
-        sel = f0[(centres >= a) & (centres < b) & np.isfinite(f0)]
-        return float(np.median(sel)) if sel.size else np.nan
-
     out = []
     for a, b in spans:
         if out:
             a0, b0 = out[-1]
             close = a - b0 < ECHO_S and loudness(a, b)[0] < depth * loudness(a0, b0)[1]
-            if close and abs(1200 * np.log2(pitch(a, b) / pitch(a0, b0))) < jump:
+            pitch, pitch0 = _median_f0(centres, f0, a, b), _median_f0(centres, f0, a0, b0)
+            if close and abs(1200 * np.log2(pitch / pitch0)) < jump:
                 continue
         out.append((a, b))
     return out
