@@ -1,7 +1,7 @@
 """The segmentation test set: notes found within 30 ms on takes that are not only mpipe's own.
 
 Run: ``.venv/bin/python benchmarks/bench_segmentation.py [--seeds 2] [--no-openwind]
-[--cache DIR]`` (about a minute; the OpenWInD takes are simulated once, about 3 minutes on a
+[--cache DIR]`` (about a minute; the OpenWInD takes are simulated once, about 13 minutes on a
 loaded 2-core machine, and cached under ``benchmarks/.cache/segmentation/``).
 
 Every case is a mouthpiece pressure with its notes known from how it was made, run through
