@@ -49,6 +49,8 @@ QUICK_ARGS = {
     "bench_openwind": ["--duration", "1"],
     "bench_foreign": ["--quick"],
     "bench_segments": ["--seeds", "0"],
+    "bench_segmentation": [],  # its OpenWInD takes: about 13 min once, then cached
+    "bench_hole_corrections": [],
     "bench_dask": ["--runs", "2", "--batch", "2", "--duration", "1"],
     "bench_session": ["--takes", "4"],
     "bench_rate": ["--cases", "shipped", "--rates", "44100,100000", "--variants", "scheme"],

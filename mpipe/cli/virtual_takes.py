@@ -324,7 +324,7 @@ def played_truth(run, step_s: float) -> dict[str, np.ndarray]:
 
 #: Oscillation below which a note is silent, Pa rms: the default ``conditioning.min_rms_pa``,
 #: under which the pipeline calls a window silent.
-SILENT_RMS_PA = 50.0
+SILENT_RMS_PA = 10.0
 
 
 def silent_notes(run) -> list[str]:

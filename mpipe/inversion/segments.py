@@ -1,19 +1,12 @@
 """A take split into notes and silences, from the mouthpiece pressure alone.
 
 A player's take is a phrase: notes with attacks and releases, silences between them,
-sometimes a squeak or a change of register. :func:`segment_take` finds them from two
-tracks of the mouthpiece pressure (settings in ``conditioning``, docs/playing.md):
-
-1. the level: a moving RMS over ``level_frame_s`` every millisecond. A sample is sounding
-   where the level is at least ``silence_db`` below the take's loud level (the 99th
-   percentile of the envelope) and at least ``min_rms_pa``. Silences shorter than
-   ``min_silence_s`` do not split a note; sounding stretches shorter than ``min_note_s``
-   are not notes;
-2. the playing frequency: YIN (:func:`mpipe.measurement.pitch.yin_f0`) over frames two
-   periods of ``f0_min_hz`` long, every ``frame_hop_s``, median-smoothed over 25 ms. Within
-   a sounding stretch, an f0 change of more than ``pitch_jump_cents`` within 10 ms starts a
-   new segment: a note played legato, a register change, a squeak (a change of regime
-   always moves the playing frequency by far more than a vibrato does).
+sometimes a squeak or a change of register. :func:`segment_take` finds them from the
+level and the playing frequency (YIN, :func:`mpipe.measurement.pitch.f0_track`, over
+frames 2.2 periods of ``f0_min_hz`` long every ``frame_hop_s``) of the mouthpiece
+pressure: notes from the level, its valleys and the periodic frames, and new notes inside
+them where the pitch steps (:mod:`mpipe.inversion.boundaries`; settings in
+``conditioning``, docs/playing.md).
 
 Every segment gets its label (``note`` or ``silence``), its playing frequency (median over
 its frames), pitch in cents against ``a4_hz``, nearest note, regime (from the bore's
@@ -29,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from mpipe.core.io import write_atomic
+from mpipe.inversion.boundaries import level_envelope, level_threshold, note_spans, pitch_cuts
 from mpipe.inversion.notes import note_summary
 from mpipe.inversion.settings import PARAMETER_NAMES
 from mpipe.measurement.pitch import f0_track, note_name, pitch_cents, regime
@@ -40,8 +34,6 @@ P_REF_PA = 20e-6
 #: Columns of :func:`segment_take`'s table.
 SEGMENT_COLUMNS = ("segment", "start_s", "end_s", "label", "duration_s", "f0_hz",
                    "pitch_cents", "note", "regime", "rms_pa", "spl_db")  # fmt: skip
-_SMOOTH_S = 0.025
-_JUMP_S = 0.01
 
 
 def spl_db(rms_pa):
@@ -49,75 +41,6 @@ def spl_db(rms_pa):
     with np.errstate(divide="ignore"):
         out = 20.0 * np.log10(np.asarray(rms_pa, dtype=float) / P_REF_PA)
     return float(out) if out.ndim == 0 else out
-
-
-def level_envelope(p: np.ndarray, fs: float, frame_s: float, step_s: float = 1e-3):
-    """Centred moving RMS of ``p`` (mean removed) every ``step_s``: times (s), RMS (Pa)."""
-    x = np.asarray(p, dtype=float)
-    x = x - x.mean()
-    half = max(int(round(frame_s * fs / 2)), 1)
-    e = np.concatenate([[0.0], np.cumsum(x * x)])
-    centres = np.arange(0, x.size, max(int(round(step_s * fs)), 1))
-    lo = np.clip(centres - half, 0, x.size)
-    hi = np.clip(centres + half, 0, x.size)
-    rms = np.sqrt(np.maximum(e[hi] - e[lo], 0.0) / np.maximum(hi - lo, 1))
-    return centres / fs, rms
-
-
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """``(first, last + 1)`` of every run of True."""
-    edges = np.diff(np.concatenate([[0], mask.astype(int), [0]]))
-    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True))
-
-
-def sounding_runs(
-    t: np.ndarray, level: np.ndarray, threshold: float, conditioning, duration: float | None = None
-):
-    """Sounding stretches ``(start s, end s)`` of a level envelope, gaps and blips removed.
-
-    A stretch still sounding at the last sample ends at ``duration`` (s; default the last
-    envelope time plus one step).
-    """
-    c = conditioning
-    step = float(t[1] - t[0]) if t.size > 1 else 1e-3
-    mask = level >= threshold
-    for a, b in _runs(~mask):  # short silences inside a note do not split it
-        if a > 0 and b < mask.size and (b - a) * step < c.min_silence_s:
-            mask[a:b] = True
-    last = t[-1] + step if duration is None else duration
-    return [
-        (t[a], last if b == mask.size else t[b - 1] + step)
-        for a, b in _runs(mask)
-        if (b - a) * step >= c.min_note_s
-    ]
-
-
-def _split_on_pitch(start: float, end: float, centres, cents, conditioning) -> list[float]:
-    """Times inside ``[start, end]`` where the smoothed pitch jumps (new segments start)."""
-    c = conditioning
-    inside = (centres >= start) & (centres <= end)
-    if inside.sum() < 3:
-        return []
-    hop = float(centres[1] - centres[0])
-    width = max(int(round(_SMOOTH_S / hop)) | 1, 3)
-    smooth = pd.Series(cents[inside]).rolling(width, center=True, min_periods=1).median()
-    smooth = smooth.to_numpy()
-    lag = max(int(round(_JUMP_S / hop)), 1)
-    times = centres[inside]
-    cuts, ref = [], np.nan
-    for i in range(lag, smooth.size):
-        ref = smooth[i - lag] if np.isfinite(smooth[i - lag]) else ref
-        if (
-            np.isfinite(smooth[i])
-            and np.isfinite(ref)
-            and abs(smooth[i] - ref) > c.pitch_jump_cents
-        ):
-            cut = float(times[i - lag // 2])
-            last = cuts[-1] if cuts else start
-            if cut - last >= c.min_note_s and end - cut >= c.min_note_s:
-                cuts.append(cut)
-            ref = smooth[i]
-    return cuts
 
 
 def segment_take(
@@ -135,8 +58,9 @@ def segment_take(
     fs : float
         Sample rate, Hz.
     conditioning : mpipe.inversion.settings.ConditioningConfig
-        Thresholds (``silence_db``, ``min_rms_pa``, ``min_silence_s``, ``min_note_s``,
-        ``pitch_jump_cents``, ``frame_hop_s``, ``level_frame_s``, ``f0_min_hz``,
+        Thresholds (``silence_db``, ``noise_margin_db``, ``edge_db``, ``min_rms_pa``,
+        ``min_silence_s``, ``min_note_s``, ``pitch_jump_cents``, ``glide_s``,
+        ``frame_hop_s``, ``level_frame_s``, ``f0_min_hz``,
         ``f0_max_hz``, ``a4_hz``).
     resonances_hz : sequence of float
         The bore's input-impedance peaks, Hz (for the regime; empty: regime "").
@@ -152,17 +76,16 @@ def segment_take(
     p = np.asarray(p, dtype=float)
     duration = p.size / fs
     t_lev, level = level_envelope(p, fs, c.level_frame_s)
-    loud = float(np.percentile(level, 99)) if level.size else 0.0
-    threshold = max(c.min_rms_pa, loud * 10 ** (-c.silence_db / 20))
     frame = max(2.2 / c.f0_min_hz, 0.02)
     centres, f0, _ = f0_track(p, fs, frame, c.frame_hop_s, c.f0_min_hz, c.f0_max_hz)
     cents = pitch_cents(f0, c.a4_hz) if f0.size else np.array([])
+    threshold = level_threshold(t_lev, level, centres, f0, c)
     bounds: list[tuple[float, float, str]] = []
     edge = 0.0
-    for start, end in sounding_runs(t_lev, level, threshold, c, duration):
+    for start, end in note_spans(t_lev, level, threshold, centres, f0, frame, c, duration):
         if start > edge:
             bounds.append((edge, start, "silence"))
-        cuts = _split_on_pitch(start, end, centres, cents, c) if centres.size > 3 else []
+        cuts = pitch_cuts(start, end, centres, cents, frame, c)
         for a, b in zip([start, *cuts], [*cuts, end], strict=True):
             bounds.append((a, b, "note"))
         edge = end
@@ -447,7 +370,6 @@ __all__ = [
     "reed_openings",
     "segment_summary",
     "segment_take",
-    "sounding_runs",
     "spl_db",
     "window_count",
     "with_played",

@@ -22,7 +22,8 @@ Readers for the common text layouts:
 - a header row naming the columns (spreadsheet exports and pympedance-style CSV files):
   names such as ``f``, ``freq``, ``re``, ``real``, ``im``, ``imag``, ``-im``, ``mag``,
   ``abs``, ``phase``, ``phase_deg``; ``Z/Zc``, ``norm``, ``Pa`` or ``ohm`` in a name declare
-  the normalisation.
+  the normalisation, and a ``zc`` column beside Z (``mpipe impedance --csv``'s
+  ``frequency_hz, z_real, z_imag, zc``) declares Z absolute, in Pa s/m^3.
 
 Whatever the declaration, the data are checked against physics: a passive impedance has
 Re Z >= 0, and under e^{+jwt} the phase of an input impedance falls through each peak of
@@ -176,9 +177,16 @@ _NAMES = {
 }
 
 
+#: Names of a column holding the characteristic impedance Zc (Pa s/m^3) beside Z, as
+#: ``mpipe impedance --csv`` writes it: not read, but it says Z is absolute.
+_ZC_NAMES = ("zc", "z_c", "z0", "zc_pa_s_m3")
+
+
 def _column_kind(name: str) -> str | None:
     """Kind of a header name; None when it cannot be told (e.g. a bare ``phase``)."""
     key = re.sub(r"\[.*?\]|\(.*?\)", "", name.strip().lower()).strip().replace(" ", "_")
+    if key in _ZC_NAMES:
+        return "ignore"
     key = key.replace("/zc", "").replace("_norm", "").replace("normalised_", "").strip("_")
     for kind, names in _NAMES.items():
         if key in names:
@@ -320,7 +328,8 @@ def _layout_from_names(path: Path, names: list[str], layout: dict) -> None:
             "columns: in a header or --columns"
         )
     layout["columns"] = kinds
-    guess = _normalisation_from_names(names)
+    zc_given = any(n.strip().lower() in _ZC_NAMES for n in names)
+    guess = _normalisation_from_names(names) or ("Pa s/m^3" if zc_given else None)
     if guess and "normalisation" not in layout:
         layout["normalisation"] = guess
 

@@ -420,6 +420,8 @@ def run_take_unlocked(
             cal_inputs[f"mic_calibration_{mic.name}"] = path
 
     redone = False
+    if cal.bore.measured_input is not None:  # not the geometry's theory: say so, and its fit
+        say(f"[{name}]     {bore_description(cal)}")
 
     def stage(i: int, key: str, inputs: dict, config, work) -> StageRecord:
         nonlocal redone

@@ -133,3 +133,28 @@ def test_the_impedance_table_of_a_measured_bore_has_no_noise_peaks(measured):
     assert len(noisy) == len(theory) == 6
     for a, b in zip(noisy, theory, strict=True):
         assert abs(1200 * np.log2(a.frequency_hz / b.frequency_hz)) < 5.0
+
+
+def test_mpipes_own_impedance_export_round_trips_as_a_measurement(tmp_path, capsys):
+    # `mpipe impedance --csv` (frequency_hz, z_real, z_imag, zc in Pa s/m^3) read back: as a
+    # file to compare (no difference to theory) and as a measured bore (its equivalent bore
+    # is the geometry's own length, resonances within a cent)
+    from mpipe.cli.main import main
+
+    export = tmp_path / "z.csv"
+    assert main(["impedance", str(SHIPPED), "--fmin", "40", "--fmax", "3000", "--df", "1",
+                 "--csv", str(export)]) == 0  # fmt: skip
+    assert main(["impedance", str(SHIPPED), "--measured", str(export), "--fmax", "3000"]) == 0
+    out = capsys.readouterr().out
+    assert "read as Pa s/m^3" in out and "band error 0.00 dB" in out
+    data = yaml.safe_load(SHIPPED.read_text())
+    data["bore"]["measured"] = "z.csv"
+    for mic in data.get("microphones", []):
+        mic.pop("calibration", None)  # the shipped tables are beside the shipped file
+    (tmp_path / "m.yaml").write_text(yaml.safe_dump(data))
+    cal = load_calibration(tmp_path / "m.yaml")
+    m = cal.bore.measured_input
+    assert m.equivalent_length == pytest.approx(cal.bore.length, abs=2e-4)
+    assert m.misfit_cents < 1.0 and m.misfit_rms_db < 0.1
+    line = bore_description(cal)
+    assert "the bore is measured" in line and "dB rms" in line and "cents" in line

@@ -389,3 +389,23 @@ def test_a_flow_in_the_wrong_unit_is_refused_in_one_line(
     err = capsys.readouterr().err.strip()
     assert code == 2 and not (tmp_path / "i" / "windows.csv").exists()
     assert "implausible" in err and "m^3/s expected" in err and len(err.splitlines()) == 1, err
+
+
+def test_run_says_at_once_that_the_bore_is_measured_and_how_its_extension_fits(tmp_path):
+    from mpipe.core.errors import UserError
+
+    cal = ROOT / "calibration" / "simplified_clarinet.yaml"
+    assert main(["impedance", str(cal), "--fmin", "40", "--fmax", "3000", "--df", "1",
+                 "--csv", str(tmp_path / "z.csv")]) == 0  # fmt: skip
+    data = yaml.safe_load(cal.read_text())
+    data["bore"]["measured"] = "z.csv"
+    for mic in data.get("microphones", []):
+        mic.pop("calibration", None)
+    (tmp_path / "m.yaml").write_text(yaml.safe_dump(data))
+    said: list[str] = []
+    cfg = load_pipeline(ROOT / "pipelines" / "simplified_clarinet.yaml")
+    with pytest.raises((UserError, FileNotFoundError)):  # no take: stops at the first stage
+        run_take(cfg, tmp_path / "m.yaml", [tmp_path / "none.flac"], tmp_path / "out",
+                 say=said.append)  # fmt: skip
+    line = next(s for s in said if "the bore is measured" in s)
+    assert "misfit is" in line and "dB rms" in line and "cents" in line

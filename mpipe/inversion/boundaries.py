@@ -1,0 +1,299 @@
+"""Where notes start and end in the mouthpiece pressure: level, valleys, periodicity, pitch steps.
+
+:func:`note_spans` places a take's notes from two tracks of the pressure (settings in
+``conditioning``, docs/playing.md):
+
+1. the level: a centred moving RMS over ``level_frame_s`` every millisecond
+   (:func:`level_envelope`). A stretch can sound where the level is above a threshold: the
+   take's loud level (99th percentile) less ``silence_db``, its noise floor (the level of
+   its aperiodic frames, lower quartile) plus ``noise_margin_db``, and ``min_rms_pa``
+   (:func:`level_threshold`);
+2. valleys: inside such a stretch, a dip of more than ``edge_db`` below the sounds on both
+   sides of it and at least ``min_silence_s`` long is a gap between two notes (a tongued
+   gap, or breath noise between notes that keeps the level above the threshold);
+3. periodicity: a stretch holding no periodic YIN frame is not a note (breath noise, a
+   noise burst). A note starts and ends where its level is within ``edge_db`` of its own
+   level near that end (its first and last periodic frames), so a quiet note keeps its
+   own edges and breath noise around a note is left out; and it ends where its level
+   falls for good ``edge_db`` below its level over the 50 ms before (a room's
+   reverberation after a note is periodic too, but decays from well below it; a sound at
+   the note's pitch, ``edge_db`` below it, starting within 0.15 s of its end, is its
+   echo, not a note);
+4. pitch steps (:func:`pitch_cuts`): inside a note, the median pitch over ``25 ms`` before
+   and after each frame, taken ``glide_s / 2`` plus half an f0 frame away from it, differ
+   by more than ``pitch_jump_cents``: a legato change of note (instantaneous, or glided
+   over up to ``glide_s``), a register change, a squeak. The cut is the centre of the
+   frames where the difference is near its peak, so a glide is cut at its middle.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import maximum_filter1d, median_filter
+
+#: Length of the span whose median pitch is compared on each side of a frame, s.
+SIDE_S = 0.025
+#: Fraction of the peak pitch difference that marks a step's extent (its centre is the cut).
+PEAK_FRACTION = 0.8
+#: Span over which a note's level is remembered when looking for its final decay, s.
+DROP_S = 0.05
+#: Span past a note's first periodic frame (before its last) that gives its own level, s.
+REF_S = 0.2
+#: Span over which the level after a note's decay is smoothed before looking for a rise, s.
+RIPPLE_S = 0.02
+#: Longest delay after a note within which a softer sound at its pitch is its echo, s.
+ECHO_S = 0.15
+
+
+def level_envelope(p: np.ndarray, fs: float, frame_s: float, step_s: float = 1e-3):
+    """Centred moving RMS of ``p`` (mean removed) every ``step_s``: times (s), RMS (Pa)."""
+    x = np.asarray(p, dtype=float)
+    x = x - x.mean()
+    half = max(int(round(frame_s * fs / 2)), 1)
+    e = np.concatenate([[0.0], np.cumsum(x * x)])
+    centres = np.arange(0, x.size, max(int(round(step_s * fs)), 1))
+    lo = np.clip(centres - half, 0, x.size)
+    hi = np.clip(centres + half, 0, x.size)
+    rms = np.sqrt(np.maximum(e[hi] - e[lo], 0.0) / np.maximum(hi - lo, 1))
+    return centres / fs, rms
+
+
+def runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """``(first, last + 1)`` of every run of True."""
+    edges = np.diff(np.concatenate([[0], np.asarray(mask).astype(int), [0]]))
+    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True))
+
+
+def level_threshold(t, level, centres, f0, conditioning) -> float:
+    """The level (Pa) below which a take is silent (see the module docstring, item 1).
+
+    Parameters
+    ----------
+    t, level : ndarray
+        The level envelope: times (s), RMS (Pa).
+    centres, f0 : ndarray
+        The f0 track: frame centres (s), f0 (Hz, NaN where aperiodic).
+    conditioning : mpipe.inversion.settings.ConditioningConfig
+        ``silence_db``, ``noise_margin_db``, ``min_rms_pa``.
+    """
+    c = conditioning
+    if not level.size:
+        return float(c.min_rms_pa)
+    loud = float(np.percentile(level, 99))
+    floor = 0.0
+    quiet = ~np.isfinite(f0)
+    if quiet.sum() >= 5:  # the noise floor: where the take is not periodic
+        idx = np.clip(np.searchsorted(t, centres[quiet]), 0, level.size - 1)
+        floor = float(np.percentile(level[idx], 25))
+    return max(
+        float(c.min_rms_pa),
+        loud * 10 ** (-c.silence_db / 20),
+        floor * 10 ** (c.noise_margin_db / 20),
+    )
+
+
+def _valleys(level: np.ndarray, depth: float, shortest: int) -> list[tuple[int, int]]:
+    """Dips of a stretch's level below ``depth`` times the sounds on both sides of them."""
+    left = np.maximum.accumulate(level)
+    right = np.maximum.accumulate(level[::-1])[::-1]
+    dip = level < depth * np.minimum(left, right)
+    return [(a, b) for a, b in runs(dip) if b - a >= shortest]
+
+
+def _trim(a: int, b: int, level, t, periodic_t, frame_s: float, depth: float):
+    """A stretch ``[a, b)`` of the level narrowed to its first note's edges, or None (no note).
+
+    The note lies within half an f0 frame of its periodic frames (a blowing pressure's rise
+    before the oscillation grows is not yet the note), where its level is within ``depth``
+    of its own level near each end, and ends where its level falls for good.
+    """
+    inside = periodic_t[(periodic_t >= t[a]) & (periodic_t < t[b - 1])]
+    if inside.size < 2:
+        return None
+    first = max(a, int(np.searchsorted(t, inside[0] - frame_s / 2)))
+    last = min(b, int(np.searchsorted(t, inside[-1] + frame_s / 2)))
+    ends = []
+    for centre, side in ((inside[0], 1), (inside[-1], -1)):
+        # the note's own level past its attack (before its release): its first (last) REF_S
+        lo, hi = sorted((centre, centre + side * REF_S))
+        near = (t >= max(lo, inside[0])) & (t <= min(hi, inside[-1]))
+        ref = float(np.percentile(level[near], 90)) if near.any() else 0.0
+        loud = np.flatnonzero(level[first:last] >= depth * ref)
+        ends.append(first + (loud[0] if side > 0 else loud[-1] + 1) if loud.size else None)
+    if ends[0] is None or ends[1] is None or ends[1] <= ends[0]:
+        return None
+    return ends[0], _decay_start(level, ends[0], ends[1], t, depth)
+
+
+def _decay_start(level, a: int, b: int, t, depth: float) -> int:
+    """The end of ``[a, b)`` where the level falls for good ``depth`` below its recent maximum.
+
+    Recent: over the :data:`DROP_S` before.
+    A room's (or a sensor's) decay after a note is periodic too: only its level tells it
+    from the note.
+    """
+    step = float(t[1] - t[0]) if t.size > 1 else 1e-3
+    span = max(int(round(DROP_S / step)), 1)
+    x = level[a:b]
+    before = maximum_filter1d(x, span, origin=(span - 1) // 2)  # max over the span ending here
+    after = np.maximum.accumulate(x[::-1])[::-1]
+    gone = np.flatnonzero(after < depth * before)
+    return a + int(gone[0]) if gone.size else b
+
+
+def note_spans(t, level, threshold, centres, f0, frame_s, conditioning, duration=None):
+    """Notes ``(start s, end s)`` of a take (the module docstring, items 1-3), pitch aside.
+
+    Parameters
+    ----------
+    t, level : ndarray
+        The level envelope (:func:`level_envelope`): times (s), RMS (Pa).
+    threshold : float
+        Silence level, Pa (:func:`level_threshold`).
+    centres, f0 : ndarray
+        The f0 track: frame centres (s), f0 (Hz, NaN where aperiodic).
+    frame_s : float
+        The f0 frame's length, s.
+    conditioning : mpipe.inversion.settings.ConditioningConfig
+        ``edge_db``, ``min_silence_s``, ``min_note_s``.
+    duration : float, optional
+        The take's length, s: a note still sounding at the last envelope sample ends there
+        (default the last envelope time plus one step).
+
+    Returns
+    -------
+    list of (float, float)
+        Each note's start and end, s, in time order.
+    """
+    c = conditioning
+    step = float(t[1] - t[0]) if t.size > 1 else 1e-3
+    mask = level >= threshold
+    for a, b in runs(~mask):  # short silences inside a note do not split it
+        if a > 0 and b < mask.size and (b - a) * step < c.min_silence_s:
+            mask[a:b] = True
+    depth = 10 ** (-c.edge_db / 20)
+    shortest = max(int(round(c.min_silence_s / step)), 1)
+    periodic_t = centres[np.isfinite(f0)]
+    spans = []
+    for a, b in runs(mask):
+        cuts = [
+            a,
+            *[x for v in _valleys(level[a:b], depth, shortest) for x in (a + v[0], a + v[1])],
+            b,
+        ]
+        pieces = list(zip(cuts[::2], cuts[1::2], strict=True))
+        while pieces:
+            a1, b1 = pieces.pop(0)
+            kept = _trim(a1, b1, level, t, periodic_t, frame_s, depth) if b1 - a1 > 1 else None
+            if kept is None:
+                continue
+            if kept[1] < b1:  # after the note's decay, from its lowest point, another may
+                # sound: where the level rises again by edge_db / 2 (a decay's ripple does
+                # not; smoothed over RIPPLE_S, as two decays interfering make deep notches)
+                tail = median_filter(level[kept[1] : b1], max(int(RIPPLE_S / step), 1))
+                low = int(np.argmin(tail))
+                if tail[low:].max() * np.sqrt(depth) >= tail[low]:
+                    pieces.insert(0, (kept[1] + low, b1))
+            if (kept[1] - kept[0]) * step >= c.min_note_s:
+                end = t[-1] + step if duration is None else duration
+                last = end if kept[1] == level.size else float(t[kept[1] - 1] + step)
+                spans.append((float(t[kept[0]]), last))
+    return _without_echoes(spans, t, level, centres, f0, depth, c.pitch_jump_cents)
+
+
+def _median_f0(centres, f0, a: float, b: float) -> float:
+    """Median f0 (Hz) of the periodic frames centred in ``[a, b]`` (NaN without one)."""
+    sel = f0[(centres >= a) & (centres <= b) & np.isfinite(f0)]
+    return float(np.median(sel)) if sel.size else np.nan
+
+
+def _without_echoes(spans, t, level, centres, f0, depth: float, jump: float):
+    """The spans less those that are the reverberation of the note before them.
+
+    An echo: it starts within :data:`ECHO_S` of that note's end, stays ``depth`` below that
+    note's level (90th percentile) and plays its pitch (within ``jump`` cents).
+    """
+
+    def loudness(a, b):
+        sel = level[(t >= a) & (t < b)]
+        return (float(np.max(sel)), float(np.percentile(sel, 90))) if sel.size else (0.0, 0.0)
+
+    out = []
+    for a, b in spans:
+        if out:
+            a0, b0 = out[-1]
+            close = a - b0 < ECHO_S and loudness(a, b)[0] < depth * loudness(a0, b0)[1]
+            pitch, pitch0 = _median_f0(centres, f0, a, b), _median_f0(centres, f0, a0, b0)
+            if close and abs(1200 * np.log2(pitch / pitch0)) < jump:
+                continue
+        out.append((a, b))
+    return out
+
+
+def _side_medians(times, cents, gap: float, side: float):
+    """Median pitch over ``[t - gap - side, t - gap]`` and ``[t + gap, t + gap + side]``."""
+    before, after = np.full(times.size, np.nan), np.full(times.size, np.nan)
+    for i, t in enumerate(times):
+        lo = cents[(times >= t - gap - side) & (times <= t - gap)]
+        hi = cents[(times >= t + gap) & (times <= t + gap + side)]
+        lo, hi = lo[np.isfinite(lo)], hi[np.isfinite(hi)]
+        if lo.size >= 2 and hi.size >= 2:
+            before[i], after[i] = np.median(lo), np.median(hi)
+    return before, after
+
+
+def pitch_cuts(start, end, centres, cents, frame_s, conditioning) -> list[float]:
+    """Times inside ``[start, end]`` (s) where the pitch steps (the module docstring, item 4).
+
+    Parameters
+    ----------
+    start, end : float
+        The note, s.
+    centres, cents : ndarray
+        The f0 track's frame centres (s) and pitch (cent, NaN where aperiodic).
+    frame_s : float
+        The f0 frame's length, s.
+    conditioning : mpipe.inversion.settings.ConditioningConfig
+        ``pitch_jump_cents``, ``glide_s``, ``min_note_s``.
+    """
+    c = conditioning
+    inside = (centres >= start) & (centres <= end)
+    if inside.sum() < 5:
+        return []
+    times, track = centres[inside], cents[inside]
+    before, after = _side_medians(times, track, c.glide_s / 2 + frame_s / 2, SIDE_S)
+    step = np.abs(after - before)
+    cuts = []
+    for a, b in runs(np.nan_to_num(step, nan=0.0) > c.pitch_jump_cents):
+        peak = float(np.max(step[a:b]))
+        near = a + np.flatnonzero(step[a:b] >= PEAK_FRACTION * peak)
+        cut = float(np.mean(times[near]))
+        last = cuts[-1] if cuts else start
+        if cut - last >= c.min_note_s and end - cut >= c.min_note_s:
+            cuts.append(cut)
+    return _distinct(start, end, cuts, times, track, c.pitch_jump_cents)
+
+
+def _distinct(start, end, cuts, times, track, jump: float) -> list[float]:
+    """The cuts whose two segments differ in median pitch by more than ``jump`` (cent).
+
+    A noisy f0 track (a soft note in breath noise) can step for a moment; the notes on
+    either side of a real step differ as wholes.
+    """
+    cuts = list(cuts)
+    changed = True
+    while changed and cuts:
+        changed = False
+        edges = [start, *cuts, end]
+        medians = [np.nanmedian(track[(times >= a) & (times < b)]) if np.isfinite(
+            track[(times >= a) & (times < b)]).any() else np.nan
+            for a, b in zip(edges[:-1], edges[1:], strict=True)]  # fmt: skip
+        for i, cut in enumerate(cuts):
+            if not abs(medians[i + 1] - medians[i]) > jump:
+                cuts.remove(cut)
+                changed = True
+                break
+    return cuts
+
+
+__all__ = ["level_envelope", "level_threshold", "note_spans", "pitch_cuts", "runs"]
