@@ -1,0 +1,226 @@
+"""The validation of a phrase: each note against its own fingering, what could not be checked.
+
+A take of several notes (or one whose fingering is found per note: ``fingering: auto`` or
+a list) is validated note by note: the notes are the conditioning's
+(:func:`mpipe.inversion.segments.segment_take`, the same rule the inversion uses), each
+note's fingering is given or found (:func:`mpipe.measurement.fingerings.identify`, from its
+harmonic lines), and the note's own span of P and U is compared with the theory of its own
+fingering (:func:`mpipe.measurement.validation.validate`, the note's f0 given).
+
+A note too short for the comparison is not failed: the impedance estimate needs
+``MIN_AVERAGES`` half-overlapping Welch segments of at least ``SEGMENT_PERIODS`` periods
+of the note (fewer periods per segment do not resolve the harmonics; fewer segments make
+every bin coherent), so a note shorter than ``(MIN_AVERAGES + 1) / 2`` such segments is
+CANNOT-VERIFY, with the length it had and the length it needed. The take's verdict is
+FAIL when a verifiable note fails, PASS when at least one note passes and none fails,
+CANNOT-VERIFY otherwise, and "no note" (CANNOT-VERIFY) when the take holds none.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from mpipe.inversion.conditioning import bore_resonances
+from mpipe.inversion.segments import segment_take
+from mpipe.measurement.calibration import AUTO, Calibration, note_fingerings
+from mpipe.measurement.fingerings import FingeringChoice, harmonic_lines, identify
+from mpipe.measurement.validation import ValidationConfig, validate
+from mpipe.measurement.validation_result import ValidationResult
+
+#: Fewest half-overlapping Welch segments of a note's impedance estimate (as the take's).
+MIN_AVERAGES = 8
+#: Fewest periods of the note in one Welch segment: the harmonics resolved (f0 / 4 apart).
+SEGMENT_PERIODS = 4
+#: Columns of ``notes.csv``.
+NOTE_COLUMNS = ("segment", "start_s", "end_s", "f0_hz", "fingering", "fingering_source",
+                "fingering_probability", "runner_up", "runner_up_probability",
+                "fingering_ambiguous", "verdict", "reason")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class NotesValidation:
+    """The per-note validation of a take.
+
+    Attributes
+    ----------
+    notes : pandas.DataFrame
+        One row per note, columns :data:`NOTE_COLUMNS`.
+    results : dict
+        Segment id to the note's :class:`ValidationResult` (verified notes only).
+    verdict : str
+        ``"pass"``, ``"fail"`` or ``"cannot-verify"`` for the take.
+    reason : str
+        One line: why.
+    """
+
+    notes: pd.DataFrame
+    results: dict
+    verdict: str
+    reason: str
+
+    def shown(self) -> ValidationResult | None:
+        """The result plotted and tabled for the take: a failed note's, else the longest's."""
+        if not self.results:
+            return None
+        failed = [s for s, r in self.results.items() if r.verdict == "fail"]
+        if failed:
+            return self.results[failed[0]]
+        rows = self.notes.set_index("segment")
+        return self.results[
+            max(self.results, key=lambda s: rows.loc[s, "end_s"] - rows.loc[s, "start_s"])
+        ]
+
+    def lines(self) -> list[str]:
+        """One line per note: its span, f0, fingering (how sure) and verdict."""
+        out = []
+        for _, r in self.notes.iterrows():
+            out.append(
+                f"note {int(r.segment)} ({r.start_s:.2f}-{r.end_s:.2f} s, {r.f0_hz:.1f} Hz): "
+                f"{_choice_line(r)}; validation {str(r.verdict).upper()} ({r.reason})"
+            )
+        return out
+
+
+def _choice_line(row) -> str:
+    choice = FingeringChoice(
+        row.fingering, float(row.fingering_probability),
+        row.runner_up if isinstance(row.runner_up, str) and row.runner_up else None,
+        float(row.runner_up_probability), row.fingering_source,
+    )  # fmt: skip
+    return choice.line()
+
+
+def needed_s(f0_hz: float, fs: float) -> float:
+    """Shortest note the validation can compare, s (see the module docstring)."""
+    segment = 2 ** math.ceil(math.log2(SEGMENT_PERIODS * fs / f0_hz))
+    return (MIN_AVERAGES + 1) / 2 * segment / fs
+
+
+def validate_notes(
+    p: np.ndarray,
+    u: np.ndarray,
+    fs: float,
+    calibration: Calibration,
+    config: ValidationConfig,
+    conditioning,
+    temperature_c: float,
+) -> NotesValidation:
+    """Validate each note of a take against its own fingering.
+
+    Parameters
+    ----------
+    p, u : ndarray
+        Mouthpiece pressure (Pa) and flow (m^3/s).
+    fs : float
+        Sample rate, Hz.
+    calibration : Calibration
+        The instrument; its ``fingering`` is one name, ``auto`` or one name per note.
+    config : ValidationConfig
+        Tolerances (``note_f0_hz`` is set per note).
+    conditioning : mpipe.inversion.conditioning_settings.ConditioningConfig
+        The segmentation's settings.
+    temperature_c : float
+        Air temperature of the theory, degC.
+
+    Returns
+    -------
+    NotesValidation
+
+    Raises
+    ------
+    ValueError
+        When a list of fingerings does not give one per note (naming both counts).
+    """
+    segments, _ = segment_take(p, fs, conditioning, bore_resonances(calibration))
+    notes = segments[segments["label"] == "note"].reset_index(drop=True)
+    given = note_fingerings(calibration.fingering)
+    if given is not None and len(given) != len(notes):
+        raise ValueError(
+            f"fingering: {len(given)} fingerings given ({calibration.fingering}) for the "
+            f"{len(notes)} notes found; give one per note, or auto"
+        )
+    rows, results = [], {}
+    trim = int(round(config.trim_s * fs))
+    for i, note in notes.iterrows():
+        a, b = int(round(note.start_s * fs)) + trim, int(round(note.end_s * fs)) - trim
+        f0 = float(note.f0_hz)
+        choice = _choose(p[a:b], u[a:b], fs, f0, calibration, given, i, temperature_c)
+        row = {"segment": int(note.segment), "start_s": float(note.start_s),
+               "end_s": float(note.end_s), "f0_hz": f0, **_choice_columns(choice)}  # fmt: skip
+        need = needed_s(f0, fs) if math.isfinite(f0) else math.inf
+        if (b - a) / fs < need:
+            row["verdict"] = "cannot-verify"
+            row["reason"] = (
+                f"note too short to verify: {(b - a) / fs * 1e3:.0f} ms, the impedance "
+                f"estimate at {f0:.0f} Hz needs {need * 1e3:.0f} ms"
+                if math.isfinite(need)
+                else "no playing frequency in the note"
+            )
+        else:
+            cal = calibration.with_fingering(choice.fingering) if choice else calibration
+            cfg = dataclasses.replace(config, note_f0_hz=f0, trim_s=0.0)
+            res = validate(p[a:b], u[a:b], fs, cal, cfg, temperature_c)
+            results[int(note.segment)] = res
+            row["verdict"], row["reason"] = res.verdict, res.reason
+        rows.append(row)
+    table = pd.DataFrame(rows, columns=list(NOTE_COLUMNS))
+    verdict, reason = _take_verdict(table)
+    return NotesValidation(table, results, verdict, reason)
+
+
+def _choose(p, u, fs, f0, calibration, given, i, t) -> FingeringChoice | None:
+    """The note's fingering: the list's, the calibration's one, or found (auto)."""
+    if given is not None:
+        return FingeringChoice(given[i])
+    if calibration.fingering != AUTO:
+        return FingeringChoice(calibration.fingering) if calibration.fingering else None
+    if not math.isfinite(f0) or p.size < 16:
+        return None
+    return identify(f0, calibration, harmonic_lines(p, u, fs, f0), t)
+
+
+def _choice_columns(choice: FingeringChoice | None) -> dict:
+    if choice is None:
+        return {"fingering": "", "fingering_source": "", "fingering_probability": math.nan,
+                "runner_up": "", "runner_up_probability": math.nan,
+                "fingering_ambiguous": False}  # fmt: skip
+    return {"fingering": choice.fingering, "fingering_source": choice.source,
+            "fingering_probability": choice.probability, "runner_up": choice.runner_up or "",
+            "runner_up_probability": choice.runner_up_probability,
+            "fingering_ambiguous": choice.ambiguous}  # fmt: skip
+
+
+def _take_verdict(table: pd.DataFrame) -> tuple[str, str]:
+    """The take's verdict from its notes' (see the module docstring)."""
+    if not len(table):
+        return "cannot-verify", "no note: the take holds no note to compare with the theory"
+    counts = table["verdict"].value_counts()
+    n_fail, n_pass = int(counts.get("fail", 0)), int(counts.get("pass", 0))
+    n_cv = len(table) - n_fail - n_pass
+    tally = f"{n_pass} of {len(table)} notes PASS, {n_fail} FAIL, {n_cv} CANNOT-VERIFY"
+    if n_fail:
+        first = table[table["verdict"] == "fail"].iloc[0]
+        return "fail", f"{tally}; note {int(first.segment)}: {first.reason}"
+    if n_pass:
+        return "pass", tally
+    return "cannot-verify", f"{tally}; note {int(table.iloc[0].segment)}: {table.iloc[0].reason}"
+
+
+def note_fingering_checks(table: pd.DataFrame) -> list[str]:
+    """The take-level checks of the notes' fingerings: each ambiguous note, one line."""
+    out = []
+    for _, r in table[table["fingering_ambiguous"].astype(bool)].iterrows():
+        out.append(
+            f"note {int(r.segment)}: the fingering is ambiguous: {r.fingering} "
+            f"(p = {r.fingering_probability:.2f}) or {r.runner_up} "
+            f"(p = {r.runner_up_probability:.2f}); give --fingering with one name per note"
+        )
+    return out
+
+
+__all__ = ["NOTE_COLUMNS", "NotesValidation", "needed_s", "note_fingering_checks", "validate_notes"]
