@@ -21,16 +21,20 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from mpipe.core.io import write_atomic, write_csv
 from mpipe.inversion.conditioning import bore_resonances
+from mpipe.inversion.kernel import take_temperature
 from mpipe.inversion.segments import segment_take
-from mpipe.measurement.calibration import AUTO, Calibration, note_fingerings
+from mpipe.measurement.calibration import AUTO, Calibration, note_fingerings, per_note
 from mpipe.measurement.fingerings import FingeringChoice, harmonic_lines, identify
+from mpipe.measurement.measured_instrument import bore_description
 from mpipe.measurement.validation import ValidationConfig, validate
-from mpipe.measurement.validation_result import ValidationResult
+from mpipe.measurement.validation_result import ValidationResult, plot_impedance
 
 #: Fewest half-overlapping Welch segments of a note's impedance estimate (as the take's).
 MIN_AVERAGES = 8
@@ -173,6 +177,110 @@ def validate_notes(
     return NotesValidation(table, results, verdict, reason)
 
 
+def stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg):
+    """The work of ``mpipe run``'s validation stage: the take, or each of its notes.
+
+    A take of one note with one fingering is validated as a whole (the take's own spectra);
+    a phrase, or a take whose fingering is per note, note by note (:func:`validate_notes`).
+    Writes ``impedance.csv``, ``validation.csv``, ``harmonics.csv``, ``impedance.png`` (a
+    failed note's, else the longest note's) and ``notes.csv`` (one row per note).
+    """
+
+    def work(folder: Path):
+        with np.load(mouthpiece) as data:
+            mp = {k: data[k] for k in data.files}
+        t_eff = take_temperature(mp.get("temperature_c"), cal)
+        fs = float(mp["fs"])
+        notes = None
+        if per_note(cal.fingering) or _notes(mp["p"], fs, cfg) != 1:
+            # a phrase, or a fingering per note: each note against its own fingering
+            notes = validate_notes(mp["p"], mp["u"], fs, cal, cfg.validation,
+                                   cfg.conditioning, t_eff)  # fmt: skip
+        val = notes.shown() if notes is not None else None
+        if val is None:
+            val = validate(mp["p"], mp["u"], fs, _one_fingering(cal), cfg.validation, t_eff)
+            if notes is not None and val.verdict != "pass" and not _measured_resonance(val):
+                # nothing played and no broadband excitation showing a resonance
+                val = dataclasses.replace(val, failures=(), suspects=(), checks=0)
+        write_csv(folder / "impedance.csv", val.table())
+        write_csv(folder / "validation.csv", val.resonances)
+        write_csv(folder / "harmonics.csv", val.harmonics)
+        write_atomic(folder / "impedance.png", lambda t: plot_impedance(val, t, 2000.0))
+        verdict, reason = val.verdict, val.reason
+        if notes is not None:
+            write_csv(folder / "notes.csv", notes.notes)
+            verdict, reason = notes.verdict, notes.reason
+        summary = {
+            "verdict": verdict,
+            "reason": reason,
+            "passed": verdict == "pass",
+            "failures": list(val.failures) if verdict == "fail" else [],
+            "band_error_db": float(val.band_error_db),
+            "text": val.summary(),
+            "temperature_c": t_eff,
+            "bore": bore_description(cal),
+            "note_lines": notes.lines() if notes is not None else [],
+            "fingering_checks": [] if notes is None else note_fingering_checks(notes.notes),
+        }
+        outputs = {"impedance": "impedance.csv", "resonances": "validation.csv",
+                   "harmonics": "harmonics.csv", "plot": "impedance.png"}  # fmt: skip
+        if notes is not None:
+            outputs["notes"] = "notes.csv"
+        return outputs, summary
+
+    return work
+
+
+def _measured_resonance(val: ValidationResult) -> bool:
+    """Whether a validation measured at least one resonance (broadband excitation)."""
+    errors = val.resonances["error_cents"] if len(val.resonances) else []
+    return bool(np.isfinite(np.asarray(errors, dtype=float)).any())
+
+
+def _notes(p: np.ndarray, fs: float, cfg) -> int:
+    """How many notes the conditioning finds in a take."""
+    segments, _ = segment_take(p, fs, cfg.conditioning)
+    return int((segments["label"] == "note").sum())
+
+
+def _one_fingering(cal: Calibration) -> Calibration:
+    """The calibration of a take validated as a whole: per-note settings play the first."""
+    names = note_fingerings(cal.fingering)
+    if names:
+        return cal.with_fingering(names[0])
+    if cal.fingering == AUTO:
+        return cal.with_fingering(cal.fingerings[0].name)
+    return cal
+
+
+def with_fingerings(
+    segments: pd.DataFrame, plan: pd.DataFrame, notes: Path | pd.DataFrame | None, cal: Calibration
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """``segments`` and ``plan`` with a ``fingering`` column (the note's; "" for silences).
+
+    The fingerings are the validation's (``notes.csv``, matched by segment: the same
+    segmentation); a take validated as a whole plays the calibration's one fingering.
+    """
+    segments, plan = segments.copy(), plan.copy()
+    one = "" if per_note(cal.fingering) else (cal.fingering or "")
+    by_segment: dict = {}
+    table = notes if isinstance(notes, pd.DataFrame) else None
+    if isinstance(notes, Path) and notes.exists():
+        table = pd.read_csv(notes, keep_default_na=False)
+    if table is not None:
+        by_segment = dict(
+            zip(table["segment"].astype(int), table["fingering"].astype(str), strict=True)
+        )
+    is_note = segments["label"] == "note"
+    segments["fingering"] = [
+        by_segment.get(int(g), one) if n else ""
+        for g, n in zip(segments["segment"], is_note, strict=True)
+    ]
+    names = dict(zip(segments["segment"].astype(int), segments["fingering"], strict=True))
+    plan["fingering"] = [names.get(int(g), "") if g == g else "" for g in plan["segment"]]
+    return segments, plan
+
+
 def _choose(p, u, fs, f0, calibration, given, i, t) -> FingeringChoice | None:
     """The note's fingering: the list's, the calibration's one, or found (auto)."""
     if given is not None:
@@ -223,4 +331,11 @@ def note_fingering_checks(table: pd.DataFrame) -> list[str]:
     return out
 
 
-__all__ = ["NOTE_COLUMNS", "NotesValidation", "needed_s", "note_fingering_checks", "validate_notes"]
+__all__ = [
+    "NOTE_COLUMNS",
+    "NotesValidation",
+    "needed_s",
+    "note_fingering_checks",
+    "stage_validation",
+    "validate_notes",
+]
