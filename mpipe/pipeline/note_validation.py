@@ -8,9 +8,13 @@ harmonic lines), and the note's own span of P and U is compared with the theory 
 fingering (:func:`mpipe.measurement.validation.validate`, the note's f0 given).
 
 A note too short for the comparison is not failed: the impedance estimate needs
-``MIN_AVERAGES`` half-overlapping Welch segments of at least ``SEGMENT_PERIODS`` periods
-of the note (fewer periods per segment do not resolve the harmonics; fewer segments make
-every bin coherent), so a note shorter than ``(MIN_AVERAGES + 1) / 2`` such segments is
+``MIN_AVERAGES`` half-overlapping Welch segments (fewer make every bin coherent), and each
+segment must hold ``SEGMENT_PERIODS`` periods of the note: a harmonic counts when its line
+stands 20 dB above the median of the f0 / df bins around it, and the Hann window spreads
+a line over about four bins, so with fewer than about eight bins between harmonics the
+line is compared with its own skirt and no harmonic counts (a 0.3 s note at 104 Hz and
+100 kHz has 4.3 periods per segment). A note shorter than ``(MIN_AVERAGES + 1) / 2``
+segments of that length (rounded up to a power of two, as the estimate's) is
 CANNOT-VERIFY, with the length it had and the length it needed. The take's verdict is
 FAIL when a verifiable note fails, PASS when at least one note passes and none fails,
 CANNOT-VERIFY otherwise, and "no note" (CANNOT-VERIFY) when the take holds none.
@@ -38,8 +42,8 @@ from mpipe.measurement.validation_result import ValidationResult, plot_impedance
 
 #: Fewest half-overlapping Welch segments of a note's impedance estimate (as the take's).
 MIN_AVERAGES = 8
-#: Fewest periods of the note in one Welch segment: the harmonics resolved (f0 / 4 apart).
-SEGMENT_PERIODS = 4
+#: Fewest periods of the note in one Welch segment (see the module docstring).
+SEGMENT_PERIODS = 8
 #: Columns of ``notes.csv``.
 NOTE_COLUMNS = ("segment", "start_s", "end_s", "f0_hz", "fingering", "fingering_source",
                 "fingering_probability", "runner_up", "runner_up_probability",
