@@ -428,9 +428,7 @@ def run_take_unlocked(
     val = stage(3, "validation", {"mouthpiece": mouthpiece, "blocks": blocks, **cal_inputs},
                 val_config, _stage_validation(mouthpiece, blocks, cal, cfg))  # fmt: skip
     verdict = val.summary["verdict"]
-    say(f"[{name}]     impedance validation: {verdict.upper()} ({val.summary.get('reason', '')})")
-    for line in val.summary.get("note_lines", []):
-        say(f"[{name}]       {line}")
+    _say_validation(say, name, val.summary)
     if verdict == "fail":
         if not accept_failed_validation:
             raise ValidationFailed(  # the reason was said on the line above
@@ -438,11 +436,9 @@ def run_take_unlocked(
                 f"{d['validation']}; pass --accept-failed-validation to invert anyway"
             )
         say(f"[{name}]     inverting despite the FAILED validation (--accept-failed-validation)")
-    cond_config = {"conditioning": cfg.conditioning, "window_s": cfg.inversion.window_s,
-                   "hop_s": cfg.inversion.hop_s, "signal": cfg.inversion.signal}  # fmt: skip
-    notes = d["validation"] / "notes.csv"
-    cond_inputs = {"mouthpiece": mouthpiece, **cal_inputs, **_present(notes=notes)}
-    cond = stage(4, "conditioning", cond_inputs, cond_config,
+    notes = d["validation"] / "notes.csv"  # a phrase's fingerings, when validated per note
+    cond = stage(4, "conditioning", {"mouthpiece": mouthpiece, **cal_inputs,
+                 **_present(notes=notes)}, _conditioning_config(cfg),
                  _stage_conditioning(mouthpiece, cal, cfg, notes))  # fmt: skip
     say(f"[{name}]     {cond.summary['to_invert']} of {cond.summary['windows']} windows to invert")
     plan = d["conditioning"] / "plan.csv"
@@ -468,6 +464,20 @@ def run_take_unlocked(
     report = write_take_report(root, name, take_paths, cal_path, records)
     say(f"[{name}]     report: {report}")
     return TakeRun(name, root, records, report)
+
+
+def _conditioning_config(cfg: PipelineConfig) -> dict:
+    """The settings the conditioning stage depends on (its manifest's configuration)."""
+    return {"conditioning": cfg.conditioning, "window_s": cfg.inversion.window_s,
+            "hop_s": cfg.inversion.hop_s, "signal": cfg.inversion.signal}  # fmt: skip
+
+
+def _say_validation(say: Callable[[str], None], name: str, summary: dict) -> None:
+    """The validation's verdict, and each note's line (fingering, verdict) of a phrase."""
+    say(f"[{name}]     impedance validation: {summary['verdict'].upper()} "
+        f"({summary.get('reason', '')})")  # fmt: skip
+    for line in summary.get("note_lines", []):
+        say(f"[{name}]       {line}")
 
 
 def _present(**paths: Path) -> dict:
