@@ -15,7 +15,10 @@ a line over about four bins, so with fewer than about eight bins between harmoni
 line is compared with its own skirt and no harmonic counts (a 0.3 s note at 104 Hz and
 100 kHz has 4.3 periods per segment). A note shorter than ``(MIN_AVERAGES + 1) / 2``
 segments of that length (rounded up to a power of two, as the estimate's) is
-CANNOT-VERIFY, with the length it had and the length it needed. The take's verdict is
+CANNOT-VERIFY, with the length it had and the length it needed. So is a note whose
+comparison rests on fewer than ``min_checks`` quantities (a soft note whose lines are
+too weak, a note whose pitch glides): a PASS needs ``min_checks``, and one of a phrase's
+notes does not FAIL the take on less (the reason names what differed). The take's verdict is
 FAIL when a verifiable note fails, PASS when at least one note passes and none fails,
 CANNOT-VERIFY otherwise, and "no note" (CANNOT-VERIFY) when the take holds none.
 """
@@ -175,6 +178,14 @@ def validate_notes(
             res = validate(p[a:b], u[a:b], fs, cal, cfg, temperature_c)
             results[int(note.segment)] = res
             row["verdict"], row["reason"] = res.verdict, res.reason
+            if res.verdict == "fail" and res.checks < config.min_checks:
+                # a PASS needs min_checks quantities; so does a FAIL of one note of a phrase
+                row["verdict"] = "cannot-verify"
+                row["reason"] = (
+                    f"too few harmonics measurable to verify the note ({res.checks} compared, "
+                    f"need {config.min_checks}: too quiet or unsteady); it differs at: "
+                    + "; ".join(res.failures)
+                )
         rows.append(row)
     table = pd.DataFrame(rows, columns=list(NOTE_COLUMNS))
     verdict, reason = _take_verdict(table)

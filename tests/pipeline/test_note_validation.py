@@ -68,3 +68,18 @@ def test_a_take_without_a_note_says_no_note():
     p, u = rng.normal(0, 1e-3, int(0.5 * FS)), rng.normal(0, 1e-9, int(0.5 * FS))
     result = _validate(four_holes(), p, u)
     assert result.verdict == "cannot-verify" and result.reason.startswith("no note")
+
+
+def test_a_note_with_too_few_comparable_harmonics_is_cannot_verify_not_fail():
+    # a pure tone (one harmonic) on the wrong fingering differs at its one line: with
+    # fewer than min_checks compared quantities the note cannot be verified either way;
+    # the same tone with its 12 harmonics FAILs (the rule does not hide a wrong fingering)
+    cal = four_holes()
+    rng = np.random.default_rng(3)
+    f0 = first_resonance(cal, "xxxx") * 2 ** (-20 / 1200)
+    silence = np.zeros(int(0.06 * FS))
+    for harmonics, verdict in ((1, "cannot-verify"), (12, "fail")):
+        p, u = theory_note(cal, "xxxx", f0, 0.8, FS, rng, harmonics=harmonics)
+        p, u = np.concatenate([silence, p, silence]), np.concatenate([silence, u, silence])
+        result = _validate(four_holes("xxoo"), p + rng.normal(0, 1e-3, p.size), u)
+        assert result.notes["verdict"].iloc[0] == verdict, result.notes["reason"].iloc[0]
