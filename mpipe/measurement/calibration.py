@@ -241,6 +241,25 @@ def note_fingerings(fingering: str | None) -> list[str] | None:
     return [x.strip() for x in fingering.split(",")]
 
 
+def _one_translation(cal: Calibration, path) -> None:
+    """Refuse a fingering per note when the fingerings differ upstream of the microphones.
+
+    The translation from the reference plane to the mouthpiece passes the holes between
+    them, open or closed as the fingering says, and is made once per take: a hole there
+    (a register hole) opened by some fingerings and not others needs one fingering per take.
+    """
+    upstream = [h.name for h in cal.bore.holes_between(0.0, cal.reference_plane)]
+    names = note_fingerings(cal.fingering) or [f.name for f in cal.fingerings]
+    states = {tuple(h in f.open for h in upstream) for f in cal.fingerings if f.name in names}
+    if len(states) > 1:
+        raise ConfigError(
+            f"{path}: fingering: {cal.fingering}: hole(s) {', '.join(upstream)} lie between "
+            "the mouthpiece and the reference plane and the fingerings open them differently; "
+            "the translation to the mouthpiece takes one fingering per take: give "
+            "--fingering NAME (or fingerings that agree there)"
+        )
+
+
 def _unknown_fingering(name: str, names: list[str]) -> str:
     if not names:
         return (
@@ -319,6 +338,7 @@ def load_calibration(path: str | Path, fingering: str | None = None) -> Calibrat
         for each in note_fingerings(name) or ():
             cal.with_fingering(each)  # a one-line error for an unknown name
         cal = replace(cal, fingering=name)
+        _one_translation(cal, path)
     elif name is not None:
         cal = cal.with_fingering(name)
     if cal.bore.measured is not None:

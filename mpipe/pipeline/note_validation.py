@@ -78,7 +78,8 @@ class NotesValidation:
         """The result plotted and tabled for the take: a failed note's, else the longest's."""
         if not self.results:
             return None
-        failed = [s for s, r in self.results.items() if r.verdict == "fail"]
+        verdicts = dict(zip(self.notes["segment"], self.notes["verdict"], strict=True))
+        failed = [s for s in self.results if verdicts.get(s) == "fail"]
         if failed:
             return self.results[failed[0]]
         rows = self.notes.set_index("segment")

@@ -59,3 +59,20 @@ def test_auto_is_the_default_without_a_default_fingering_and_lists_are_checked(t
     assert load_calibration(path).fingering == "auto"
     assert load_calibration(path, "xxoo,xooo").fingering == "xxoo,xooo"
     assert load_calibration(path, "xxoo").bore.open_holes == ("h3", "h4")
+
+
+def test_auto_is_refused_when_the_fingerings_differ_upstream_of_the_microphones(tmp_path):
+    # a register hole between the mouthpiece and the reference plane, open in one fingering
+    # only: the translation takes one fingering per take, so a per-note setting is refused
+    from mpipe.core.config import ConfigError
+
+    data = yaml.safe_load(FOUR_HOLES.read_text())
+    data["bore"]["holes"].insert(0, {"name": "reg", "position": 0.15, "radius": 0.0015,
+                                     "chimney": 0.012})  # fmt: skip
+    data["fingerings"]["rxxxx"] = ["reg"]
+    path = tmp_path / "cal.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match="reg lie between the mouthpiece and the reference"):
+        load_calibration(path, "auto")
+    assert load_calibration(path, "xxxx,xxoo").fingering == "xxxx,xxoo"  # they agree there
+    assert load_calibration(path, "rxxxx").bore.open_holes == ("reg",)
