@@ -109,18 +109,24 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="noise seed (0)")
     parser.add_argument("--workers", type=int, default=2, help="local workers (2)")
     parser.add_argument("--out", default=None, help="keep the run here (default: temporary)")
+    parser.add_argument(
+        "--resume", action="store_true", help="resume the run kept in --out (its take as is)"
+    )
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(args.out or tmp)
         folder.mkdir(parents=True, exist_ok=True)
-        take, cal = make(folder, args.seed)
+        if args.resume and (folder / "phrase.flac").exists():
+            take, cal = folder / "phrase.flac", folder / "phrase.calibration.yaml"
+        else:
+            take, cal = make(folder, args.seed)
         cfg = load_pipeline(ROOT / "pipelines" / "simplified_clarinet.yaml")
         cfg = dataclasses.replace(
             cfg, fingering="auto",
             executor=dataclasses.replace(cfg.executor, workers=args.workers),
         )  # fmt: skip
         try:
-            run = run_take(cfg, cal, [take], folder / "run", force=True)
+            run = run_take(cfg, cal, [take], folder / "run", force=not args.resume)
         except ValidationFailed as exc:
             print(f"validation FAILED: {exc}")
             return

@@ -18,7 +18,7 @@ The air model (``keefe`` or ``ernoult``) is the calibration's.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -93,12 +93,16 @@ class KernelSource:
     fingerings : mapping of int to str
         A window's first sample to its note's fingering (empty, or a window missing from it:
         the calibration's own bore).
+    build : callable, optional
+        Builds a kernel, ``build(calibration, fs, T) -> (kernel, air)``; default
+        :func:`bore_kernel`.
     """
 
     calibration: Calibration
     fs: float
     fingerings: Mapping[int, str] = field(default_factory=dict)
     built: dict = field(default_factory=dict)  # (T degC, fingering) -> (kernel, air)
+    build: Callable | None = None  # (calibration, fs, T) -> (kernel, air); None: bore_kernel
 
     def at(self, t: float, start: int | None = None) -> tuple[BoreKernel, Air]:
         """The kernel and air of the window starting at ``start`` at ``t`` degC."""
@@ -109,7 +113,8 @@ class KernelSource:
         """The kernel and air of fingering ``name`` ("" the calibration's) at ``t`` degC."""
         key = (round(float(t), 6), name)
         if key not in self.built:
-            self.built[key] = bore_kernel(fingered(self.calibration, name), self.fs, key[0])
+            build = self.build or bore_kernel
+            self.built[key] = build(fingered(self.calibration, name), self.fs, key[0])
         return self.built[key]
 
     @property

@@ -216,10 +216,10 @@ def _track_fingerings(p, u, fs, source, fit, config, executor, plan, options) ->
                     anchor=mine or None, options=opts)  # fmt: skip
         res.table["fingering"] = name
         parts.append(res)
-    return _merged(parts)
+    return merge_trackings(parts)
 
 
-def _merged(parts: Sequence[Tracking]) -> Tracking:
+def merge_trackings(parts: Sequence[Tracking]) -> Tracking:
     """Trackings of disjoint windows as one, in time order."""
     tables, histories, corr = [], {}, []
     for k, part in enumerate(parts):
@@ -229,7 +229,10 @@ def _merged(parts: Sequence[Tracking]) -> Tracking:
     table = pd.concat(tables, ignore_index=True).sort_values("t_start_s", kind="stable")
     table = table.reset_index(drop=True)
     table["window"] = np.arange(len(table))
-    new = {(int(r._part), int(r._old)): int(r.window) for r in table.itertuples()}
+    new = {
+        (int(k), int(old)): int(w)
+        for k, old, w in zip(table["_part"], table["_old"], table["window"], strict=True)
+    }
     for k, part in enumerate(parts):
         histories.update({new[(k, int(i))]: h for i, h in part.histories.items()})
         c = part.correlations.copy()
@@ -256,4 +259,4 @@ def _first_agreeing(table) -> int | None:
     return int(values.min()) if len(values) else None
 
 
-__all__ = ["RunOptions", "TakeInversion", "WindowPlan", "invert_take"]
+__all__ = ["RunOptions", "TakeInversion", "WindowPlan", "invert_take", "merge_trackings"]

@@ -35,7 +35,7 @@ import pandas as pd
 from mpipe.inversion.budget import combine, component_column
 from mpipe.inversion.coldstart import map_tasks
 from mpipe.inversion.combinations import COMBINATION_NAMES, combination_values
-from mpipe.inversion.kernel import KernelSource
+from mpipe.inversion.kernel import KernelSource, bore_kernel
 from mpipe.inversion.note_temperature import (
     NoteTemperatures,
     notes_from_triple,
@@ -203,7 +203,7 @@ def fit_temperature(
     for s, g in zip(chosen, groups, strict=True):
         firsts.setdefault(g, s)
     # each window on its note's fingering's bore (one bore when the take has one fingering)
-    source = KernelSource(calibration, fs, plan.fingering_map())
+    source = KernelSource(calibration, fs, plan.fingering_map(), build=_build)
     cold = functools.partial(_cold_starts, p, u, fs, firsts, zero_mean, source)
     solve = functools.partial(_solve, p, u, fs, source, chosen, config, zero_mean)
     runs, error = _profiles(solve, cold, config, groups, front_end_c, lo, hi)
@@ -310,6 +310,11 @@ def _standard_error(profile: Profile, centre: float, curvature: float) -> float:
 def _triple(profile: Profile, centre: float) -> list:
     """The windows' rows at ``centre - FINE_C``, ``centre``, ``centre + FINE_C``."""
     return [profile.tried[round(centre + d, 4)][2] for d in (-FINE_C, 0.0, FINE_C)]
+
+
+def _build(calibration, fs: float, t: float):
+    """:func:`bore_kernel`, looked up when called (a seam the tests replace)."""
+    return bore_kernel(calibration, fs, t)
 
 
 def _cold_starts(p, u, fs, firsts, zero_mean, source, t, config) -> dict:
