@@ -31,6 +31,7 @@ QUICK_ARGS = {
     "bench_bore": [],
     "bench_holes": ["--df", "0.5"],
     "bench_fingered": ["--seeds", "1"],
+    "bench_fingering": [],
     "bench_model": ["--seconds", "1", "--repeats", "3"],
     "bench_inversion": [],
     "bench_frontend": ["--duration", "1"],

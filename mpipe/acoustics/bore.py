@@ -438,7 +438,11 @@ def half_power_bandwidth(freqs: np.ndarray, level_db: np.ndarray, i: int, peak_d
     if level_db[lo] > target or level_db[hi] > target:
         return float("nan")
     f = freqs[lo : hi + 1] - freqs[i]  # centred: a well-conditioned fit
-    inverse = 10 ** (-(level_db[lo : hi + 1] - peak_db) / 10)  # |Z_peak|^2 / |Z|^2
+    with np.errstate(over="ignore"):
+        inverse = 10 ** (-(level_db[lo : hi + 1] - peak_db) / 10)  # |Z_peak|^2 / |Z|^2
+    if hi - lo < 2 or not np.all(np.isfinite(inverse)):
+        # a peak one bin wide, or a measured curve with empty bins (hundreds of dB down)
+        return float("nan")
     c2, c1, c0 = np.polyfit(f, inverse, 2)
     minimum = c0 - c1**2 / (4 * c2)
     if not (c2 > 0 and minimum > 0):

@@ -21,6 +21,7 @@ from mpipe.core.io import check_writable
 from mpipe.measurement.calibration import Calibration, load_calibration
 from mpipe.reed.bore_kernel import prepare_bore
 from mpipe.reed.controls import control_curves, make_controls, play
+from mpipe.reed.fingered_bore import fingered_bore
 from mpipe.reed.parameters import load_reed
 from mpipe.reed.recorder import RecorderOptions
 from mpipe.reed.recording import VirtualTake, virtual_recording
@@ -154,6 +155,7 @@ def synthesize(calibration: Calibration, reed, options: SynthOptions, score=None
         onset = options.onset_s
     rf = reflection_function(calibration.bore, air, fs)
     kernel = prepare_bore(rf, air)
+    fingered = None if score is None else score_bore(calibration, score, air, fs, controls)
     breath_seed, noise_seed = child_seeds(options.seed)
     n = controls.n_samples
     log.info("simulating %.3g s at %g Hz (air at %g degC)", n / fs, fs, t_model)
@@ -165,6 +167,7 @@ def synthesize(calibration: Calibration, reed, options: SynthOptions, score=None
         noise_std_pa=options.breath_noise_pa,
         seed=breath_seed,
         chunk_s=options.chunk_s,
+        fingered=fingered,
     )
     if not np.all(np.isfinite(run.p)):
         raise ValueError("the simulation diverged; check the reed parameters")
@@ -192,6 +195,30 @@ def synthesize(calibration: Calibration, reed, options: SynthOptions, score=None
         ),
     )
     return take, run, mach
+
+
+def score_bore(calibration: Calibration, score, air, fs: float, controls):
+    """The fingered bore of a score whose notes change fingering, else None.
+
+    Each fingering's kernel is the calibration's bore with that fingering's holes open
+    (:meth:`mpipe.measurement.calibration.Calibration.with_fingering`); the first note
+    without a fingering plays the calibration's (the take's) fingering.
+    """
+    names = score.fingerings(calibration.fingering)
+    if len(set(names)) < 2 and names[0] == calibration.fingering:
+        return None
+    if None in names:
+        raise ValueError(
+            "score: a note has no fingering and the calibration names none; give the first "
+            "note a fingering"
+        )
+    order = list(dict.fromkeys(names))
+    kernels = [
+        prepare_bore(reflection_function(calibration.with_fingering(f).bore, air, fs), air)
+        for f in order
+    ]
+    index = [order.index(f) for f in names]
+    return fingered_bore(kernels, score.starts(), index, score.finger_s, controls.n_samples)
 
 
 def _check_options(options: SynthOptions, with_score: bool) -> None:

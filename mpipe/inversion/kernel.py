@@ -18,6 +18,9 @@ The air model (``keefe`` or ``ernoult``) is the calibration's.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
 import numpy as np
 
 from mpipe.acoustics.air import Air
@@ -72,6 +75,54 @@ def bore_kernel(
     return prepare_bore(reflection_function(calibration.bore, air, fs=fs), air), air
 
 
+def fingered(calibration: Calibration, fingering: str | None) -> Calibration:
+    """The calibration playing ``fingering`` (None or "": the calibration as it is)."""
+    return calibration.with_fingering(fingering) if fingering else calibration
+
+
+@dataclass(frozen=True)
+class KernelSource:
+    """The bore kernel of each window: its note's fingering at a temperature, built once.
+
+    Attributes
+    ----------
+    calibration : Calibration
+        The instrument (its fingerings).
+    fs : float
+        Sample rate, Hz.
+    fingerings : mapping of int to str
+        A window's first sample to its note's fingering (empty, or a window missing from it:
+        the calibration's own bore).
+    build : callable, optional
+        Builds a kernel, ``build(calibration, fs, T) -> (kernel, air)``; default
+        :func:`bore_kernel`.
+    """
+
+    calibration: Calibration
+    fs: float
+    fingerings: Mapping[int, str] = field(default_factory=dict)
+    built: dict = field(default_factory=dict)  # (T degC, fingering) -> (kernel, air)
+    build: Callable | None = None  # (calibration, fs, T) -> (kernel, air); None: bore_kernel
+
+    def at(self, t: float, start: int | None = None) -> tuple[BoreKernel, Air]:
+        """The kernel and air of the window starting at ``start`` at ``t`` degC."""
+        name = self.fingerings.get(int(start), "") if start is not None else ""
+        return self.named(t, name)
+
+    def named(self, t: float, name: str = "") -> tuple[BoreKernel, Air]:
+        """The kernel and air of fingering ``name`` ("" the calibration's) at ``t`` degC."""
+        key = (round(float(t), 6), name)
+        if key not in self.built:
+            build = self.build or bore_kernel
+            self.built[key] = build(fingered(self.calibration, name), self.fs, key[0])
+        return self.built[key]
+
+    @property
+    def names(self) -> list[str]:
+        """The fingerings played, in order of first appearance ("" for the calibration's)."""
+        return list(dict.fromkeys(self.fingerings.values())) or [""]
+
+
 def table_temperature(
     table, temperature_c: np.ndarray | float | None, calibration: Calibration
 ) -> float:
@@ -98,4 +149,4 @@ def table_temperature(
     return take_temperature(temperature_c, calibration)
 
 
-__all__ = ["bore_kernel", "table_temperature", "take_temperature"]
+__all__ = ["KernelSource", "bore_kernel", "fingered", "table_temperature", "take_temperature"]

@@ -158,6 +158,12 @@ _INVERSION: tuple[Column, ...] = (
 )
 #: Columns the later stages add: the fitted reed's opening, what was played.
 _LATER: tuple[Column, ...] = (
+    _col(
+        "fingering",
+        TEXT,
+        "fingering of the window's note, whose bore it was inverted on (a name of the "
+        "calibration's fingerings; empty: the calibration's own bore)",
+    ),
     _col("h_mean", FLOAT, "mean opening of the fitted reed"),
     _col("h_min", FLOAT, "smallest opening of the fitted reed"),
     _col(

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import textwrap
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -77,7 +78,7 @@ def resynthesise(
     p: np.ndarray,
     u: np.ndarray,
     fs: float,
-    kernel: BoreKernel,
+    kernel: BoreKernel | Callable[[pd.Series], BoreKernel],
     config: InversionConfig,
     zero_mean: bool,
     progress=None,
@@ -95,8 +96,8 @@ def resynthesise(
         Target pressure (Pa) and flow (m^3/s) of the take.
     fs : float
         Sample rate, Hz.
-    kernel : BoreKernel
-        Prepared bore.
+    kernel : BoreKernel or callable
+        Prepared bore, or ``kernel(row)`` giving each window's (its note's fingering).
     config : InversionConfig
         Start method and filters.
     zero_mean : bool
@@ -130,7 +131,8 @@ def resynthesise(
             # one unusable window must not stop the resynthesis of the others
             log.warning("window at %.3f s not resynthesised: %s", row["t_start_s"], exc)
             continue
-        out = run_model(reed, kernel, target, settings, penalty=np.inf)
+        bore = kernel(row) if callable(kernel) else kernel
+        out = run_model(reed, bore, target, settings, penalty=np.inf)
         if out.feasible:
             p_out[i0:i1] = out.p
             u_out[i0:i1] = out.u

@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 
 from mpipe.inversion.combinations import COMBINATION_NAMES, combination_values
-from mpipe.inversion.kernel import bore_kernel
+from mpipe.inversion.kernel import bore_kernel, fingered
 from mpipe.inversion.segments import pick_windows
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
 from mpipe.inversion.uncertainty import SE_PARAMETERS
@@ -139,21 +139,23 @@ class _Refit:
     zero_mean: bool
     starts: Sequence[int]
     warm: Sequence[ReedParameters]
-    kernels: dict = dataclasses.field(default_factory=dict)  # T degC -> (kernel, air)
+    kernels: dict = dataclasses.field(default_factory=dict)  # (T degC, fingering) -> (k, air)
+    names: Sequence[str] = ()  # each window's fingering ("" or none: the calibration's)
 
-    def kernel(self, t: float):
-        """The bore kernel and air at ``t`` degC, built once per temperature."""
-        key = round(float(t), 6)
+    def kernel(self, t: float, name: str = ""):
+        """The bore kernel and air at ``t`` degC of a fingering, built once each."""
+        key = (round(float(t), 6), name)
         if key not in self.kernels:
-            self.kernels[key] = bore_kernel(self.calibration, self.fs, key)
+            self.kernels[key] = bore_kernel(fingered(self.calibration, name), self.fs, key[0])
         return self.kernels[key]
 
 
 def _logs(refit: _Refit, p, u, t: float) -> tuple[float, np.ndarray]:
     """``R`` (Pa^2) and ``ln q`` (windows x quantities) of the windows re-fitted at ``t`` degC."""
-    kernel, air = refit.kernel(t)
     total, logs = 0.0, []
-    for start, warm in zip(refit.starts, refit.warm, strict=True):
+    names = list(refit.names) or [""] * len(refit.starts)
+    for start, warm, name in zip(refit.starts, refit.warm, names, strict=True):
+        kernel, air = refit.kernel(t, name)
         out = invert_window(p, u, refit.fs, start, kernel, air.rho, refit.config,
                             zero_mean=refit.zero_mean, warm=warm)  # fmt: skip
         if out.reed is None or not math.isfinite(out.row["f2"]):
@@ -294,7 +296,9 @@ def shared_components(
         return out, record
     rows = [ok.iloc[i] for i in pick_windows(range(len(ok)), FRONTEND_WINDOWS)]
     starts = [int(round(float(r["t_start_s"]) * fs)) for r in rows]
-    refit = _Refit(fs, calibration, config, zero_mean, starts, [_reed(r) for r in rows])
+    names = [str(r.get("fingering", "") or "") for r in rows]
+    refit = _Refit(fs, calibration, config, zero_mean, starts, [_reed(r) for r in rows],
+                   names=names)  # fmt: skip
     sens = frontend_sensitivity(p, u, calibration, front, refit, kernel_c=kernel_c,
                                 refit_kernel=refit_kernel)  # fmt: skip
     record["frontend"] = {

@@ -197,7 +197,11 @@ def segment_lines(summary: pd.DataFrame) -> list[str]:
             if np.isfinite(med):
                 parts.append(f"{name} {med:.4g}" + (f" +- {se:.2g}" if np.isfinite(se) else "")
                              + unit)  # fmt: skip
-        what = ", ".join(x for x in (str(r.get("note") or ""), str(r.get("regime") or "")) if x)
+        fingering = r.get("fingering", "")
+        fingering = f"fingering {fingering}" if isinstance(fingering, str) and fingering else ""
+        what = ", ".join(
+            x for x in (str(r.get("note") or ""), str(r.get("regime") or ""), fingering) if x
+        )
         lines.append(
             f"note {number} (segment {int(r['segment'])}) at {r['start_s']:.3f} s "
             f"({r['duration_s']:.2f} s"

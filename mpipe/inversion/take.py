@@ -39,7 +39,7 @@ from mpipe.inversion.budget import combine
 from mpipe.inversion.diagnostics import check_plausible, take_checks
 from mpipe.inversion.discretisation import rate_errors
 from mpipe.inversion.execution import stage_workers
-from mpipe.inversion.kernel import bore_kernel, take_temperature
+from mpipe.inversion.kernel import KernelSource, take_temperature
 from mpipe.inversion.segments import reed_openings
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.shared_errors import FrontEnd, shared_components
@@ -155,11 +155,9 @@ def invert_take(
             p, u, fs, calibration, plan, config, zero_mean=zero_mean, front_end_c=front,
             source="front end" if carried else "calibration",
         )  # fmt: skip
-    kernel, air = bore_kernel(calibration, fs, fit.temperature_c)
-    result = track(
-        p, u, fs, kernel, air.rho, config, executor, windows=plan,
-        anchor=dict(fit.anchors) or None, options=options,
-    )  # fmt: skip
+    source = KernelSource(calibration, fs, plan.fingering_map())
+    kernel, air = source.at(fit.temperature_c, plan.starts[0] if plan.starts else None)
+    result = _track_fingerings(p, u, fs, source, fit, config, executor, plan, options)
     # the budget: the take-wide components beside the windows' own, then one combination
     table = temperature_components(result.table, fit)
     table, shared = shared_components(
@@ -184,6 +182,68 @@ def invert_take(
     )
 
 
+def _track_fingerings(p, u, fs, source, fit, config, executor, plan, options) -> Tracking:
+    """:func:`track` on each fingering's windows with its own bore, merged in time order.
+
+    One fingering (the usual take) is one call. With several, each fingering's windows are
+    tracked on their bore at the one fitted temperature, each note from its own start;
+    the tables are merged by time (``window`` renumbered, histories re-keyed) and each row
+    names its ``fingering``.
+    """
+    anchors = dict(fit.anchors) or None
+    names = source.names if plan.fingerings is not None else [""]
+    if len(names) == 1:
+        kernel, air = source.at(fit.temperature_c, plan.starts[0])
+        result = track(p, u, fs, kernel, air.rho, config, executor, windows=plan,
+                       anchor=anchors, options=options)  # fmt: skip
+        result.table["fingering"] = names[0]
+        return result
+    parts = []
+    for name in names:
+        sub = plan.only(name)
+        kernel, air = source.at(fit.temperature_c, sub.starts[0])
+        opts = options
+        if options is not None and options.checkpoint is not None:
+            # one checkpoint folder per fingering: the windows are numbered per call
+            folder = f"{options.checkpoint}/{name or 'default'}"
+            opts = dataclasses.replace(options, checkpoint=folder)
+        mine = (
+            None
+            if anchors is None
+            else {g: anchors[g] for g in set(sub.segment_ids) if g in anchors}
+        )
+        res = track(p, u, fs, kernel, air.rho, config, executor, windows=sub,
+                    anchor=mine or None, options=opts)  # fmt: skip
+        res.table["fingering"] = name
+        parts.append(res)
+    return merge_trackings(parts)
+
+
+def merge_trackings(parts: Sequence[Tracking]) -> Tracking:
+    """Trackings of disjoint windows as one, in time order."""
+    tables, histories, corr = [], {}, []
+    for k, part in enumerate(parts):
+        t = part.table.copy()
+        t["_old"], t["_part"] = t["window"], k
+        tables.append(t)
+    table = pd.concat(tables, ignore_index=True).sort_values("t_start_s", kind="stable")
+    table = table.reset_index(drop=True)
+    table["window"] = np.arange(len(table))
+    new = {
+        (int(k), int(old)): int(w)
+        for k, old, w in zip(table["_part"], table["_old"], table["window"], strict=True)
+    }
+    for k, part in enumerate(parts):
+        histories.update({new[(k, int(i))]: h for i, h in part.histories.items()})
+        c = part.correlations.copy()
+        if len(c):
+            c["window"] = [new[(k, int(i))] for i in c["window"]]
+        corr.append(c)
+    correlations = pd.concat(corr, ignore_index=True).sort_values("t_start_s", kind="stable")
+    table = table.drop(columns=["_old", "_part"])
+    return Tracking(table, histories, parts[0].zero_mean, correlations.reset_index(drop=True))
+
+
 def _first_agreeing(table) -> int | None:
     """The least agreement of the take's own cold starts (one per note), if it had any.
 
@@ -199,4 +259,4 @@ def _first_agreeing(table) -> int | None:
     return int(values.min()) if len(values) else None
 
 
-__all__ = ["RunOptions", "TakeInversion", "WindowPlan", "invert_take"]
+__all__ = ["RunOptions", "TakeInversion", "WindowPlan", "invert_take", "merge_trackings"]

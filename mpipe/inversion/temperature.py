@@ -35,7 +35,7 @@ import pandas as pd
 from mpipe.inversion.budget import combine, component_column
 from mpipe.inversion.coldstart import map_tasks
 from mpipe.inversion.combinations import COMBINATION_NAMES, combination_values
-from mpipe.inversion.kernel import bore_kernel
+from mpipe.inversion.kernel import KernelSource, bore_kernel
 from mpipe.inversion.note_temperature import (
     NoteTemperatures,
     notes_from_triple,
@@ -202,9 +202,11 @@ def fit_temperature(
     firsts: dict[int, int] = {}  # each segment's first fitted window, in time order
     for s, g in zip(chosen, groups, strict=True):
         firsts.setdefault(g, s)
-    cold = functools.partial(_cold_starts, p, u, fs, firsts, zero_mean)
-    solve = functools.partial(_solve, p, u, fs, calibration, chosen, config, zero_mean)
-    runs, error = _profiles(solve, cold, calibration, fs, config, groups, front_end_c, lo, hi)
+    # each window on its note's fingering's bore (one bore when the take has one fingering)
+    source = KernelSource(calibration, fs, plan.fingering_map(), build=_build)
+    cold = functools.partial(_cold_starts, p, u, fs, firsts, zero_mean, source)
+    solve = functools.partial(_solve, p, u, fs, source, chosen, config, zero_mean)
+    runs, error = _profiles(solve, cold, config, groups, front_end_c, lo, hi)
     if not runs:
         return dataclasses.replace(fallback, note="the fit's cold start failed: " + error)
 
@@ -231,7 +233,7 @@ def fit_temperature(
     keep = [g not in notes.excluded for g in groups]
     if notes.excluded:
         solve_kept = functools.partial(
-            _solve, p, u, fs, calibration, [s for s, k in zip(chosen, keep, strict=True) if k],
+            _solve, p, u, fs, source, [s for s, k in zip(chosen, keep, strict=True) if k],
             config, zero_mean,
         )  # fmt: skip
         again = _without(profile, settled, notes, keep, groups, solve_kept, (lo, hi), config)
@@ -310,29 +312,36 @@ def _triple(profile: Profile, centre: float) -> list:
     return [profile.tried[round(centre + d, 4)][2] for d in (-FINE_C, 0.0, FINE_C)]
 
 
-def _cold_starts(p, u, fs, firsts, zero_mean, kernel, rho, config) -> dict:
-    """Segment -> the cold start of its first fitted window (stops at the first failure)."""
+def _build(calibration, fs: float, t: float):
+    """:func:`bore_kernel`, looked up when called (a seam the tests replace)."""
+    return bore_kernel(calibration, fs, t)
+
+
+def _cold_starts(p, u, fs, firsts, zero_mean, source, t, config) -> dict:
+    """Segment -> the cold start of its first fitted window at ``t`` degC (stops at a failure)."""
     out = {}
     for g, start in firsts.items():
-        out[g] = invert_window(p, u, fs, start, kernel, rho, config, zero_mean=zero_mean)
+        kernel, air = source.at(t, start)
+        out[g] = invert_window(p, u, fs, start, kernel, air.rho, config, zero_mean=zero_mean)
         if out[g].reed is None:
             break
     return out
 
 
-def _solve(p, u, fs, calibration, chosen, config, zero_mean, t: float, warm: Sequence):
+def _solve(p, u, fs, source, chosen, config, zero_mean, t: float, warm: Sequence):
     """``R(T)`` (Pa^2), the windows' reeds and rows at kernel temperature ``t`` (degC)."""
-    kernel, air = bore_kernel(calibration, fs, t)
+    air = source.at(t)[1]
     reeds, rows, total = [], [], 0.0
     # the windows are independent: spread over the workers when there are some
     items = [
-        (fs, s, kernel, air.rho, config, zero_mean, w) for s, w in zip(chosen, warm, strict=True)
+        (fs, s, source.at(t, s)[0], air.rho, config, zero_mean, w)
+        for s, w in zip(chosen, warm, strict=True)
     ]
     for out in map_tasks(_window_task, items, shared=(p, u)):
         if out.reed is None or not math.isfinite(out.row["f2"]):
             return math.inf, list(warm), rows
         reeds.append(out.reed)
-        rows.append({**out.row, **_combinations(out.reed, kernel.z0, air.rho)})
+        rows.append({**out.row, **_combinations(out.reed, source.at(t)[0].z0, air.rho)})
         total += float(out.row["f2"]) ** 2
     return total, reeds, rows
 
@@ -344,7 +353,7 @@ def _window_task(shared, item):
     return invert_window(p, u, fs, start, kernel, rho, config, zero_mean=zero_mean, warm=warm)
 
 
-def _profiles(solve, cold, calibration, fs, config, groups, t_cold, lo, hi):
+def _profiles(solve, cold, config, groups, t_cold, lo, hi):
     """Profiles of R(T), each from a cold start; ``(profile, settled, cold row, T)`` each.
 
     The cold start's basin depends on the kernel: one made at a temperature far from the
@@ -354,8 +363,7 @@ def _profiles(solve, cold, calibration, fs, config, groups, t_cold, lo, hi):
     """
     runs, error = [], ""
     for _ in range(1 + RESTARTS):
-        kernel, air = bore_kernel(calibration, fs, t_cold)
-        colds = cold(kernel, air.rho, config)  # one per segment
+        colds = cold(t_cold, config)  # one per segment
         failed = [c for c in colds.values() if c.reed is None]
         if failed:
             error = failed[0].row["error"]

@@ -125,6 +125,11 @@ class Tracking:
     )
 
 
+def _names(column: pd.Series) -> list[str]:
+    """A fingering column as names ("" where empty or NaN)."""
+    return ["" if (isinstance(x, float) and x != x) else str(x) for x in column]
+
+
 @dataclass(frozen=True)
 class WindowPlan:
     """The windows of a take to invert: first samples, their notes and steadiness.
@@ -140,15 +145,19 @@ class WindowPlan:
     steady : tuple of bool or None
         Which windows are steady (the plan's ``steady``): the temperature fit prefers them
         (:func:`mpipe.inversion.segments.pick_by_segment`); None: all count as steady.
+    fingerings : tuple of str or None
+        The fingering of each window's note (the plan's ``fingering``; "" the calibration's
+        own): each window is inverted on its fingering's bore; None: the calibration's.
     """
 
     starts: tuple[int, ...]
     segments: tuple[int, ...] | None = None
     steady: tuple[bool, ...] | None = None
+    fingerings: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "starts", tuple(int(s) for s in self.starts))
-        for name, kind in (("segments", int), ("steady", bool)):
+        for name, kind in (("segments", int), ("steady", bool), ("fingerings", str)):
             values = getattr(self, name)
             if values is None:
                 continue
@@ -173,6 +182,7 @@ class WindowPlan:
                 rows["start"].astype(int).tolist(),
                 rows["segment"].astype(int).tolist() if "segment" in rows else None,
                 rows["steady"].astype(bool).tolist() if "steady" in rows else None,
+                _names(rows["fingering"]) if "fingering" in rows else None,
             )
         return cls(tuple(windows))
 
@@ -191,6 +201,22 @@ class WindowPlan:
                 f"{end_s if end_s is not None else n_samples / fs:g} s"
             )
         return cls(starts)
+
+    def fingering_map(self) -> dict[int, str]:
+        """First sample -> the fingering of its note (windows with one named)."""
+        names = self.fingerings or ()
+        return {s: f for s, f in zip(self.starts, names, strict=False) if f}
+
+    def only(self, fingering: str) -> WindowPlan:
+        """The windows of one fingering ("" the calibration's own)."""
+        names = self.fingerings or ("",) * len(self.starts)
+        keep = [i for i, f in enumerate(names) if f == fingering]
+
+        def pick(values):
+            return None if values is None else tuple(values[i] for i in keep)
+
+        return WindowPlan(pick(self.starts), pick(self.segments), pick(self.steady),
+                          pick(self.fingerings))  # fmt: skip
 
     @property
     def segment_ids(self) -> list[int]:

@@ -67,6 +67,9 @@ def note_label(row, fingering: str | None = None) -> str:
     f0 = float(row.get("f0_hz", np.nan))
     if np.isfinite(f0):
         parts.append(f"{f0:.1f} Hz")
+    own = row.get("fingering", "")
+    # a phrase's notes each name their own fingering (segments.csv); else the take's
+    fingering = own if isinstance(own, str) and own else fingering
     if fingering:
         parts.append(f"fingering {fingering}")
     return f"note {row['number']}: " + ", ".join(p for p in parts if p)

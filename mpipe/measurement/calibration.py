@@ -117,7 +117,11 @@ class Calibration:
         default=(),
     )
     fingering: str | None = spec(
-        "", "the fingering played (the default; --fingering NAME chooses another)", default=None
+        "",
+        "the fingering played: a name of fingerings, 'auto' (each note's found among them; the "
+        "default when the file names fingerings but not this key) or one name per note "
+        "separated by commas (--fingering chooses another)",
+        default=None,
     )
 
     def _check(self, where: Where) -> None:
@@ -180,8 +184,11 @@ class Calibration:
                         f"no hole named {hole!r} in bore.holes (the holes are "
                         f"{sorted(holes) or 'none'})",
                     )
-        if self.fingering is not None and self.fingering not in names:
-            raise where.error("fingering", _unknown_fingering(self.fingering, names))
+        for name in note_fingerings(self.fingering) or [self.fingering]:
+            if name is not None and name != AUTO and name not in names:
+                raise where.error("fingering", _unknown_fingering(name, names))
+        if self.fingering == AUTO and not names:
+            raise where.error("fingering", "auto: the file names no fingerings to choose from")
 
     def with_fingering(self, name: str) -> Calibration:
         """A copy playing fingering ``name``: its holes open in ``bore``, the others closed.
@@ -216,6 +223,41 @@ class Calibration:
     def with_bore(self, bore: Bore) -> Calibration:
         """A copy with another bore (for example a different termination)."""
         return replace(self, bore=bore)
+
+
+#: The fingering key's value that finds each note's fingering from the data.
+AUTO = "auto"
+
+
+def per_note(fingering: str | None) -> bool:
+    """Whether a fingering setting gives a fingering per note (``auto`` or a list)."""
+    return fingering is not None and (fingering == AUTO or "," in fingering)
+
+
+def note_fingerings(fingering: str | None) -> list[str] | None:
+    """The names of a per-note list ``"xxoo,xooo"`` (None for ``auto``, one name or None)."""
+    if fingering is None or "," not in fingering:
+        return None
+    return [x.strip() for x in fingering.split(",")]
+
+
+def _one_translation(cal: Calibration, path) -> None:
+    """Refuse a fingering per note when the fingerings differ upstream of the microphones.
+
+    The translation from the reference plane to the mouthpiece passes the holes between
+    them, open or closed as the fingering says, and is made once per take: a hole there
+    (a register hole) opened by some fingerings and not others needs one fingering per take.
+    """
+    upstream = [h.name for h in cal.bore.holes_between(0.0, cal.reference_plane)]
+    names = note_fingerings(cal.fingering) or [f.name for f in cal.fingerings]
+    states = {tuple(h in f.open for h in upstream) for f in cal.fingerings if f.name in names}
+    if len(states) > 1:
+        raise ConfigError(
+            f"{path}: fingering: {cal.fingering}: hole(s) {', '.join(upstream)} lie between "
+            "the mouthpiece and the reference plane and the fingerings open them differently; "
+            "the translation to the mouthpiece takes one fingering per take: give "
+            "--fingering NAME (or fingerings that agree there)"
+        )
 
 
 def _unknown_fingering(name: str, names: list[str]) -> str:
@@ -288,13 +330,17 @@ def load_calibration(path: str | Path, fingering: str | None = None) -> Calibrat
     _fingering_list(data, path)
     cal = build(Calibration, data, Where(str(path)))
     name = fingering if fingering is not None else cal.fingering
-    if name is not None:
+    if name is None and cal.fingerings:
+        name = AUTO  # a fingering per note, found from the data
+    if per_note(name):
+        if name != AUTO and not cal.fingerings:
+            raise ConfigError(f"{path}: {_unknown_fingering(name, [])}")
+        for each in note_fingerings(name) or ():
+            cal.with_fingering(each)  # a one-line error for an unknown name
+        cal = replace(cal, fingering=name)
+        _one_translation(cal, path)
+    elif name is not None:
         cal = cal.with_fingering(name)
-    elif cal.fingerings:
-        raise ConfigError(
-            f"{path}: fingering: missing; name the default fingering (one of "
-            f"{', '.join(f.name for f in cal.fingerings)}) or give --fingering NAME"
-        )
     if cal.bore.measured is not None:
         cal = attach_measured_bore(cal, path)
     return cal

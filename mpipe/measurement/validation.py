@@ -36,6 +36,7 @@ from scipy import ndimage, signal
 from mpipe.acoustics.bore import input_impedance
 from mpipe.core.config import between, positive, spec
 from mpipe.measurement.calibration import Calibration
+from mpipe.measurement.fingerings import harmonic_lines, identify
 from mpipe.measurement.pitch import yin_f0
 from mpipe.measurement.validation_metrics import harmonic_errors, resonance_errors
 from mpipe.measurement.validation_result import ValidationResult, db
@@ -303,7 +304,10 @@ def validate(
         min_checks=config.min_checks,
     )
     if result.failures:
-        result = dataclasses.replace(result, suspects=suspect_inputs(result, calibration))
+        suspects = suspect_inputs(result, calibration)
+        if tonal:
+            suspects = _other_fingering(p, u, fs, f0, calibration, t) + suspects
+        result = dataclasses.replace(result, suspects=suspects)
     log.info("validation: %s (%s)", result.verdict, result.reason)
     return result
 
@@ -400,6 +404,27 @@ def suspect_inputs(result: ValidationResult, calibration: Calibration) -> tuple[
         or bool(np.any(np.abs(np.asarray(phases, dtype=float)) > 20.0))
     )
     return tuple(frequency + scale if gross else scale + frequency)
+
+
+def _other_fingering(p, u, fs, f0, calibration: Calibration, t: float) -> tuple[str, ...]:
+    """The fingering, first of the suspects, when another of the calibration's fits better.
+
+    A note validated against the wrong fingering (a register hole closed in the theory and
+    open on the instrument, a phrase of several fingerings) fails at its harmonics as a
+    wrong bore does; the note's harmonic lines weigh every fingering
+    (:func:`mpipe.measurement.fingerings.identify`), and one more likely than the one
+    validated is named.
+    """
+    if len(calibration.fingerings) < 2:
+        return ()
+    choice = identify(f0, calibration, harmonic_lines(p, u, fs, f0), t)
+    if choice.fingering == calibration.fingering or choice.probability < 0.5:
+        return ()
+    return (
+        f"the fingering: the note's harmonics fit {choice.fingering} (p = "
+        f"{choice.probability:.3f}), not {calibration.fingering}: give --fingering "
+        f"{choice.fingering}, or auto",
+    )
 
 
 def _failures(

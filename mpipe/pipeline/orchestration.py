@@ -23,7 +23,7 @@ from mpipe.core.errors import UserError
 from mpipe.core.io import folder_lock, write_atomic, write_csv, write_npz_atomic
 from mpipe.core.progress import ProgressBar, stage_timer
 from mpipe.inversion.conditioning import bore_resonances, plan_take
-from mpipe.inversion.kernel import bore_kernel, table_temperature, take_temperature
+from mpipe.inversion.kernel import KernelSource, table_temperature
 from mpipe.inversion.records import read_windows
 from mpipe.inversion.segments import plot_segments, reed_openings, segment_summary, with_played
 from mpipe.inversion.settings import PARAMETER_NAMES
@@ -34,15 +34,14 @@ from mpipe.inversion.tables import segment_lines, why_no_window, write_correlati
 from mpipe.inversion.take import RunOptions, WindowPlan, invert_take
 from mpipe.inversion.tracking import detect_zero_mean
 from mpipe.measurement.calibration import Calibration, load_calibration
-from mpipe.measurement.measured_instrument import bore_description
 from mpipe.measurement.separation.stage import separate
 from mpipe.measurement.separation.waves import Theta
 from mpipe.measurement.takes import read_take
 from mpipe.measurement.translation import mouthpiece_noise, translate, write_mouthpiece_wav
-from mpipe.measurement.validation import validate
-from mpipe.measurement.validation_result import plot_impedance
 from mpipe.pipeline import report
 from mpipe.pipeline.manifest import PARTIAL, StageRecord, run_stage
+from mpipe.pipeline.note_validation import stage_validation as _stage_validation
+from mpipe.pipeline.note_validation import with_fingerings
 from mpipe.pipeline.report import plot_blocks
 from mpipe.pipeline.settings import PipelineConfig
 from mpipe.pipeline.take_calibration import sidecar_check
@@ -164,34 +163,7 @@ def _stage_translation(folder_sep: Path, cal: Calibration, cfg: PipelineConfig):
     return work
 
 
-def _stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg: PipelineConfig):
-
-    def work(folder: Path):
-        mp = _load_npz(mouthpiece)
-        t_eff = take_temperature(mp.get("temperature_c"), cal)
-        val = validate(mp["p"], mp["u"], float(mp["fs"]), cal, cfg.validation, t_eff)
-        write_csv(folder / "impedance.csv", val.table())
-        write_csv(folder / "validation.csv", val.resonances)
-        write_csv(folder / "harmonics.csv", val.harmonics)
-        write_atomic(folder / "impedance.png", lambda t: plot_impedance(val, t, 2000.0))
-        summary = {
-            "verdict": val.verdict,
-            "reason": val.reason,
-            "passed": bool(val.passed),
-            "failures": list(val.failures),
-            "band_error_db": float(val.band_error_db),
-            "text": val.summary(),
-            "temperature_c": t_eff,
-            "bore": bore_description(cal),
-        }
-        outputs = {"impedance": "impedance.csv", "resonances": "validation.csv",
-                   "harmonics": "harmonics.csv", "plot": "impedance.png"}  # fmt: skip
-        return outputs, summary
-
-    return work
-
-
-def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig):
+def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig, notes=None):
 
     inv = cfg.inversion
 
@@ -203,6 +175,7 @@ def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig)
             mp["p"], fs, cfg.conditioning, inv.window_s, inv.hop_s,
             resonances_hz=bore_resonances(cal), tracks_out=tracks,
         )  # fmt: skip
+        segments, table = with_fingerings(segments, table, notes, cal)
         write_csv(folder / "plan.csv", table)
         write_csv(folder / "segments.csv", segments)
         plot_segments(segments, tracks, folder / "segments.png",
@@ -309,7 +282,13 @@ def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
         fs = float(mp["fs"])
         p, u = mp["p"], mp["u"]
         table = read_windows(windows)
-        kernel, _ = bore_kernel(cal, fs, table_temperature(table, mp.get("temperature_c"), cal))
+        source = KernelSource(cal, fs)
+        t_kernel = table_temperature(table, mp.get("temperature_c"), cal)
+
+        def kernel(row):  # each window on its note's fingering's bore
+            name = row.get("fingering", "")
+            return source.named(t_kernel, name if isinstance(name, str) else "")[0]
+
         bar = ProgressBar(len(table), desc="resynthesis")
         try:
             res = rs.resynthesise(table, p, u, fs, kernel, cfg.inversion, zero_mean, bar)
@@ -447,10 +426,11 @@ def run_take_unlocked(
     stage(2, "translation", {"reference": reference, **cal_inputs}, cfg.translation,
           _stage_translation(d["separation"], cal, cfg))  # fmt: skip
     mouthpiece = d["translation"] / "mouthpiece.npz"
+    val_config = {"validation": cfg.validation, "conditioning": cfg.conditioning}
     val = stage(3, "validation", {"mouthpiece": mouthpiece, "blocks": blocks, **cal_inputs},
-                cfg.validation, _stage_validation(mouthpiece, blocks, cal, cfg))  # fmt: skip
+                val_config, _stage_validation(mouthpiece, blocks, cal, cfg))  # fmt: skip
     verdict = val.summary["verdict"]
-    say(f"[{name}]     impedance validation: {verdict.upper()} ({val.summary.get('reason', '')})")
+    _say_validation(say, name, val.summary)
     if verdict == "fail":
         if not accept_failed_validation:
             raise ValidationFailed(  # the reason was said on the line above
@@ -458,17 +438,18 @@ def run_take_unlocked(
                 f"{d['validation']}; pass --accept-failed-validation to invert anyway"
             )
         say(f"[{name}]     inverting despite the FAILED validation (--accept-failed-validation)")
-    cond_config = {"conditioning": cfg.conditioning, "window_s": cfg.inversion.window_s,
-                   "hop_s": cfg.inversion.hop_s, "signal": cfg.inversion.signal}  # fmt: skip
-    cond = stage(4, "conditioning", {"mouthpiece": mouthpiece, **cal_inputs}, cond_config,
-                 _stage_conditioning(mouthpiece, cal, cfg))  # fmt: skip
+    notes = d["validation"] / "notes.csv"  # a phrase's fingerings, when validated per note
+    cond = stage(4, "conditioning", {"mouthpiece": mouthpiece, **cal_inputs,
+                 **_present(notes=notes)}, _conditioning_config(cfg),
+                 _stage_conditioning(mouthpiece, cal, cfg, notes))  # fmt: skip
     say(f"[{name}]     {cond.summary['to_invert']} of {cond.summary['windows']} windows to invert")
     plan = d["conditioning"] / "plan.csv"
     inv_inputs = {"mouthpiece": mouthpiece, "plan": plan, "blocks": blocks, **cal_inputs}
     # a take read with sensitivities other than those its sidecar records is CHECK
     mismatch = sidecar_check(take_paths, cal)
     inv = stage(5, "inversion", inv_inputs, cfg.inversion,
-                _stage_inversion(mouthpiece, plan, cal, cfg, client, (mismatch,)))  # fmt: skip
+                _stage_inversion(mouthpiece, plan, cal, cfg, client,
+                                 (mismatch, *val.summary.get("fingering_checks", []))))  # fmt: skip
     say(f"[{name}]     {inv.summary['temperature_line']}")
     for line in inv.summary.get("segment_lines", []):
         say(f"[{name}]     {line}")
@@ -485,6 +466,25 @@ def run_take_unlocked(
     report = write_take_report(root, name, take_paths, cal_path, records)
     say(f"[{name}]     report: {report}")
     return TakeRun(name, root, records, report)
+
+
+def _conditioning_config(cfg: PipelineConfig) -> dict:
+    """The settings the conditioning stage depends on (its manifest's configuration)."""
+    return {"conditioning": cfg.conditioning, "window_s": cfg.inversion.window_s,
+            "hop_s": cfg.inversion.hop_s, "signal": cfg.inversion.signal}  # fmt: skip
+
+
+def _say_validation(say: Callable[[str], None], name: str, summary: dict) -> None:
+    """The validation's verdict, and each note's line (fingering, verdict) of a phrase."""
+    say(f"[{name}]     impedance validation: {summary['verdict'].upper()} "
+        f"({summary.get('reason', '')})")  # fmt: skip
+    for line in summary.get("note_lines", []):
+        say(f"[{name}]       {line}")
+
+
+def _present(**paths: Path) -> dict:
+    """The paths that exist (an optional input of a stage)."""
+    return {k: v for k, v in paths.items() if v.exists()}
 
 
 def usable(run: TakeRun) -> bool:

@@ -313,6 +313,7 @@ def _measurement_section(
         + f"Verdict: {val['verdict'].upper()}"
         + (f" ({val['reason']})" if val.get("reason") else "")
         + "."
+        + "".join(f"\nNote {line}." for line in val.get("note_lines", []))
         + _resonance_words(resonances)
         + "".join(f"\nWarning: {w}." for w in sep.get("warnings", []))
         + (

@@ -59,8 +59,10 @@ class PipelineConfig:
     )
     fingering: str | None = spec(
         "",
-        "the fingering played, a name of the calibration's fingerings (null: the "
-        "calibration's default)",
+        "the fingering played: a name of the calibration's fingerings, 'auto' (each note's "
+        "found among them from its harmonics) or one name per note separated by commas "
+        "(null: the calibration's 'fingering'; 'auto' when it names fingerings but no "
+        "default)",
         default=None,
     )
     separation: SeparationConfig = spec(

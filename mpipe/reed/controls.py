@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mpipe.reed.bore_kernel import BoreKernel
+from mpipe.reed.fingered_bore import FingeredBore
 from mpipe.reed.model import ModelState, mouth_pressure_series, simulate
 from mpipe.reed.parameters import ReedParameters
 
@@ -301,6 +302,7 @@ def play(
     seed: int = 0,
     chunk_s: float = CHUNK_S,
     method: str = "fast",
+    fingered: FingeredBore | None = None,
 ) -> PlayedRun:
     """Play the model on the bore under time-varying controls, from rest.
 
@@ -323,6 +325,9 @@ def play(
         Length of the pieces over which varying reed parameters are held, s.
     method : {"fast", "direct"}
         Kernel of :func:`mpipe.reed.model.simulate`.
+    fingered : FingeredBore, optional
+        A bore whose fingering changes (:mod:`mpipe.reed.fingered_bore`): each piece is
+        played on its kernel (``kernel`` then only fixes the rate).
 
     Returns
     -------
@@ -340,17 +345,21 @@ def play(
     n = controls.n_samples
     pm = mouth_pressure_series(reed, n, kernel.fs, controls.p_m, onset_s, noise_std_pa, seed)
     pieces = plan_pieces(reed, controls, chunk_s)
-    state = ModelState(np.zeros(kernel.n_taps), 0.0, 0.0, 0.0 if onset_s > 0 else float(pm[0]))
+    if fingered is not None:
+        pieces = _cut(pieces, fingered.cuts(n))
+    taps = kernel.n_taps if fingered is None else fingered.kernels[0].n_taps
+    state = ModelState(np.zeros(taps), 0.0, 0.0, 0.0 if onset_s > 0 else float(pm[0]))
     names = ("p", "u", "u_f", "u_r", "y", "h", "p_minus")
     out = {k: np.empty(n) for k in names}
     for piece in pieces:
         span = slice(piece.start, piece.stop)
+        bore = kernel if fingered is None else fingered.kernel(piece.start, piece.stop)
         if piece.tongued:
-            part, state = hold_shut(kernel, state, pm[span], piece.reed.y_m)
+            part, state = hold_shut(bore, state, pm[span], piece.reed.y_m)
         else:
             sim = simulate(
                 piece.reed,
-                kernel,
+                bore,
                 piece.stop - piece.start,
                 mouth_pressure=pm[span],
                 method=method,
@@ -368,6 +377,19 @@ def play(
         controls=controls,
         **out,
     )
+
+
+def _cut(pieces: list[Piece], cuts: Sequence[int]) -> list[Piece]:
+    """The pieces cut again at ``cuts`` (samples), each part keeping its piece's reed."""
+    out = []
+    for piece in pieces:
+        inner = [c for c in cuts if piece.start < c < piece.stop]
+        edges = [piece.start, *inner, piece.stop]
+        out += [
+            Piece(a, b, piece.reed, piece.tongued)
+            for a, b in zip(edges[:-1], edges[1:], strict=True)
+        ]
+    return out
 
 
 def hold_shut(

@@ -15,12 +15,17 @@ blown, and :func:`score_controls` turns it into the per-sample :class:`Controls`
         tongued: true            # the tongue holds the reed shut at the start ...
         tongue_hold: 0.03        # ... for this long, s (p_m rises behind it)
         vibrato: {rate: 5, depth: 0.08, delay: 0.2}   # Hz, fraction of p_m, s
+        fingering: xxxx          # a name of the calibration's fingerings (default: the
+                                 # previous note's; the first: the take's fingering)
       - gap: 0.25                # s of silence before this note (or start: absolute s)
         duration: 0.7
         p_m: [[0, 1800], [0.5, 2400]]   # a crescendo: linear between breakpoints
 
 Breakpoint times are in s from the note's start; before the first and after the last the
-curve holds its end value. Between notes the mouth pressure is 0 (the player breathes) and
+curve holds its end value. A note with another fingering than the one before changes it
+over ``finger_s`` (a score key, 5 ms by default) ending at the note's start: a slur when
+there is no gap (:mod:`mpipe.reed.fingered_bore` says how the bore changes). Between
+notes the mouth pressure is 0 (the player breathes) and
 the reed parameters keep the previous note's last values. A note is *sounding* from the
 end of its tongue hold (or its start) to the end of its release; these spans go into the
 take's truth.
@@ -84,6 +89,12 @@ class Note:
     m: Breakpoints | None = spec("kg/m^2", "reed mass per unit area", default=None)
     g: Breakpoints | None = spec("1/s", "damping rate", default=None)
     k_c: Breakpoints | None = spec("Pa/m^alpha", "contact stiffness", default=None)
+    fingering: str | None = spec(
+        "",
+        "the fingering of the note, a name of the calibration's fingerings (null: the "
+        "previous note's; the first note: the take's fingering)",
+        default=None,
+    )
 
     file_keys = {"lam": "lambda"}  # as in reed files; ``lam`` in code and tables
 
@@ -147,6 +158,13 @@ class Score:
     notes: tuple[Note, ...] = spec("", "the notes, in order")
     end: float = spec("s", "silence after the last note", _non_negative, default=0.05)
     description: str = spec("", "what the score plays", default="")
+    finger_s: float = spec(
+        "s",
+        "time the fingers take to change from one fingering to the next, ending at the "
+        "next note's start (the holes open or close over it)",
+        between(0.0, 0.1),
+        default=0.005,
+    )
 
     def _check(self, where: Where) -> None:
         if not self.notes:
@@ -177,6 +195,14 @@ class Score:
     def duration(self) -> float:
         """Length of the take the score plays, s."""
         return self.starts()[-1] + self.notes[-1].duration + self.end
+
+    def fingerings(self, first: str | None) -> list[str | None]:
+        """Each note's fingering: its own, else the previous note's (the first: ``first``)."""
+        out, current = [], first
+        for note in self.notes:
+            current = note.fingering if note.fingering is not None else current
+            out.append(current)
+        return out
 
     def sounding(self) -> tuple[tuple[float, float], ...]:
         """Sounding span of each note (tongue released, to the end of the release), s."""

@@ -108,3 +108,24 @@ def test_the_takes_agreement_is_its_least_agreed_notes_own_cold_start():
     assert _first_agreeing(table) == 1
     assert _first_agreeing(table.iloc[:3]) == 6  # one note: its own cold start
     assert _first_agreeing(table.drop(columns="cold_starts_agreeing")) is None
+
+
+def test_trackings_of_two_fingerings_merge_in_time_order():
+    # each fingering's windows are tracked apart and numbered from 0; merged, the windows
+    # are in time order, renumbered, and histories and correlations follow their window
+    from mpipe.inversion.take import merge_trackings
+    from mpipe.inversion.tracking import Tracking
+
+    def part(starts, name):
+        table = pd.DataFrame({"window": range(len(starts)), "t_start_s": starts,
+                              "fingering": name})  # fmt: skip
+        corr = table[["window", "t_start_s"]].assign(parameter_a="k", parameter_b="S",
+                                                     correlation=0.5)  # fmt: skip
+        return Tracking(table, {i: [s] for i, s in enumerate(starts)}, True, corr)
+
+    merged = merge_trackings([part([0.0, 0.04], "xxxx"), part([0.02, 0.06], "xxoo")])
+    assert list(merged.table["t_start_s"]) == [0.0, 0.02, 0.04, 0.06]
+    assert list(merged.table["window"]) == [0, 1, 2, 3]
+    assert list(merged.table["fingering"]) == ["xxxx", "xxoo", "xxxx", "xxoo"]
+    assert {w: h[0] for w, h in merged.histories.items()} == {0: 0.0, 1: 0.02, 2: 0.04, 3: 0.06}
+    assert list(merged.correlations["window"]) == [0, 1, 2, 3]

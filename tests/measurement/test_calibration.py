@@ -204,7 +204,7 @@ def test_a_register_hole_before_the_reference_plane_is_allowed(tmp_path):
         ({}, "ox", "unknown fingering 'ox'; expected one of "),
         ({"fingering": "nope"}, None, "fingering: unknown fingering 'nope'"),
         ({"fingerings": {"xx": ["h9"]}}, None, "fingerings.xx: no hole named 'h9'"),
-        ({"fingering": DELETE}, None, "fingering: missing; name the default fingering"),
+        ({}, "xx,ox", "unknown fingering 'ox'; expected one of "),
         ({"fingerings": ["h1"]}, None, "fingerings: expected a mapping"),
         ({"fingerings": {"xx": "h1"}}, None, "fingerings.xx: expected a list of hole names"),
     ],

@@ -196,3 +196,29 @@ def test_chunked_welch_spectra_equal_the_whole_signal_ones(n):
     np.testing.assert_allclose(s_pp, signal.welch(p, **kw)[1], rtol=1e-10)
     np.testing.assert_allclose(s_up, signal.csd(u, p, **kw)[1], rtol=1e-10, atol=1e-18)
     assert f.size == 65
+
+
+def test_a_register_hole_note_passes_and_a_closed_register_hole_names_the_fingering(tmp_path):
+    # a second-register note (f0 at the second resonance with a register hole at 0.15 m,
+    # upstream of the microphones) made from the theory of the fingering with the hole
+    # open: it PASSES against that fingering on 3 seeds; against the same fingering with
+    # the hole closed it FAILS, and the first suspect is the fingering, not the geometry
+    import yaml
+
+    from mpipe.measurement.calibration import load_calibration
+    from tests.measurement.fingering_helpers import FOUR_HOLES, theory_note
+
+    data = yaml.safe_load(FOUR_HOLES.read_text())
+    data["bore"]["holes"].insert(0, {"name": "reg", "position": 0.15, "radius": 0.0015,
+                                     "chimney": 0.012})  # fmt: skip
+    data["fingerings"]["rxxxx"] = ["reg"]
+    path = tmp_path / "register.yaml"
+    path.write_text(yaml.safe_dump(data))
+    opened, closed = load_calibration(path, "rxxxx"), load_calibration(path, "xxxx")
+    f0, fs = 331.0, 10000.0  # below the second resonance, 335 Hz
+    for seed in range(3):
+        p, u = theory_note(opened, "rxxxx", f0, 1.0, fs, np.random.default_rng(seed))
+        assert validate(p, u, fs, opened, ValidationConfig(), 20.0).verdict == "pass"
+    failed = validate(p, u, fs, closed, ValidationConfig(), 20.0)
+    assert failed.verdict == "fail"
+    assert failed.suspects[0].startswith("the fingering: the note's harmonics fit rxxxx")

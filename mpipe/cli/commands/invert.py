@@ -20,14 +20,16 @@ from mpipe.core.resampling import resample
 from mpipe.core.units import unit_of
 from mpipe.inversion.conditioning import bore_resonances, plan_take
 from mpipe.inversion.execution import connect
+from mpipe.inversion.kernel import KernelSource, take_temperature
 from mpipe.inversion.segments import segment_summary, with_played
 from mpipe.inversion.status import summary_line
 from mpipe.inversion.status_words import reason_words
 from mpipe.inversion.tables import segment_lines, write_correlations, write_table
 from mpipe.inversion.take import RunOptions, WindowPlan, invert_take
 from mpipe.inversion.tracking import ProgressBar
-from mpipe.measurement.calibration import load_calibration
+from mpipe.measurement.calibration import load_calibration, per_note
 from mpipe.measurement.measured_instrument import bore_description
+from mpipe.pipeline.note_validation import validate_notes, with_fingerings
 from mpipe.pipeline.settings import load_pipeline
 
 log = logging.getLogger(__name__)
@@ -166,6 +168,7 @@ def _run(args: argparse.Namespace) -> int:
     table = result.table
     log.info("%s", take.temperature.line())
     out.mkdir(parents=True, exist_ok=True)
+    kernel = _window_kernel(kernel, table, cal, fs)
     _write_results(out, plan, result, p, u, fs, kernel, air, inv, cal.fingering)
     run_info = {
         "mpipe_version": __version__,
@@ -218,6 +221,12 @@ def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
         raise UserError(
             f"{args.mouthpiece}: {'--' if msg.startswith(('start ', 'end ')) else ''}{msg}"
         ) from None
+    if per_note(cal.fingering):  # each note's fingering, as `mpipe run` finds it
+        notes = validate_notes(p, u, fs, cal, cfg.validation, cfg.conditioning,
+                               take_temperature(temperature, cal))  # fmt: skip
+        for line in notes.lines():
+            log.info("%s", line)
+        segments, plan = with_fingerings(segments, plan, notes.notes, cal)
     chosen = plan[plan["invert"]]
     starts = chosen["start"].astype(int).tolist()
     if not starts:
@@ -240,6 +249,15 @@ def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
         if client is not None:
             client.close()
     return (plan, segments), take
+
+
+def _window_kernel(kernel, table, cal, fs: float):
+    """The take's kernel, or each window's (its fingering's) when the take has several."""
+    names = set(table["fingering"]) if "fingering" in table else set()
+    if len(names) <= 1:
+        return kernel
+    source = KernelSource(cal, fs)
+    return lambda row: source.named(float(row["kernel_temperature_c"]), row["fingering"])[0]
 
 
 def _write_results(

@@ -36,9 +36,10 @@ import numpy as np
 from mpipe.cli.commands import add_fingering_option
 from mpipe.core.errors import UserError
 from mpipe.core.io import check_writable, folder_lock, write_atomic, write_csv, write_npz_atomic
+from mpipe.inversion.conditioning_settings import ConditioningConfig
 from mpipe.inversion.kernel import take_temperature
 from mpipe.inversion.settings import InversionConfig
-from mpipe.measurement.calibration import load_calibration
+from mpipe.measurement.calibration import load_calibration, per_note
 from mpipe.measurement.measured_instrument import bore_description
 from mpipe.measurement.separation.settings import SeparationConfig
 from mpipe.measurement.separation.stage import separate
@@ -51,6 +52,7 @@ from mpipe.measurement.translation import (
 )
 from mpipe.measurement.validation import ValidationConfig, validate
 from mpipe.measurement.validation_result import plot_impedance
+from mpipe.pipeline.note_validation import validate_notes
 from mpipe.pipeline.settings import load_pipeline
 
 log = logging.getLogger(__name__)
@@ -142,12 +144,31 @@ def _run(args: argparse.Namespace) -> int:
         tr = translate(sep.p0, sep.u0, fs, cal, tr_cfg, sep.temperature_track())
         log.info("stage 3/3: impedance validation")
         t_eff = take_temperature(tr.temperature_c, cal)
-        val = validate(tr.p, tr.u, fs, cal, val_cfg, t_eff)
+        val = _validation(tr, fs, cal, val_cfg, t_eff, args)
         noise = mouthpiece_noise(fs, cal, sep.noise_psd, sep.median_theta(), t_eff, sep_cfg)
     except ValueError as exc:
         raise UserError(f"{takes[0]}: {exc}") from None
     _write_outputs(out, fs, sep, tr, val, noise)
     return _print_summary(sep, val, paths)
+
+
+def _validation(tr, fs: float, cal, val_cfg, t_eff: float, args):
+    """The take's validation; with a fingering per note, each note on its own (the lines)."""
+    if not per_note(cal.fingering):
+        return validate(tr.p, tr.u, fs, cal, val_cfg, t_eff)
+    conditioning = ConditioningConfig()
+    if args.pipeline:
+        conditioning = load_pipeline(args.pipeline, check_calibration=False).conditioning
+    notes = validate_notes(tr.p, tr.u, fs, cal, val_cfg, conditioning, t_eff)
+    for line in [f"validation: {notes.verdict} ({notes.reason})", *notes.lines()]:
+        print(line)
+    shown = notes.shown()
+    if shown is None or (shown.verdict == "fail" and notes.verdict != "fail"):
+        # nothing the notes could verify: the take's curves, nothing failed
+        first = cal.with_fingering(cal.fingerings[0].name)
+        whole = shown or validate(tr.p, tr.u, fs, first, val_cfg, t_eff)
+        return dataclasses.replace(whole, failures=(), suspects=(), checks=0)
+    return shown
 
 
 def _inputs(args: argparse.Namespace) -> tuple[list[str], str, Path, list[Path]]:
