@@ -24,8 +24,9 @@ from mpipe.core.io import folder_lock, write_atomic, write_csv, write_npz_atomic
 from mpipe.core.progress import ProgressBar, stage_timer
 from mpipe.inversion.conditioning import bore_resonances, plan_take
 from mpipe.inversion.kernel import bore_kernel, table_temperature, take_temperature
+from mpipe.inversion.notes import segment_summary
 from mpipe.inversion.records import read_windows
-from mpipe.inversion.segments import plot_segments, reed_openings, segment_summary, with_played
+from mpipe.inversion.segments import plot_segments, reed_openings, with_played
 from mpipe.inversion.settings import PARAMETER_NAMES
 from mpipe.inversion.shared_errors import FrontEnd
 from mpipe.inversion.status import count as count_status
