@@ -227,7 +227,6 @@ def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig)
 def _stage_inversion(
     mouthpiece: Path, plan: Path, cal: Calibration, cfg: PipelineConfig, client, checks=()
 ):
-
     # lazy: the resynthesis module loads matplotlib (~0.4 s of every command's start-up)
     from mpipe.inversion import resynthesis as rs
     from mpipe.inversion.tracks_plot import plot_tracks
@@ -300,7 +299,6 @@ def _stage_inversion(
 
 
 def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
-
     # lazy: the resynthesis module loads matplotlib (~0.4 s of every command's start-up)
     from mpipe.inversion import resynthesis as rs
     from mpipe.inversion.note_figures import plot_notes, plot_overlays
