@@ -41,7 +41,7 @@ _API = {
     "plan_take": "mpipe.inversion.conditioning",
     "bore_resonances": "mpipe.inversion.conditioning",
     "segment_take": "mpipe.inversion.segments",
-    "segment_summary": "mpipe.inversion.segments",
+    "segment_summary": "mpipe.inversion.notes",
     "yin_f0": "mpipe.measurement.pitch",
     "bore_kernel": "mpipe.inversion.kernel",
     "take_temperature": "mpipe.inversion.kernel",

@@ -36,6 +36,17 @@ import pandas as pd
 
 from mpipe.inversion.combinations import COMBINATION_NAMES
 
+# ORDER and LOWEST_RATE_HZ live in the settings, which check the model's rate.
+# ORDER, the order of the bound in 1/fs: the least-squares slope of the largest |bias|
+# over the six cases against log(F_REF_HZ / fs), median over the quantities (1.3-1.45
+# for one loud note alone). Not the second order of the reed's centred differences
+# alone: some part of the scheme errs at first order (which part was not isolated).
+# LOWEST_RATE_HZ, the lowest model rate whose bias the measurement bounds: at 22.05 kHz
+# mpipe's reflection function misses |Z_in| by its 0.1 dB limit at some kernel
+# temperatures (the hard reed's inversion stopped there), so the model is not the one
+# validated; 32 kHz is the lowest measured rate where every case ran and the bound held.
+from mpipe.inversion.settings import LOWEST_RATE_HZ, ORDER, check_model_rate
+
 #: Quantities whose discretisation bias was measured (y_c is fixed unless contact: free,
 #: and was not measured: its column stays NaN, the component does not apply).
 QUANTITIES = ("k", "S", "y_m", "p_m", "m", "g", "lam", "k_c", *COMBINATION_NAMES)
@@ -46,22 +57,12 @@ QUANTITIES = ("k", "S", "y_m", "p_m", "m", "g", "lam", "k_c", *COMBINATION_NAMES
 #: biases than the Table 1 reed's 2.09 kHz; the four-hole bore's xxoo note, whose first
 #: resonance is 19 % higher, 0.94 times its xxxx note's at 44.1 kHz, not 1.24 times).
 F_REF_HZ = 7250.0
-#: Order of the bound in 1/fs: the least-squares slope of the largest |bias| over the six
-#: cases against log(F_REF_HZ / fs), median over the quantities (1.3-1.45 for one loud
-#: note alone). Not the second order of the reed's centred differences alone: some part
-#: of the scheme errs at first order (which part was not isolated).
-ORDER = 1.26
 #: c_q of the bound: the largest measured |bias| (fs / F_REF_HZ)^ORDER over the six cases
 #: and the fitted rates, rounded up to three digits (the relative bias at fs = F_REF_HZ).
 BIAS_CONSTANTS: dict[str, float] = {
     "k": 0.512, "S": 0.763, "y_m": 0.628, "p_m": 0.833, "m": 0.846, "g": 3.97, "lam": 1.22,
     "k_c": 1.85, "p_M": 1.05, "gamma": 0.348, "zeta": 1.33, "f_r": 0.21, "Q_r": 5.12,
 }  # fmt: skip
-#: The lowest model rate whose bias the measurement bounds, Hz: at 22.05 kHz mpipe's
-#: reflection function misses |Z_in| by its 0.1 dB limit at some kernel temperatures (the
-#: hard reed's inversion stopped there), so the model is not the one validated; 32 kHz is
-#: the lowest measured rate where every case ran and the bound held.
-LOWEST_RATE_HZ = 32000.0
 #: Provenance of the constants above: ``bench_rate.py --variants scheme`` (six cases,
 #: 400 kHz reference on a 200 ms reflection function; fitted on 22.05, 32, 48, 50, 96 and
 #: 100 kHz, 44.1 kHz held out for tests/inversion/test_discretisation.py).
@@ -124,19 +125,6 @@ def rate_errors(table: pd.DataFrame, fs_model: float) -> pd.DataFrame:
         with np.errstate(invalid="ignore"):
             out[f"{q}_se_rate"] = np.where(np.isnan(x), np.nan, np.abs(x) * rel)
     return out
-
-
-def check_model_rate(value: float) -> str | None:
-    """The check of ``inversion.sample_rate``: None, or why the rate is refused."""
-    if not value <= 1e6:
-        return f"expected at most 1e+06 Hz, got {value:g}"
-    if not value >= LOWEST_RATE_HZ:
-        return (
-            f"{value:g} Hz is below {LOWEST_RATE_HZ:g} Hz, the lowest model rate whose "
-            "discretisation error the uncertainty budget bounds (docs/uncertainty.md, "
-            '"The model\'s rate"); use at least that'
-        )
-    return None
 
 
 def fit_bound(rows: pd.DataFrame, quantities, f_ref_hz: float = F_REF_HZ):

@@ -30,8 +30,8 @@ from scipy import optimize
 
 from mpipe.inversion.rosenbrock import SearchResult
 
-#: Step of the forward-difference Jacobian in log parameters (0.01 % of each parameter).
-DIFF_STEP = 1e-4
+# the search's forward differences take the covariance's step (uncertainty.DIFF_STEP)
+from mpipe.inversion.uncertainty import DIFF_STEP
 
 
 @njit(cache=True)

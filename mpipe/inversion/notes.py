@@ -46,6 +46,9 @@ BUDGETED = ("k", "S", "y_m", "p_m", "m", "g", "lam", "k_c", *COMBINATION_NAMES)
 MEDIAN_EFFICIENCY = math.sqrt(math.pi / 2)
 #: Fewest windows whose scatter is trusted (fewer: the windows' own noise SE alone).
 MIN_SCATTER = 4
+#: Quantities summarised per segment by :func:`segment_summary`.
+SUMMARISED = ("p_m", "p_M", "gamma", "zeta", "k", "S", "y_m", "lam", "m", "g", "k_c",
+              "h_mean", "closed_fraction")  # fmt: skip
 
 
 def _numbers(table: pd.DataFrame, column: str) -> np.ndarray:
@@ -189,14 +192,41 @@ def note_summary(
     return pd.concat([out, budget], axis=1)
 
 
+def segment_summary(segments: pd.DataFrame, table: pd.DataFrame) -> pd.DataFrame:
+    """Each segment's own result: windows, ok windows, and per quantity its value and budget.
+
+    For each quantity of :data:`SUMMARISED` (and f_r, Q_r) over the segment's ``ok``
+    windows: ``<name>_median`` (the note's value), ``<name>_se`` (its combined standard
+    uncertainty: the windows' scatter with their serial correlation, never below their own
+    noise over sqrt(n), and the model-form and take-wide components added once), the
+    components ``<name>_se_<component>``, ``<name>_n_eff`` and ``<name>_window_se`` (the
+    median of the windows' own SE); see :func:`note_summary`.
+
+    Parameters
+    ----------
+    segments : pandas.DataFrame
+        :func:`mpipe.inversion.segments.segment_take`'s table.
+    table : pandas.DataFrame
+        Windows table with a ``segment`` column.
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``segments`` with ``windows, ok_windows`` and the columns above.
+    """
+    return note_summary(segments, table, (*SUMMARISED, "f_r", "Q_r"))
+
+
 __all__ = [
     "BUDGETED",
     "MEDIAN_EFFICIENCY",
     "MIN_SCATTER",
     "NOTE_COMPONENTS",
     "SHARED",
+    "SUMMARISED",
     "note_budget",
     "note_summary",
     "scatter_se",
+    "segment_summary",
     "window_noise_se",
 ]

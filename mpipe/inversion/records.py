@@ -30,6 +30,7 @@ from mpipe.inversion.budget import COMPONENTS, component_column
 from mpipe.inversion.combinations import COMBINATIONS
 from mpipe.inversion.settings import PARAMETER_NAMES
 from mpipe.inversion.uncertainty import SE_PARAMETERS
+from mpipe.reed.parameters import ReedParameters
 
 log = logging.getLogger(__name__)
 
@@ -378,6 +379,11 @@ def read_windows(path: str | Path) -> pd.DataFrame:
     return typed(table[header])
 
 
+def reed_from_row(row: pd.Series | dict) -> ReedParameters:
+    """Reed parameters of one row of the per-window table."""
+    return ReedParameters(**{name: float(row[name]) for name in (*PARAMETER_NAMES, "y_c", "alpha")})
+
+
 __all__ = [
     "COUNT",
     "FLAG",
@@ -392,6 +398,7 @@ __all__ = [
     "WindowRecord",
     "flags",
     "read_windows",
+    "reed_from_row",
     "schema_markdown",
     "typed",
     "window_frame",

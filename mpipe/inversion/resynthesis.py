@@ -37,14 +37,14 @@ from mpipe.inversion.objective import (  # noqa: E402
     TargetWindow,
     run_model,
 )
-from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig  # noqa: E402
+from mpipe.inversion.records import reed_from_row  # noqa: E402
+from mpipe.inversion.settings import InversionConfig  # noqa: E402
 from mpipe.inversion.status_words import reason_words
 from mpipe.inversion.step1 import (
     Step1Result,  # noqa: E402
     step1,
 )
 from mpipe.reed.bore_kernel import BoreKernel  # noqa: E402
-from mpipe.reed.parameters import ReedParameters  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -66,11 +66,6 @@ class Resynthesis:
     fs: float
     p: np.ndarray
     u: np.ndarray
-
-
-def reed_from_row(row: pd.Series | dict) -> ReedParameters:
-    """Reed parameters of one row of the per-window table."""
-    return ReedParameters(**{name: float(row[name]) for name in (*PARAMETER_NAMES, "y_c", "alpha")})
 
 
 def resynthesise(

@@ -23,7 +23,6 @@ import pandas as pd
 
 from mpipe.core.io import write_atomic
 from mpipe.inversion.boundaries import level_envelope, level_threshold, note_spans, pitch_cuts
-from mpipe.inversion.notes import note_summary
 from mpipe.inversion.settings import PARAMETER_NAMES
 from mpipe.measurement.pitch import f0_track, note_name, pitch_cents, regime
 from mpipe.reed.opening import opening, opening_summary
@@ -171,9 +170,6 @@ def assign_windows(
 
 #: Per-window columns of the plan carried into the windows table (what was played).
 PLAYED_COLUMNS = ("phase", "f0_hz", "pitch_cents", "regime", "rms_pa", "spl_db")
-#: Quantities summarised per segment.
-SUMMARISED = ("p_m", "p_M", "gamma", "zeta", "k", "S", "y_m", "lam", "m", "g", "k_c",
-              "h_mean", "closed_fraction")  # fmt: skip
 
 
 def with_played(table: pd.DataFrame, plan: pd.DataFrame) -> pd.DataFrame:
@@ -185,31 +181,6 @@ def with_played(table: pd.DataFrame, plan: pd.DataFrame) -> pd.DataFrame:
     out["_key"] = out["t_start_s"].round(9)
     merged = out.merge(extra.drop(columns="t_start_s"), on="_key", how="left")
     return merged.drop(columns="_key")
-
-
-def segment_summary(segments: pd.DataFrame, table: pd.DataFrame) -> pd.DataFrame:
-    """Each segment's own result: windows, ok windows, and per quantity its value and budget.
-
-    For each quantity of :data:`SUMMARISED` (and f_r, Q_r) over the segment's ``ok``
-    windows: ``<name>_median`` (the note's value), ``<name>_se`` (its combined standard
-    uncertainty: the windows' scatter with their serial correlation, never below their own
-    noise over sqrt(n), and the model-form and take-wide components added once), the
-    components ``<name>_se_<component>``, ``<name>_n_eff`` and ``<name>_window_se`` (the
-    median of the windows' own SE); see :func:`mpipe.inversion.notes.note_summary`.
-
-    Parameters
-    ----------
-    segments : pandas.DataFrame
-        :func:`segment_take`'s table.
-    table : pandas.DataFrame
-        Windows table with a ``segment`` column.
-
-    Returns
-    -------
-    pandas.DataFrame
-        ``segments`` with ``windows, ok_windows`` and the columns above.
-    """
-    return note_summary(segments, table, (*SUMMARISED, "f_r", "Q_r"))
 
 
 def reed_openings(table: pd.DataFrame, p: np.ndarray, fs: float) -> tuple[pd.DataFrame, np.ndarray]:
@@ -359,7 +330,6 @@ __all__ = [
     "P_REF_PA",
     "PLAYED_COLUMNS",
     "SEGMENT_COLUMNS",
-    "SUMMARISED",
     "assign_windows",
     "level_envelope",
     "note_segments",
@@ -368,7 +338,6 @@ __all__ = [
     "note_label",
     "plot_segments",
     "reed_openings",
-    "segment_summary",
     "segment_take",
     "spl_db",
     "window_count",

@@ -15,11 +15,15 @@ from mpipe.core.cluster import parse_scheduler
 from mpipe.core.config import Where, between, positive, spec
 from mpipe.core.filters import LowPass, design_lowpass
 from mpipe.inversion.conditioning_settings import ConditioningConfig as ConditioningConfig
-from mpipe.inversion.discretisation import LOWEST_RATE_HZ, ORDER, check_model_rate
 from mpipe.measurement.translation import TranslationConfig
 
 #: Reed parameters that step 2 may optimise (physics.md I); y_c and alpha stay fixed.
 PARAMETER_NAMES = ("k", "S", "y_m", "p_m", "m", "g", "lam", "k_c")
+
+#: Order in 1/fs of the bound on the model's discretisation bias, and the lowest model
+#: rate it bounds, Hz (measured: :mod:`mpipe.inversion.discretisation` says how).
+ORDER = 1.26
+LOWEST_RATE_HZ = 32000.0
 
 
 @dataclass(frozen=True)
@@ -92,6 +96,19 @@ class ParameterBounds:
         if name == "p_m":
             return lo * max_p, hi * max_p
         return float(lo), float(hi)
+
+
+def check_model_rate(value: float) -> str | None:
+    """The check of ``inversion.sample_rate``: None, or why the rate is refused."""
+    if not value <= 1e6:
+        return f"expected at most 1e+06 Hz, got {value:g}"
+    if not value >= LOWEST_RATE_HZ:
+        return (
+            f"{value:g} Hz is below {LOWEST_RATE_HZ:g} Hz, the lowest model rate whose "
+            "discretisation error the uncertainty budget bounds (docs/uncertainty.md, "
+            '"The model\'s rate"); use at least that'
+        )
+    return None
 
 
 def _check_free(value: tuple[str, ...]) -> str | None:

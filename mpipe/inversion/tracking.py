@@ -32,7 +32,7 @@ import pandas as pd
 from mpipe.core.progress import ProgressBar  # the bar drawn by the commands (tqdm)
 from mpipe.inversion.conditioning import is_zero_mean
 from mpipe.inversion.execution import Job, dispatch, run_windows, stage_workers
-from mpipe.inversion.records import typed
+from mpipe.inversion.records import reed_from_row, typed
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.span import span_samples
 from mpipe.inversion.status import RETRIED, classify
@@ -359,9 +359,6 @@ def _cold_then_warm(
 
     Returns the results sorted by time.
     """
-    # lazy: the resynthesis module loads matplotlib (~0.4 s of every command's start-up)
-    from mpipe.inversion.resynthesis import reed_from_row
-
     # each segment's first window within 10 % of its loudest: the sustain, not an attack
     # playing below its mouth pressure
     n = int(round(job.config.window_s * job.fs))

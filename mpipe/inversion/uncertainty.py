@@ -75,8 +75,10 @@ import numpy as np
 
 from mpipe.core.statistics import integrated_autocorrelation
 from mpipe.inversion.harmonics import SPECTRUM_BINS, spectral_gram, split_residual
-from mpipe.inversion.least_squares import DIFF_STEP
 
+#: Step of the forward-difference Jacobian in log parameters (0.01 % of each parameter):
+#: the covariance's and the search's (:mod:`mpipe.inversion.least_squares`).
+DIFF_STEP = 1e-4
 #: Singular values below this fraction of the largest mark a null direction. A forward
 #: difference of step 1e-4 in log parameters leaves the Jacobian of an exactly invariant
 #: direction at about 1e-4 of the largest singular value; an identifiable direction of

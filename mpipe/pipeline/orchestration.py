@@ -24,8 +24,9 @@ from mpipe.core.io import folder_lock, write_atomic, write_csv, write_npz_atomic
 from mpipe.core.progress import ProgressBar, stage_timer
 from mpipe.inversion.conditioning import bore_resonances, plan_take
 from mpipe.inversion.kernel import KernelSource, table_temperature
+from mpipe.inversion.notes import segment_summary
 from mpipe.inversion.records import read_windows
-from mpipe.inversion.segments import plot_segments, reed_openings, segment_summary, with_played
+from mpipe.inversion.segments import plot_segments, reed_openings, with_played
 from mpipe.inversion.settings import PARAMETER_NAMES
 from mpipe.inversion.shared_errors import FrontEnd
 from mpipe.inversion.status import count as count_status
@@ -34,6 +35,7 @@ from mpipe.inversion.tables import segment_lines, why_no_window, write_correlati
 from mpipe.inversion.take import RunOptions, WindowPlan, invert_take
 from mpipe.inversion.tracking import detect_zero_mean
 from mpipe.measurement.calibration import Calibration, load_calibration
+from mpipe.measurement.measured_instrument import bore_description
 from mpipe.measurement.separation.stage import separate
 from mpipe.measurement.separation.waves import Theta
 from mpipe.measurement.takes import read_take
@@ -199,7 +201,6 @@ def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig,
 def _stage_inversion(
     mouthpiece: Path, plan: Path, cal: Calibration, cfg: PipelineConfig, client, checks=()
 ):
-
     # lazy: the resynthesis module loads matplotlib (~0.4 s of every command's start-up)
     from mpipe.inversion import resynthesis as rs
     from mpipe.inversion.tracks_plot import plot_tracks
@@ -272,7 +273,6 @@ def _stage_inversion(
 
 
 def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
-
     # lazy: the resynthesis module loads matplotlib (~0.4 s of every command's start-up)
     from mpipe.inversion import resynthesis as rs
     from mpipe.inversion.note_figures import plot_notes, plot_overlays

@@ -5,7 +5,8 @@ import pandas as pd
 import pytest
 
 from mpipe.inversion.conditioning import plan_take
-from mpipe.inversion.segments import segment_summary, segment_take, spl_db, with_played
+from mpipe.inversion.notes import segment_summary
+from mpipe.inversion.segments import segment_take, spl_db, with_played
 from mpipe.inversion.settings import ConditioningConfig
 
 FS = 50_000.0

@@ -21,7 +21,8 @@ from mpipe.core.units import unit_of
 from mpipe.inversion.conditioning import bore_resonances, plan_take
 from mpipe.inversion.execution import connect
 from mpipe.inversion.kernel import KernelSource, take_temperature
-from mpipe.inversion.segments import segment_summary, with_played
+from mpipe.inversion.notes import segment_summary
+from mpipe.inversion.segments import with_played
 from mpipe.inversion.status import summary_line
 from mpipe.inversion.status_words import reason_words
 from mpipe.inversion.tables import segment_lines, write_correlations, write_table
