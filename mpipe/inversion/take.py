@@ -40,6 +40,7 @@ from mpipe.inversion.diagnostics import check_plausible, take_checks
 from mpipe.inversion.discretisation import rate_errors
 from mpipe.inversion.execution import stage_workers
 from mpipe.inversion.kernel import bore_kernel, take_temperature
+from mpipe.inversion.pooling.take_pooling import pool_notes
 from mpipe.inversion.segments import reed_openings
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.shared_errors import FrontEnd, shared_components
@@ -160,6 +161,10 @@ def invert_take(
         p, u, fs, kernel, air.rho, config, executor, windows=plan,
         anchor=dict(fit.anchors) or None, options=options,
     )  # fmt: skip
+    if config.pooling == "note":
+        # each note as one experiment, after its windows (serial, in time order)
+        pooled = pool_notes(result.table, p, u, fs, kernel, config, zero_mean=zero_mean)
+        result = dataclasses.replace(result, table=pooled)
     # the budget: the take-wide components beside the windows' own, then one combination
     table = temperature_components(result.table, fit)
     table, shared = shared_components(
