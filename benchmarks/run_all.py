@@ -47,6 +47,7 @@ QUICK_ARGS = {
     ],
     "bench_uncertainty": ["--paths", "adaptive"],
     "bench_playing": ["--seeds", "1", "--skip-long"],
+    "bench_pooling": ["--quick", "--cases", "crescendo"],
     "bench_openwind": ["--duration", "1"],
     "bench_foreign": ["--quick"],
     "bench_segments": ["--seeds", "0"],

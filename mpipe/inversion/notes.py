@@ -18,6 +18,11 @@ root sum of squares of components that behave differently under averaging:
 - ``rate``, ``temperature``, ``frontend``, ``calibration`` (Type B, take-wide): one error
   shared by every window of the take, added once (the median of the windows' values).
 
+With ``inversion.pooling: note`` the windows of a note share its slow parameters (their
+``pooled`` column names them) and carry the joint fit's SE of them: the note's noise
+component of such a parameter is that SE, not divided by sqrt(n) again
+(:mod:`mpipe.inversion.pooling`).
+
 A component whose column is absent from the windows table is absent (NaN) in the note's
 budget. Before the per-window budget exists (no ``<q>_se_noise``), the windows' noise SE is
 taken as ``<q>_se`` with the shared components present removed in quadrature.
@@ -114,6 +119,13 @@ def _median(values: np.ndarray) -> float:
     return float(np.median(v)) if v.size else math.nan
 
 
+def _shared(windows: pd.DataFrame, name: str) -> bool:
+    """Whether every window shares ``name`` with its note (``pooled``, inversion.pooling)."""
+    if "pooled" not in windows or not len(windows):
+        return False
+    return all(name in str(v).split(";") for v in windows["pooled"])
+
+
 def note_budget(windows: pd.DataFrame, name: str) -> dict[str, float]:
     """One note's value of ``name`` and its budget, from the note's ok windows in time order.
 
@@ -135,6 +147,9 @@ def note_budget(windows: pd.DataFrame, name: str) -> dict[str, float]:
     floor = float(np.median(known)) / math.sqrt(x.size) if known.size else math.nan
     t = _numbers(windows, "t_start_s")[keep] if "t_start_s" in windows else None
     se_noise, n_eff = scatter_se(x, floor, t) if x.size else (math.nan, 0.0)
+    if x.size and _shared(windows[keep], name):
+        # one joint fit gave every window the note's value and its SE: not a mean of n
+        se_noise, n_eff = (float(np.median(known)) if known.size else math.nan), float(x.size)
     comps = {"noise": se_noise}
     for comp in ("model", *SHARED):
         col = f"{name}_se_{comp}"

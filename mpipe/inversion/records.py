@@ -154,6 +154,12 @@ _INVERSION: tuple[Column, ...] = (
     _col("cold_starts_agreeing", COUNT, "cold starts that reached the best minimum"),
     _col("retried_cold", FLAG, "cold-started again after a warm start that was not ok"),
     _col("wall_time_s", FLOAT, "wall time of the window"),
+    _col(
+        "pooled",
+        TEXT,
+        "parameters shared with the other windows of its note (inversion.pooling: note), "
+        "separated by ;; empty: the window's own fit",
+    ),
     _col("error", TEXT, "why the window has no estimate (empty: it has one)"),
     _col("take_checks", TEXT, "take-level checks that failed"),
 )

@@ -320,6 +320,22 @@ class InversionConfig:
         between(0.0, 2.0),
         default=0.2,
     )
+    pooling: Literal["window", "note"] = spec(
+        "",
+        "window: every window gets its own eight parameters (the paper's method, the "
+        "reference); note: after the windows, each note is fitted again as one experiment, the "
+        "reed's slow parameters (k, S, lam, m, g, k_c, y_c) shared by its windows and the "
+        "player's fast ones (p_m, y_m) per window, with their SEs from the joint fit "
+        "(mpipe.inversion.pooling; docs/uncertainty.md, 'Pooling a note's windows')",
+        default="window",
+    )
+    pooling_stretch_s: float = spec(
+        "s",
+        "pooling: note shares the slow parameters over stretches of at most this length of a "
+        "note (a longer note is cut into equal stretches): the reed warms and wets over seconds",
+        between(0.04, 60.0),
+        default=2.0,
+    )
     retry_cold: bool = spec(
         "",
         "give a window that is not ok after its warm start a cold start of its own (kept "

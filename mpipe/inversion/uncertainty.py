@@ -300,23 +300,10 @@ def covariance(
     _, sv, vt = np.linalg.svd(j, full_matrices=False)
     keep = sv > rcond * (sv[0] if sv.size and sv[0] > 0 else 1.0)
     a_inv = (vt[keep].T / sv[keep] ** 2) @ vt[keep]
-    split = None
-    if pressure is not None and fs is not None and np.size(pressure) == n:
-        split = split_residual(r, np.asarray(pressure, dtype=float), j, fs, floor=floor)
-    extra: dict = {}
-    if split is not None:
-        gram = spectral_gram(j, split.noise)
-        cov_model = a_inv @ spectral_gram(j, split.excess) @ a_inv
-        n_eff, dof = split.band_dof, split.noise_dof
-        extra = dict(
-            cov_model=0.5 * (cov_model + cov_model.T),
-            noise_residual=split.noise_residual,
-            model_residual=split.model_residual,
-        )
-    else:
-        # Below one degree of freedom the noise is not measured: one is used so the result
-        # stays finite (and large), and the status says the SEs are rough.
-        gram = noise_weighted_gram(j, r) * (n_eff / max(dof, 1.0))
+    gram, excess, n_eff, dof, extra = residual_grams(j, r, pressure, fs, floor, n_eff, dof)
+    if excess is not None:
+        cov_model = a_inv @ excess @ a_inv
+        extra["cov_model"] = 0.5 * (cov_model + cov_model.T)
     cov = a_inv @ gram @ a_inv
     return Covariance(
         names=tuple(names),
@@ -329,6 +316,40 @@ def covariance(
         n_eff=n_eff,
         dof=dof,
         **extra,
+    )
+
+
+def residual_grams(
+    j: np.ndarray,
+    r: np.ndarray,
+    pressure: np.ndarray | None,
+    fs: float | None,
+    floor: float,
+    n_eff: float,
+    dof: float,
+) -> tuple[np.ndarray, np.ndarray | None, float, float, dict]:
+    """A window's noise gram ``B = J^T Sigma J`` and model-form gram (see :func:`covariance`).
+
+    Parameters are those of :func:`covariance`, with the residual's ``n_eff`` and ``n_eff -
+    p`` (used without a harmonic split). Returns the noise gram (Pa^2 per unit ln x
+    squared), the model-form gram (None without a period), the effective samples and degrees
+    of freedom (the band's with the split), and the split's residual levels
+    (``noise_residual``, ``model_residual``; empty without it).
+    """
+    split = None
+    if pressure is not None and fs is not None and np.size(pressure) == r.size:
+        split = split_residual(r, np.asarray(pressure, dtype=float), j, fs, floor=floor)
+    if split is None:
+        # Below one degree of freedom the noise is not measured: one is used so the result
+        # stays finite (and large), and the status says the SEs are rough.
+        return noise_weighted_gram(j, r) * (n_eff / max(dof, 1.0)), None, n_eff, dof, {}
+    extra = dict(noise_residual=split.noise_residual, model_residual=split.model_residual)
+    return (
+        spectral_gram(j, split.noise),
+        spectral_gram(j, split.excess),
+        split.band_dof,
+        split.noise_dof,
+        extra,
     )
 
 
@@ -370,5 +391,6 @@ __all__ = [
     "covariance",
     "log_jacobian",
     "noise_weighted_gram",
+    "residual_grams",
     "scale_direction",
 ]

@@ -215,7 +215,7 @@ def invert_window(
         base = warm if warm is not None else start_point(s1, config)
         target = TargetWindow(pw, uw, p[:start], u[:start], fs, zero_mean)
         objective = _objective(kernel, target, base, config)
-        bounds = _bounds(config, p, start, n, fs)
+        bounds = window_bounds(config, p, start, n, fs)
         search, agreeing = _search(objective, base, bounds, config, cold=cold)
         if agreeing is not None:
             row["cold_starts_agreeing"] = agreeing
@@ -238,7 +238,9 @@ def invert_window(
     return WindowOutcome(row=row, step1=s1, search=search, reed=reed)
 
 
-def _bounds(config: InversionConfig, p: np.ndarray, start: int, n: int, fs: float) -> np.ndarray:
+def window_bounds(
+    config: InversionConfig, p: np.ndarray, start: int, n: int, fs: float
+) -> np.ndarray:
     """Search bounds of the window at ``start`` (``n`` samples).
 
     p_m's lower bound scales with the window's own peak pressure, its upper one with the
@@ -405,4 +407,4 @@ def _uncertainty(
     return out, Correlation(tuple(names), cov.correlation())
 
 
-__all__ = ["WindowOutcome", "invert_window", "local_search", "start_point"]
+__all__ = ["WindowOutcome", "invert_window", "local_search", "start_point", "window_bounds"]
