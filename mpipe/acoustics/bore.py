@@ -439,6 +439,8 @@ def half_power_bandwidth(freqs: np.ndarray, level_db: np.ndarray, i: int, peak_d
         return float("nan")
     f = freqs[lo : hi + 1] - freqs[i]  # centred: a well-conditioned fit
     inverse = 10 ** (-(level_db[lo : hi + 1] - peak_db) / 10)  # |Z_peak|^2 / |Z|^2
+    if f.size < 3 or not np.all(np.isfinite(inverse)):
+        return float("nan")  # a gap in a measured curve (NaN bins): no parabola to fit
     c2, c1, c0 = np.polyfit(f, inverse, 2)
     minimum = c0 - c1**2 / (4 * c2)
     if not (c2 > 0 and minimum > 0):
