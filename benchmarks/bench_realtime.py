@@ -1,15 +1,15 @@
 """Real time of the whole run and of every stage (issue 21), with baselines, in one run.
 
-Usage: ``.venv/bin/python benchmarks/bench_realtime.py [--duration S] [--snr DB]
-[--repeats N] [--cache DIR] [--compare-every K] [--rosenbrock-budget N] [--skip-stage]
-[--skip-run]``
+Usage: ``.venv/bin/python benchmarks/bench_realtime.py [--duration S] [--run-durations S ...]
+[--snr DB] [--repeats N] [--cache DIR] [--compare-every K] [--rosenbrock-budget N]
+[--windows N] [--skip-stage] [--skip-run]``
 
 0. The machine: how much faster 2 processes of a CPU burner run than 1 (2.00 on two free
    cores; the machine may be shared), measured before and after the figures, and the
    start-up of a fresh interpreter (imports, then loading the compiled kernels).
-1. The whole ``mpipe run`` of a virtual take (Table 1 reed, ``--duration`` s, 45 dB SNR)
-   with 1 and 2 workers: wall time, real-time factor and every stage's wall time (from the
-   stage manifests), in fresh processes as a user runs it.
+1. The whole ``mpipe run`` of virtual takes (Table 1 reed, ``--run-durations`` s: 4 and
+   20 s by default, 45 dB SNR) with 1 and 2 workers: wall time, real-time factor and every
+   stage's wall time (from the stage manifests), in fresh processes as a user runs it.
 2. The inversion stage on the separated, translated take (``--cache DIR`` keeps the
    mouthpiece signals), as ``mpipe.invert_take`` runs it: the temperature fit (its cold
    start included) and the tracking of every planned window, timed apart, on 1 and 2
@@ -21,6 +21,9 @@ Usage: ``.venv/bin/python benchmarks/bench_realtime.py [--duration S] [--snr DB]
    Rosenbrock's search (``optimiser: rosenbrock``, a budget it does not exhaust) from the
    same start; the share of windows whose F2 is within 1 % and whose parameters are within
    one standard error (the window's own ``<name>_se``) is printed.
+5. Where a warm window's CPU goes (issue 31; ``realtime_windows.py``): plain and
+   sensitivity model runs, the whole window with and without its standard errors, and the
+   harmonic split of its residual now against before (a frozen copy), with their agreement.
 4. Forward-model samples/s: today's kernel (``simulate``, every output) beside the lean
    pressure-only kernel of the inversion (``simulate_pressure``), both from rest, wall and
    thread CPU time.
@@ -43,6 +46,7 @@ from pathlib import Path
 import numpy as np
 from headline import record
 from realtime_run import report_whole_run, startup, whole_run
+from realtime_windows import window_costs
 from threadpoolctl import threadpool_limits
 
 from mpipe.acoustics.reflection import reflection_function
@@ -274,6 +278,14 @@ def warm_up(data, kernel, rho, config) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=4.0, help="take length, s")
+    parser.add_argument(
+        "--run-durations",
+        type=float,
+        nargs="+",
+        default=[4.0, 20.0],
+        help="take lengths of part 1 (the whole mpipe run), s",
+    )
+    parser.add_argument("--windows", type=int, default=20, help="warm windows of part 5")
     parser.add_argument("--snr", type=float, default=45.0, help="microphone SNR, dB")
     parser.add_argument("--repeats", type=int, default=3, help="runs of each configuration")
     parser.add_argument("--cache", type=Path, default=None, help="keep the signals here")
@@ -292,11 +304,13 @@ def main() -> None:
           f"kernels {loads:.2f} s (first call less second)")  # fmt: skip
     record("start-up: import + compiled kernels", imports + loads, "s", target="<= 0.5")
 
-    if not args.skip_run:
-        print(f"1. The whole mpipe run ({args.duration:g} s take at {args.snr:g} dB)")
+    for duration in () if args.skip_run else args.run_durations:
+        print(f"1. The whole mpipe run ({duration:g} s take at {args.snr:g} dB)")
         with tempfile.TemporaryDirectory() as tmp:
-            runs = whole_run(args.duration, args.snr, (1, 2), Path(tmp))
-        report_whole_run(runs, args.duration, offered)
+            runs = whole_run(duration, args.snr, (1, 2), Path(tmp))
+        report_whole_run(runs, duration, offered)
+        print(f"  the machine after these runs: 2 processes x{machine_parallelism(1):.2f} "
+              "faster than 1")  # fmt: skip
 
     data = mouthpiece_signals(args.duration, args.snr, args.cache)
     fs = float(data["fs"])
@@ -333,6 +347,9 @@ def main() -> None:
 
     print("4. Forward model, Table 1 reed from rest, 1 s runs")
     kernel_rates(1.0, args.repeats)
+
+    print("5. Where a warm window's CPU goes (thread CPU, interleaved)")
+    window_costs(data, kernel, air.rho, after, args.windows)
 
 
 if __name__ == "__main__":

@@ -53,8 +53,14 @@ class DefaultsFormatter(argparse.HelpFormatter):
         return f"{text} (default: %(default)s)"
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Assemble the argument parser from the command modules."""
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """Assemble the argument parser from the command modules.
+
+    With ``argv`` naming a command, only that command's module is imported: each imports
+    what its command runs (numba, scipy's solvers, pandas, ...), and a command should not
+    pay for the others' at start-up. Without one (``mpipe --help``, a typo), all of them.
+    """
+    chosen = _chosen_command(argv)
     parser = argparse.ArgumentParser(
         prog="mpipe",
         description="Clarinet reed parameters from in-bore multi-microphone recordings.",
@@ -63,7 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
     parser.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in COMMANDS:
+    for name in (chosen,) if chosen else COMMANDS:
         importlib.import_module(f"mpipe.cli.commands.{name}").add_parser(sub)
     for command in sub.choices.values():
         command.formatter_class = DefaultsFormatter
@@ -71,6 +77,15 @@ def build_parser() -> argparse.ArgumentParser:
             for nested in group.choices.values():  # mpipe calibrate sensitivity, ...
                 nested.formatter_class = DefaultsFormatter
     return parser
+
+
+def _chosen_command(argv: list[str] | None) -> str | None:
+    """The command module ``argv`` names (its first word that is not an option), if any."""
+    for word in argv or ():
+        if not word.startswith("-"):
+            name = word.replace("-", "_")
+            return name if name in COMMANDS else None
+    return None
 
 
 #: Options whose values may start with a minus sign (``--time-convention -jwt``): argparse
@@ -100,8 +115,9 @@ def main(argv: list[str] | None = None) -> int:
     written. Ctrl-C exits with 130 and one line: finished outputs (and an interrupted
     `mpipe run`'s finished stages and windows) are kept, so the same command resumes.
     """
-    parser = build_parser()
-    args = parser.parse_args(_join_dash_values(sys.argv[1:] if argv is None else list(argv)))
+    words = _join_dash_values(sys.argv[1:] if argv is None else list(argv))
+    parser = build_parser(words)
+    args = parser.parse_args(words)
     level = logging.WARNING if args.quiet else (logging.DEBUG if args.verbose else logging.INFO)
     logging.basicConfig(level=level, format="%(message)s")
     # SIGTERM ends the command through SystemExit, so that worker pools are terminated,

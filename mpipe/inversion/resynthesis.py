@@ -334,9 +334,14 @@ def write_wav(path: str | Path, p: np.ndarray, fs: float, full_scale: float | No
     )
 
 
-def save_figure(fig, path: str | Path) -> Path:
-    """Write a matplotlib figure as a PNG atomically (110 dpi) and close it."""
-    fig.tight_layout()
+def save_figure(fig, path: str | Path, *, layout: bool = True) -> Path:
+    """Write a matplotlib figure as a PNG atomically (110 dpi) and close it.
+
+    ``layout``: fit the margins to the labels first (``tight_layout``, which draws the
+    figure once more); False keeps the margins the figure was given.
+    """
+    if layout:
+        fig.tight_layout()
     try:
         return write_atomic(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
     finally:

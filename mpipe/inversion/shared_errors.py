@@ -156,8 +156,9 @@ def _logs(refit: _Refit, p, u, t: float) -> tuple[float, np.ndarray]:
     names = list(refit.names) or [""] * len(refit.starts)
     for start, warm, name in zip(refit.starts, refit.warm, names, strict=True):
         kernel, air = refit.kernel(t, name)
+        # the re-fit's estimate and F2 only: its standard errors are not used
         out = invert_window(p, u, refit.fs, start, kernel, air.rho, refit.config,
-                            zero_mean=refit.zero_mean, warm=warm)  # fmt: skip
+                            zero_mean=refit.zero_mean, warm=warm, errors=False)  # fmt: skip
         if out.reed is None or not math.isfinite(out.row["f2"]):
             return math.nan, np.full((len(refit.starts), len(QUANTITIES)), np.nan)
         total += float(out.row["f2"]) ** 2

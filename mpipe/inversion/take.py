@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
+from threadpoolctl import threadpool_limits
 
 from mpipe.acoustics.air import Air
 from mpipe.inversion.budget import combine
@@ -139,56 +140,60 @@ def invert_take(
         When the signals are not what a clarinet can produce (a unit error), before any
         window is inverted (:func:`mpipe.inversion.diagnostics.check_plausible`).
     """
-    config = dataclasses.replace(config, sample_rate=fs)
-    carried = temperature_c is not None and np.isfinite(np.asarray(temperature_c, float)).any()
-    front = take_temperature(temperature_c, calibration)
-    z_c = calibration.bore.entry_impedance(calibration.air_properties(front))
-    plan = WindowPlan.of(windows)
-    check_plausible(p, u, fs, list(plan.starts), int(round(config.window_s * fs)), z_c)
-    zero_mean = detect_zero_mean(np.asarray(u, float), config.signal, config.zero_mean_ratio)
-    executor = executor or ExecutorConfig()
-    workers = executor.workers or os.cpu_count() or 1
-    p, u = np.asarray(p, dtype=float), np.asarray(u, dtype=float)
-    client = options.client if options is not None else None
-    # the fit's cold start and its windows spread over the workers (the same answer)
-    with stage_workers((p, u), executor, workers, client):
-        fit = fit_temperature(
-            p, u, fs, calibration, plan, config, zero_mean=zero_mean, front_end_c=front,
-            source="front end" if carried else "calibration",
-        )  # fmt: skip
-    source = KernelSource(calibration, fs, plan.fingering_map())
-    kernel, air = source.at(fit.temperature_c, plan.starts[0] if plan.starts else None)
-    result = _track_fingerings(p, u, fs, source, fit, config, executor, plan, options)
-    if config.pooling == "note":
-        # each note as one experiment, after its windows (serial, in time order), on its
-        # own fingering's bore
-        def kernel_of(name: str):
-            return source.named(fit.temperature_c, name)[0]
+    # every matrix of the windows' searches and errors is small: a threaded BLAS only
+    # stalls on a busy machine (the pool's workers limit theirs; this covers one worker,
+    # the fit's cold start and the take-wide re-fits that run in this process)
+    with threadpool_limits(limits=1, user_api="blas"):
+        config = dataclasses.replace(config, sample_rate=fs)
+        carried = temperature_c is not None and np.isfinite(np.asarray(temperature_c, float)).any()
+        front = take_temperature(temperature_c, calibration)
+        z_c = calibration.bore.entry_impedance(calibration.air_properties(front))
+        plan = WindowPlan.of(windows)
+        check_plausible(p, u, fs, list(plan.starts), int(round(config.window_s * fs)), z_c)
+        zero_mean = detect_zero_mean(np.asarray(u, float), config.signal, config.zero_mean_ratio)
+        executor = executor or ExecutorConfig()
+        workers = executor.workers or os.cpu_count() or 1
+        p, u = np.asarray(p, dtype=float), np.asarray(u, dtype=float)
+        client = options.client if options is not None else None
+        # the fit's cold start and its windows spread over the workers (the same answer)
+        with stage_workers((p, u), executor, workers, client):
+            fit = fit_temperature(
+                p, u, fs, calibration, plan, config, zero_mean=zero_mean, front_end_c=front,
+                source="front end" if carried else "calibration",
+            )  # fmt: skip
+        source = KernelSource(calibration, fs, plan.fingering_map())
+        kernel, air = source.at(fit.temperature_c, plan.starts[0] if plan.starts else None)
+        result = _track_fingerings(p, u, fs, source, fit, config, executor, plan, options)
+        if config.pooling == "note":
+            # each note as one experiment, after its windows (serial, in time order), on its
+            # own fingering's bore
+            def kernel_of(name: str):
+                return source.named(fit.temperature_c, name)[0]
 
-        pooled = pool_notes(result.table, p, u, fs, kernel_of, config, zero_mean=zero_mean)
-        result = dataclasses.replace(result, table=pooled)
-    # the budget: the take-wide components beside the windows' own, then one combination
-    table = temperature_components(result.table, fit)
-    table, shared = shared_components(
-        p, u, fs, table, calibration, config, zero_mean=zero_mean, kernel_c=fit.temperature_c,
-        refit_kernel=fit.source == "fit", front=front_end,
-    )  # fmt: skip
-    table = rate_errors(table, fs)  # the model's discretisation at fs
-    table = combine(table, config.determined_limit)
-    openings, _ = reed_openings(table, p, fs)  # what the reed did: h(t), time shut
-    table = pd.concat([table, openings], axis=1)
-    if fit.anchor is not None and len(table):
-        # the take's cold start was the fit's, on the first window: its agreement goes there
-        table.loc[table.index[0], "cold_starts_agreeing"] = fit.cold_starts_agreeing
-    agreeing = fit.cold_starts_agreeing if fit.anchor is not None else _first_agreeing(table)
-    checks = take_checks(
-        table, config, temperature_source=fit.source, temperature_note=fit.note,
-        cold_starts_agreeing=agreeing, notes=fit.notes, extra=extra_checks,
-    )  # fmt: skip
-    table["take_checks"] = "; ".join(checks)
-    return TakeInversion(
-        dataclasses.replace(result, table=table), fit, kernel, air, tuple(checks), shared
-    )
+            pooled = pool_notes(result.table, p, u, fs, kernel_of, config, zero_mean=zero_mean)
+            result = dataclasses.replace(result, table=pooled)
+        # the budget: the take-wide components beside the windows' own, then one combination
+        table = temperature_components(result.table, fit)
+        table, shared = shared_components(
+            p, u, fs, table, calibration, config, zero_mean=zero_mean, kernel_c=fit.temperature_c,
+            refit_kernel=fit.source == "fit", front=front_end,
+        )  # fmt: skip
+        table = rate_errors(table, fs)  # the model's discretisation at fs
+        table = combine(table, config.determined_limit)
+        openings, _ = reed_openings(table, p, fs)  # what the reed did: h(t), time shut
+        table = pd.concat([table, openings], axis=1)
+        if fit.anchor is not None and len(table):
+            # the take's cold start was the fit's, on the first window: its agreement goes there
+            table.loc[table.index[0], "cold_starts_agreeing"] = fit.cold_starts_agreeing
+        agreeing = fit.cold_starts_agreeing if fit.anchor is not None else _first_agreeing(table)
+        checks = take_checks(
+            table, config, temperature_source=fit.source, temperature_note=fit.note,
+            cold_starts_agreeing=agreeing, notes=fit.notes, extra=extra_checks,
+        )  # fmt: skip
+        table["take_checks"] = "; ".join(checks)
+        return TakeInversion(
+            dataclasses.replace(result, table=table), fit, kernel, air, tuple(checks), shared
+        )
 
 
 def _track_fingerings(p, u, fs, source, fit, config, executor, plan, options) -> Tracking:

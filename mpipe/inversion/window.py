@@ -165,6 +165,7 @@ def invert_window(
     *,
     zero_mean: bool,
     warm: ReedParameters | None = None,
+    errors: bool = True,
 ) -> WindowOutcome:
     """Invert one window of a take.
 
@@ -192,6 +193,9 @@ def invert_window(
         The flow is zero-mean (measured).
     warm : ReedParameters, optional
         Start step 2 here (the take's cold-start result) instead of cold.
+    errors : bool
+        Compute the standard errors (False: the estimate and F2 only, for the re-fits of
+        a budget component that use nothing else; the status then lacks them).
 
     Returns
     -------
@@ -223,10 +227,11 @@ def invert_window(
             raise RuntimeError("no feasible parameter set found (model silent or unstable)")
         reed = objective.reed(search.x)
         row.update(_estimate_columns(reed, search, pw, bounds, config))
-        errors, row.correlation = _errors_or_note(
-            objective, search, bounds, reed, kernel, config, row, start / fs
-        )
-        row.update(errors)
+        if errors:
+            found, row.correlation = _errors_or_note(
+                objective, search, bounds, reed, kernel, config, row, start / fs
+            )
+            row.update(found)
         res = search.residuals if search.residuals is not None else objective.residuals(search.x)
         row.update(playing_difference(pw, pw - np.asarray(res, dtype=float), fs))
     except Exception as exc:  # noqa: BLE001 - a failed window is recorded, the take goes on

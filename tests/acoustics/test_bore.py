@@ -142,3 +142,16 @@ def test_q_is_that_of_an_analytic_single_resonance(q_true, df):
     assert r.frequency_hz == pytest.approx(150.0, rel=1e-4)
     assert r.level_db == pytest.approx(20.0, abs=0.01)
     assert r.q == pytest.approx(q_true, rel=0.01)
+
+
+def test_half_power_bandwidth_of_a_curve_with_a_gap_is_nan_not_an_error():
+    # a measured curve keeps NaN at the bins it could not measure (no coherence): a gap
+    # inside the band leaves no parabola to fit, the bandwidth is unknown
+    from mpipe.acoustics.bore import half_power_bandwidth
+
+    freqs = np.linspace(90.0, 110.0, 41)
+    level = -10 * np.log10(1 + ((freqs - 100.0) / 2.0) ** 2)  # Q = 25: -3 dB at +-2 Hz
+    level[18] = np.nan
+    assert np.isnan(half_power_bandwidth(freqs, level, 20, 0.0))
+    level[18] = -10 * np.log10(1 + ((freqs[18] - 100.0) / 2.0) ** 2)
+    assert half_power_bandwidth(freqs, level, 20, 0.0) == pytest.approx(4.0, rel=1e-6)
