@@ -24,10 +24,10 @@ Every case is a mouthpiece pressure with its notes known from how it was made, r
   convolved with a unit impulse plus an exponentially decaying noise tail, RT60 0.3-1.0 s,
   direct-to-reverberant ratio 20 dB).
 
-For the model takes (mpipe, OpenWInD) a note's truth is where it sounds: the planned note
-trimmed to the 10 ms cells whose AC level reaches 10 % of the note's own loud level (the
-rule of ``foreign_sim.sounding_notes``, note by note), and a slur's boundary at the middle
-of its fingering change.
+For the model takes (mpipe, OpenWInD) a note starts where its blowing starts (the mouth
+pressure's rise, as a score's note does) and ends at the last 10 ms cell whose AC level
+reaches 10 % of the note's own loud level (the rule of ``foreign_sim.sounding_notes``,
+note by note); a slur's boundary is at the middle of its fingering change.
 The reference f0 of a note is the first major peak of the autocorrelation of its middle half
 (a second method beside YIN's difference function).
 
@@ -136,10 +136,10 @@ def synthetic_cases(seed: int) -> list[Case]:
 
 # ---------------------------------------------------------------- mpipe's own model
 def _sounding(p, planned, level=0.1):
-    """The planned notes trimmed to where they sound.
+    """The planned notes, each from its blowing's start to where it stops sounding.
 
-    To the 10 ms cells whose AC level reaches ``level`` of the note's own loud level (its
-    cells' 90th percentile).
+    Its end: the last 10 ms cell whose AC level reaches ``level`` of the note's own loud
+    level (its cells' 90th percentile).
     """
     cell = int(round(0.01 * FS))
     n = p.size // cell
@@ -149,7 +149,7 @@ def _sounding(p, planned, level=0.1):
         i0, i1 = int(a * 100), min(int(math.ceil(b * 100)), n)
         idx = np.flatnonzero(rms[i0:i1] >= level * np.percentile(rms[i0:i1], 90))
         if idx.size:
-            out.append((max(a, (i0 + idx[0]) / 100), min(b, (i0 + idx[-1] + 1) / 100)))
+            out.append((a, min(b, (i0 + idx[-1] + 1) / 100)))
     return out
 
 

@@ -12,8 +12,9 @@
    sides of it and at least ``min_silence_s`` long is a gap between two notes (a tongued
    gap, or breath noise between notes that keeps the level above the threshold);
 3. periodicity: a stretch holding no periodic YIN frame is not a note (breath noise, a
-   noise burst). A note starts and ends where its level is within ``edge_db`` of its own
-   level near that end (its first and last periodic frames), so a quiet note keeps its
+   noise burst). A note starts at the foot of the attack that brings its level within
+   ``edge_db`` of its own level, and ends where its level is last within ``edge_db`` of
+   its own level near that end (its first and last periodic frames), so a quiet note keeps its
    own edges and breath noise around a note is left out; and it ends where its level
    falls for good ``edge_db`` below its level over the 50 ms before (a room's
    reverberation after a note is periodic too, but decays from well below it; a sound at
@@ -41,6 +42,8 @@ DROP_S = 0.05
 REF_S = 0.2
 #: Span over which the level after a note's decay is smoothed before looking for a rise, s.
 RIPPLE_S = 0.02
+#: Longest walk below the silence threshold to the foot of a note's attack, s.
+FOOT_S = 0.1
 #: Longest delay after a note within which a softer sound at its pitch is its echo, s.
 ECHO_S = 0.15
 
@@ -122,7 +125,25 @@ def _trim(a: int, b: int, level, t, periodic_t, frame_s: float, depth: float):
         ends.append(first + (loud[0] if side > 0 else loud[-1] + 1) if loud.size else None)
     if ends[0] is None or ends[1] is None or ends[1] <= ends[0]:
         return None
-    return ends[0], _decay_start(level, ends[0], ends[1], t, depth)
+    below = max(a - int(round(FOOT_S / (t[1] - t[0]))) if t.size > 1 else a, 0)
+    return _foot(level, below, ends[0], t), _decay_start(level, ends[0], ends[1], t, depth)
+
+
+def _foot(level, a: int, start: int, t) -> int:
+    """The foot of the attack that reaches ``start``: back while the level keeps falling.
+
+    Smoothed over :data:`RIPPLE_S`; never before ``a``, which may lie below the silence
+    threshold (at most :data:`FOOT_S` before the stretch). A note starts where its level
+    leaves the floor (silence, breath noise, a tongued gap's bottom), as a score's note
+    does when the blowing starts, not where it nears its own level.
+    """
+    step = float(t[1] - t[0]) if t.size > 1 else 1e-3
+    width = max(int(RIPPLE_S / step), 1)
+    smooth = median_filter(level[a : start + width], width)  # past start: no edge plateau
+    i = start - a
+    while i > 0 and smooth[i - 1] < smooth[i]:
+        i -= 1
+    return a + i
 
 
 def _decay_start(level, a: int, b: int, t, depth: float) -> int:
