@@ -22,6 +22,7 @@ from mpipe import __version__
 from mpipe.core.errors import UserError
 from mpipe.core.io import folder_lock, write_atomic, write_csv, write_npz_atomic
 from mpipe.core.progress import ProgressBar, stage_timer
+from mpipe.core.signals import open_npz, signal_median
 from mpipe.inversion.conditioning import bore_resonances, plan_take
 from mpipe.inversion.kernel import bore_kernel, table_temperature, take_temperature
 from mpipe.inversion.records import read_windows
@@ -38,7 +39,8 @@ from mpipe.measurement.measured_instrument import bore_description
 from mpipe.measurement.separation.stage import separate
 from mpipe.measurement.separation.waves import Theta
 from mpipe.measurement.takes import read_take
-from mpipe.measurement.translation import mouthpiece_noise, translate, write_mouthpiece_wav
+from mpipe.measurement.translation import mouthpiece_noise, write_mouthpiece_wav
+from mpipe.measurement.translation_stream import translate_to_npz
 from mpipe.measurement.validation import validate
 from mpipe.measurement.validation_result import plot_impedance
 from mpipe.pipeline import report
@@ -145,20 +147,27 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
 def _stage_translation(folder_sep: Path, cal: Calibration, cfg: PipelineConfig):
 
     def work(folder: Path):
-        ref = _load_npz(folder_sep / "reference.npz")
+        # the signals stay on disk, read and written block by block (translation_stream)
+        ref = open_npz(folder_sep / "reference.npz")
         fs = float(ref["fs"])
-        tr = translate(ref["p0"], ref["u0"], fs, cal, cfg.translation, ref["temperature_c"])
+        theta = Theta(*ref["theta_median"])
+        t_median = signal_median(ref["temperature_c"])
         noise = mouthpiece_noise(
-            fs, cal, ref["mic_noise_psd"], Theta(*ref["theta_median"]),
-            float(np.median(ref["temperature_c"])), cfg.separation, cfg.translation,
-        )  # fmt: skip
-        write_npz_atomic(
-            folder / "mouthpiece.npz", fs=np.float64(fs), p=tr.p, u=tr.u, p0=tr.p0, u0=tr.u0,
-            temperature_c=tr.temperature_c, **noise,
-            **{k: ref[k] for k in ("theta_level", "theta_level_se") if k in ref},
-        )  # fmt: skip
-        write_atomic(folder / "mouthpiece.wav", lambda t: write_mouthpiece_wav(t, tr.p, tr.u, fs))
-        summary = {"p_rms_pa": float(np.std(tr.p)), "u_rms_m3_s": float(np.std(tr.u))}
+            fs, cal, ref["mic_noise_psd"], theta, t_median, cfg.separation, cfg.translation
+        )
+        extra = {**noise, **{k: ref[k] for k in ("theta_level", "theta_level_se") if k in ref}}
+        summary: dict = {}
+
+        def write(tmp: Path) -> None:
+            summary.update(translate_to_npz(
+                tmp, ref["p0"], ref["u0"], ref["temperature_c"], fs, cal, cfg.translation, extra
+            ))  # fmt: skip
+
+        write_atomic(folder / "mouthpiece.npz", write)
+        mp = open_npz(folder / "mouthpiece.npz")
+        write_atomic(
+            folder / "mouthpiece.wav", lambda t: write_mouthpiece_wav(t, mp["p"], mp["u"], fs)
+        )
         return {"mouthpiece": "mouthpiece.npz", "wav": "mouthpiece.wav"}, summary
 
     return work
