@@ -33,11 +33,13 @@ LAZY_BYTES = 1 << 20
 BLOCK = 2**20
 
 
-def blocks(n: int, size: int = BLOCK, start: int = 0) -> Iterator[tuple[int, int]]:
+def blocks(n: int, size: int | None = None, start: int = 0) -> Iterator[tuple[int, int]]:
     """Bounds ``(a, b)`` of consecutive blocks of ``size`` samples covering ``start..n``.
 
-    The last block is shorter when ``size`` does not divide the length.
+    The last block is shorter when ``size`` (default :data:`BLOCK`) does not divide the
+    length.
     """
+    size = BLOCK if size is None else size
     if size < 1:
         raise ValueError(f"block size must be at least 1 sample, got {size}")
     for a in range(start, n, size):
@@ -53,14 +55,31 @@ def signal_range(x) -> tuple[float, float]:
     return lo, hi
 
 
-def signal_moments(x) -> tuple[float, float]:
-    """Mean and standard deviation of a signal (array or DiskArray), in two block passes.
+def pairwise_sum(x, f=None, a: int = 0, b: int | None = None, leaf: int | None = None) -> float:
+    """``np.sum(f(x[a:b]))`` to the last bit, reading at most ``leaf`` samples at a time.
 
-    Equal to ``np.mean``, ``np.std`` up to the rounding of the summation order.
+    numpy sums a contiguous float array pairwise: a stretch longer than 128 samples is
+    split at half its length rounded down to a multiple of 8, and the halves' sums added.
+    Splitting the same way down to stretches of at most ``leaf`` samples, and summing
+    each with numpy, adds the same numbers in the same order. ``f`` is an elementwise
+    function (e.g. ``lambda v: (v - m) ** 2``), applied to each stretch read.
     """
+    b = len(x) if b is None else b
+    leaf = BLOCK if leaf is None else leaf
+    n = b - a
+    if n <= max(leaf, 128):
+        part = np.asarray(x[a:b], dtype=float)
+        return float(np.sum(part if f is None else f(part)))
+    half = n // 2
+    half -= half % 8
+    return pairwise_sum(x, f, a, a + half, leaf) + pairwise_sum(x, f, a + half, b, leaf)
+
+
+def signal_moments(x, leaf: int | None = None) -> tuple[float, float]:
+    """``np.mean`` and ``np.std`` of a signal (array or DiskArray), read in blocks, exactly."""
     n = len(x)
-    mean = sum(float(np.sum(x[a:b])) for a, b in blocks(n)) / n
-    var = sum(float(np.sum((x[a:b] - mean) ** 2)) for a, b in blocks(n)) / n
+    mean = pairwise_sum(x, leaf=leaf) / n
+    var = pairwise_sum(x, lambda v: (v - mean) * (v - mean), leaf=leaf) / n
     return mean, float(np.sqrt(var))
 
 
@@ -143,6 +162,14 @@ class DiskArray:
     def __len__(self) -> int:
         return self.shape[0]
 
+    def sub(self, a: int, b: int) -> DiskArray:
+        """Rows ``a..b`` as a DiskArray (nothing read): a stretch of the signal, on disk."""
+        n = self.shape[0]
+        a, b = max(0, min(a, n)), max(0, min(b, n))
+        row = int(np.prod(self.shape[1:], dtype=np.int64)) * self.dtype.itemsize
+        return DiskArray(self.path, self.offset + a * row, (max(b - a, 0), *self.shape[1:]),
+                         self.dtype)  # fmt: skip
+
     def rows(self, a: int, b: int) -> np.ndarray:
         """Rows (samples) ``a..b`` along the first axis, clipped to the array, as an ndarray."""
         n = self.shape[0]
@@ -179,6 +206,11 @@ class DiskArray:
     def __array__(self, dtype=None, copy=None):
         x = self.rows(0, self.shape[0])
         return x if dtype is None else x.astype(dtype, copy=False)
+
+
+def as_signal(x):
+    """A DiskArray as it is (read by slices later), anything else as a float ndarray."""
+    return x if isinstance(x, DiskArray) else np.asarray(x, dtype=float)
 
 
 def _member_offset(fh, info: zipfile.ZipInfo) -> int:

@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 
 from mpipe.core.io import write_atomic
+from mpipe.core.signals import as_signal, blocks, pairwise_sum
 from mpipe.inversion.notes import note_summary
 from mpipe.inversion.settings import PARAMETER_NAMES
 from mpipe.measurement.pitch import f0_track, note_name, pitch_cents, regime
@@ -53,15 +54,36 @@ def spl_db(rms_pa):
 
 def level_envelope(p: np.ndarray, fs: float, frame_s: float, step_s: float = 1e-3):
     """Centred moving RMS of ``p`` (mean removed) every ``step_s``: times (s), RMS (Pa)."""
-    x = np.asarray(p, dtype=float)
-    x = x - x.mean()
+    n = len(p)
     half = max(int(round(frame_s * fs / 2)), 1)
-    e = np.concatenate([[0.0], np.cumsum(x * x)])
-    centres = np.arange(0, x.size, max(int(round(step_s * fs)), 1))
-    lo = np.clip(centres - half, 0, x.size)
-    hi = np.clip(centres + half, 0, x.size)
-    rms = np.sqrt(np.maximum(e[hi] - e[lo], 0.0) / np.maximum(hi - lo, 1))
+    centres = np.arange(0, n, max(int(round(step_s * fs)), 1))
+    lo = np.clip(centres - half, 0, n)
+    hi = np.clip(centres + half, 0, n)
+    e_hi, e_lo = _energy_at(p, (hi, lo))
+    rms = np.sqrt(np.maximum(e_hi - e_lo, 0.0) / np.maximum(hi - lo, 1))
     return centres / fs, rms
+
+
+def _energy_at(p, indices: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
+    """``e[i]`` at the given indices, ``e = [0, cumsum((p - mean p)^2)]``, read in blocks.
+
+    The running sum is carried from block to block as the first term of the next block's
+    cumulative sum: the same additions in the same order as one cumulative sum (numpy's
+    accumulate is sequential), and the mean is numpy's to the last bit
+    (:func:`mpipe.core.signals.pairwise_sum`).
+    """
+    n = len(p)
+    mean = pairwise_sum(p) / n if n else 0.0
+    out = [np.zeros(i.size) for i in indices]
+    carry = 0.0
+    for a, b in blocks(n):
+        x = np.asarray(p[a:b], dtype=float) - mean
+        e = np.cumsum(np.concatenate([[carry], x * x]))  # e[a..b]
+        for o, i in zip(out, indices, strict=True):
+            inside = (i >= a) & (i <= b)
+            o[inside] = e[i[inside] - a]
+        carry = float(e[-1])
+    return tuple(out)
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -149,8 +171,8 @@ def segment_take(
         threshold_pa, frame_s`` (the tracks the boundaries come from, and the f0 frame).
     """
     c = conditioning
-    p = np.asarray(p, dtype=float)
-    duration = p.size / fs
+    p = as_signal(p)  # a take on disk is read in blocks and frames
+    duration = len(p) / fs
     t_lev, level = level_envelope(p, fs, c.level_frame_s)
     loud = float(np.percentile(level, 99)) if level.size else 0.0
     threshold = max(c.min_rms_pa, loud * 10 ** (-c.silence_db / 20))
@@ -176,11 +198,18 @@ def segment_take(
     return table, tracks
 
 
+def _rms(p, a: int, b: int) -> float:
+    """``sqrt(mean((x - mean x)^2))`` of ``x = p[a:b]`` (Pa), numpy's numbers, read in blocks."""
+    if b <= a:
+        return 0.0
+    m = pairwise_sum(p, None, a, b) / (b - a)
+    return float(np.sqrt(pairwise_sum(p, lambda v: (v - m) ** 2, a, b) / (b - a)))
+
+
 def _describe(i, a, b, label, p, fs, centres, f0, c, resonances_hz) -> dict:
     """One segment's row: its f0 (median over frames inside it), pitch, regime and level."""
     i0, i1 = int(round(a * fs)), max(int(round(b * fs)), int(round(a * fs)) + 1)
-    x = p[i0:i1]
-    rms = float(np.sqrt(np.mean((x - x.mean()) ** 2))) if x.size else 0.0
+    rms = _rms(p, i0, min(i1, len(p)))
     f = math.nan
     if label == "note":
         inside = (centres >= a) & (centres <= b) & np.isfinite(f0)
@@ -289,7 +318,9 @@ def segment_summary(segments: pd.DataFrame, table: pd.DataFrame) -> pd.DataFrame
     return note_summary(segments, table, (*SUMMARISED, "f_r", "Q_r"))
 
 
-def reed_openings(table: pd.DataFrame, p: np.ndarray, fs: float) -> tuple[pd.DataFrame, np.ndarray]:
+def reed_openings(
+    table: pd.DataFrame, p, fs: float, whole: bool = True
+) -> tuple[pd.DataFrame, np.ndarray | None]:
     """The fitted reed's opening in every window, driven by the measured pressure.
 
     Each window's reed (its row's parameters) is driven by the mouthpiece pressure from
@@ -301,10 +332,11 @@ def reed_openings(table: pd.DataFrame, p: np.ndarray, fs: float) -> tuple[pd.Dat
     (columns, h)
         ``columns``: ``h_mean``, ``h_min`` (m) and ``closed_fraction`` (fraction of the
         window, so of each period, the reed is shut) per row of ``table``; ``h``: the
-        opening at every sample of the take (m), NaN outside the windows with an estimate.
+        opening at every sample of the take (m), NaN outside the windows with an estimate;
+        None when ``whole`` is False (``p`` is then only sliced: a take on disk is read
+        around its windows).
     """
-    p = np.asarray(p, dtype=float)
-    h_all = np.full(p.size, np.nan)
+    h_all = np.full(len(p), np.nan) if whole else None
     rows = []
     for _, row in table.iterrows():
         i0, i1 = int(round(row["t_start_s"] * fs)), int(round(row["t_end_s"] * fs))
@@ -314,7 +346,8 @@ def reed_openings(table: pd.DataFrame, p: np.ndarray, fs: float) -> tuple[pd.Dat
         except (ValueError, TypeError, KeyError):  # no estimate in this window
             rows.append(opening_summary(np.array([np.nan])))
             continue
-        h_all[i0:i1] = h
+        if h_all is not None:
+            h_all[i0:i1] = h
         rows.append(opening_summary(h))
     return pd.DataFrame(
         rows, index=table.index, columns=["h_mean", "h_min", "closed_fraction"]

@@ -35,6 +35,7 @@ from scipy import ndimage, signal
 
 from mpipe.acoustics.bore import input_impedance
 from mpipe.core.config import between, positive, spec
+from mpipe.core.signals import DiskArray, as_signal
 from mpipe.measurement.calibration import Calibration
 from mpipe.measurement.pitch import yin_f0
 from mpipe.measurement.validation_metrics import harmonic_errors, resonance_errors
@@ -312,13 +313,15 @@ def _trimmed(
     p: np.ndarray, u: np.ndarray, fs: float, config: ValidationConfig
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """The signals without ``trim_s`` at each end, and the Welch segment length."""
-    p = np.asarray(p, dtype=float)
-    u = np.asarray(u, dtype=float)
+    p, u = as_signal(p), as_signal(u)  # on disk: read segment by segment (welch_spectra)
     if p.ndim != 1 or p.shape != u.shape:
         raise ValueError(f"p and u must be 1-D of equal length, got {p.shape}, {u.shape}")
     trim = int(round(config.trim_s * fs))
     if p.size - 2 * trim >= 128:
-        p, u = p[trim : p.size - trim], u[trim : u.size - trim]
+        if isinstance(p, DiskArray):
+            p, u = p.sub(trim, p.size - trim), u.sub(trim, u.size - trim)
+        else:
+            p, u = p[trim : p.size - trim], u[trim : u.size - trim]
     if p.size < 64:
         raise ValueError(f"need at least 64 samples to estimate an impedance, got {p.size}")
     nperseg = int(2 ** np.ceil(np.log2(fs / config.resolution_hz)))

@@ -26,7 +26,7 @@ from mpipe.core.signals import open_npz, signal_median
 from mpipe.inversion.conditioning import bore_resonances, plan_take
 from mpipe.inversion.kernel import bore_kernel, table_temperature, take_temperature
 from mpipe.inversion.records import read_windows
-from mpipe.inversion.segments import plot_segments, reed_openings, segment_summary, with_played
+from mpipe.inversion.segments import plot_segments, segment_summary, with_played
 from mpipe.inversion.settings import PARAMETER_NAMES
 from mpipe.inversion.shared_errors import FrontEnd
 from mpipe.inversion.status import count as count_status
@@ -91,11 +91,6 @@ class TakeRun:
 def take_name(paths: Sequence[str | Path]) -> str:
     """Folder name of a take: the stem of its (first) audio file."""
     return Path(paths[0]).stem
-
-
-def _load_npz(path: Path) -> dict:
-    with np.load(path) as data:
-        return {k: data[k] for k in data.files}
 
 
 def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
@@ -176,7 +171,7 @@ def _stage_translation(folder_sep: Path, cal: Calibration, cfg: PipelineConfig):
 def _stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg: PipelineConfig):
 
     def work(folder: Path):
-        mp = _load_npz(mouthpiece)
+        mp = open_npz(mouthpiece)  # p, u on disk: the spectra are averaged segment by segment
         t_eff = take_temperature(mp.get("temperature_c"), cal)
         val = validate(mp["p"], mp["u"], float(mp["fs"]), cal, cfg.validation, t_eff)
         write_csv(folder / "impedance.csv", val.table())
@@ -205,7 +200,7 @@ def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig)
     inv = cfg.inversion
 
     def work(folder: Path):
-        mp = _load_npz(mouthpiece)
+        mp = open_npz(mouthpiece)  # p, u on disk: read in blocks, frames and windows
         fs = float(mp["fs"])
         tracks: dict = {}
         table, segments = plan_take(
@@ -244,7 +239,7 @@ def _stage_inversion(
 
     def work(folder: Path):
         checkpoint = folder / PARTIAL / "windows"
-        mp = _load_npz(mouthpiece)
+        mp = open_npz(mouthpiece)  # p, u stay on disk: the windows read their samples
         fs = float(mp["fs"])
         p, u = mp["p"], mp["u"]
         table_plan = pd.read_csv(plan)
@@ -310,36 +305,34 @@ def _stage_inversion(
 def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
 
     # lazy: the resynthesis module loads matplotlib (~0.4 s of every command's start-up)
-    from mpipe.inversion import resynthesis as rs
+    from mpipe.inversion import resynthesis_stream as rss
     from mpipe.inversion.note_figures import plot_notes, plot_overlays
 
     def work(folder: Path):
-        mp = _load_npz(mouthpiece)
+        mp = open_npz(mouthpiece)  # the take and its resynthesis stay on disk, read by blocks
         fs = float(mp["fs"])
         p, u = mp["p"], mp["u"]
         table = read_windows(windows)
         kernel, _ = bore_kernel(cal, fs, table_temperature(table, mp.get("temperature_c"), cal))
         bar = ProgressBar(len(table), desc="resynthesis")
+        out = folder / "resynthesis.npz"
         try:
-            res = rs.resynthesise(table, p, u, fs, kernel, cfg.inversion, zero_mean, bar)
+            write_atomic(out, lambda tmp: rss.resynthesise_to_npz(
+                tmp, table, p, u, fs, kernel, cfg.inversion, zero_mean, bar))  # fmt: skip
         finally:
             bar.close()
-        _, h = reed_openings(table, p, fs)  # the fitted reed's opening, m
-        write_npz_atomic(folder / "resynthesis.npz", fs=np.float64(fs), p=res.p, u=res.u, h=h)
-        filled = np.nan_to_num(res.p)
-        rs.write_wav(folder / "resynthesis.wav", filled, fs, cfg.resynthesis.wav_full_scale_pa)
+        res = open_npz(out)
+        full_scale = cfg.resynthesis.wav_full_scale_pa
+        write_atomic(folder / "resynthesis.wav",
+                     lambda tmp: rss.write_wav_blocks(tmp, res["p"], fs, full_scale))  # fmt: skip
         outputs = {"signals": "resynthesis.npz", "wav": "resynthesis.wav"}
-        signals = ((p, u), (res.p, res.u))
+        signals = ((p, u), (res["p"], res["u"]))
         outputs.update(plot_overlays(table, *signals, fs, cfg.resynthesis.overlay_windows, folder))
         segments = pd.read_csv(windows.parent / "segments.csv")
         outputs.update(plot_notes(table, segments, *signals, fs, folder, cal.fingering))
-        mask = np.isfinite(res.p)
-        rel = (
-            float(np.linalg.norm(p[mask] - res.p[mask]) / np.linalg.norm(p[mask]))
-            if mask.any()
-            else None
-        )
-        summary = {"relative_residual_p": rel, "samples_resynthesised": int(mask.sum())}
+        rel = rss.residual_ratio(p, res["p"])
+        summary = {"relative_residual_p": rel,
+                   "samples_resynthesised": rss.resynthesised_samples(res["p"])}  # fmt: skip
         return outputs, summary
 
     return work

@@ -9,7 +9,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mpipe.core.signals import DiskArray, NpzStream, blocks, open_npz, signal_median
+from mpipe.core.signals import (
+    DiskArray,
+    NpzStream,
+    blocks,
+    open_npz,
+    pairwise_sum,
+    signal_median,
+    signal_moments,
+)
 
 
 def _write(path, arrays: dict, size: int) -> None:
@@ -93,3 +101,12 @@ def test_median_in_blocks_is_numpys(n, seed, kind):
     }[kind]
     assert signal_median(x, bins=7, gather=5) == np.median(x)
     assert signal_median(x) == np.median(x)
+
+
+@settings(max_examples=20, deadline=None)
+@given(n=st.integers(1, 20_000), leaf=st.integers(1, 3000), seed=st.integers(0, 2**16))
+def test_sums_in_blocks_are_numpys_to_the_last_bit(n, leaf, seed):
+    x = np.random.default_rng(seed).standard_normal(n) * 1e3 + 7.0
+    assert pairwise_sum(x, leaf=leaf) == np.sum(x)
+    mean, std = signal_moments(x, leaf=leaf)
+    assert mean == np.mean(x) and std == np.std(x)

@@ -108,3 +108,22 @@ def test_the_takes_agreement_is_its_least_agreed_notes_own_cold_start():
     assert _first_agreeing(table) == 1
     assert _first_agreeing(table.iloc[:3]) == 6  # one note: its own cold start
     assert _first_agreeing(table.drop(columns="cold_starts_agreeing")) is None
+
+
+def test_a_take_on_disk_gives_the_table_of_the_take_in_memory(played, tmp_path):
+    # the signals on disk are read by windows and lead-ins only: the same numbers
+    from mpipe.core.signals import DiskArray, NpzStream, open_npz
+
+    p, u, cal = played
+    with NpzStream(tmp_path / "mp.npz") as out:
+        out.add("p", p)
+        out.add("u", u)
+    disk = open_npz(tmp_path / "mp.npz", lazy_bytes=0)
+    assert isinstance(disk["p"], DiskArray)
+    config = dataclasses.replace(CONFIG, temperature="front-end")
+    args = (FS, cal, config, ExecutorConfig(workers=1))
+    starts = STARTS[2:]
+    whole = invert_take(p, u, *args, windows=starts).tracking.table
+    streamed = invert_take(disk["p"], disk["u"], *args, windows=starts).tracking.table
+    timing = ["wall_time_s"]  # the only column that may differ: the clock
+    pd.testing.assert_frame_equal(streamed.drop(columns=timing), whole.drop(columns=timing))

@@ -196,3 +196,17 @@ def test_chunked_welch_spectra_equal_the_whole_signal_ones(n):
     np.testing.assert_allclose(s_pp, signal.welch(p, **kw)[1], rtol=1e-10)
     np.testing.assert_allclose(s_up, signal.csd(u, p, **kw)[1], rtol=1e-10, atol=1e-18)
     assert f.size == 65
+
+
+def test_a_take_on_disk_gives_the_validation_in_memory(tmp_path):
+    from mpipe.core.signals import NpzStream, open_npz
+
+    p, u = _broadband(int(2 * FS) + 17)
+    with NpzStream(tmp_path / "mp.npz") as out:
+        out.add("p", p)
+        out.add("u", u)
+    disk = open_npz(tmp_path / "mp.npz", lazy_bytes=0)
+    whole = validate(p, u, FS, CAL, ValidationConfig())
+    streamed = validate(disk["p"], disk["u"], FS, CAL, ValidationConfig())
+    assert streamed.summary() == whole.summary()
+    np.testing.assert_array_equal(streamed.table().to_numpy(), whole.table().to_numpy())
