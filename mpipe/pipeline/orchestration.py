@@ -10,6 +10,7 @@ stages together: the physics lives in the stage modules.
 from __future__ import annotations
 
 import logging
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -20,9 +21,9 @@ import pandas as pd
 
 from mpipe import __version__
 from mpipe.core.errors import UserError
-from mpipe.core.io import folder_lock, write_atomic, write_csv, write_npz_atomic
+from mpipe.core.io import folder_lock, write_atomic, write_csv
 from mpipe.core.progress import ProgressBar, stage_timer
-from mpipe.core.signals import open_npz, signal_median
+from mpipe.core.signals import NpzStream, open_npz, signal_median
 from mpipe.inversion.conditioning import bore_resonances, plan_take
 from mpipe.inversion.kernel import bore_kernel, table_temperature, take_temperature
 from mpipe.inversion.records import read_windows
@@ -36,7 +37,7 @@ from mpipe.inversion.take import RunOptions, WindowPlan, invert_take
 from mpipe.inversion.tracking import detect_zero_mean
 from mpipe.measurement.calibration import Calibration, load_calibration
 from mpipe.measurement.measured_instrument import bore_description
-from mpipe.measurement.separation.stage import separate
+from mpipe.measurement.separation.streaming import write_reference
 from mpipe.measurement.separation.waves import Theta
 from mpipe.measurement.takes import read_take
 from mpipe.measurement.translation import mouthpiece_noise, write_mouthpiece_wav
@@ -99,23 +100,31 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
         # one rate for the whole pipeline: takes at other rates are resampled when read
         fs = cfg.inversion.sample_rate
         take = read_take(take_paths if len(take_paths) > 1 else take_paths[0], cal, fs=fs)
-        sep = separate(take.pressures, take.fs, cal, cfg.separation, take.band_limit_hz)
-        temps = sep.temperature_track()
-        th = sep.median_theta()
-        write_npz_atomic(
-            folder / "reference.npz", fs=np.float64(take.fs), p0=sep.p0, u0=sep.u0,
-            temperature_c=temps, mic_noise_psd=sep.noise_psd,
-            theta_median=np.array([th.c, th.eta, th.mach]), **({} if sep.track is None else {
-                "theta_level": sep.track.level, "theta_level_se": sep.track.level_se}),
-        )  # fmt: skip
+        n, fs, fs_file, band = take.n_samples, take.fs, take.fs_file, take.band_limit_hz
+        sep = None
+        with tempfile.TemporaryDirectory(dir=folder, prefix=".pressures.") as scratch:
+            # the take's pressures go to disk and leave memory; both passes of the
+            # separation read them block by block and write reference.npz as they go
+            pressures = Path(scratch) / "pressures.npz"
+            with NpzStream(pressures) as out:
+                out.add("x", np.ascontiguousarray(take.pressures))
+            del take
+            x = open_npz(pressures)["x"]
+
+            def write(tmp: Path) -> None:
+                nonlocal sep
+                sep = write_reference(tmp, x, fs, cal, cfg.separation, band)
+
+            write_atomic(folder / "reference.npz", write)
+        assert sep is not None
         write_csv(folder / "blocks.csv", sep.blocks)
         track = sep.track
         words = track.sentence("°C", "±") if track is not None else ""
         write_atomic(folder / "blocks.png", lambda t: plot_blocks(sep.blocks, t, words))
         b = sep.blocks
         summary = {
-            "duration_s": take.pressures.shape[0] / take.fs,
-            "fs_hz": take.fs,
+            "duration_s": n / fs,
+            "fs_hz": fs,
             "blocks": len(b),
             "temperature_c_median": float(np.median(b.temperature_c)),
             "temperature_c_range": [float(b.temperature_c.min()), float(b.temperature_c.max())],
@@ -126,7 +135,7 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
                 float(np.nanmedian(b.residual)) if np.any(np.isfinite(b.residual)) else None
             ),
             "theta": str(b.theta.iloc[0]),
-            "fs_file_hz": take.fs_file,
+            "fs_file_hz": fs_file,
             "temperature_se_c_median": float(np.median(b.temperature_se_c)),
             "loss_scale_se_median": float(np.median(b.loss_scale_se)),
             "warnings": sep.bound_warnings(),
