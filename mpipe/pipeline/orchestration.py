@@ -10,7 +10,6 @@ stages together: the physics lives in the stage modules.
 from __future__ import annotations
 
 import logging
-import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -23,7 +22,7 @@ from mpipe import __version__
 from mpipe.core.errors import UserError
 from mpipe.core.io import folder_lock, write_atomic, write_csv
 from mpipe.core.progress import ProgressBar, stage_timer
-from mpipe.core.signals import NpzStream, open_npz, signal_median
+from mpipe.core.signals import open_npz, signal_median
 from mpipe.inversion.conditioning import bore_resonances, plan_take
 from mpipe.inversion.kernel import bore_kernel, table_temperature, take_temperature
 from mpipe.inversion.records import read_windows
@@ -37,9 +36,8 @@ from mpipe.inversion.take import RunOptions, WindowPlan, invert_take
 from mpipe.inversion.tracking import detect_zero_mean
 from mpipe.measurement.calibration import Calibration, load_calibration
 from mpipe.measurement.measured_instrument import bore_description
-from mpipe.measurement.separation.streaming import write_reference
+from mpipe.measurement.separation.streaming import separate_take
 from mpipe.measurement.separation.waves import Theta
-from mpipe.measurement.takes import read_take
 from mpipe.measurement.translation import mouthpiece_noise, write_mouthpiece_wav
 from mpipe.measurement.translation_stream import translate_to_npz
 from mpipe.measurement.validation import validate
@@ -99,32 +97,22 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
     def work(folder: Path):
         # one rate for the whole pipeline: takes at other rates are resampled when read
         fs = cfg.inversion.sample_rate
-        take = read_take(take_paths if len(take_paths) > 1 else take_paths[0], cal, fs=fs)
-        n, fs, fs_file, band = take.n_samples, take.fs, take.fs_file, take.band_limit_hz
-        sep = None
-        with tempfile.TemporaryDirectory(dir=folder, prefix=".pressures.") as scratch:
-            # the take's pressures go to disk and leave memory; both passes of the
-            # separation read them block by block and write reference.npz as they go
-            pressures = Path(scratch) / "pressures.npz"
-            with NpzStream(pressures) as out:
-                out.add("x", np.ascontiguousarray(take.pressures))
-            del take
-            x = open_npz(pressures)["x"]
+        paths = take_paths if len(take_paths) > 1 else take_paths[0]
+        found: dict = {}
 
-            def write(tmp: Path) -> None:
-                nonlocal sep
-                sep = write_reference(tmp, x, fs, cal, cfg.separation, band)
+        def write(tmp: Path) -> None:  # read, separated and written block by block
+            found.update(separate_take(tmp, paths, cal, cfg.separation, fs))
 
-            write_atomic(folder / "reference.npz", write)
-        assert sep is not None
+        write_atomic(folder / "reference.npz", write)
+        sep, take = found["separation"], found["take"]
         write_csv(folder / "blocks.csv", sep.blocks)
         track = sep.track
         words = track.sentence("°C", "±") if track is not None else ""
         write_atomic(folder / "blocks.png", lambda t: plot_blocks(sep.blocks, t, words))
         b = sep.blocks
         summary = {
-            "duration_s": n / fs,
-            "fs_hz": fs,
+            "duration_s": found["n_samples"] / take.fs,
+            "fs_hz": take.fs,
             "blocks": len(b),
             "temperature_c_median": float(np.median(b.temperature_c)),
             "temperature_c_range": [float(b.temperature_c.min()), float(b.temperature_c.max())],
@@ -135,7 +123,7 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
                 float(np.nanmedian(b.residual)) if np.any(np.isfinite(b.residual)) else None
             ),
             "theta": str(b.theta.iloc[0]),
-            "fs_file_hz": fs_file,
+            "fs_file_hz": take.fs_file,
             "temperature_se_c_median": float(np.median(b.temperature_se_c)),
             "loss_scale_se_median": float(np.median(b.loss_scale_se)),
             "warnings": sep.bound_warnings(),

@@ -12,6 +12,7 @@ path, so the same numbers, with memory bounded by a block.
 
 from __future__ import annotations
 
+import dataclasses
 import tempfile
 from pathlib import Path
 
@@ -23,6 +24,39 @@ from mpipe.measurement.separation.reconstruction import overlap_add_blocks
 from mpipe.measurement.separation.result import SeparationResult
 from mpipe.measurement.separation.settings import SeparationConfig
 from mpipe.measurement.separation.stage import checked_pressures, estimate
+from mpipe.measurement.takes import read_take
+
+
+def separate_take(
+    path: str | Path,
+    paths,
+    calibration: Calibration,
+    config: SeparationConfig,
+    fs: float | None = None,
+) -> dict:
+    """Read a take, put its pressures on disk, and separate it into ``path`` block by block.
+
+    The take is read (:func:`mpipe.measurement.takes.read_take`, at the pipeline's rate
+    ``fs`` in Hz), its pressures written to a scratch file beside ``path`` and dropped
+    from memory, and :func:`write_reference` reads them back block by block.
+
+    Returns
+    -------
+    dict
+        ``separation``: the :class:`SeparationResult` (p0, u0 on disk); ``take``: the
+        :class:`mpipe.measurement.takes.Take` without its pressures (an empty array).
+    """
+    take = read_take(paths, calibration, fs=fs)
+    with tempfile.TemporaryDirectory(dir=Path(path).parent, prefix=".pressures.") as scratch:
+        pressures = Path(scratch) / "pressures.npz"
+        with NpzStream(pressures) as out:
+            out.add("x", np.ascontiguousarray(take.pressures))
+        n_mics = take.pressures.shape[1]
+        # the Take keeps its metadata; its samples are on disk from here on
+        take = dataclasses.replace(take, pressures=np.zeros((0, n_mics)))
+        x = open_npz(pressures)["x"]
+        sep = write_reference(path, x, take.fs, calibration, config, take.band_limit_hz)
+    return {"separation": sep, "take": take, "n_samples": x.shape[0]}
 
 
 def write_reference(
