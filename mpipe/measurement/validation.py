@@ -148,8 +148,11 @@ def measured_impedance(
     return freqs, z, coh
 
 
-#: Welch segments averaged per chunk by :func:`welch_spectra` (memory bounded by the chunk).
-_SEGMENTS_PER_CHUNK = 256
+#: Welch segments averaged per chunk by :func:`welch_spectra` (memory bounded by the chunk:
+#: at 100 kHz and 1 Hz resolution a segment is 2^17 samples, and scipy holds each chunk's
+#: segments, windowed and transformed, a few times over: 16 keep that near 60 MB, where 256
+#: reached about 1 GB for a take longer than 3 minutes).
+_SEGMENTS_PER_CHUNK = 16
 
 
 def welch_spectra(
