@@ -4,11 +4,14 @@ Usage: ``python benchmarks/peak_memory.py TRACE.txt COMMAND [ARG ...]``, for exa
 ``python benchmarks/peak_memory.py sep20.trace mpipe separate t20.flac t20.calibration.yaml
 -o sep20``. Writes the command's output and the RSS samples (total and largest process,
 MiB) with their times to TRACE.txt, and prints the peak of the largest process: the figure
-of docs/memory.md. Needs ``psutil`` (installed with the ``dask`` extra).
+of docs/memory.md. For ``mpipe run`` it also prints the peak of each stage (the samples
+between the log line that ends the stage before and the one that ends it). Needs
+``psutil`` (installed with the ``dask`` extra).
 """
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 import threading
@@ -50,7 +53,25 @@ def main(trace_path: str, command: list[str]) -> int:
         )
         trace.write(line + "\n")
     print(line)
+    for stage, mib in stage_peaks(trace_path).items():
+        print(f"  {stage:>12}: {mib} MiB")
     return 0
+
+
+def stage_peaks(trace_path: str) -> dict[str, int]:
+    """Peak of the largest process (MiB) during each stage of ``mpipe run``, from a trace."""
+    peaks: dict[str, int] = {}
+    current = 0
+    with open(trace_path) as trace:
+        for line in trace:
+            parts = line.split()
+            if len(parts) > 2 and parts[1] == "RSS":
+                current = max(current, int(parts[-1]))
+            done = re.search(r"\] \d+/\d+ (\w+): (done|already done)", line)
+            if done:
+                peaks[done.group(1)] = current
+                current = 0
+    return peaks
 
 
 if __name__ == "__main__":

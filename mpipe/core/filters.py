@@ -102,19 +102,44 @@ def apply_lowpass(x: np.ndarray, lp: LowPass, axis: int = -1) -> np.ndarray:
         Same shape as ``x``.
     """
     x = np.moveaxis(np.asarray(x, dtype=float), axis, -1)
-    d, n = lp.delay, x.shape[-1]
-    taps = lp.taps.reshape((1,) * (x.ndim - 1) + (-1,))
+    n = x.shape[-1]
     y = np.empty_like(x)
     # in blocks of LOWPASS_BLOCK samples (memory bounded by the block, not the signal),
     # each convolved with d samples of context on either side
     for a in range(0, n, LOWPASS_BLOCK):
         b = min(a + LOWPASS_BLOCK, n)
-        seg = x[..., max(a - d, 0) : min(b + d, n)]
-        before, after = max(d - a, 0), max(b + d - n, 0)
-        if before or after:
-            seg = np.pad(seg, [(0, 0)] * (x.ndim - 1) + [(before, after)], mode="edge")
-        y[..., a:b] = signal.oaconvolve(seg, taps, mode="valid", axes=-1)
+        y[..., a:b] = lowpass_block(x, lp, a, b)
     return np.moveaxis(y, -1, axis)
+
+
+def lowpass_block(x, lp: LowPass, a: int, b: int) -> np.ndarray:
+    """Samples ``a..b`` of :func:`apply_lowpass`'s output, reading only ``a - d..b + d`` of x.
+
+    The same arithmetic as :func:`apply_lowpass` (identical numbers) when ``a`` and ``b``
+    lie on its grid of ``LOWPASS_BLOCK`` samples (``b`` may be the signal's end), so a
+    signal on disk (:class:`mpipe.core.signals.DiskArray`) is low-passed block by block.
+
+    Parameters
+    ----------
+    x : array-like
+        Signal(s), any units, time on the last axis; only sliced (``x[..., i:j]``).
+    lp : LowPass
+        Filter from :func:`design_lowpass` (``d`` is its delay, samples).
+    a, b : int
+        First and one-past-last output sample.
+
+    Returns
+    -------
+    ndarray
+        Shape ``x.shape[:-1] + (b - a,)``.
+    """
+    d, n = lp.delay, x.shape[-1]
+    seg = np.asarray(x[..., max(a - d, 0) : min(b + d, n)], dtype=float)
+    taps = lp.taps.reshape((1,) * (seg.ndim - 1) + (-1,))
+    before, after = max(d - a, 0), max(b + d - n, 0)
+    if before or after:
+        seg = np.pad(seg, [(0, 0)] * (seg.ndim - 1) + [(before, after)], mode="edge")
+    return signal.oaconvolve(seg, taps, mode="valid", axes=-1)
 
 
 def highpass_zero_phase(

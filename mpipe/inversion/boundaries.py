@@ -32,6 +32,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import maximum_filter1d, median_filter
 
+from mpipe.core.signals import blocks, pairwise_sum
+
 #: Length of the span whose median pitch is compared on each side of a frame, s.
 SIDE_S = 0.025
 #: Fraction of the peak pitch difference that marks a step's extent (its centre is the cut).
@@ -50,15 +52,36 @@ ECHO_S = 0.15
 
 def level_envelope(p: np.ndarray, fs: float, frame_s: float, step_s: float = 1e-3):
     """Centred moving RMS of ``p`` (mean removed) every ``step_s``: times (s), RMS (Pa)."""
-    x = np.asarray(p, dtype=float)
-    x = x - x.mean()
+    n = len(p)
     half = max(int(round(frame_s * fs / 2)), 1)
-    e = np.concatenate([[0.0], np.cumsum(x * x)])
-    centres = np.arange(0, x.size, max(int(round(step_s * fs)), 1))
-    lo = np.clip(centres - half, 0, x.size)
-    hi = np.clip(centres + half, 0, x.size)
-    rms = np.sqrt(np.maximum(e[hi] - e[lo], 0.0) / np.maximum(hi - lo, 1))
+    centres = np.arange(0, n, max(int(round(step_s * fs)), 1))
+    lo = np.clip(centres - half, 0, n)
+    hi = np.clip(centres + half, 0, n)
+    e_hi, e_lo = _energy_at(p, (hi, lo))
+    rms = np.sqrt(np.maximum(e_hi - e_lo, 0.0) / np.maximum(hi - lo, 1))
     return centres / fs, rms
+
+
+def _energy_at(p, indices: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
+    """``e[i]`` at the given indices, ``e = [0, cumsum((p - mean p)^2)]``, read in blocks.
+
+    The running sum is carried from block to block as the first term of the next block's
+    cumulative sum: the same additions in the same order as one cumulative sum (numpy's
+    accumulate is sequential), and the mean is numpy's to the last bit
+    (:func:`mpipe.core.signals.pairwise_sum`).
+    """
+    n = len(p)
+    mean = pairwise_sum(p) / n if n else 0.0
+    out = [np.zeros(i.size) for i in indices]
+    carry = 0.0
+    for a, b in blocks(n):
+        x = np.asarray(p[a:b], dtype=float) - mean
+        e = np.cumsum(np.concatenate([[carry], x * x]))  # e[a..b]
+        for o, i in zip(out, indices, strict=True):
+            inside = (i >= a) & (i <= b)
+            o[inside] = e[i[inside] - a]
+        carry = float(e[-1])
+    return tuple(out)
 
 
 def runs(mask: np.ndarray) -> list[tuple[int, int]]:

@@ -24,6 +24,7 @@ import pandas as pd
 from scipy import signal
 
 from mpipe.core.filters import LowPass, apply_lowpass, highpass_zero_phase
+from mpipe.core.signals import DiskArray, as_signal, signal_moments
 from mpipe.inversion.segments import assign_windows, segment_take
 from mpipe.inversion.span import check_span, span_samples
 from mpipe.measurement.impedance import impedance_curve
@@ -244,11 +245,14 @@ def is_zero_mean(u: np.ndarray, threshold: float = 0.2) -> bool:
     -------
     bool
     """
-    u = np.asarray(u, dtype=float)
-    ac = float(np.std(u))
+    if isinstance(u, DiskArray):  # on disk: the moments in blocks (equal to rounding)
+        mean, ac = signal_moments(u)
+    else:
+        u = np.asarray(u, dtype=float)
+        mean, ac = float(np.mean(u)), float(np.std(u))
     if ac == 0.0:
-        return abs(float(np.mean(u))) == 0.0
-    return abs(float(np.mean(u))) / ac < threshold
+        return abs(mean) == 0.0
+    return abs(mean) / ac < threshold
 
 
 def steady_windows(
@@ -289,7 +293,7 @@ def steady_windows(
     pandas.DataFrame
         Columns ``window, start, t_start_s, t_end_s, f0_hz, rms_pa, steady, reason``.
     """
-    p = np.asarray(p, dtype=float)
+    p = as_signal(p)  # a take on disk is read window by window
     rows = []
     for i, s in enumerate(starts):
         x = p[s : s + window_n]
@@ -396,7 +400,7 @@ def plan_take(
         take's length and ``edge_s`` or ``window_s``).
     """
     c = conditioning
-    n = int(np.size(p))
+    n = len(p)
     check_span(n, fs, c.edge_s, window_s, start_s, end_s)
     first, last = span_samples(n, fs, c.edge_s, start_s, end_s)
     window_n = int(round(window_s * fs))

@@ -24,6 +24,37 @@ def pad_history(x: np.ndarray, n: int) -> np.ndarray:
     return np.concatenate([np.zeros(n - x.size), x])
 
 
+def lead_in(p, u, start: int, n: int, n_taps: int, lead_s: float, fs: float):
+    """The history of the window at ``start`` that the model reads: its last samples only.
+
+    Every use of a window's history (:func:`pad_history` of ``max(n_taps, lead-in)``
+    samples, the period estimate over the last ``n``) reads at most
+    ``max(n_taps, lead-in, n)`` samples before the window, so handing over those instead
+    of the whole take before it gives the same numbers, and a take on disk
+    (:class:`mpipe.core.signals.DiskArray`) is read only around its windows.
+
+    Parameters
+    ----------
+    p, u : array-like
+        The take's pressure (Pa) and flow (m^3/s), only sliced.
+    start, n : int
+        The window's first sample and length.
+    n_taps : int
+        Taps of the bore kernel's reflection function.
+    lead_s : float
+        The model's lead-in, s (``inversion.lead_s``).
+    fs : float
+        Sample rate, Hz.
+
+    Returns
+    -------
+    (p_history, u_history) : ndarray
+    """
+    keep = max(n_taps, int(round(lead_s * fs)), 2, n)
+    a = max(start - keep, 0)
+    return np.asarray(p[a:start], dtype=float), np.asarray(u[a:start], dtype=float)
+
+
 def missing_mean_flow(reed, dp, y, u_meas, fs, rho) -> float:
     """Mean flow a zero-mean measured flow lacks over a lead-in, m^3/s."""
     # The candidate's flow over the lead-in (reed driven by the measured pressure) minus the
@@ -37,4 +68,4 @@ def missing_mean_flow(reed, dp, y, u_meas, fs, rho) -> float:
     return float(np.mean((u_f + u_r - u_meas)[half:]))
 
 
-__all__ = ["missing_mean_flow", "pad_history"]
+__all__ = ["lead_in", "missing_mean_flow", "pad_history"]

@@ -25,6 +25,7 @@ import numpy as np
 
 from mpipe.acoustics.air import Air
 from mpipe.acoustics.reflection import reflection_function
+from mpipe.core.signals import DiskArray, signal_median, signal_range
 from mpipe.measurement.calibration import Calibration
 from mpipe.reed.bore_kernel import BoreKernel, prepare_bore
 
@@ -45,6 +46,10 @@ def take_temperature(temperature_c: np.ndarray | float | None, calibration: Cali
     float
         Median of the finite values of ``temperature_c``, else the calibration's.
     """
+    if isinstance(temperature_c, DiskArray):
+        lo, hi = signal_range(temperature_c)  # NaN when a sample is not finite
+        if np.isfinite(lo) and np.isfinite(hi):  # on disk and finite: the median in blocks
+            return signal_median(temperature_c)
     if temperature_c is not None:
         values = np.asarray(temperature_c, dtype=float).ravel()
         values = values[np.isfinite(values)]

@@ -174,13 +174,13 @@ def plot_overlays(
     ok = table[table["error"] == ""]
     if not len(ok):
         return {}
-    t = np.arange(len(measured[0])) / fs
     outputs = {}
     for j, idx in enumerate(np.unique(np.linspace(0, len(ok) - 1, count).round()).astype(int)):
         row = ok.iloc[idx]
         cut = slice(int(round(row["t_start_s"] * fs)), int(round(row["t_end_s"] * fs)))
         name = f"overlay_{j + 1}.png"
-        plot_signals(t[cut], measured[0][cut], measured[1][cut], resynthesised[0][cut],
+        t = np.arange(cut.start, cut.stop) / fs  # the window's times only, s
+        plot_signals(t, measured[0][cut], measured[1][cut], resynthesised[0][cut],
                      resynthesised[1][cut], Path(folder) / name, window_words(row),
                      row["status"])  # fmt: skip
         outputs[f"overlay_{j + 1}"] = name

@@ -32,6 +32,7 @@ import soundfile
 
 from mpipe.core.io import write_atomic  # noqa: E402
 from mpipe.inversion.flow_fit import flow_signals  # noqa: E402
+from mpipe.inversion.history_start import lead_in  # noqa: E402
 from mpipe.inversion.objective import (  # noqa: E402
     ObjectiveSettings,
     TargetWindow,
@@ -119,7 +120,8 @@ def resynthesise(
             continue
         i0 = int(round(row["t_start_s"] * fs))
         i1 = int(round(row["t_end_s"] * fs))
-        target = TargetWindow(p[i0:i1], u[i0:i1], p[:i0], u[:i0], fs, zero_mean)
+        history = lead_in(p, u, i0, i1 - i0, kernel.n_taps, config.lead_s, fs)
+        target = TargetWindow(p[i0:i1], u[i0:i1], *history, fs, zero_mean)
         try:
             reed = reed_from_row(row)
         except ValueError as exc:

@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from mpipe.core.io import write_atomic
+from mpipe.core.signals import as_signal, pairwise_sum
 from mpipe.inversion.boundaries import level_envelope, level_threshold, note_spans, pitch_cuts
 from mpipe.inversion.settings import PARAMETER_NAMES
 from mpipe.measurement.pitch import f0_track, note_name, pitch_cents, regime
@@ -72,8 +73,8 @@ def segment_take(
         threshold_pa, frame_s`` (the tracks the boundaries come from, and the f0 frame).
     """
     c = conditioning
-    p = np.asarray(p, dtype=float)
-    duration = p.size / fs
+    p = as_signal(p)  # a take on disk is read in blocks and frames
+    duration = len(p) / fs
     t_lev, level = level_envelope(p, fs, c.level_frame_s)
     frame = max(2.2 / c.f0_min_hz, 0.02)
     centres, f0, _ = f0_track(p, fs, frame, c.frame_hop_s, c.f0_min_hz, c.f0_max_hz)
@@ -98,11 +99,18 @@ def segment_take(
     return table, tracks
 
 
+def _rms(p, a: int, b: int) -> float:
+    """``sqrt(mean((x - mean x)^2))`` of ``x = p[a:b]`` (Pa), numpy's numbers, read in blocks."""
+    if b <= a:
+        return 0.0
+    m = pairwise_sum(p, None, a, b) / (b - a)
+    return float(np.sqrt(pairwise_sum(p, lambda v: (v - m) ** 2, a, b) / (b - a)))
+
+
 def _describe(i, a, b, label, p, fs, centres, f0, c, resonances_hz) -> dict:
     """One segment's row: its f0 (median over frames inside it), pitch, regime and level."""
     i0, i1 = int(round(a * fs)), max(int(round(b * fs)), int(round(a * fs)) + 1)
-    x = p[i0:i1]
-    rms = float(np.sqrt(np.mean((x - x.mean()) ** 2))) if x.size else 0.0
+    rms = _rms(p, i0, min(i1, len(p)))
     f = math.nan
     if label == "note":
         inside = (centres >= a) & (centres <= b) & np.isfinite(f0)
@@ -183,7 +191,9 @@ def with_played(table: pd.DataFrame, plan: pd.DataFrame) -> pd.DataFrame:
     return merged.drop(columns="_key")
 
 
-def reed_openings(table: pd.DataFrame, p: np.ndarray, fs: float) -> tuple[pd.DataFrame, np.ndarray]:
+def reed_openings(
+    table: pd.DataFrame, p, fs: float, whole: bool = True
+) -> tuple[pd.DataFrame, np.ndarray | None]:
     """The fitted reed's opening in every window, driven by the measured pressure.
 
     Each window's reed (its row's parameters) is driven by the mouthpiece pressure from
@@ -195,10 +205,11 @@ def reed_openings(table: pd.DataFrame, p: np.ndarray, fs: float) -> tuple[pd.Dat
     (columns, h)
         ``columns``: ``h_mean``, ``h_min`` (m) and ``closed_fraction`` (fraction of the
         window, so of each period, the reed is shut) per row of ``table``; ``h``: the
-        opening at every sample of the take (m), NaN outside the windows with an estimate.
+        opening at every sample of the take (m), NaN outside the windows with an estimate;
+        None when ``whole`` is False (``p`` is then only sliced: a take on disk is read
+        around its windows).
     """
-    p = np.asarray(p, dtype=float)
-    h_all = np.full(p.size, np.nan)
+    h_all = np.full(len(p), np.nan) if whole else None
     rows = []
     for _, row in table.iterrows():
         i0, i1 = int(round(row["t_start_s"] * fs)), int(round(row["t_end_s"] * fs))
@@ -208,7 +219,8 @@ def reed_openings(table: pd.DataFrame, p: np.ndarray, fs: float) -> tuple[pd.Dat
         except (ValueError, TypeError, KeyError):  # no estimate in this window
             rows.append(opening_summary(np.array([np.nan])))
             continue
-        h_all[i0:i1] = h
+        if h_all is not None:
+            h_all[i0:i1] = h
         rows.append(opening_summary(h))
     return pd.DataFrame(
         rows, index=table.index, columns=["h_mean", "h_min", "closed_fraction"]

@@ -36,6 +36,7 @@ import pandas as pd
 from threadpoolctl import threadpool_limits
 
 from mpipe.acoustics.air import Air
+from mpipe.core.signals import DiskArray, as_signal
 from mpipe.inversion.budget import combine
 from mpipe.inversion.diagnostics import check_plausible, take_checks
 from mpipe.inversion.discretisation import rate_errors
@@ -145,15 +146,19 @@ def invert_take(
     # the fit's cold start and the take-wide re-fits that run in this process)
     with threadpool_limits(limits=1, user_api="blas"):
         config = dataclasses.replace(config, sample_rate=fs)
-        carried = temperature_c is not None and np.isfinite(np.asarray(temperature_c, float)).any()
         front = take_temperature(temperature_c, calibration)
+        carried = temperature_c is not None and (
+            isinstance(temperature_c, DiskArray)
+            or np.isfinite(np.asarray(temperature_c, float)).any()
+        )
         z_c = calibration.bore.entry_impedance(calibration.air_properties(front))
         plan = WindowPlan.of(windows)
         check_plausible(p, u, fs, list(plan.starts), int(round(config.window_s * fs)), z_c)
-        zero_mean = detect_zero_mean(np.asarray(u, float), config.signal, config.zero_mean_ratio)
+        zero_mean = detect_zero_mean(u, config.signal, config.zero_mean_ratio)
         executor = executor or ExecutorConfig()
         workers = executor.workers or os.cpu_count() or 1
-        p, u = np.asarray(p, dtype=float), np.asarray(u, dtype=float)
+        # a take on disk (DiskArray) stays there: every step below reads only its windows
+        p, u = as_signal(p), as_signal(u)
         client = options.client if options is not None else None
         # the fit's cold start and its windows spread over the workers (the same answer)
         with stage_workers((p, u), executor, workers, client):
@@ -180,7 +185,7 @@ def invert_take(
         )  # fmt: skip
         table = rate_errors(table, fs)  # the model's discretisation at fs
         table = combine(table, config.determined_limit)
-        openings, _ = reed_openings(table, p, fs)  # what the reed did: h(t), time shut
+        openings, _ = reed_openings(table, p, fs, whole=False)  # what the reed did: time shut
         table = pd.concat([table, openings], axis=1)
         if fit.anchor is not None and len(table):
             # the take's cold start was the fit's, on the first window: its agreement goes there

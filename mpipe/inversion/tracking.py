@@ -30,6 +30,7 @@ import numpy as np
 import pandas as pd
 
 from mpipe.core.progress import ProgressBar  # the bar drawn by the commands (tqdm)
+from mpipe.core.signals import as_signal
 from mpipe.inversion.conditioning import is_zero_mean
 from mpipe.inversion.execution import Job, dispatch, run_windows, stage_workers
 from mpipe.inversion.records import reed_from_row, typed
@@ -304,12 +305,11 @@ def track(
     """
     executor = executor or ExecutorConfig()
     options = options or RunOptions()
-    p = np.asarray(p, dtype=float)
-    u = np.asarray(u, dtype=float)
+    p, u = as_signal(p), as_signal(u)  # a DiskArray stays on disk: read by windows
     if abs(kernel.fs - fs) > 1e-6 * fs:
         raise ValueError(f"signals at {fs:g} Hz but the bore kernel is at {kernel.fs:g} Hz")
     zero_mean = detect_zero_mean(u, config.signal, config.zero_mean_ratio)
-    plan = WindowPlan.span(p.size, fs, config) if windows is None else WindowPlan.of(windows)
+    plan = WindowPlan.span(len(p), fs, config) if windows is None else WindowPlan.of(windows)
     starts, segments = list(plan.starts), plan.segment_ids
     if not starts:
         raise ValueError("no window to invert")

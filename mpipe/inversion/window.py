@@ -22,6 +22,7 @@ import numpy as np
 
 from mpipe.inversion.coldstart import ColdStartOptions, global_search
 from mpipe.inversion.diagnostics import playing_difference
+from mpipe.inversion.history_start import lead_in
 from mpipe.inversion.least_squares import trust_region
 from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWindow
 from mpipe.inversion.records import Correlation, WindowRecord
@@ -217,7 +218,8 @@ def invert_window(
             s1 = _step1(pw, uw, fs, rho, config, zero_mean)
             row.update(_step1_columns(s1))
         base = warm if warm is not None else start_point(s1, config)
-        target = TargetWindow(pw, uw, p[:start], u[:start], fs, zero_mean)
+        history = lead_in(p, u, start, n, kernel.n_taps, config.lead_s, fs)
+        target = TargetWindow(pw, uw, *history, fs, zero_mean)
         objective = _objective(kernel, target, base, config)
         bounds = window_bounds(config, p, start, n, fs)
         search, agreeing = _search(objective, base, bounds, config, cold=cold)

@@ -30,6 +30,8 @@ import math
 import numpy as np
 from scipy import signal
 
+from mpipe.core.signals import as_signal
+
 #: Pitch classes from C, equal temperament.
 NOTE_NAMES = ("C", "C#", "D", "D#", "E", "F", "F#", "G", "G#", "A", "A#", "B")
 
@@ -129,10 +131,10 @@ def f0_track(
     (centres s, f0 Hz, aperiodicity)
         One value per frame; f0 NaN where no period was found.
     """
-    x = np.asarray(x, dtype=float)
+    x = as_signal(x)  # a take on disk is read frame by frame
     n = max(int(round(frame_s * fs)), 8)
     hop = max(int(round(hop_s * fs)), 1)
-    starts = np.arange(0, max(x.size - n, 0) + 1, hop)
+    starts = np.arange(0, max(len(x) - n, 0) + 1, hop)
     f0 = np.full(starts.size, math.nan)
     ap = np.ones(starts.size)
     for i, s in enumerate(starts):

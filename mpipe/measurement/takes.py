@@ -172,6 +172,7 @@ def read_take(
 
     if (warning := level_warning(raw, name)) is not None:
         log.warning("%s", warning)
+    del data  # the file's samples: not held while the take is resampled
     out_fs = float(fs)
     if target is not None and abs(target - fs) > 1e-9 * fs:
         log.info("%s: resampling %g Hz -> %g Hz (the pipeline's rate)", name, fs, target)

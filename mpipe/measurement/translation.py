@@ -163,6 +163,98 @@ def _node_weight(temps: np.ndarray, nodes: np.ndarray, k: int) -> np.ndarray:
     return np.clip(1.0 - np.abs(temps - nodes[k]) / step, 0.0, 1.0)
 
 
+@dataclass(frozen=True)
+class TranslationPlan:
+    """What the translation of a take needs, fixed before its first block.
+
+    :meth:`block` translates samples ``a..b`` (before the low-pass) reading only
+    ``a - context..b + context`` of p0 and u0: :func:`translate` and
+    :func:`mpipe.measurement.translation_stream.translate_to_npz` run the same blocks
+    (:meth:`bounds`), so both give the same numbers.
+
+    Attributes
+    ----------
+    fs : float
+        Sample rate, Hz.
+    lowpass : LowPass
+        The final FIR.
+    context : int
+        Samples of the take read on each side of a block.
+    nfft : int
+        FFT length of a block.
+    band : ndarray
+        The FFT bins below the FIR's stop-band edge (bool).
+    nodes : ndarray
+        Node temperatures, degC.
+    matrices : list of ndarray
+        The transfer matrices at each node, shape ``(band bins, 2, 2)``.
+    """
+
+    fs: float
+    lowpass: LowPass
+    context: int
+    nfft: int
+    band: np.ndarray
+    nodes: np.ndarray
+    matrices: list
+
+    @classmethod
+    def of(
+        cls, fs: float, calibration: Calibration, config: TranslationConfig, t_min, t_max
+    ) -> TranslationPlan:
+        """The plan for a take whose temperature (degC) spans ``t_min..t_max``."""
+        lp = design_lowpass(fs, config.lowpass_hz, config.transition_hz, config.stopband_db)
+        c_min = calibration.air_properties(t_min).c
+        # The transfer matrix advances by L/c and has dispersive tails on both sides; four
+        # times the length over c leaves margin beyond the 2L/c of physics.md F.1.
+        pad = int(np.ceil(max(config.pad_s, 4 * calibration.reference_plane / c_min) * fs))
+        # Each block carries _CONTEXT pads of the take on each side: the transform's
+        # low-frequency tails outlast the pad that guards the take's ends.
+        context = _CONTEXT * pad
+        nfft = sfft.next_fast_len(max(4 * context, _MIN_BLOCK), real=True)
+        freqs = np.fft.rfftfreq(nfft, 1 / fs)
+        # Above the FIR's stop-band edge the output is discarded by the low-pass anyway, so
+        # the transfer matrices are evaluated only below it (the Bessel functions dominate).
+        band = freqs <= min(fs / 2, config.lowpass_hz + config.transition_hz)
+        nodes = _nodes(np.array([t_min, t_max]), config.temperature_step_c)
+        log.info(
+            "translation: %.4f m to the mouthpiece at %s degC, FFT blocks of %d samples",
+            calibration.reference_plane,
+            f"{nodes[0]:.2f}" if nodes.size == 1 else f"{nodes[0]:.2f}..{nodes[-1]:.2f}",
+            nfft,
+        )
+        matrices = [reference_to_mouthpiece(freqs[band], calibration, float(t)) for t in nodes]
+        return cls(float(fs), lp, context, nfft, band, nodes, matrices)
+
+    def bounds(self, n: int):
+        """The blocks ``(a, b)`` of a take of ``n`` samples."""
+        hop = self.nfft - 2 * self.context
+        return [(a, min(a + hop, n)) for a in range(0, n, hop)]
+
+    def block(self, p0, u0, temps: np.ndarray, a: int, b: int):
+        """P (Pa) and U (m^3/s) at the mouthpiece for samples ``a..b``, before the low-pass.
+
+        ``p0``, ``u0`` are the whole take's signals (only sliced), ``temps`` the
+        temperatures of samples ``a..b`` (degC).
+        """
+        context, nfft, band = self.context, self.nfft, self.band
+        spec_ = _block_spectra(p0, u0, a, b, context, nfft)[:, band]
+        p, u = np.zeros(b - a), np.zeros(b - a)
+        for k, t in enumerate(self.matrices):
+            weight = _node_weight(temps, self.nodes, k)
+            if not np.any(weight):
+                continue
+            out = np.zeros((2, nfft // 2 + 1), dtype=complex)
+            out[0, band] = t[:, 0, 0] * spec_[0] + t[:, 0, 1] * spec_[1]
+            out[1, band] = t[:, 1, 0] * spec_[0] + t[:, 1, 1] * spec_[1]
+            # DC must stay real; U at DC follows from U0 = 0 there (unmeasurable, E.4).
+            out[:, 0] = out[:, 0].real
+            y = np.fft.irfft(out, nfft, axis=1)[:, context : context + b - a]
+            p += weight * y[0]
+            u += weight * y[1]
+        return p, u
+
+
 def translate(
     p0: np.ndarray,
     u0: np.ndarray,
@@ -212,45 +304,11 @@ def translate(
     if temperature_c is None:
         temperature_c = calibration.air.temperature_c
     temps = np.broadcast_to(np.asarray(temperature_c, dtype=float), (n,))
-    lp = design_lowpass(fs, config.lowpass_hz, config.transition_hz, config.stopband_db)
-
-    c_min = calibration.air_properties(float(np.min(temps))).c
-    # The transfer matrix advances by L/c and has dispersive tails on both sides; four
-    # times the length over c leaves margin beyond the 2L/c of physics.md F.1.
-    pad = int(np.ceil(max(config.pad_s, 4 * calibration.reference_plane / c_min) * fs))
-    # Each block carries _CONTEXT pads of the take on each side: the transform's
-    # low-frequency tails outlast the pad that guards the take's ends.
-    context = _CONTEXT * pad
-    nfft = sfft.next_fast_len(max(4 * context, _MIN_BLOCK), real=True)
-    freqs = np.fft.rfftfreq(nfft, 1 / fs)
-    # Above the FIR's stop-band edge the output is discarded by the low-pass anyway, so the
-    # transfer matrices are evaluated only below it (the Bessel functions dominate the cost).
-    band = freqs <= min(fs / 2, config.lowpass_hz + config.transition_hz)
-    nodes = _nodes(temps, config.temperature_step_c)
-    log.info(
-        "translation: %.4f m to the mouthpiece at %s degC, FFT blocks of %d samples",
-        calibration.reference_plane,
-        f"{nodes[0]:.2f}" if nodes.size == 1 else f"{nodes[0]:.2f}..{nodes[-1]:.2f}",
-        nfft,
-    )
-    matrices = [reference_to_mouthpiece(freqs[band], calibration, float(t)) for t in nodes]
+    plan = TranslationPlan.of(fs, calibration, config, float(np.min(temps)), float(np.max(temps)))
+    lp = plan.lowpass
     p, u = np.zeros(n), np.zeros(n)
-    hop = nfft - 2 * context
-    for a in range(0, n, hop):
-        b = min(a + hop, n)
-        spec_ = _block_spectra(p0, u0, a, b, context, nfft)[:, band]
-        for k, t in enumerate(matrices):
-            weight = _node_weight(temps[a:b], nodes, k)
-            if not np.any(weight):
-                continue
-            out = np.zeros((2, freqs.size), dtype=complex)
-            out[0, band] = t[:, 0, 0] * spec_[0] + t[:, 0, 1] * spec_[1]
-            out[1, band] = t[:, 1, 0] * spec_[0] + t[:, 1, 1] * spec_[1]
-            # DC must stay real; U at DC follows from U0 = 0 there (unmeasurable, E.4).
-            out[:, 0] = out[:, 0].real
-            y = np.fft.irfft(out, nfft, axis=1)[:, context : context + b - a]
-            p[a:b] += weight * y[0]
-            u[a:b] += weight * y[1]
+    for a, b in plan.bounds(n):
+        p[a:b], u[a:b] = plan.block(p0, u0, temps[a:b], a, b)
     return TranslationResult(
         fs=float(fs),
         p=apply_lowpass(p, lp),

@@ -35,6 +35,7 @@ from scipy import ndimage, signal
 
 from mpipe.acoustics.bore import input_impedance
 from mpipe.core.config import between, positive, spec
+from mpipe.core.signals import DiskArray, as_signal
 from mpipe.measurement.calibration import Calibration
 from mpipe.measurement.fingerings import harmonic_lines, identify
 from mpipe.measurement.pitch import yin_f0
@@ -148,8 +149,11 @@ def measured_impedance(
     return freqs, z, coh
 
 
-#: Welch segments averaged per chunk by :func:`welch_spectra` (memory bounded by the chunk).
-_SEGMENTS_PER_CHUNK = 256
+#: Welch segments averaged per chunk by :func:`welch_spectra` (memory bounded by the chunk:
+#: at 100 kHz and 1 Hz resolution a segment is 2^17 samples, and scipy holds each chunk's
+#: segments, windowed and transformed, a few times over: 16 keep that near 60 MB, where 256
+#: reached about 1 GB for a take longer than 3 minutes).
+_SEGMENTS_PER_CHUNK = 16
 
 
 def welch_spectra(
@@ -316,13 +320,15 @@ def _trimmed(
     p: np.ndarray, u: np.ndarray, fs: float, config: ValidationConfig
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """The signals without ``trim_s`` at each end, and the Welch segment length."""
-    p = np.asarray(p, dtype=float)
-    u = np.asarray(u, dtype=float)
+    p, u = as_signal(p), as_signal(u)  # on disk: read segment by segment (welch_spectra)
     if p.ndim != 1 or p.shape != u.shape:
         raise ValueError(f"p and u must be 1-D of equal length, got {p.shape}, {u.shape}")
     trim = int(round(config.trim_s * fs))
     if p.size - 2 * trim >= 128:
-        p, u = p[trim : p.size - trim], u[trim : u.size - trim]
+        if isinstance(p, DiskArray):
+            p, u = p.sub(trim, p.size - trim), u.sub(trim, u.size - trim)
+        else:
+            p, u = p[trim : p.size - trim], u[trim : u.size - trim]
     if p.size < 64:
         raise ValueError(f"need at least 64 samples to estimate an impedance, got {p.size}")
     nperseg = int(2 ** np.ceil(np.log2(fs / config.resolution_hz)))

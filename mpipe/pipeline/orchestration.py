@@ -20,13 +20,14 @@ import pandas as pd
 
 from mpipe import __version__
 from mpipe.core.errors import UserError
-from mpipe.core.io import folder_lock, write_atomic, write_csv, write_npz_atomic
+from mpipe.core.io import folder_lock, write_atomic, write_csv
 from mpipe.core.progress import ProgressBar, stage_timer
+from mpipe.core.signals import open_npz, signal_median
 from mpipe.inversion.conditioning import bore_resonances, plan_take
 from mpipe.inversion.kernel import KernelSource, table_temperature
 from mpipe.inversion.notes import segment_summary
 from mpipe.inversion.records import read_windows
-from mpipe.inversion.segments import plot_segments, reed_openings, with_played
+from mpipe.inversion.segments import plot_segments, with_played
 from mpipe.inversion.settings import PARAMETER_NAMES
 from mpipe.inversion.shared_errors import FrontEnd
 from mpipe.inversion.status import count as count_status
@@ -36,10 +37,10 @@ from mpipe.inversion.take import RunOptions, WindowPlan, invert_take
 from mpipe.inversion.tracking import detect_zero_mean
 from mpipe.measurement.calibration import Calibration, load_calibration
 from mpipe.measurement.measured_instrument import bore_description
-from mpipe.measurement.separation.stage import separate
+from mpipe.measurement.separation.streaming import separate_take
 from mpipe.measurement.separation.waves import Theta
-from mpipe.measurement.takes import read_take
-from mpipe.measurement.translation import mouthpiece_noise, translate, write_mouthpiece_wav
+from mpipe.measurement.translation import mouthpiece_noise, write_mouthpiece_wav
+from mpipe.measurement.translation_stream import translate_to_npz
 from mpipe.pipeline import report
 from mpipe.pipeline.manifest import PARTIAL, StageRecord, run_stage
 from mpipe.pipeline.note_validation import stage_validation as _stage_validation
@@ -92,33 +93,26 @@ def take_name(paths: Sequence[str | Path]) -> str:
     return Path(paths[0]).stem
 
 
-def _load_npz(path: Path) -> dict:
-    with np.load(path) as data:
-        return {k: data[k] for k in data.files}
-
-
 def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
 
     def work(folder: Path):
         # one rate for the whole pipeline: takes at other rates are resampled when read
         fs = cfg.inversion.sample_rate
-        take = read_take(take_paths if len(take_paths) > 1 else take_paths[0], cal, fs=fs)
-        sep = separate(take.pressures, take.fs, cal, cfg.separation, take.band_limit_hz)
-        temps = sep.temperature_track()
-        th = sep.median_theta()
-        write_npz_atomic(
-            folder / "reference.npz", fs=np.float64(take.fs), p0=sep.p0, u0=sep.u0,
-            temperature_c=temps, mic_noise_psd=sep.noise_psd,
-            theta_median=np.array([th.c, th.eta, th.mach]), **({} if sep.track is None else {
-                "theta_level": sep.track.level, "theta_level_se": sep.track.level_se}),
-        )  # fmt: skip
+        paths = take_paths if len(take_paths) > 1 else take_paths[0]
+        found: dict = {}
+
+        def write(tmp: Path) -> None:  # read, separated and written block by block
+            found.update(separate_take(tmp, paths, cal, cfg.separation, fs))
+
+        write_atomic(folder / "reference.npz", write)
+        sep, take = found["separation"], found["take"]
         write_csv(folder / "blocks.csv", sep.blocks)
         track = sep.track
         words = track.sentence("°C", "±") if track is not None else ""
         write_atomic(folder / "blocks.png", lambda t: plot_blocks(sep.blocks, t, words))
         b = sep.blocks
         summary = {
-            "duration_s": take.pressures.shape[0] / take.fs,
+            "duration_s": found["n_samples"] / take.fs,
             "fs_hz": take.fs,
             "blocks": len(b),
             "temperature_c_median": float(np.median(b.temperature_c)),
@@ -146,20 +140,27 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
 def _stage_translation(folder_sep: Path, cal: Calibration, cfg: PipelineConfig):
 
     def work(folder: Path):
-        ref = _load_npz(folder_sep / "reference.npz")
+        # the signals stay on disk, read and written block by block (translation_stream)
+        ref = open_npz(folder_sep / "reference.npz")
         fs = float(ref["fs"])
-        tr = translate(ref["p0"], ref["u0"], fs, cal, cfg.translation, ref["temperature_c"])
+        theta = Theta(*ref["theta_median"])
+        t_median = signal_median(ref["temperature_c"])
         noise = mouthpiece_noise(
-            fs, cal, ref["mic_noise_psd"], Theta(*ref["theta_median"]),
-            float(np.median(ref["temperature_c"])), cfg.separation, cfg.translation,
-        )  # fmt: skip
-        write_npz_atomic(
-            folder / "mouthpiece.npz", fs=np.float64(fs), p=tr.p, u=tr.u, p0=tr.p0, u0=tr.u0,
-            temperature_c=tr.temperature_c, **noise,
-            **{k: ref[k] for k in ("theta_level", "theta_level_se") if k in ref},
-        )  # fmt: skip
-        write_atomic(folder / "mouthpiece.wav", lambda t: write_mouthpiece_wav(t, tr.p, tr.u, fs))
-        summary = {"p_rms_pa": float(np.std(tr.p)), "u_rms_m3_s": float(np.std(tr.u))}
+            fs, cal, ref["mic_noise_psd"], theta, t_median, cfg.separation, cfg.translation
+        )
+        extra = {**noise, **{k: ref[k] for k in ("theta_level", "theta_level_se") if k in ref}}
+        summary: dict = {}
+
+        def write(tmp: Path) -> None:
+            summary.update(translate_to_npz(
+                tmp, ref["p0"], ref["u0"], ref["temperature_c"], fs, cal, cfg.translation, extra
+            ))  # fmt: skip
+
+        write_atomic(folder / "mouthpiece.npz", write)
+        mp = open_npz(folder / "mouthpiece.npz")
+        write_atomic(
+            folder / "mouthpiece.wav", lambda t: write_mouthpiece_wav(t, mp["p"], mp["u"], fs)
+        )
         return {"mouthpiece": "mouthpiece.npz", "wav": "mouthpiece.wav"}, summary
 
     return work
@@ -170,7 +171,7 @@ def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig,
     inv = cfg.inversion
 
     def work(folder: Path):
-        mp = _load_npz(mouthpiece)
+        mp = open_npz(mouthpiece)  # p, u on disk: read in blocks, frames and windows
         fs = float(mp["fs"])
         tracks: dict = {}
         table, segments = plan_take(
@@ -209,7 +210,7 @@ def _stage_inversion(
 
     def work(folder: Path):
         checkpoint = folder / PARTIAL / "windows"
-        mp = _load_npz(mouthpiece)
+        mp = open_npz(mouthpiece)  # p, u stay on disk: the windows read their samples
         fs = float(mp["fs"])
         p, u = mp["p"], mp["u"]
         table_plan = pd.read_csv(plan)
@@ -274,11 +275,11 @@ def _stage_inversion(
 
 def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
     # lazy: the resynthesis module loads matplotlib (~0.4 s of every command's start-up)
-    from mpipe.inversion import resynthesis as rs
+    from mpipe.inversion import resynthesis_stream as rss
     from mpipe.inversion.note_figures import plot_notes, plot_overlays
 
     def work(folder: Path):
-        mp = _load_npz(mouthpiece)
+        mp = open_npz(mouthpiece)  # the take and its resynthesis stay on disk, read by blocks
         fs = float(mp["fs"])
         p, u = mp["p"], mp["u"]
         table = read_windows(windows)
@@ -290,26 +291,24 @@ def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
             return source.named(t_kernel, name if isinstance(name, str) else "")[0]
 
         bar = ProgressBar(len(table), desc="resynthesis")
+        out = folder / "resynthesis.npz"
         try:
-            res = rs.resynthesise(table, p, u, fs, kernel, cfg.inversion, zero_mean, bar)
+            write_atomic(out, lambda tmp: rss.resynthesise_to_npz(
+                tmp, table, p, u, fs, kernel, cfg.inversion, zero_mean, bar))  # fmt: skip
         finally:
             bar.close()
-        _, h = reed_openings(table, p, fs)  # the fitted reed's opening, m
-        write_npz_atomic(folder / "resynthesis.npz", fs=np.float64(fs), p=res.p, u=res.u, h=h)
-        filled = np.nan_to_num(res.p)
-        rs.write_wav(folder / "resynthesis.wav", filled, fs, cfg.resynthesis.wav_full_scale_pa)
+        res = open_npz(out)
+        full_scale = cfg.resynthesis.wav_full_scale_pa
+        write_atomic(folder / "resynthesis.wav",
+                     lambda tmp: rss.write_wav_blocks(tmp, res["p"], fs, full_scale))  # fmt: skip
         outputs = {"signals": "resynthesis.npz", "wav": "resynthesis.wav"}
-        signals = ((p, u), (res.p, res.u))
+        signals = ((p, u), (res["p"], res["u"]))
         outputs.update(plot_overlays(table, *signals, fs, cfg.resynthesis.overlay_windows, folder))
         segments = pd.read_csv(windows.parent / "segments.csv")
         outputs.update(plot_notes(table, segments, *signals, fs, folder, cal.fingering))
-        mask = np.isfinite(res.p)
-        rel = (
-            float(np.linalg.norm(p[mask] - res.p[mask]) / np.linalg.norm(p[mask]))
-            if mask.any()
-            else None
-        )
-        summary = {"relative_residual_p": rel, "samples_resynthesised": int(mask.sum())}
+        rel = rss.residual_ratio(p, res["p"])
+        summary = {"relative_residual_p": rel,
+                   "samples_resynthesised": rss.resynthesised_samples(res["p"])}  # fmt: skip
         return outputs, summary
 
     return work

@@ -107,7 +107,7 @@ def test_windows_of_every_length_and_rate_lie_inside_the_take(
     # counts) lie inside [edge_s, T - edge_s], are a hop apart and leave less than one hop
     # unused at the end.
     from mpipe.inversion.conditioning import plan_inversion
-    from mpipe.inversion.settings import ConditioningConfig
+    from mpipe.inversion.conditioning_settings import ConditioningConfig
 
     n = lengths.samples(duration_s, fs, extra)
     p = np.zeros(n)  # silent: the classification is not what is tested
@@ -127,3 +127,32 @@ def test_windows_of_every_length_and_rate_lie_inside_the_take(
     assert np.all(np.diff(starts) == hop)
     assert last - (starts[-1] + window_n) < hop
     assert not table["invert"].any()
+
+
+def test_a_take_on_disk_gives_the_plan_in_memory(tmp_path, monkeypatch):
+    # blocks of 1000 samples: every block-wise sum, envelope and frame crosses their edges
+    import pandas as pd
+
+    import mpipe.core.signals as signals
+    from mpipe.inversion.conditioning import is_zero_mean, plan_take
+    from mpipe.inversion.conditioning_settings import ConditioningConfig
+
+    fs = 20_000.0
+    t = np.arange(int(0.9 * fs) + 7) / fs
+    p = 1000 * np.sin(2 * np.pi * 200 * t) * (t < 0.35) + 800 * np.sin(2 * np.pi * 300 * t) * (
+        t > 0.5
+    )
+    p += np.random.default_rng(0).normal(0, 1.0, t.size) + 3.0
+    with signals.NpzStream(tmp_path / "mp.npz") as out:
+        out.add("p", p)
+    disk = signals.open_npz(tmp_path / "mp.npz", lazy_bytes=0)["p"]
+    monkeypatch.setattr(signals, "BLOCK", 1000)
+    cfg = ConditioningConfig()
+    tracks_whole, tracks_disk = {}, {}
+    whole = plan_take(p, fs, cfg, 0.02, 0.02, tracks_out=tracks_whole)
+    streamed = plan_take(disk, fs, cfg, 0.02, 0.02, tracks_out=tracks_disk)
+    pd.testing.assert_frame_equal(streamed[0], whole[0])
+    pd.testing.assert_frame_equal(streamed[1], whole[1])
+    for key, value in tracks_whole.items():
+        np.testing.assert_array_equal(tracks_disk[key], value, err_msg=key)
+    assert is_zero_mean(disk) == is_zero_mean(p)

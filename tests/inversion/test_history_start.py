@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from mpipe.acoustics.reflection import reflection_function
-from mpipe.inversion.history_start import missing_mean_flow, pad_history
+from mpipe.inversion.history_start import lead_in, missing_mean_flow, pad_history
 from mpipe.reed.bore_kernel import prepare_bore
 from mpipe.reed.model import simulate
 from mpipe.reed.opening import reed_trajectory
@@ -43,3 +43,17 @@ def test_missing_mean_flow_restores_the_mean_of_a_zero_mean_flow(take):
     lost = missing_mean_flow(TABLE1, dp, y, u - u.mean(), FS, rho)
     # with the true reed the candidate's flow is the model's own: the mean lost is exact
     assert lost == pytest.approx(u.mean(), rel=1e-6)
+
+
+@pytest.mark.parametrize("start", [0, 1, 150, 999, 5000])
+@pytest.mark.parametrize("taps", [1, 300, 2500])
+def test_the_lead_in_holds_every_sample_the_model_reads(start, taps):
+    # what the objective reads of a history: pad_history of max(taps, lead-in) samples
+    # and the last window's worth for the period; the lead-in must give the same
+    p = np.random.default_rng(start).standard_normal(6000)
+    n, lead_s = 400, 0.01
+    hp, hu = lead_in(p, -p, start, n, taps, lead_s, FS)
+    np.testing.assert_array_equal(hu, -hp)
+    for length in (taps, int(round(lead_s * FS)), n, 2):
+        np.testing.assert_array_equal(pad_history(hp, length), pad_history(p[:start], length))
+    np.testing.assert_array_equal(hp[-n:], p[:start][-n:])

@@ -129,3 +129,22 @@ def test_trackings_of_two_fingerings_merge_in_time_order():
     assert list(merged.table["fingering"]) == ["xxxx", "xxoo", "xxxx", "xxoo"]
     assert {w: h[0] for w, h in merged.histories.items()} == {0: 0.0, 1: 0.02, 2: 0.04, 3: 0.06}
     assert list(merged.correlations["window"]) == [0, 1, 2, 3]
+
+
+def test_a_take_on_disk_gives_the_table_of_the_take_in_memory(played, tmp_path):
+    # the signals on disk are read by windows and lead-ins only: the same numbers
+    from mpipe.core.signals import DiskArray, NpzStream, open_npz
+
+    p, u, cal = played
+    with NpzStream(tmp_path / "mp.npz") as out:
+        out.add("p", p)
+        out.add("u", u)
+    disk = open_npz(tmp_path / "mp.npz", lazy_bytes=0)
+    assert isinstance(disk["p"], DiskArray)
+    config = dataclasses.replace(CONFIG, temperature="front-end")
+    args = (FS, cal, config, ExecutorConfig(workers=1))
+    starts = STARTS[2:]
+    whole = invert_take(p, u, *args, windows=starts).tracking.table
+    streamed = invert_take(disk["p"], disk["u"], *args, windows=starts).tracking.table
+    timing = ["wall_time_s"]  # the only column that may differ: the clock
+    pd.testing.assert_frame_equal(streamed.drop(columns=timing), whole.drop(columns=timing))

@@ -222,3 +222,17 @@ def test_a_register_hole_note_passes_and_a_closed_register_hole_names_the_finger
     failed = validate(p, u, fs, closed, ValidationConfig(), 20.0)
     assert failed.verdict == "fail"
     assert failed.suspects[0].startswith("the fingering: the note's harmonics fit rxxxx")
+
+
+def test_a_take_on_disk_gives_the_validation_in_memory(tmp_path):
+    from mpipe.core.signals import NpzStream, open_npz
+
+    p, u = _broadband(int(2 * FS) + 17)
+    with NpzStream(tmp_path / "mp.npz") as out:
+        out.add("p", p)
+        out.add("u", u)
+    disk = open_npz(tmp_path / "mp.npz", lazy_bytes=0)
+    whole = validate(p, u, FS, CAL, ValidationConfig())
+    streamed = validate(disk["p"], disk["u"], FS, CAL, ValidationConfig())
+    assert streamed.summary() == whole.summary()
+    np.testing.assert_array_equal(streamed.table().to_numpy(), whole.table().to_numpy())

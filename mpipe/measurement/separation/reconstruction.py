@@ -132,6 +132,25 @@ def overlap_add(
     u0 : ndarray
         Volume flow at the reference plane, m^3/s, shape ``(n,)``.
     """
+    n = x.shape[0]
+    p0, u0 = np.zeros(n), np.zeros(n)
+    for a, b, chunk in overlap_add_blocks(x, fs, starts, length, smooth, c_track, geometry,
+                                          config):  # fmt: skip
+        p0[a:b], u0[a:b] = chunk[:, 0], chunk[:, 1]
+    return p0, u0
+
+
+# Eight parameters: those of overlap_add, whose blocks these are.
+def overlap_add_blocks(x, fs, starts, length, smooth, c_track, geometry, config):
+    """:func:`overlap_add`'s p0 and u0 in stretches, each yielded once it is complete.
+
+    Yields ``(a, b, chunk)``: samples ``a..b`` of ``[p0, u0]`` (shape ``(b - a, 2)``), in
+    order, covering the take. Each block's inverse FFT is added where it falls, in block
+    order, into a buffer that holds only the samples later blocks still reach; the samples
+    before the next block's first one are final and leave the buffer. The same additions
+    in the same order as one buffer of the whole take: the same numbers, with memory
+    bounded by a block. ``x`` is only sliced (a take on disk is read block by block).
+    """
     n, n_mics = x.shape
     pad = int(round(config.pad_s * fs))
     nfft = sfft.next_fast_len(length + 2 * pad, real=True)
@@ -140,24 +159,38 @@ def overlap_add(
     fb = freqs[band]
     ramp = _u_ramp(fb, config)
     win = np.hanning(length + 1)[:-1]  # periodic Hann: shifted copies at hop sum to one
-    origin = pad + length  # index in ``out`` of sample 0
-    # The buffer holds every block's padded inverse FFT: nfft (a fast length, up to a few
-    # per cent above length + 2 pad) from the last block's start, which may lie one sample
-    # before the end of the take.
-    last = max(origin + n, origin + int(np.max(starts, initial=0)) - pad + nfft)
-    out = np.zeros((last, 2))
-    for b, s in enumerate(starts):
-        th = Theta(c_track[b], smooth[b, 1], smooth[b, 2])
-        geo_b = geometry.corrected(float(smooth[b, 3]))
+    base, acc = 0, np.zeros((0, 2))  # acc holds samples base.. (sample 0 is the take's)
+    done = 0  # samples of the take already yielded
+    for k, s in enumerate(starts):
+        lo = int(s) - pad  # the block's padded inverse FFT covers lo..lo + nfft
+        if k == 0:
+            base = min(lo, 0)
+        if lo > base:  # samples before lo are final: no later block reaches them
+            done = yield from _emit(acc[: lo - base], base, done, n)
+            acc, base = acc[lo - base :], lo
+        if lo + nfft > base + acc.shape[0]:
+            acc = np.concatenate([acc, np.zeros((lo + nfft - base - acc.shape[0], 2))])
+        th = Theta(c_track[k], smooth[k, 1], smooth[k, 2])
+        geo_b = geometry.corrected(float(smooth[k, 3]))
         g_p, g_u = _tapered_filters(fb, th, geo_b, config, ramp)
         seg = np.zeros((nfft, n_mics))
-        seg[pad : pad + length] = padded_block(x, s, length) * win[:, None]
+        seg[pad : pad + length] = padded_block(x, int(s), length) * win[:, None]
         spec_ = np.fft.rfft(seg, axis=0)[band]
         y = np.zeros((freqs.size, 2), dtype=complex)
         y[band, 0] = np.sum(g_p * spec_, axis=1)
         y[band, 1] = np.sum(g_u * spec_, axis=1)
-        lo = origin + s - pad
-        out[lo : lo + nfft] += np.fft.irfft(y, nfft, axis=0)
-    p0 = out[origin : origin + n, 0].copy()
-    u0 = out[origin : origin + n, 1].copy()
-    return p0, u0
+        acc[lo - base : lo - base + nfft] += np.fft.irfft(y, nfft, axis=0)
+    done = yield from _emit(acc, base, done, n)
+    if done < n:  # samples no block reached stay zero
+        yield done, n, np.zeros((n - done, 2))
+
+
+def _emit(acc: np.ndarray, base: int, done: int, n: int):
+    """Yield the part of ``acc`` (samples ``base..``) inside the take; return the new end."""
+    a, b = max(base, done, 0), min(base + acc.shape[0], n)
+    if b > a:
+        if a > done:  # samples before the first block: no block reached them
+            yield done, a, np.zeros((a - done, 2))
+        yield a, b, acc[a - base : b - base]
+        return b
+    return done

@@ -15,14 +15,15 @@ the blocks (:func:`mpipe.measurement.separation.result.block_table`).
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from mpipe.core.signals import as_signal, blocks
 from mpipe.measurement.calibration import Calibration
 from mpipe.measurement.separation.blocks import (
     FILTER_MARGIN_S,
-    BlockSpectra,
     block_layout,
     cross_spectra,
     padded_block,
@@ -79,16 +80,19 @@ class _Plan:
     theta_note: str
 
 
-def _checked_pressures(pressures: np.ndarray, calibration: Calibration) -> np.ndarray:
-    """The pressures as a float array of shape ``(n, N)``, all samples finite."""
-    x = np.asarray(pressures, dtype=float)
+def checked_pressures(pressures, calibration: Calibration):
+    """The pressures as a float array of shape ``(n, N)``, all samples finite.
+
+    A DiskArray stays on disk (checked block by block).
+    """
+    x = as_signal(pressures)
     n_mics = len(calibration.microphones)
     if x.ndim != 2 or x.shape[1] != n_mics:
         raise ValueError(
             f"expected pressures of shape (n, {n_mics}) for the {n_mics} microphones of the "
             f"calibration, got {x.shape}"
         )
-    if not np.all(np.isfinite(x)):
+    if not all(np.all(np.isfinite(x[a:b])) for a, b in blocks(x.shape[0])):
         raise ValueError("pressures contain NaN or infinite samples")
     return x
 
@@ -155,14 +159,40 @@ def _log_plan(plan: _Plan, config: SeparationConfig, n_mics: int, fs: float) -> 
         log.info("separation: %d microphones: positions held at the calibration's", n_mics)
 
 
+class BlockSpectraSequence(Sequence):
+    """Every block's :class:`BlockSpectra`, computed when asked for and not kept.
+
+    The estimate reads the blocks once, in order; computing each one then (the same FFTs
+    of the same samples) instead of holding all of them keeps the separation's memory
+    bounded by a block, with the same numbers. ``x`` is only sliced (a take on disk is
+    read block by block).
+    """
+
+    def __init__(self, x, fs: float, plan: _Plan, config: SeparationConfig) -> None:
+        self.x, self.fs, self.plan, self.config = x, fs, plan, config
+        self.margin = int(np.ceil(FILTER_MARGIN_S * fs))
+        self.f1 = plan.c_start / (2 * plan.geometry.spacing)
+
+    def __len__(self) -> int:
+        return int(self.plan.starts.size)
+
+    def __getitem__(self, b):
+        if isinstance(b, slice):
+            return [self[i] for i in range(len(self))[b]]
+        s, length, m = int(self.plan.starts[b]), self.plan.length, self.margin
+        c = self.config
+        block = padded_block(self.x, s - m, length + 2 * m)
+        return cross_spectra(block, self.fs, c.fmin_hz, c.fmax_hz, m, self.f1)
+
+
 def _prepare_blocks(
-    x: np.ndarray, fs: float, plan: _Plan, noise_raw: np.ndarray, config: SeparationConfig
-) -> tuple[list[BlockSpectra], np.ndarray, list[np.ndarray], np.ndarray]:
-    """Every block's spectra, the floored noise levels, the bins used and the fitted blocks.
+    x, fs: float, plan: _Plan, noise_raw: np.ndarray, config: SeparationConfig
+) -> tuple[BlockSpectraSequence, np.ndarray, list[np.ndarray], np.ndarray]:
+    """Every block's spectra (computed when read), the noise levels, bins used, fitted blocks.
 
     Returns
     -------
-    spectra : list of BlockSpectra
+    spectra : BlockSpectraSequence
         One per block.
     noise : ndarray
         ``noise_raw`` floored at ``NOISE_FLOOR`` of the strongest bin, Pa^2/Hz.
@@ -172,26 +202,20 @@ def _prepare_blocks(
         Per block, whether it is fitted (bool).
     """
     n, length, starts = x.shape[0], plan.length, plan.starts
-    margin = int(np.ceil(FILTER_MARGIN_S * fs))
-    f1 = plan.c_start / (2 * plan.geometry.spacing)
-    spectra_list = [
-        cross_spectra(
-            padded_block(x, s - margin, length + 2 * margin), fs, config.fmin_hz, config.fmax_hz,
-            margin, f1,
-        )
-        for s in starts
-    ]  # fmt: skip
-    level = np.array([float(np.sum(sp.mic_power)) for sp in spectra_list])
+    spectra_list = BlockSpectraSequence(x, fs, plan, config)
+    level, traces, peak = np.zeros(starts.size), [], 0.0
+    for j, sp in enumerate(spectra_list):  # a first pass: what the choice of bins needs
+        level[j] = float(np.sum(sp.mic_power))
+        peak = max(peak, float(np.max(sp.mic_power, initial=0.0)))
+        traces.append(np.sum(sp.mic_power, axis=1))  # BlockSpectra.use's trace
     floor = np.median(level) * 10 ** (-config.min_level_db / 10)
     inside = (starts >= 0) & (starts + length <= n)
     if not np.any(inside):
         inside[:] = True  # take shorter than one block: use what there is
-    peak = max(
-        (float(np.max(sp.mic_power, initial=0.0)) for sp in spectra_list),
-        default=0.0,
-    )
     noise = np.maximum(noise_raw, NOISE_FLOOR * peak + 1e-300)
-    uses = [sp.use(noise, config.min_snr_db) for sp in spectra_list]
+    total = float(np.sum(noise))
+    # BlockSpectra.use, from the traces kept
+    uses = [t - total >= 10 ** (config.min_snr_db / 10) * total for t in traces]
     # Blocks hanging over either end hold half silence and an abrupt edge: not fitted.
     fitted = inside & (level > max(floor, 0.0)) & np.array([np.sum(u) >= 3 for u in uses])
     return spectra_list, noise, uses, fitted
@@ -306,12 +330,62 @@ def separate(
     ----------
     physics.md E.1-E.5; Jang & Ih 1998; Chatziioannou & van Walstijn 2012, section 4.
     """
-    x = _checked_pressures(pressures, calibration)
+    x = checked_pressures(pressures, calibration)
+    est = estimate(x, fs, calibration, config, band_limit_hz)
+    # 2. Separate every windowed block with its smoothed theta, overlap-add.
+    plan = est.plan
+    p0, u0 = overlap_add(x, fs, plan.starts, plan.length, est.smooth, est.c_track,
+                         plan.geometry, config)  # fmt: skip
+    return est.result(p0, u0)
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """What the first pass of the separation found: theta over the take, before p0, u0.
+
+    :meth:`result` makes the :class:`SeparationResult` once p0 and u0 are rebuilt (by
+    :func:`mpipe.measurement.separation.reconstruction.overlap_add`, or block by block into
+    a file by :func:`mpipe.measurement.separation.streaming.separate_to_npz`).
+    """
+
+    plan: _Plan
+    fs: float
+    config: SeparationConfig
+    smooth: np.ndarray
+    c_track: np.ndarray
+    table: object
+    noise_raw: np.ndarray
+    track: TrackChoice | None
+    median_j: float
+
+    def result(self, p0, u0, log_outcome: bool = True) -> SeparationResult:
+        """The separation's result with these p0 (Pa) and u0 (m^3/s), its outcome logged."""
+        result = SeparationResult(
+            fs=float(self.fs),
+            p0=p0,
+            u0=u0,
+            blocks=self.table,
+            config=self.config,
+            noise_psd=2 * self.noise_raw,
+            geometry=self.plan.geometry.corrected(float(np.median(self.smooth[:, 3]))),
+            track=self.track,
+        )
+        if log_outcome:
+            _log_outcome(result, self.median_j)
+        return result
+
+
+def estimate(
+    x, fs: float, calibration: Calibration, config: SeparationConfig, band_limit_hz=None
+) -> Estimate:
+    """The first pass of :func:`separate`: theta per block, smoothed over the take.
+
+    ``x`` (Pa, shape ``(n, N)``, checked) is only sliced: a take on disk is read block by
+    block, each block's spectra computed when the estimate reaches it.
+    """
     n_mics = x.shape[1]
     plan = _plan(x, fs, calibration, config)
     _log_plan(plan, config, n_mics, fs)
-
-    # 1. Estimate theta per block.
     noise_raw = noise_levels(x, fs, config, band_limit_hz)
     log.info(
         "separation: noise PSD per channel %s Pa^2/Hz (one-sided)",
@@ -328,19 +402,5 @@ def separate(
     smooth, smooth_se, c_track, track = _smoothed_track(
         plan, centres, fits, trust, adaptive, config
     )
-
-    # 2. Separate every windowed block with its smoothed theta, overlap-add.
-    p0, u0 = overlap_add(x, fs, plan.starts, plan.length, smooth, c_track, plan.geometry, config)
     table = block_table(centres, smooth, smooth_se, c_track, fits, fitted, trust, plan.theta_note)
-    result = SeparationResult(
-        fs=float(fs),
-        p0=p0,
-        u0=u0,
-        blocks=table,
-        config=config,
-        noise_psd=2 * noise_raw,
-        geometry=plan.geometry.corrected(float(np.median(smooth[:, 3]))),
-        track=track,
-    )
-    _log_outcome(result, median_j)
-    return result
+    return Estimate(plan, float(fs), config, smooth, c_track, table, noise_raw, track, median_j)
