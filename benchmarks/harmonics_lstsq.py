@@ -1,4 +1,4 @@
-"""Frozen copy of mpipe.inversion.harmonics before issue 31 (the baseline of bench_realtime.py).
+"""Frozen copy of the harmonic split (mpipe.inversion.harmonics) before issue 31.
 
 Its f0 search solved 15 least-squares problems on the explicit harmonic design per window
 and its split took a Householder QR of it; mpipe.inversion.harmonics now goes through the

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -347,7 +348,16 @@ def note_fingering_checks(table: pd.DataFrame) -> list[str]:
     return out
 
 
+def say_validation(say: Callable[[str], None], name: str, summary: dict) -> None:
+    """The validation's verdict, and each note's line (fingering, verdict) of a phrase."""
+    say(f"[{name}]     impedance validation: {summary['verdict'].upper()} "
+        f"({summary.get('reason', '')})")  # fmt: skip
+    for line in summary.get("note_lines", []):
+        say(f"[{name}]       {line}")
+
+
 __all__ = [
+    "say_validation",
     "NOTE_COLUMNS",
     "NotesValidation",
     "needed_s",

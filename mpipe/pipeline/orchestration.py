@@ -43,8 +43,8 @@ from mpipe.measurement.translation import mouthpiece_noise, write_mouthpiece_wav
 from mpipe.measurement.translation_stream import translate_to_npz
 from mpipe.pipeline import report
 from mpipe.pipeline.manifest import PARTIAL, StageRecord, run_stage
+from mpipe.pipeline.note_validation import say_validation, with_fingerings
 from mpipe.pipeline.note_validation import stage_validation as _stage_validation
-from mpipe.pipeline.note_validation import with_fingerings
 from mpipe.pipeline.report import plot_blocks
 from mpipe.pipeline.settings import PipelineConfig
 from mpipe.pipeline.take_calibration import sidecar_check
@@ -429,7 +429,7 @@ def run_take_unlocked(
     val = stage(3, "validation", {"mouthpiece": mouthpiece, "blocks": blocks, **cal_inputs},
                 val_config, _stage_validation(mouthpiece, blocks, cal, cfg))  # fmt: skip
     verdict = val.summary["verdict"]
-    _say_validation(say, name, val.summary)
+    say_validation(say, name, val.summary)
     if verdict == "fail":
         if not accept_failed_validation:
             raise ValidationFailed(  # the reason was said on the line above
@@ -471,14 +471,6 @@ def _conditioning_config(cfg: PipelineConfig) -> dict:
     """The settings the conditioning stage depends on (its manifest's configuration)."""
     return {"conditioning": cfg.conditioning, "window_s": cfg.inversion.window_s,
             "hop_s": cfg.inversion.hop_s, "signal": cfg.inversion.signal}  # fmt: skip
-
-
-def _say_validation(say: Callable[[str], None], name: str, summary: dict) -> None:
-    """The validation's verdict, and each note's line (fingering, verdict) of a phrase."""
-    say(f"[{name}]     impedance validation: {summary['verdict'].upper()} "
-        f"({summary.get('reason', '')})")  # fmt: skip
-    for line in summary.get("note_lines", []):
-        say(f"[{name}]       {line}")
 
 
 def _present(**paths: Path) -> dict:
