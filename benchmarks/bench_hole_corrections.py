@@ -31,6 +31,8 @@ from unittest import mock
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from headline import record  # noqa: E402
 
 
 def _series(open_fn, closed_fn, open_holes, original):
@@ -111,6 +113,7 @@ def main(argv=None) -> int:
             worst = max(worst, *map(abs, shifts))
             print(f"  {n}: " + ", ".join(f"{s:+.2f}" for s in shifts))
         print(f"  largest |shift|: {worst:.2f} cents")
+        record(f"tone holes: largest shift of resonances 2-5, {label}", worst, "cents")
     return 0
 
 

@@ -40,6 +40,7 @@ def _window_signals(row, p, u, fs, kernel, config, settings, zero_mean):
     A window without an error gets a resynthesis, and one whose row makes a reed gets an
     opening: the rules of ``resynthesise`` and ``reed_openings``.
     """
+    kernel = kernel(row) if callable(kernel) else kernel  # its note's fingering's bore
     i0, i1 = int(round(row["t_start_s"] * fs)), int(round(row["t_end_s"] * fs))
     out_p = out_u = h = None
     try:
@@ -86,8 +87,8 @@ def resynthesise_to_npz(
         Target pressure (Pa) and flow (m^3/s) of the take, only sliced.
     fs : float
         Sample rate, Hz.
-    kernel : BoreKernel
-        Prepared bore.
+    kernel : BoreKernel or callable
+        Prepared bore, or ``kernel(row)`` giving each window's (its note's fingering).
     config : InversionConfig
         Start method and filters.
     zero_mean : bool

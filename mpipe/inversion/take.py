@@ -215,7 +215,7 @@ def _track_fingerings(p, u, fs, source, fit, config, executor, plan, options) ->
         kernel, air = source.at(fit.temperature_c, plan.starts[0])
         result = track(p, u, fs, kernel, air.rho, config, executor, windows=plan,
                        anchor=anchors, options=options)  # fmt: skip
-        return dataclasses.replace(result, table=result.table.assign(fingering=names[0]))
+        return dataclasses.replace(result, table=result.table.copy().assign(fingering=names[0]))
     parts = []
     for name in names:
         sub = plan.only(name)
@@ -232,7 +232,7 @@ def _track_fingerings(p, u, fs, source, fit, config, executor, plan, options) ->
         )
         res = track(p, u, fs, kernel, air.rho, config, executor, windows=sub,
                     anchor=mine or None, options=opts)  # fmt: skip
-        parts.append(dataclasses.replace(res, table=res.table.assign(fingering=name)))
+        parts.append(dataclasses.replace(res, table=res.table.copy().assign(fingering=name)))
     return merge_trackings(parts)
 
 

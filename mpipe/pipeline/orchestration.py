@@ -389,14 +389,7 @@ def run_take_unlocked(
     root = Path(out) / name
     d = {s: root / s for s in STAGES}
     records: dict[str, StageRecord] = {}
-    cal_inputs = {"calibration": cal_path}
-    if cal.bore.measured_input is not None:
-        cal_inputs["measured_impedance"] = Path(cal.bore.measured_input.source)
-    for mic in cal.microphones:
-        path = cal.calibration_path(mic)
-        if path is not None:
-            cal_inputs[f"mic_calibration_{mic.name}"] = path
-
+    cal_inputs = _calibration_inputs(cal, cal_path)
     redone = False
     if cal.bore.measured_input is not None:  # not the geometry's theory: say so, and its fit
         say(f"[{name}]     {bore_description(cal)}")
@@ -465,6 +458,18 @@ def run_take_unlocked(
     report = write_take_report(root, name, take_paths, cal_path, records)
     say(f"[{name}]     report: {report}")
     return TakeRun(name, root, records, report)
+
+
+def _calibration_inputs(cal: Calibration, cal_path: Path) -> dict:
+    """The files a calibration reads (every stage's inputs): itself, a measured bore, tables."""
+    found = {"calibration": cal_path}
+    if cal.bore.measured_input is not None:
+        found["measured_impedance"] = Path(cal.bore.measured_input.source)
+    for mic in cal.microphones:
+        path = cal.calibration_path(mic)
+        if path is not None:
+            found[f"mic_calibration_{mic.name}"] = path
+    return found
 
 
 def _conditioning_config(cfg: PipelineConfig) -> dict:

@@ -43,7 +43,8 @@ def add_parser(sub) -> None:
         "--scheduler",
         metavar="ADDR",
         help="takes side by side on the Dask cluster at ADDR (tcp://HOST:PORT); the takes, "
-        "calibrations and OUT must be on a file system its workers see",
+        "calibrations and OUT must be on a file system its workers see (default: none, the "
+        "pipeline's executor)",
     )
     p.add_argument("--force", action="store_true", help="redo finished stages and windows")
     p.add_argument(
