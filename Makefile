@@ -30,7 +30,8 @@ lint: $(TEST_STAMP)
 	$(BIN)/ruff format --check mpipe tests benchmarks
 
 test: lint
-	$(BIN)/python -m pytest
+	# two processes: the suite's tests are independent (tmp_path each), and CI has 2 cores
+	$(BIN)/python -m pytest -n 2
 
 $(BENCH_STAMP): $(TEST_STAMP)
 	$(BIN)/python -m pip install --quiet "$(OPENWIND)"
