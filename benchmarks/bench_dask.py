@@ -46,7 +46,7 @@ from bench_realtime import machine_parallelism  # noqa: E402
 from headline import record  # noqa: E402
 
 from mpipe.cli.virtual_takes import SynthOptions, make_take  # noqa: E402
-from mpipe.inversion.records import read_windows  # noqa: E402
+from mpipe.inversion.table.records import read_windows  # noqa: E402
 from tests.inversion.cluster_helpers import real_cluster, start_worker  # noqa: E402
 
 CAL = ROOT / "calibration" / "simplified_clarinet.yaml"

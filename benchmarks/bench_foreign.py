@@ -56,7 +56,7 @@ import foreign_sim as fsim  # noqa: E402
 from bench_playing import grid, inside, truth_over  # noqa: E402
 from headline import record  # noqa: E402
 
-from mpipe.inversion.records import read_windows  # noqa: E402
+from mpipe.inversion.table.records import read_windows  # noqa: E402
 
 CAL = ROOT / "calibration" / "simplified_clarinet.yaml"
 REED = ROOT / "calibration" / "reed_table1.yaml"

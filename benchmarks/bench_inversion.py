@@ -36,11 +36,11 @@ import numpy as np
 from headline import record
 
 from mpipe.acoustics.reflection import reflection_function
-from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWindow
-from mpipe.inversion.rosenbrock import rosenbrock
+from mpipe.inversion.fit.objective import F2Objective, ObjectiveSettings, TargetWindow
+from mpipe.inversion.fit.rosenbrock import rosenbrock
+from mpipe.inversion.fit.step1 import step1
+from mpipe.inversion.fit.window import invert_window, start_point
 from mpipe.inversion.settings import PARAMETER_NAMES, ExecutorConfig, InversionConfig
-from mpipe.inversion.step1 import step1
-from mpipe.inversion.window import invert_window, start_point
 from mpipe.measurement.calibration import load_calibration
 from mpipe.reed.bore_kernel import prepare_bore
 from mpipe.reed.model import simulate
@@ -219,8 +219,8 @@ BEFORE = {70.0: 1, 45.0: 0}
 
 def measured_path(take_files, pipe, inversion, fixed_front_end: bool):
     """Invert three steady windows of a take through separation and translation."""
-    from mpipe.inversion.conditioning import plan_inversion
-    from mpipe.inversion.take import invert_take
+    from mpipe.inversion.preparation.conditioning import plan_inversion
+    from mpipe.inversion.whole_take.take import invert_take
     from mpipe.measurement.separation.settings import fixed_config
     from mpipe.measurement.separation.stage import separate
     from mpipe.measurement.takes import read_take

@@ -189,7 +189,7 @@ def compare(folder: Path, truth, reed) -> None:
     define differently can sit on its search bound while p_m and p_M are right, so this
     looks at every inverted window whatever its status.
     """
-    from mpipe.inversion.records import read_windows
+    from mpipe.inversion.table.records import read_windows
 
     path = folder / "inversion" / "windows.csv"
     if not path.exists():

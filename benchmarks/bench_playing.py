@@ -46,7 +46,7 @@ ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 from headline import record  # noqa: E402
 
-from mpipe.inversion.records import read_windows as read_window_table  # noqa: E402
+from mpipe.inversion.table.records import read_windows as read_window_table  # noqa: E402
 
 CAL = ROOT / "calibration" / "simplified_clarinet.yaml"
 REED = ROOT / "calibration" / "reed_table1.yaml"

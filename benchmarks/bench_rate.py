@@ -20,7 +20,7 @@ model's bias at fs, in two variants:
   band-limited reflection function).
 
 It prints the table per case and rate, the ratio of the bound of
-:mod:`mpipe.inversion.discretisation` (``|bias_q| <= c_q (f_ref / fs)^order``) to the
+:mod:`mpipe.inversion.trust.discretisation` (``|bias_q| <= c_q (f_ref / fs)^order``) to the
 largest measured |bias| at every rate (at least 1: the bound holds), and the bound fitted
 again on the module's rates and on 32, 48 and 100 kHz alone with its ratios. The module's
 constants came from ``--variants scheme``.
@@ -46,14 +46,14 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from headline import record  # noqa: E402
 
-import mpipe.inversion.kernel as inversion_kernel  # noqa: E402
+import mpipe.inversion.preparation.kernel as inversion_kernel  # noqa: E402
 from mpipe.acoustics.reflection import reflection_function  # noqa: E402
 from mpipe.core.filters import apply_lowpass  # noqa: E402
 from mpipe.core.resampling import resample  # noqa: E402
-from mpipe.inversion import discretisation  # noqa: E402
-from mpipe.inversion.combinations import combination_values  # noqa: E402
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig  # noqa: E402
-from mpipe.inversion.take import invert_take  # noqa: E402
+from mpipe.inversion.trust import discretisation  # noqa: E402
+from mpipe.inversion.trust.combinations import combination_values  # noqa: E402
+from mpipe.inversion.whole_take.take import invert_take  # noqa: E402
 from mpipe.measurement.calibration import load_calibration  # noqa: E402
 from mpipe.reed.bore_kernel import prepare_bore  # noqa: E402
 from mpipe.reed.model import simulate  # noqa: E402

@@ -51,15 +51,15 @@ from threadpoolctl import threadpool_limits
 
 from mpipe.acoustics.reflection import reflection_function
 from mpipe.cli.virtual_takes import SynthOptions, make_take
-from mpipe.inversion.conditioning import plan_inversion
-from mpipe.inversion.execution import stage_workers
-from mpipe.inversion.kernel import bore_kernel, take_temperature
-from mpipe.inversion.resynthesis import reed_from_row
+from mpipe.inversion.fit.execution import stage_workers
+from mpipe.inversion.fit.step1 import step1
+from mpipe.inversion.fit.window import invert_window, start_point
+from mpipe.inversion.output.resynthesis import reed_from_row
+from mpipe.inversion.preparation.conditioning import plan_inversion
+from mpipe.inversion.preparation.kernel import bore_kernel, take_temperature
 from mpipe.inversion.settings import ExecutorConfig
-from mpipe.inversion.step1 import step1
-from mpipe.inversion.temperature import fit_temperature
-from mpipe.inversion.tracking import track
-from mpipe.inversion.window import invert_window, start_point
+from mpipe.inversion.whole_take.temperature import fit_temperature
+from mpipe.inversion.whole_take.tracking import track
 from mpipe.measurement.calibration import load_calibration
 from mpipe.measurement.separation.stage import separate
 from mpipe.measurement.takes import read_take
@@ -210,7 +210,7 @@ def agreement(data, kernel, rho, config, every, budget):
         b = invert_window(p, u, fs, s, kernel, rho, rosen, zero_mean=True, warm=warm)
         if a.search is None or b.search is None:
             continue
-        # the window's own standard errors (``<name>_se``, mpipe.inversion.uncertainty:
+        # the window's own standard errors (``<name>_se``, mpipe.inversion.trust.uncertainty:
         # Gauss-Newton at the solution with the residual's colour accounted for)
         names = [k for k in config.free if np.isfinite(a.row.get(f"{k}_se", np.nan))]
         dx = np.abs([a.row[k] - b.row[k] for k in names])

@@ -5,7 +5,7 @@ Run: ``.venv/bin/python benchmarks/bench_segmentation.py [--seeds 2] [--no-openw
 loaded 2-core machine, and cached under ``benchmarks/.cache/segmentation/``).
 
 Every case is a mouthpiece pressure with its notes known from how it was made, run through
-:func:`mpipe.inversion.segments.segment_take` at the default settings. Sources:
+:func:`mpipe.inversion.preparation.segments.segment_take` at the default settings. Sources:
 
 - ``synthetic``: phase-continuous odd-harmonic tones along a known f0 curve (no reed model):
   slurs of 80-200 cents, instant and glided over 20-50 ms; a note 30-40 dB below the loudest;
@@ -167,7 +167,7 @@ def _mouth(spec, seconds, tongue_s=0.02):
 
 
 def model_cases() -> list[Case]:
-    from mpipe.inversion.kernel import bore_kernel
+    from mpipe.inversion.preparation.kernel import bore_kernel
     from mpipe.measurement.calibration import load_calibration
     from mpipe.reed.model import simulate
     from mpipe.reed.parameters import load_reed
@@ -358,7 +358,7 @@ def reference_f0(x: np.ndarray) -> float:
 
 
 def score(case: Case, cond) -> dict:
-    from mpipe.inversion.segments import segment_take
+    from mpipe.inversion.preparation.segments import segment_take
 
     segs, _ = segment_take(case.p, FS, cond)
     found = segs[segs["label"] == "note"]

@@ -51,10 +51,10 @@ def phrase(fs: float) -> tuple[np.ndarray, list[tuple[float, float]]]:
 
 def run(seed: int, workers: int, baseline: bool) -> dict:
     from mpipe.core.filters import highpass_zero_phase
-    from mpipe.inversion.conditioning import bore_resonances, plan_take
-    from mpipe.inversion.kernel import bore_kernel
+    from mpipe.inversion.preparation.conditioning import bore_resonances, plan_take
+    from mpipe.inversion.preparation.kernel import bore_kernel
     from mpipe.inversion.settings import ExecutorConfig
-    from mpipe.inversion.take import WindowPlan, invert_take
+    from mpipe.inversion.whole_take.take import WindowPlan, invert_take
     from mpipe.measurement.calibration import load_calibration
     from mpipe.pipeline.settings import load_pipeline
     from mpipe.reed.model import simulate

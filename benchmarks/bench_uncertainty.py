@@ -39,7 +39,7 @@ and the fractions of windows within 1 SE (0.683) and 2 SE (0.954; asked [0.92, 0
     .venv/bin/python benchmarks/bench_uncertainty.py --coverage --seeds 20 \
         [--snrs 45,60] [--kinds steady,swell] [--duration 1.0] [--out DIR]
 
-It also prints, per note (:func:`mpipe.inversion.notes.note_summary`: the median over
+It also prints, per note (:func:`mpipe.inversion.trust.notes.note_summary`: the median over
 the note's ok windows and its combined SE, the take-wide components added once), the
 fraction of (note, quantity) pairs within 2 note SE of the truth (the median of the note's
 windows' truths; asked 0.90-0.98). The front end's estimate is passed to ``invert_take``
@@ -62,10 +62,10 @@ from headline import record
 
 from mpipe.cli.examples import EXAMPLE_CALIBRATION, EXAMPLE_OPTIONS, EXAMPLE_REED, example_take
 from mpipe.cli.main import main as cli_main
-from mpipe.inversion.combinations import COMBINATION_NAMES, combination_values
-from mpipe.inversion.coverage import summary
-from mpipe.inversion.kernel import bore_kernel
-from mpipe.inversion.records import flags, read_windows, write_windows
+from mpipe.inversion.preparation.kernel import bore_kernel
+from mpipe.inversion.table.coverage import summary
+from mpipe.inversion.table.records import flags, read_windows, write_windows
+from mpipe.inversion.trust.combinations import COMBINATION_NAMES, combination_values
 from mpipe.measurement.calibration import load_calibration
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -161,10 +161,10 @@ def coverage_take(seed: int, snr: float, kind: str, duration: float, folder: Pat
     from dataclasses import replace
 
     from mpipe.cli.virtual_takes import SynthOptions, make_take
-    from mpipe.inversion.conditioning import plan_inversion
+    from mpipe.inversion.preparation.conditioning import plan_inversion
     from mpipe.inversion.settings import ExecutorConfig
-    from mpipe.inversion.shared_errors import FrontEnd
-    from mpipe.inversion.take import invert_take
+    from mpipe.inversion.whole_take.shared_errors import FrontEnd
+    from mpipe.inversion.whole_take.take import invert_take
     from mpipe.measurement.separation.stage import separate
     from mpipe.measurement.takes import read_take
     from mpipe.measurement.translation import translate
@@ -224,9 +224,9 @@ def note_z(table: pd.DataFrame, ok: pd.DataFrame, truth: dict) -> list:
     """``(quantity, z)`` per note of a take and quantity: z = (note value - truth) / note SE.
 
     The note's truth is the median of its ok windows' truths (the mouth pressure swells);
-    the note's value and SE are :func:`mpipe.inversion.notes.note_summary`'s.
+    the note's value and SE are :func:`mpipe.inversion.trust.notes.note_summary`'s.
     """
-    from mpipe.inversion.notes import note_summary
+    from mpipe.inversion.trust.notes import note_summary
 
     segments = pd.DataFrame({"segment": sorted(set(table["segment"].astype(int)))})
     notes = note_summary(segments, table, COVERAGE_NAMES)
@@ -250,7 +250,9 @@ def print_note_coverage(label: str, z_note: dict) -> None:
     table = pd.DataFrame(rows)
     pairs = np.concatenate([np.asarray(v, float) for n, v in z_note.items() if n in CRITERION])
     frac = float(np.mean(np.abs(pairs) <= 2)) if pairs.size else float("nan")
-    print(f"[{label}] per note (median over its ok windows, note SE of mpipe.inversion.notes):")
+    print(
+        f"[{label}] per note (median over its ok windows, note SE of mpipe.inversion.trust.notes):"
+    )
     print(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     print(f"[{label}] (note, parameter) pairs of {', '.join(CRITERION)} within 2 note SE: "
           f"{frac:.3f} of {pairs.size} (asked 0.90-0.98)")  # fmt: skip

@@ -1,7 +1,7 @@
-"""Frozen copy of the harmonic split (mpipe.inversion.harmonics) before issue 31.
+"""Frozen copy of the harmonic split (mpipe.inversion.trust.harmonics) before issue 31.
 
 Its f0 search solved 15 least-squares problems on the explicit harmonic design per window
-and its split took a Householder QR of it; mpipe.inversion.harmonics now goes through the
+and its split took a Householder QR of it; mpipe.inversion.trust.harmonics now goes through the
 design's closed-form Gram matrix. Not a benchmark of its own (run_all.py runs bench_*.py).
 """
 
@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mpipe.inversion.conditioning import estimate_period
+from mpipe.inversion.preparation.conditioning import estimate_period
 
 #: Periodogram bins averaged into a spectrum (50 Hz apart on a 20 ms window: 250 Hz).
 SPECTRUM_BINS = 5

@@ -40,8 +40,8 @@ from mpipe.reed.bore_kernel import prepare_bore
 from mpipe.reed.model import simulate_pressure
 from mpipe.reed.parameters import load_reed
 from mpipe.reed.sensitivity import pressure_sensitivities
-from mpipe.inversion.fastpath import WindowEvaluator
-from mpipe.inversion.sensitivities import SensitivityEvaluator
+from mpipe.inversion.fit.fastpath import WindowEvaluator
+from mpipe.inversion.fit.sensitivities import SensitivityEvaluator
 cal = load_calibration(r"CAL")
 air = cal.air_properties()
 kernel = prepare_bore(reflection_function(cal.bore, air, fs=100_000.0), air)

@@ -15,10 +15,10 @@ from harmonics_lstsq import split_residual as split_before
 from headline import record
 from threadpoolctl import threadpool_limits
 
-from mpipe.inversion import objective as objective_module
-from mpipe.inversion.harmonics import split_residual
-from mpipe.inversion.resynthesis import reed_from_row
-from mpipe.inversion.window import invert_window
+from mpipe.inversion.fit import objective as objective_module
+from mpipe.inversion.fit.window import invert_window
+from mpipe.inversion.output.resynthesis import reed_from_row
+from mpipe.inversion.trust.harmonics import split_residual
 
 
 @contextlib.contextmanager

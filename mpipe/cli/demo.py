@@ -22,8 +22,8 @@ import pandas as pd
 
 from mpipe.cli.examples import example_take
 from mpipe.cli.main import main as cli_main
-from mpipe.inversion.combinations import combination_values
-from mpipe.inversion.records import flags, read_windows
+from mpipe.inversion.table.records import flags, read_windows
+from mpipe.inversion.trust.combinations import combination_values
 from mpipe.measurement.calibration import load_calibration
 
 ROOT = Path(__file__).resolve().parents[2]

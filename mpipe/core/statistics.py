@@ -1,7 +1,7 @@
 """Statistics of correlated series: how many independent samples a series holds.
 
-Used by the window's covariance (:mod:`mpipe.inversion.uncertainty`) on a residual and by a
-note's pooling (:mod:`mpipe.inversion.notes`) on the series of its windows' estimates.
+Used by the window's covariance (:mod:`mpipe.inversion.trust.uncertainty`) on a residual and by a
+note's pooling (:mod:`mpipe.inversion.trust.notes`) on the series of its windows' estimates.
 """
 
 from __future__ import annotations

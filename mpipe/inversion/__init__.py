@@ -3,55 +3,37 @@
 Imports :mod:`mpipe.core`, :mod:`mpipe.acoustics`, :mod:`mpipe.measurement` and
 :mod:`mpipe.reed`.
 
-Submodules
-----------
-settings
-    The pipeline sections ``conditioning``, ``inversion``, ``resynthesis``, ``executor``.
-conditioning
-    Steady windows, filtering, period and synchronisation shared by F2 and the resynthesis.
-kernel
-    The bore kernel of a take, at one documented temperature.
-step1
-    Closed-form quasi-static flow fit (paper section 3.1): both branches and p_m.
-flow_fit
-    Step 1's fit of one branch: regressors, exact least squares, sample refinement.
-mouth_pressure
-    Step 1's p_m: the minimiser of the profiled flow misfit.
-rosenbrock
-    Rosenbrock's rotating-coordinate search (paper section 3.2), the reference step-2 search.
-objective
-    The step-2 objective F2 and the two ways of starting the model.
-history_start
-    The model started from the target's past: the reed's lead-in, the missing mean flow.
-tracking
-    Per-window inversion over a take: one shared cold start, warm windows, cold retries.
-window
-    One window's inversion: step 1, the cold or warm start, step 2, its errors.
-execution
-    Where windows run: in process, a local process pool or a Dask cluster.
-records
-    The window record (a window's result and its correlation) and the table's schema:
-    every column's dtype, unit and meaning; typed CSV and Parquet files.
-tables
-    A window's blank record, checkpoints, the files written.
-least_squares, coldstart
-    Trust-region search on F2's residual vector; the global cold start.
-fastpath
-    The compiled evaluation of F2 (the inner loop).
-sensitivities
-    F2's Jacobian from the model's forward sensitivities (one run for every parameter).
-status
-    ok, or why a window's numbers should not be trusted.
-uncertainty
-    Covariance of the estimates (coloured residual) and undetermined directions.
-combinations
-    Identifiable combinations (p_M, gamma, zeta, f_r, Q_r) and their standard errors.
-window_errors
-    The uncertainty columns of a window's row (standard errors, determined, notes).
-coverage
-    Summary of a take's uncertainty: MAD sigma, median SE, determined, 2-SE coverage.
-resynthesis
-    The model driven by each window's estimates, and its figures.
+Rooms
+-----
+The inversion's modules live in rooms by concern, listed from the bottom up: a room imports the
+floor (the settings) and the rooms before it, never one after it (tests/inversion/test_rooms.py
+checks every import, function-level ones included). Each room's docstring lists its modules.
+
+settings, conditioning_settings
+    The settings of every stage (the floor: every room imports them, they import no room).
+preparation/
+    What the fit is given: the span, the notes, the conditioning, the bore kernel. Modules:
+    span, segments, conditioning, kernel, boundaries.
+trust/
+    What a result is worth: uncertainty, its budget, statuses, take-level checks. Modules:
+    harmonics, uncertainty, combinations, budget, window_errors, discretisation, notes, status,
+    status_words, diagnostics, note_temperature.
+table/
+    The windows table: the record, its schema, the files written, the coverage. Modules:
+    records, tables, coverage.
+fit/
+    One window's fit: step 1, F2, its Jacobian, the searches, where windows run. Modules:
+    flow_fit, mouth_pressure, step1, history_start, objective, fastpath, sensitivities,
+    rosenbrock, least_squares, coldstart, window, execution.
+pooling/
+    A note's pooled fit: slow parameters shared by its windows, fast ones per window. Modules:
+    arrow, note_fit, take_pooling.
+whole_take/
+    A whole take: tracking, the kernel temperature, take-wide errors, invert_take. Modules:
+    tracking, temperature, temperature_profile, shared_errors, take.
+output/
+    What a take's result shows: the resynthesis and the figures. Modules: resynthesis,
+    tracks_plot, note_figures, resynthesis_stream.
 
 References
 ----------

@@ -21,7 +21,7 @@ from mpipe.measurement.translation import TranslationConfig
 PARAMETER_NAMES = ("k", "S", "y_m", "p_m", "m", "g", "lam", "k_c")
 
 #: Order in 1/fs of the bound on the model's discretisation bias, and the lowest model
-#: rate it bounds, Hz (measured: :mod:`mpipe.inversion.discretisation` says how).
+#: rate it bounds, Hz (measured: :mod:`mpipe.inversion.trust.discretisation` says how).
 ORDER = 1.26
 LOWEST_RATE_HZ = 32000.0
 

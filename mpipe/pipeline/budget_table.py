@@ -1,6 +1,6 @@
 """The report's uncertainty budget of each note: value, combined SE and its components.
 
-From the note table of :func:`mpipe.inversion.notes.note_summary` (the take's
+From the note table of :func:`mpipe.inversion.trust.notes.note_summary` (the take's
 ``inversion/segments.csv``); the components and their combination are described in
 docs/uncertainty.md.
 """
@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from mpipe.core.units import unit_of
-from mpipe.inversion.notes import NOTE_COMPONENTS
+from mpipe.inversion.trust.notes import NOTE_COMPONENTS
 from mpipe.pipeline.html_report import fmt
 
 #: Quantities of a note's budget table, in this order.
@@ -43,7 +43,7 @@ def budget_table(note: pd.Series) -> pd.DataFrame:
     """One note's budget: a row per quantity of :data:`BUDGET_QUANTITIES` it has.
 
     Columns: quantity, unit, value, u_c, u_c as % of the value, and one per component of
-    :data:`mpipe.inversion.notes.NOTE_COMPONENTS` (same unit as the value; "–" absent).
+    :data:`mpipe.inversion.trust.notes.NOTE_COMPONENTS` (same unit as the value; "–" absent).
     """
     rows = []
     for name in BUDGET_QUANTITIES:

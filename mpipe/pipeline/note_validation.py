@@ -2,7 +2,7 @@
 
 A take of several notes (or one whose fingering is found per note: ``fingering: auto`` or
 a list) is validated note by note: the notes are the conditioning's
-(:func:`mpipe.inversion.segments.segment_take`, the same rule the inversion uses), each
+(:func:`mpipe.inversion.preparation.segments.segment_take`, the same rule the inversion uses), each
 note's fingering is given or found (:func:`mpipe.measurement.fingerings.identify`, from its
 harmonic lines), and the note's own span of P and U is compared with the theory of its own
 fingering (:func:`mpipe.measurement.validation.validate`, the note's f0 given).
@@ -35,9 +35,9 @@ import numpy as np
 import pandas as pd
 
 from mpipe.core.io import write_atomic, write_csv
-from mpipe.inversion.conditioning import bore_resonances
-from mpipe.inversion.kernel import take_temperature
-from mpipe.inversion.segments import segment_take
+from mpipe.inversion.preparation.conditioning import bore_resonances
+from mpipe.inversion.preparation.kernel import take_temperature
+from mpipe.inversion.preparation.segments import segment_take
 from mpipe.measurement.calibration import AUTO, Calibration, note_fingerings, per_note
 from mpipe.measurement.fingerings import FingeringChoice, harmonic_lines, identify
 from mpipe.measurement.measured_instrument import bore_description

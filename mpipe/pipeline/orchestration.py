@@ -23,18 +23,23 @@ from mpipe.core.errors import UserError
 from mpipe.core.io import folder_lock, write_atomic, write_csv
 from mpipe.core.progress import ProgressBar, stage_timer
 from mpipe.core.signals import open_npz, signal_median
-from mpipe.inversion.conditioning import bore_resonances, plan_take
-from mpipe.inversion.kernel import KernelSource, table_temperature
-from mpipe.inversion.notes import segment_summary
-from mpipe.inversion.records import read_windows
-from mpipe.inversion.segments import plot_segments, with_played
+from mpipe.inversion.preparation.conditioning import bore_resonances, plan_take
+from mpipe.inversion.preparation.kernel import KernelSource, table_temperature
+from mpipe.inversion.preparation.segments import plot_segments, with_played
 from mpipe.inversion.settings import PARAMETER_NAMES
-from mpipe.inversion.shared_errors import FrontEnd
-from mpipe.inversion.status import count as count_status
-from mpipe.inversion.status import summary_line
-from mpipe.inversion.tables import segment_lines, why_no_window, write_correlations, write_table
-from mpipe.inversion.take import RunOptions, WindowPlan, invert_take
-from mpipe.inversion.tracking import detect_zero_mean
+from mpipe.inversion.table.records import read_windows
+from mpipe.inversion.table.tables import (
+    segment_lines,
+    why_no_window,
+    write_correlations,
+    write_table,
+)
+from mpipe.inversion.trust.notes import segment_summary
+from mpipe.inversion.trust.status import count as count_status
+from mpipe.inversion.trust.status import summary_line
+from mpipe.inversion.whole_take.shared_errors import FrontEnd
+from mpipe.inversion.whole_take.take import RunOptions, WindowPlan, invert_take
+from mpipe.inversion.whole_take.tracking import detect_zero_mean
 from mpipe.measurement.calibration import Calibration, load_calibration
 from mpipe.measurement.measured_instrument import bore_description
 from mpipe.measurement.separation.streaming import separate_take
@@ -203,8 +208,8 @@ def _stage_inversion(
     mouthpiece: Path, plan: Path, cal: Calibration, cfg: PipelineConfig, client, checks=()
 ):
     # lazy: the resynthesis module loads matplotlib (~0.4 s of every command's start-up)
-    from mpipe.inversion import resynthesis as rs
-    from mpipe.inversion.tracks_plot import plot_tracks
+    from mpipe.inversion.output import resynthesis as rs
+    from mpipe.inversion.output.tracks_plot import plot_tracks
 
     inv = cfg.inversion
 
@@ -275,8 +280,8 @@ def _stage_inversion(
 
 def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
     # lazy: the resynthesis module loads matplotlib (~0.4 s of every command's start-up)
-    from mpipe.inversion import resynthesis_stream as rss
-    from mpipe.inversion.note_figures import plot_notes, plot_overlays
+    from mpipe.inversion.output import resynthesis_stream as rss
+    from mpipe.inversion.output.note_figures import plot_notes, plot_overlays
 
     def work(folder: Path):
         mp = open_npz(mouthpiece)  # the take and its resynthesis stay on disk, read by blocks

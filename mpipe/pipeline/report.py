@@ -17,8 +17,8 @@ import numpy as np
 import pandas as pd
 
 from mpipe.core.units import unit_of
-from mpipe.inversion.coverage import summary as uncertainty_summary
-from mpipe.inversion.records import read_windows
+from mpipe.inversion.table.coverage import summary as uncertainty_summary
+from mpipe.inversion.table.records import read_windows
 from mpipe.pipeline.budget_table import budget_tables
 from mpipe.pipeline.html_report import Figure, Section, fmt, write_report
 from mpipe.pipeline.report_windows import WINDOW_CAPTION, reasons, resynthesis_figures, window_table
@@ -61,7 +61,7 @@ def parameter_summary(windows: pd.DataFrame) -> pd.DataFrame:
 
 
 def flag_windows(windows: pd.DataFrame) -> pd.DataFrame:
-    """Windows whose status is not ok, with the reason (see :mod:`mpipe.inversion.status`).
+    """Windows whose status is not ok, with the reason (see :mod:`mpipe.inversion.trust.status`).
 
     Parameters
     ----------
@@ -91,7 +91,7 @@ def overall_verdict(
 
     ``validation`` is the validation's verdict (``"pass"``, ``"fail"``, ``"cannot-verify"``)
     or a bool (passed); ``take_checks`` the inversion's take-level reasons
-    (:func:`mpipe.inversion.diagnostics.take_checks`), each of which makes the take CHECK.
+    (:func:`mpipe.inversion.trust.diagnostics.take_checks`), each of which makes the take CHECK.
     """
     if isinstance(validation, bool):
         validation = "pass" if validation else "fail"
@@ -174,7 +174,7 @@ def segment_tables(segments: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
         ``played``: segment, start, duration, note, f0, regime, SPL, ok windows of windows;
         ``parameters``: segment and ``"median ± SE"`` of :data:`SEGMENT_QUANTITIES` over the
         note's ok windows (the note's combined standard uncertainty, see
-        :func:`mpipe.inversion.notes.note_summary`).
+        :func:`mpipe.inversion.trust.notes.note_summary`).
     """
     notes = segments[segments["label"] == "note"] if "label" in segments else segments
     played = pd.DataFrame({

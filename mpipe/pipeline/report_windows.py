@@ -6,7 +6,7 @@ tables a take's report prints can be tested on their own. A window's line gives 
 name, its status, the reed parameters and the combinations p_M, gamma, zeta each as
 ``value ± SE`` (the combined standard uncertainty ``<q>_se`` of the window), the relative
 residual and, for a window that is not ok, the reason in words
-(:func:`mpipe.inversion.status_words.reason_words`).
+(:func:`mpipe.inversion.trust.status_words.reason_words`).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from mpipe.inversion.status_words import reason_words
+from mpipe.inversion.trust.status_words import reason_words
 from mpipe.measurement.pitch import note_name
 from mpipe.pipeline.html_report import Figure, fmt
 
@@ -121,7 +121,10 @@ def window_table(windows: pd.DataFrame, segments: pd.DataFrame | None = None) ->
 
 
 def reasons(windows: pd.DataFrame) -> list[str]:
-    """Each window's status reason in words (:func:`mpipe.inversion.status_words.reason_words`)."""
+    """Each window's status reason in words.
+
+    (:func:`mpipe.inversion.trust.status_words.reason_words`)
+    """
     return [reason_words(r) for _, r in windows.iterrows()]
 
 

@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 
 from mpipe.core.units import unit_of
-from mpipe.inversion.records import read_windows
+from mpipe.inversion.table.records import read_windows
 
 #: Tables of a take folder: name -> (stage folder, file).
 TABLES = {

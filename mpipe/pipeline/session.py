@@ -34,7 +34,7 @@ import soundfile as sf
 
 from mpipe.core.config import ConfigError, load_yaml
 from mpipe.core.errors import UserError
-from mpipe.inversion.span import check_span
+from mpipe.inversion.preparation.span import check_span
 from mpipe.measurement.calibration import load_calibration
 from mpipe.pipeline.settings import PipelineConfig, load_pipeline
 from mpipe.pipeline.take_calibration import own_calibration, same_calibration

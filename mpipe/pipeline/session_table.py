@@ -37,7 +37,7 @@ PLAYED = {
     "windows": "windows",
     "ok_windows": "ok_windows",
 }
-#: A take-level reason that names one note (:mod:`mpipe.inversion.diagnostics`).
+#: A take-level reason that names one note (:mod:`mpipe.inversion.trust.diagnostics`).
 NOTE_REASON = re.compile(r"note segment (\d+)\b")
 
 

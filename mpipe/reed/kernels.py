@@ -11,7 +11,7 @@ per combination of optional arguments, pruning the branches of those that are ``
 * every output (p, u, u_f, u_r, y, h, p-) with ``full`` given: :func:`~mpipe.reed.model.simulate`
   ("fast": the uniform partition of block B; "direct": every lag direct);
 * the pressure only (``full=None``): the inversion's model runs
-  (:func:`~mpipe.reed.model.simulate_pressure`, :mod:`mpipe.inversion.fastpath`), with the
+  (:func:`~mpipe.reed.model.simulate_pressure`, :mod:`mpipe.inversion.fit.fastpath`), with the
   two-level partition;
 * with ``tangent`` given, also the forward sensitivities of the pressure to the reed
   parameters (:mod:`mpipe.reed.sensitivity`): each step's derivative

@@ -383,7 +383,7 @@ def simulate_pressure(
     The same scheme as ``simulate(..., method="fast")`` with ``mouth_pressure = reed.p_m``
     and no onset, but only the pressure is computed and kept, and the reflection function
     is split over two delay-line levels (:func:`prepare_lean`); this is the kernel the
-    inversion runs (:mod:`mpipe.inversion.fastpath`). Agrees with :func:`simulate` to
+    inversion runs (:mod:`mpipe.inversion.fit.fastpath`). Agrees with :func:`simulate` to
     rounding.
 
     Parameters

@@ -30,7 +30,7 @@ def drive_reed(y, p, p_m, k, coefficients, contact):
     """Reed displacement y (m) driven by the pressure ``p`` (Pa), into ``y`` (len(p) >= 2).
 
     The one compiled copy of the reed recursion on its own (the lead-in of the inversion's
-    history start, :mod:`mpipe.inversion.fastpath`, and :func:`reed_trajectory`):
+    history start, :mod:`mpipe.inversion.fit.fastpath`, and :func:`reed_trajectory`):
     ``y[0] = y[1] = (p_m - p[0]) / k`` (the reed at rest under the first pressure
     difference), then ``y[i+1] = a1 y[i] + a2 y[i-1] + b1 (p_m - p[i]) + a3 max(y[i] - y_c,
     0)^alpha``. ``coefficients`` is (a1, a2, a3, b1) of :func:`reed_coefficients`,

@@ -4,7 +4,7 @@ Each far end is a socket of this process bound before the check starts (listenin
 synchronous: nothing to wait for): an HTTP server, a service that answers at once with
 non-Dask bytes, one that hangs up, a port where nothing listens, and a reserved TEST-NET
 address (RFC 5737) that no host answers. A real scheduler is checked in
-tests/inversion/test_execution.py.
+tests/inversion/fit/test_execution.py.
 """
 
 import contextlib

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from mpipe.cli.virtual_takes import SynthOptions, make_take
-from mpipe.inversion.conditioning import plan_inversion
+from mpipe.inversion.preparation.conditioning import plan_inversion
 from mpipe.inversion.settings import ExecutorConfig
-from mpipe.inversion.take import invert_take
+from mpipe.inversion.whole_take.take import invert_take
 from mpipe.measurement.calibration import load_calibration
 from mpipe.measurement.separation.stage import separate
 from mpipe.measurement.takes import read_take
@@ -110,7 +110,7 @@ def test_the_error_bars_are_neither_too_wide_nor_too_narrow(results):
     # budget's frontend component (the front end's own error) is not in the bars: with the
     # noise measured at the harmonics the RMS z is 2.14 on these seeds (0.60 with the rate
     # component left in). Bars more than 2.5x too narrow, or too wide, fail: [0.6, 2.5].
-    from mpipe.inversion.combinations import combination_values
+    from mpipe.inversion.trust.combinations import combination_values
 
     z = []
     for done in results.values():

@@ -12,9 +12,9 @@ import yaml
 from mpipe.acoustics.bore import input_impedance
 from mpipe.acoustics.reflection import reflection_function
 from mpipe.core.config import ConfigError
-from mpipe.inversion.kernel import bore_kernel
+from mpipe.inversion.preparation.kernel import bore_kernel
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
-from mpipe.inversion.take import invert_take
+from mpipe.inversion.whole_take.take import invert_take
 from mpipe.measurement.calibration import load_calibration
 from mpipe.measurement.measured_impedance import ImpedanceFileLayout, write_impedance_file
 from mpipe.measurement.measured_instrument import bore_description

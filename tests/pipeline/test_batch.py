@@ -176,7 +176,7 @@ def test_each_take_of_a_batch_names_itself_in_library_log_lines(monkeypatch, cap
     import mpipe.pipeline.batch as batch
 
     def fake_run_take(cfg, cal, take, out, *args):
-        logging.getLogger("mpipe.inversion.tracking").info("inverting %d windows", 3)
+        logging.getLogger("mpipe.inversion.whole_take.tracking").info("inverting %d windows", 3)
         return "done"
 
     monkeypatch.setattr(batch, "run_take", fake_run_take)

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from mpipe.inversion.notes import note_summary
+from mpipe.inversion.trust.notes import note_summary
 from mpipe.pipeline.budget_table import budget_table, budget_tables
 from mpipe.pipeline.html_report import Section, render
 

@@ -108,7 +108,7 @@ def test_report_says_whether_the_temperature_drifts(finished):
 
 
 def test_interrupted_run_resumes_and_redoes_nothing_done(finished, take, pipeline, monkeypatch):
-    import mpipe.inversion.execution as tracking  # where windows call invert_window
+    import mpipe.inversion.fit.execution as tracking  # where windows call invert_window
 
     out, run, _ = finished
     before = pd.read_csv(run.folder / "inversion" / "windows.csv", keep_default_na=False)
@@ -182,7 +182,7 @@ def test_every_door_gives_the_same_table(finished, take, pipeline, tmp_path):
     # `mpipe run`, `mpipe separate` + `mpipe invert` and the Python API fit the same kernel
     # temperature and invert the same windows: the same numbers to 0.1 %.
     import mpipe
-    from mpipe.inversion.conditioning import plan_inversion
+    from mpipe.inversion.preparation.conditioning import plan_inversion
     from mpipe.inversion.settings import PARAMETER_NAMES
     from mpipe.measurement.calibration import load_calibration
     from mpipe.measurement.separation.stage import separate

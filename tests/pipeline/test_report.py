@@ -91,7 +91,7 @@ def test_window_table_gives_each_value_with_its_se_note_pitch_and_reason_in_word
 
 
 def test_reason_words_keep_a_positive_shortfall_and_other_reasons():
-    from mpipe.inversion.status_words import reason_words
+    from mpipe.inversion.trust.status_words import reason_words
 
     row = {"status_reason": "dof = 0.812 < 1: SEs rough; relative residual 0.159 > 0.1",
            "n_eff": 8.812, "dof": 0.812}  # fmt: skip
@@ -176,8 +176,8 @@ def fingered_run(tmp_path_factory):
 
 
 def test_report_of_a_fingered_phrase_tables_and_figures(fingered_run):
-    from mpipe.inversion.records import read_windows
-    from mpipe.inversion.tracks_plot import tracks_figure
+    from mpipe.inversion.output.tracks_plot import tracks_figure
+    from mpipe.inversion.table.records import read_windows
     from mpipe.measurement.calibration import load_calibration
 
     text = (fingered_run / "report.html").read_text()
@@ -192,7 +192,7 @@ def test_report_of_a_fingered_phrase_tables_and_figures(fingered_run):
     assert len(played["rows"]) == 2 and "f0 [Hz]" in played["headers"]
     # each note plays near the fingering's first resonance (xxoo: about 124 Hz), in Hz
     first = load_calibration(FINGERED, "xxoo")
-    from mpipe.inversion.conditioning import bore_resonances
+    from mpipe.inversion.preparation.conditioning import bore_resonances
 
     f_res = bore_resonances(first)[0]
     f0 = [float(r[played["headers"].index("f0 [Hz]")]) for r in played["rows"]]

@@ -18,16 +18,16 @@ from mpipe.core.errors import UserError
 from mpipe.core.io import check_writable, folder_lock, write_atomic, write_text_atomic
 from mpipe.core.resampling import resample
 from mpipe.core.units import unit_of
-from mpipe.inversion.conditioning import bore_resonances, plan_take
-from mpipe.inversion.execution import connect
-from mpipe.inversion.kernel import KernelSource, take_temperature
-from mpipe.inversion.notes import segment_summary
-from mpipe.inversion.segments import with_played
-from mpipe.inversion.status import summary_line
-from mpipe.inversion.status_words import reason_words
-from mpipe.inversion.tables import segment_lines, write_correlations, write_table
-from mpipe.inversion.take import RunOptions, WindowPlan, invert_take
-from mpipe.inversion.tracking import ProgressBar
+from mpipe.inversion.fit.execution import connect
+from mpipe.inversion.preparation.conditioning import bore_resonances, plan_take
+from mpipe.inversion.preparation.kernel import KernelSource, take_temperature
+from mpipe.inversion.preparation.segments import with_played
+from mpipe.inversion.table.tables import segment_lines, write_correlations, write_table
+from mpipe.inversion.trust.notes import segment_summary
+from mpipe.inversion.trust.status import summary_line
+from mpipe.inversion.trust.status_words import reason_words
+from mpipe.inversion.whole_take.take import RunOptions, WindowPlan, invert_take
+from mpipe.inversion.whole_take.tracking import ProgressBar
 from mpipe.measurement.calibration import load_calibration, per_note
 from mpipe.measurement.measured_instrument import bore_description
 from mpipe.pipeline.note_validation import validate_notes, with_fingerings
@@ -265,8 +265,8 @@ def _write_results(
     out: Path, plan, result, p, u, fs: float, kernel, air, inv, fingering=None
 ) -> None:
     """Tables, the resynthesis (plots and WAV) and the parameter tracks into ``out``."""
-    from mpipe.inversion import resynthesis as rs  # lazy: it imports matplotlib (~0.5 s)
-    from mpipe.inversion.tracks_plot import plot_tracks
+    from mpipe.inversion.output import resynthesis as rs  # lazy: it imports matplotlib (~0.5 s)
+    from mpipe.inversion.output.tracks_plot import plot_tracks
 
     plan, segments = plan
     table = with_played(result.table, plan)

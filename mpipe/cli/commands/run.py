@@ -15,8 +15,8 @@ from mpipe.core.config import ConfigError
 from mpipe.core.errors import UserError
 from mpipe.core.io import check_output_folder
 from mpipe.core.progress import write
-from mpipe.inversion.execution import connect
-from mpipe.inversion.span import check_span
+from mpipe.inversion.fit.execution import connect
+from mpipe.inversion.preparation.span import check_span
 from mpipe.measurement.calibration import load_calibration
 from mpipe.pipeline.batch import run_takes, summary_lines
 from mpipe.pipeline.orchestration import ValidationFailed, usable

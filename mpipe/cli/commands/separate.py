@@ -37,7 +37,7 @@ from mpipe.cli.commands import add_fingering_option
 from mpipe.core.errors import UserError
 from mpipe.core.io import check_writable, folder_lock, write_atomic, write_csv, write_npz_atomic
 from mpipe.inversion.conditioning_settings import ConditioningConfig
-from mpipe.inversion.kernel import take_temperature
+from mpipe.inversion.preparation.kernel import take_temperature
 from mpipe.inversion.settings import InversionConfig
 from mpipe.measurement.calibration import load_calibration, per_note
 from mpipe.measurement.measured_instrument import bore_description

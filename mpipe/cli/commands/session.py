@@ -10,7 +10,7 @@ from mpipe.core.cluster import check_scheduler
 from mpipe.core.errors import UserError
 from mpipe.core.io import check_output_folder, folder_lock
 from mpipe.core.progress import write
-from mpipe.inversion.execution import connect
+from mpipe.inversion.fit.execution import connect
 from mpipe.inversion.settings import ExecutorConfig
 from mpipe.pipeline.batch import run_takes, summary_lines
 from mpipe.pipeline.orchestration import ValidationFailed, usable

@@ -18,7 +18,7 @@ W small solves and one s x s solve: linear in W, where the dense system of size
 
 The covariance of the estimate is the sandwich ``A^-1 B A^-1`` with ``B`` block diagonal
 over windows (each window's noise is its own; ``B_i`` is window i's noise gram, see
-:mod:`mpipe.inversion.uncertainty`). The same elimination gives it in linear cost: with
+:mod:`mpipe.inversion.trust.uncertainty`). The same elimination gives it in linear cost: with
 ``u_i = J_i^T e_i`` (``cov u_i = B_i``), the slow estimate moves by
 ``S^-1 sum_i M_i u_i``, ``M_i = [-C_i^T F_i^-1, I]``, and window i's fast one by
 ``L_i u_i - K_i ds``, ``L_i = F_i^-1 [I, 0]``, ``K_i = F_i^-1 C_i``.
@@ -40,7 +40,7 @@ import numpy as np
 
 #: Eigenvalues of the Schur complement below this fraction of the largest mark a slow
 #: direction the note does not determine (the square of the per-window SVD's
-#: :data:`mpipe.inversion.uncertainty.RCOND`: eigenvalues of J^T J are squared singular
+#: :data:`mpipe.inversion.trust.uncertainty.RCOND`: eigenvalues of J^T J are squared singular
 #: values).
 EIG_RCOND = 1e-6
 

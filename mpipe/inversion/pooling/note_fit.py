@@ -7,9 +7,10 @@ reed warms and wets, over seconds. The mouth pressure p_m and the rest opening y
 player's controls (blowing, lip force): a crescendo, a vibrato or an embouchure change moves
 them within 20 ms. So p_m and y_m are fitted per window and the others per note.
 
-**The fit.** Each window keeps its own objective (:class:`mpipe.inversion.objective.F2Objective`,
+**The fit.** Each window keeps its own objective
+(:class:`mpipe.inversion.fit.objective.F2Objective`,
 started from its measured history) and its Jacobian from the model's forward sensitivities
-(:mod:`mpipe.inversion.sensitivities`); the note's sum of squares is minimised by a damped
+(:mod:`mpipe.inversion.fit.sensitivities`); the note's sum of squares is minimised by a damped
 Gauss-Newton (Levenberg-Marquardt) step on the block-arrow system of
 :mod:`mpipe.inversion.pooling.arrow`, in log parameters, every window's fast block eliminated
 by the Schur complement. A step costs one sensitivity run per window. Started from the
@@ -17,7 +18,7 @@ per-window answers (the note's median for the slow parameters), it is a refineme
 steps.
 
 **Its covariance.** Each window's noise gram is measured at the note's harmonics as in the
-per-window fit (:func:`mpipe.inversion.uncertainty.residual_grams`), and the joint sandwich
+per-window fit (:func:`mpipe.inversion.trust.uncertainty.residual_grams`), and the joint sandwich
 (:meth:`mpipe.inversion.pooling.arrow.ArrowSystem.covariance`) gives the slow parameters' SE
 per note and the fast ones' per window from one covariance.
 
@@ -35,9 +36,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from mpipe.core.statistics import integrated_autocorrelation
-from mpipe.inversion.objective import F2Objective
+from mpipe.inversion.fit.objective import F2Objective
 from mpipe.inversion.pooling.arrow import ArrowCovariance, ArrowSystem
-from mpipe.inversion.uncertainty import residual_grams
+from mpipe.inversion.trust.uncertainty import residual_grams
 
 #: The player's controls, fitted per window.
 FAST_PARAMETERS = ("p_m", "y_m")

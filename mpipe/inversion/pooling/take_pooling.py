@@ -1,6 +1,7 @@
 """Every note of a tracked take fitted as one experiment (``inversion.pooling: note``).
 
-Runs after the per-window fit of :func:`mpipe.inversion.tracking.track`, on its table, note
+Runs after the per-window fit of :func:`mpipe.inversion.whole_take.tracking.track`, on its table,
+note
 by note in time order (so the result does not depend on the number of workers): each note
 (``segment``), cut into stretches of at most ``inversion.pooling_stretch_s``, is fitted by
 :func:`mpipe.inversion.pooling.note_fit.fit_note` from the per-window answers:
@@ -16,8 +17,8 @@ Each pooled window's row gets the pooled values, its residual figures, and the n
 component of every quantity from the joint covariance (its fast parameters' own, the slow
 ones' shared by the stretch); the model-form component is the per-window fit's (the model's
 mismatch is the same in every window and does not average away), the take-wide components
-are added later, once (:func:`mpipe.inversion.take.invert_take`). The statuses are then
-classified again (:func:`mpipe.inversion.status.classify`).
+are added later, once (:func:`mpipe.inversion.whole_take.take.invert_take`). The statuses are then
+classified again (:func:`mpipe.inversion.trust.status.classify`).
 """
 
 from __future__ import annotations
@@ -30,16 +31,16 @@ from collections.abc import Callable
 import numpy as np
 import pandas as pd
 
-from mpipe.inversion.budget import QUANTITIES, combine_row, component_column
-from mpipe.inversion.diagnostics import playing_difference
-from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWindow
+from mpipe.inversion.fit.objective import F2Objective, ObjectiveSettings, TargetWindow
+from mpipe.inversion.fit.window import window_bounds
 from mpipe.inversion.pooling.note_fit import fit_note, note_covariance, split_names
-from mpipe.inversion.records import typed
 from mpipe.inversion.settings import InversionConfig
-from mpipe.inversion.status import classify, on_bounds, required_quantities, window_status
-from mpipe.inversion.uncertainty import Covariance
-from mpipe.inversion.window import window_bounds
-from mpipe.inversion.window_errors import window_uncertainty
+from mpipe.inversion.table.records import reed_from_row, typed
+from mpipe.inversion.trust.budget import QUANTITIES, combine_row, component_column
+from mpipe.inversion.trust.diagnostics import playing_difference
+from mpipe.inversion.trust.status import classify, on_bounds, required_quantities, window_status
+from mpipe.inversion.trust.uncertainty import Covariance
+from mpipe.inversion.trust.window_errors import window_uncertainty
 from mpipe.reed.bore_kernel import BoreKernel
 
 log = logging.getLogger(__name__)
@@ -77,7 +78,7 @@ def pool_notes(
     Parameters
     ----------
     table : pandas.DataFrame
-        The per-window table of :func:`mpipe.inversion.tracking.track` (``segment``,
+        The per-window table of :func:`mpipe.inversion.whole_take.tracking.track` (``segment``,
         ``status``, the parameters), in time order.
     p, u : ndarray
         Mouthpiece pressure (Pa) and flow (m^3/s) of the take.
@@ -135,9 +136,6 @@ def _objective(row, start, p, u, fs, kernel, config, zero_mean, names, n):
     settings = ObjectiveSettings(
         lead_s=config.lead_s, lowpass=config.lowpass.design(fs) if zero_mean else None
     )
-    # lazy: the resynthesis module loads matplotlib
-    from mpipe.inversion.resynthesis import reed_from_row
-
     reed = reed_from_row(row)
     obj = F2Objective(kernel, target, settings, reed, config.search_parameters,
                       contact_at_closure=config.contact == "closure")  # fmt: skip

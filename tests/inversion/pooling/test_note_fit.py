@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from mpipe.acoustics.reflection import reflection_function
-from mpipe.inversion.least_squares import trust_region
-from mpipe.inversion.objective import F2Objective, ObjectiveSettings, TargetWindow
+from mpipe.inversion.fit.least_squares import trust_region
+from mpipe.inversion.fit.objective import F2Objective, ObjectiveSettings, TargetWindow
+from mpipe.inversion.fit.window import window_bounds
 from mpipe.inversion.pooling.note_fit import fit_note, note_covariance, split_names
 from mpipe.inversion.settings import InversionConfig
-from mpipe.inversion.uncertainty import covariance
-from mpipe.inversion.window import window_bounds
+from mpipe.inversion.trust.uncertainty import covariance
 from mpipe.measurement.calibration import load_calibration
 from mpipe.reed.bore_kernel import prepare_bore
 from mpipe.reed.model import simulate

@@ -1,0 +1,442 @@
+"""Compiled evaluation of F2's residual vector for one window (the inversion's inner loop).
+
+:func:`mpipe.inversion.fit.objective.run_model` is the plain reference: it builds the model
+state, runs :func:`mpipe.reed.model.simulate` with every output, filters pressure and flow and
+compares. The search only needs the pressure residual, and most of what the reference
+recomputes for every candidate is the same for every candidate of a window. A
+:class:`WindowEvaluator` is built once per window and then, per candidate:
+
+* runs the reed lead-in and the missing-mean-flow estimate in compiled code;
+* builds the forward-wave history ``p+ = (p + Z0 (u + c)) / 2`` into a reused buffer. The
+  spectra of its blocks, which the partitioned convolution needs before its first sample,
+  are affine in the one candidate-dependent number ``c`` (the mean flow the measurement
+  lost), so they are computed once per window as ``F0 + c F1`` instead of 50-odd FFTs per
+  run (FFT linearity);
+* runs the model's one compiled kernel (:func:`mpipe.reed.kernels.run`) for the pressure
+  only, on the two-level partition of r_f, without allocation;
+* low-passes the pressure only (the flow does not enter F2) with the measurement's
+  linear-phase FIR, by overlap-save FFT convolution over exactly the samples the
+  reference's edge-padded filter reads for the window (the padding never reaches them);
+* forms the residual ``p_target - p_model`` in place.
+
+It agrees with the reference to rounding (tests/inversion/fit/test_fastpath.py: ~1e-12
+relative); the reference still computes the model flow for plots and the ``rest`` start.
+Given a ``jac`` record the same compiled evaluation (:func:`_evaluate`) also differentiates
+every step forward and writes the Jacobian (:mod:`mpipe.inversion.fit.sensitivities`). Its
+arguments are records (tuples numba types), documented in :func:`_evaluate`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from numba import njit
+
+from mpipe.inversion.fit.history_start import pad_history
+from mpipe.inversion.fit.objective import ObjectiveSettings, TargetWindow
+from mpipe.reed.block_fft import fft_tables, irfft_last_half, rfft_block
+from mpipe.reed.bore_kernel import BoreKernel, prepare_lean
+from mpipe.reed.kernels import run
+from mpipe.reed.opening import drive_reed
+from mpipe.reed.parameters import ReedParameters, check_stability
+from mpipe.reed.scheme import scheme_records
+
+#: Status codes of :func:`_evaluate`.
+OK, DIVERGED, SILENT = 0, 1, 2
+REASONS = {DIVERGED: "diverged", SILENT: "silent"}
+
+
+@njit(cache=True)
+def _lead_in(ylead, p_lead, cand):
+    """Reed lead-in driven by the measured pressure (:func:`mpipe.reed.opening.drive_reed`)."""
+    reed = cand[0][0]
+    coefficients = (reed[0], reed[1], reed[2], reed[3])
+    drive_reed(ylead, p_lead, cand[3], cand[1], coefficients, (reed[5], reed[6]))
+
+
+@njit(cache=True)
+def _missing_flow(ylead, win, cand):
+    """history_start.missing_mean_flow: candidate minus measured flow over the lead-in."""
+    p_lead, u_lead, fs = win[2], win[3], win[8]
+    y_m, lam, rho = cand[0][0][4], cand[0][0][8], cand[0][1][1]
+    s_area, p_m = cand[2], cand[3]
+    n_lead = p_lead.size
+    half = n_lead // 2
+    acc = 0.0
+    for i in range(half, n_lead):
+        dp = p_m - p_lead[i]
+        h = y_m - ylead[i]
+        if h < 0.0:
+            h = 0.0
+        sgn = 1.0 if dp > 0.0 else (-1.0 if dp < 0.0 else 0.0)
+        uf = sgn * lam * h * math.sqrt(2.0 * abs(dp) / rho)
+        prev = ylead[i - 1] if i > 0 else ylead[0]
+        ur = s_area * (ylead[i] - prev) * fs
+        acc += uf + ur - u_lead[i]
+    return acc / (n_lead - half)
+
+
+@njit(cache=True)
+def _lead_in_tangent(dyl, ylead, p_lead, d, cand):
+    """Tangent of :func:`_lead_in` for every seed column of ``d``."""
+    reed = cand[0][0]
+    a1, a2, a3, b1, y_c, alpha = reed[0], reed[1], reed[2], reed[3], reed[5], reed[6]
+    k, p_m = cand[1], cand[3]
+    n_lead = p_lead.size
+    y0 = ylead[0]
+    for j in range(d.shape[1]):
+        dy0 = (d[7, j] - y0 * d[9, j]) / k
+        dyl[j, 0] = dy0
+        dyl[j, 1] = dy0
+        for i in range(1, n_lead - 1):
+            t = d[0, j] * ylead[i] + a1 * dyl[j, i] + d[1, j] * ylead[i - 1] + a2 * dyl[j, i - 1]
+            t += d[3, j] * (p_m - p_lead[i]) + b1 * d[7, j]
+            c = ylead[i] - y_c
+            if c > 0.0:
+                t += d[2, j] * c**alpha + a3 * alpha * c ** (alpha - 1.0) * (dyl[j, i] - d[6, j])
+            dyl[j, i + 1] = t
+
+
+@njit(cache=True)
+def _missing_tangent(dmiss, dyl, ylead, d, win, cand):
+    """Tangent of :func:`_missing_flow` per seed column."""
+    p_lead, fs = win[2], win[8]
+    y_m, lam, rho = cand[0][0][4], cand[0][0][8], cand[0][1][1]
+    s_area, p_m = cand[2], cand[3]
+    n_lead = p_lead.size
+    half = n_lead // 2
+    for j in range(d.shape[1]):
+        acc = 0.0
+        for i in range(half, n_lead):
+            dp = p_m - p_lead[i]
+            h = y_m - ylead[i]
+            dh = d[5, j] - dyl[j, i] if h > 0.0 else 0.0
+            if h < 0.0:
+                h = 0.0
+            sgn = 1.0 if dp > 0.0 else (-1.0 if dp < 0.0 else 0.0)
+            root = math.sqrt(2.0 * abs(dp) / rho)
+            droot = sgn * d[7, j] / (rho * root) if root > 0.0 else 0.0
+            duf = sgn * (d[8, j] * h * root + lam * dh * root + lam * h * droot)
+            ip = i - 1 if i > 0 else 0
+            dur = (d[4, j] / fs * (ylead[i] - ylead[ip]) + s_area * (dyl[j, i] - dyl[j, ip])) * fs
+            acc += duf + dur
+        dmiss[j] = acc / (n_lead - half)
+
+
+@njit(cache=True)
+def _history_share(q_ext, win, shift, lines):
+    """``q_ext = q_base + shift q_ones`` (the history's share, Pa); zero the lines' spectra.
+
+    ``lines`` holds (level, f_re, f_im, work) records, of the pressure or of its tangents.
+    """
+    q_base, q_ones = win[6], win[7]
+    for i in range(q_ext.size):
+        q_ext[i] = q_base[i] + shift * q_ones[i]
+    for line in lines:
+        line[1].fill(0.0)
+        line[2].fill(0.0)
+
+
+def history_term(h: np.ndarray, history: np.ndarray, n: int) -> np.ndarray:
+    """The history's share of the bore's history term over the next ``n`` samples, Pa.
+
+    ``q(i) = sum_{j > i} h_j x(i - j)`` for i = 0..n-1, with ``x(-1)`` the last sample of
+    ``history`` (p+, Pa): the part of ``q = sum_{j>=1} h_j p+(i - j)`` that a run started
+    at sample 0 does not compute itself (FFT convolution, float64).
+    """
+    from scipy.signal import fftconvolve
+
+    full = fftconvolve(np.asarray(history, dtype=float), np.asarray(h, dtype=float))
+    out = np.zeros(n)
+    tail = full[history.size : history.size + n]
+    out[: tail.size] = tail
+    return out
+
+
+def run_kernel(kernel: BoreKernel, n_run: int):
+    """The lean kernel of a run of ``n_run`` samples from a zero history (r_f cut to it).
+
+    Lags of ``n_run`` samples or more reach only the history, which :func:`history_term`
+    convolves; made once per (kernel, length) and kept on the kernel.
+    """
+    cache = kernel.__dict__.setdefault("_run_kernels", {})
+    length = max(min(kernel.n_taps, n_run), 2)
+    if length not in cache:
+        cut = dataclasses.replace(kernel, h=kernel.h[:length])
+        cache[length] = prepare_lean(cut)
+    return cache[length]
+
+
+@njit(cache=True)
+def _lowpass(out, n, p_mod, p_ctx, lp):
+    """The first n samples of the measurement's low-pass of [p_ctx, p_mod] past p_ctx.
+
+    Overlap-save FFT convolution: ``lp`` is (fir, fir_work, buf, n_taps_fir) with the
+    filter's spectrum ``fir`` = (H_re, H_im, tables) for segments of 2M. The input is
+    stored at offset M in ``buf`` (whose other samples stay zero); output i is sum_j
+    taps[j] seq[i + 1 + j] (symmetric taps), the linear convolution at i + 1 + 2d, which a
+    segment starting at buf[i0 + 1 + 2d] (i0 = first output of the block) gives as the
+    second half of its circular convolution.
+    """
+    (h_re, h_im, tables), fir_work, buf, n_taps_fir = lp
+    m = tables[0].size
+    n_ctx = p_ctx.size
+    n_run = p_mod.size
+    for j in range(n_ctx):
+        buf[m + j] = p_ctx[j]
+    for j in range(n_run):
+        buf[m + n_ctx + j] = p_mod[j]
+    acc_re = fir_work[0, : m + 1]
+    acc_im = fir_work[1, : m + 1]
+    zr = fir_work[2, :m]
+    zi = fir_work[3, :m]
+    half = fir_work[4, :m]
+    i0 = 0
+    while i0 < n:
+        rfft_block(buf, i0 + n_taps_fir, acc_re, acc_im, zr, zi, tables)
+        for j in range(m + 1):
+            ar = acc_re[j]
+            ai = acc_im[j]
+            acc_re[j] = ar * h_re[j] - ai * h_im[j]
+            acc_im[j] = ar * h_im[j] + ai * h_re[j]
+        irfft_last_half(acc_re, acc_im, half, zr, zi, tables)
+        for j in range(min(m, n - i0)):
+            out[i0 + j] = half[j]
+        i0 += m
+
+
+@njit(cache=True)
+def _residual(out_r, p_mod, win, lp):
+    """``target - measured model pressure`` into ``out_r``; returns a status code."""
+    target_p, target_std, filt, p_ctx = win[0], win[1], win[4], win[5]
+    n_run = p_mod.size
+    for i in range(n_run):
+        if not math.isfinite(p_mod[i]):
+            return DIVERGED
+    n = target_p.size
+    if filt:
+        _lowpass(out_r, n, p_mod, p_ctx, lp)
+    else:
+        for i in range(n):
+            out_r[i] = p_mod[i]
+    mean = 0.0
+    for i in range(n):
+        mean += out_r[i]
+    mean /= n
+    var = 0.0
+    for i in range(n):
+        var += (out_r[i] - mean) ** 2
+    if math.sqrt(var / n) < 0.01 * target_std:
+        return SILENT
+    for i in range(n):
+        out_r[i] = target_p[i] - out_r[i]
+        if not math.isfinite(out_r[i]):
+            return DIVERGED
+    return OK
+
+
+@njit(cache=True)
+def _tangent_start(jac, ylead, win, cand, conv_t):
+    """The kernel's ``tangent`` record after the lead-in: the lead-in's and c's tangents."""
+    d, tw, xt, dp_mod = jac[0], jac[2], jac[3], jac[4]
+    n_lead = win[2].size
+    n_par = d.shape[1]
+    dyl = tw[:, :n_lead]
+    _lead_in_tangent(dyl, ylead, win[2], d, cand)
+    dmiss = np.zeros(n_par)
+    if win[4]:
+        _missing_tangent(dmiss, dyl, ylead, d, win, cand)
+    fut_t, line1_t, line2_t = conv_t
+    for line in (line1_t, line2_t):
+        line[0].fill(0.0)
+        line[1].fill(0.0)
+    dy = dyl[:, n_lead - 1].copy()
+    dy_prev = dyl[:, n_lead - 2].copy()
+    z0 = cand[0][1][0]
+    c_t = 0.5 * z0 * dmiss
+    return (d, dy, dy_prev, d[7].copy(), xt, fut_t, line1_t, line2_t, dp_mod, win[7], c_t)
+
+
+# numba's on-disk cache of a function is keyed on its own file only: after editing the
+# kernels it calls (mpipe/reed/kernels.py, block_fft.py, or the helpers above from another
+# module), delete the stale caches (mpipe/**/__pycache__/*.nb*), which keep the old code.
+@njit(cache=True)
+def _evaluate(out_r, win, lp, buffers, cand, jac):
+    """Residual of one candidate into ``out_r``; returns a status code (OK, DIVERGED, SILENT).
+
+    Mirrors :func:`mpipe.inversion.fit.objective.run_model` with the history start. The
+    history's share of the history term is ``q_base + (Z0 c / 2) q_ones`` (c the missing
+    mean flow; :func:`history_term`); the run starts on a zero history. Records:
+
+    * ``win`` = (target_p, target_std, p_lead, u_lead, filt, p_ctx, q_base, q_ones, fs);
+    * ``lp`` = :func:`_lowpass`'s;
+    * ``buffers`` = (x, n0, conv, q_ext, p_mod, pm, work): the kernel's p+ buffer and
+      ``conv`` (:func:`mpipe.reed.kernels.run`), the history share, the model pressure,
+      the mouth-pressure series and the lead-in's scratch;
+    * ``cand`` = (model, k, S, p_m): the kernel's ``model`` record of the candidate and
+      the parameters the lead-in reads (SI units);
+    * ``jac``: None, or (d, out_j, tw, xt, dp_mod, ctx0, col, conv_t) to also write the
+      Jacobian ``out_j`` (n, P) from the forward sensitivities (seed matrix ``d``,
+      :mod:`mpipe.inversion.fit.sensitivities`); written only when the status is OK.
+    """
+    x, n0, conv, q_ext, p_mod, pm, work = buffers
+    p_lead = win[2]
+    n_lead = p_lead.size
+    p_m = cand[3]
+    ylead = work[0, :n_lead]
+    _lead_in(ylead, p_lead, cand)
+    missing = 0.0
+    if win[4]:
+        missing = _missing_flow(ylead, win, cand)
+    _history_share(q_ext, win, 0.5 * cand[0][1][0] * missing, conv[2:])
+    for i in range(pm.size):
+        pm[i] = p_m
+    state = (ylead[n_lead - 1], ylead[n_lead - 2], p_m - p_lead[n_lead - 1])
+    if jac is None:
+        run(x, n0, cand[0], conv, state, pm, q_ext, p_mod, None, None)
+        return _residual(out_r, p_mod, win, lp)
+    tangent = _tangent_start(jac, ylead, win, cand, jac[7])
+    run(x, n0, cand[0], conv, state, pm, q_ext, p_mod, None, tangent)
+    code = _residual(out_r, p_mod, win, lp)
+    if code != OK:
+        return code
+    d, out_j, dp_mod, ctx0, col = jac[0], jac[1], jac[4], jac[5], jac[6]
+    n = out_r.size
+    for j in range(d.shape[1]):
+        if win[4]:
+            _lowpass(col, n, dp_mod[j], ctx0, lp)
+        else:
+            col[:n] = dp_mod[j, :n]
+        for i in range(n):
+            out_j[i, j] = -col[i]
+    return OK
+
+
+class WindowEvaluator:
+    """Residual vector of F2 for one window's candidates, computed fast (history start).
+
+    Holds work buffers, so one evaluator must not be used by two threads at once; each
+    window (and each worker process) builds its own.
+
+    Parameters
+    ----------
+    kernel : BoreKernel
+        Prepared bore.
+    target : TargetWindow
+        Target window and history.
+    settings : ObjectiveSettings
+        Must use ``start="history"``; ``lowpass`` for zero-mean targets.
+
+    Raises
+    ------
+    ValueError
+        For a ``rest`` start (use the reference :func:`~mpipe.inversion.fit.objective.run_model`).
+    """
+
+    def __init__(self, kernel: BoreKernel, target: TargetWindow, settings: ObjectiveSettings):
+        if settings.start != "history":
+            raise ValueError("the compiled evaluator supports the history start only")
+        fs = target.fs
+        n = target.p.size
+        n_taps = kernel.n_taps
+        n_lead = max(int(round(settings.lead_s * fs)), 2)
+        if n_lead < 3:
+            raise ValueError("lead_s: the compiled evaluator needs a lead-in of >= 3 samples")
+        length = max(n_taps, n_lead)
+        p_hist = pad_history(target.p_history, length)
+        u_hist = pad_history(target.u_history, length)
+        self.kernel = kernel
+        self.fs = float(fs)
+        filt = bool(target.zero_mean)
+        lp = settings.lowpass if filt else None
+        if filt and lp is None:
+            raise ValueError("a zero-mean target needs settings.lowpass")
+        self.target_p = np.ascontiguousarray(target.p, dtype=float)
+        n_pad = lp.delay + 1 if filt else 0
+        n_run = n + n_pad
+        # The history's share of the bore's history term is the same for every candidate
+        # but for the missing mean flow c, in which it is affine: convolved here once.
+        # The kernel then runs on a zero history with r_f cut to the run's length.
+        ph = p_hist[-(n_taps - 1) :]
+        uh = u_hist[-(n_taps - 1) :]
+        p_ctx = np.ascontiguousarray(p_hist[-(lp.delay + 1) :]) if filt else np.zeros(0)
+        self.win = (
+            self.target_p,
+            float(np.std(self.target_p)),
+            np.ascontiguousarray(p_hist[-n_lead:]),
+            np.ascontiguousarray(u_hist[-n_lead:]),
+            filt,
+            p_ctx,
+            history_term(kernel.h, 0.5 * (ph + kernel.z0 * uh), n_run),
+            history_term(kernel.h, np.ones(ph.size), n_run),
+            self.fs,
+        )
+        self.lean = run_kernel(kernel, n_run)
+        x = np.zeros(self.lean.n0 + n_run)
+        width = max(n_lead, n + 2 * n_pad + 2)
+        self.buffers = (
+            x, self.lean.n0, self.lean.conv(x, n_run), np.empty(n_run), np.empty(n_run),
+            np.empty(n_run), np.zeros((2, width)),
+        )  # fmt: skip
+        self.lp = _lowpass_record(lp, n, n_pad)
+
+    def candidate(self, reed: ReedParameters) -> tuple:
+        """The compiled evaluation's ``cand`` record of a candidate (:func:`_evaluate`)."""
+        k = self.kernel
+        model = scheme_records(reed, self.fs, self.lean.h0, k.z0, k.rho)
+        return model, reed.k, reed.S, reed.p_m
+
+    def residuals_into(self, reed: ReedParameters, out: np.ndarray) -> str:
+        """Write ``p_target - p_model`` (Pa) into ``out``; return "" or why it is infeasible.
+
+        Parameters
+        ----------
+        reed : ReedParameters
+            Candidate.
+        out : ndarray
+            Length of the window; undefined when infeasible.
+
+        Returns
+        -------
+        str
+            "" for a feasible candidate, else the reason ("unstable: ...", "diverged",
+            "silent").
+        """
+        return self.evaluate_into(reed, out, None)
+
+    def evaluate_into(self, reed: ReedParameters, out: np.ndarray, jac: tuple | None) -> str:
+        """:meth:`residuals_into`, and with a ``jac`` record (:func:`_evaluate`) the Jacobian."""
+        try:
+            check_stability(reed, self.fs)
+        except ValueError as exc:
+            return f"unstable: {exc}"
+        k = self.kernel
+        cand = (scheme_records(reed, self.fs, self.lean.h0, k.z0, k.rho), reed.k, reed.S, reed.p_m)
+        with np.errstate(all="ignore"):
+            code = _evaluate(out, self.win, self.lp, self.buffers, cand, jac)
+        return REASONS.get(int(code), "")
+
+
+def _lowpass_record(lp, n: int, n_pad: int) -> tuple:
+    """:func:`_lowpass`'s record for the measurement's FIR ``lp`` (None: a dummy)."""
+    if lp is None:
+        return (
+            (np.zeros(1), np.zeros(1), fft_tables(4, real_nyquist=True)),
+            np.zeros((5, 5)),
+            np.zeros(1),
+            0,
+        )
+    taps = np.asarray(lp.taps, dtype=float)
+    # segments of 2M samples give M outputs each once the L taps fit: L - 1 <= M
+    m = max(256, 1 << int(math.ceil(math.log2(max(taps.size - 1, 1)))))
+    spec = np.fft.rfft(taps, 2 * m)
+    fir = (spec.real.copy(), spec.imag.copy(), fft_tables(m, real_nyquist=True))
+    # zero prefix of M, the input, and enough zeros for the last segment
+    n_blocks = -(-n // m)
+    buf = np.zeros(max((n_blocks - 1) * m + taps.size + 2 * m, m + n + 2 * n_pad))
+    return fir, np.zeros((5, m + 1)), buf, taps.size
+
+
+__all__ = ["WindowEvaluator"]

@@ -1,0 +1,454 @@
+"""The step-2 objective F2 = ||p - p_model||_2 over one window (paper eq. 15).
+
+Two ways to start the model for a candidate parameter set:
+
+``"history"`` (default)
+    Start at the window's first sample from the target's own past: the forward wave
+    ``p+ = (p + Z0 u) / 2`` over the reflection function's length, and a reed state made by
+    driving the reed equation with the target's pressure difference over a short lead-in,
+    started from the quasi-static estimate ``y = dp/k``. The model then runs over the
+    window only and is compared sample by sample: no synchronisation is needed.
+``"rest"``
+    The paper's way: run from rest into steady state (``settle_s``), then synchronise with
+    the target by a lag search over one period (physics.md J) and compare.
+
+Why ``"history"`` is the default: on the shipped instrument it costs a 20 ms run instead
+of a 250 ms one per evaluation (~15x fewer samples), and its F2 is a smooth function of the
+parameters near the optimum because no lag has to be re-chosen between evaluations; with
+exact parameters its F2 vanishes to the lead-in transient (~e^{-g t/2}). ``benchmarks/
+bench_inversion.py`` measures both. ``"rest"`` stays useful far from the optimum, where a
+candidate's limit cycle differs from the target's and the history start drifts.
+
+For a zero-mean (measured) target the model output passes through the measurement's
+7.25 kHz FIR before the comparison. The pressure gets no high-pass: the separation keeps
+its DC, and a zero-phase high-pass on a short model record distorts the window's ends.
+With a history start the mean flow missing from the measured history is estimated from
+the candidate's flow over the lead-in.
+
+References
+----------
+Chatziioannou & van Walstijn 2012, eq. (15), sections 3.2 and 4.2; physics.md I, J.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from mpipe.core.filters import LowPass, apply_lowpass
+from mpipe.inversion.fit.history_start import missing_mean_flow, pad_history
+from mpipe.inversion.preparation.conditioning import (
+    estimate_period,
+    match_measurement,
+    relative_residual,
+    steady_state,
+    synchronise,
+)
+from mpipe.reed.bore_kernel import BoreKernel
+from mpipe.reed.model import ModelState, simulate
+from mpipe.reed.opening import reed_trajectory
+from mpipe.reed.parameters import ReedParameters, check_stability
+
+StartMethod = Literal["history", "rest"]
+
+
+@dataclass(frozen=True)
+class TargetWindow:
+    """Target signals of one window and what precedes it.
+
+    Attributes
+    ----------
+    p : ndarray
+        Mouthpiece pressure over the window, Pa.
+    u : ndarray
+        Mouthpiece volume flow over the window, m^3/s.
+    p_history : ndarray
+        Pressure before the window (oldest first, ending at the sample before it), Pa.
+    u_history : ndarray
+        Flow before the window, m^3/s.
+    fs : float
+        Sample rate, Hz.
+    zero_mean : bool
+        The flow is zero-mean (a measurement); the model output is filtered to match.
+    """
+
+    p: np.ndarray
+    u: np.ndarray
+    p_history: np.ndarray
+    u_history: np.ndarray
+    fs: float
+    zero_mean: bool
+
+
+@dataclass(frozen=True)
+class ObjectiveSettings:
+    """How F2 is computed.
+
+    Attributes
+    ----------
+    start : {"history", "rest"}
+        How each model run starts (see the module docstring).
+    lead_s : float
+        Reed lead-in driven by the target pressure before the window, s (history start).
+    settle_s : float
+        Simulated time from rest before the compared segment, s (rest start).
+    lowpass : LowPass or None
+        The measurement's FIR, applied to model output of zero-mean targets.
+    """
+
+    start: StartMethod = "history"
+    lead_s: float = 0.01
+    settle_s: float = 0.25
+    lowpass: LowPass | None = None
+
+
+@dataclass(frozen=True)
+class ModelWindow:
+    """Model output over a window, conditioned and aligned with the target.
+
+    Attributes
+    ----------
+    p, u : ndarray
+        Model pressure (Pa) and flow (m^3/s) over the window, filtered like the target.
+    f2 : float
+        ||p_target - p|| in Pa (the penalty when infeasible).
+    relative_residual : float
+        ||p_target - p|| / ||p_target||.
+    feasible : bool
+        The candidate gave a stable, oscillating run.
+    reason : str
+        Why it is infeasible ("" otherwise).
+    lag : int
+        Synchronisation lag, samples (rest start; 0 otherwise).
+    steady : bool
+        The model had reached steady state (rest start; True otherwise).
+    """
+
+    p: np.ndarray
+    u: np.ndarray
+    f2: float
+    relative_residual: float
+    feasible: bool
+    reason: str
+    lag: int = 0
+    steady: bool = True
+
+
+def _measured_pressure(p: np.ndarray, lp, ctx: int, n: int) -> np.ndarray:
+    """Model pressure as the measurement chain delivers it: the FIR low-pass only.
+
+    The separation keeps the pressure's DC (the three-microphone system is singular only
+    for the flow), so no high-pass is applied to p. A zero-phase IIR high-pass on a short
+    record would distort the window's ends by several per cent and bias F2.
+    """
+    return apply_lowpass(p, lp)[ctx : ctx + n]
+
+
+def _measured_flow(u: np.ndarray, lp, ctx: int, n: int, target: TargetWindow) -> np.ndarray:
+    """Model flow as measured: low-passed, with the window mean of the measured flow.
+
+    The measured flow has no DC over the take; over a 20 ms window its mean is what the
+    take's high-pass left. The model's mean flow is replaced by that mean (u does not enter
+    F2; this only puts the two flows on one footing in plots and residuals).
+    """
+    y = apply_lowpass(u, lp)[ctx : ctx + n]
+    return y - y.mean() + float(np.mean(target.u))
+
+
+def run_model(
+    reed: ReedParameters,
+    kernel: BoreKernel,
+    target: TargetWindow,
+    settings: ObjectiveSettings,
+    penalty: float,
+) -> ModelWindow:
+    """Run the model for one candidate and condition its output like the target.
+
+    Never raises for a bad candidate: an unstable, diverging or silent run gives
+    ``feasible=False`` and ``f2=penalty``.
+
+    Parameters
+    ----------
+    reed : ReedParameters
+        Candidate.
+    kernel : BoreKernel
+        Prepared bore (its sample rate must equal ``target.fs``).
+    target : TargetWindow
+        Target window and history.
+    settings : ObjectiveSettings
+        Start method and filters.
+    penalty : float
+        Value of F2 for an infeasible candidate, Pa.
+
+    Returns
+    -------
+    ModelWindow
+
+    References
+    ----------
+    Chatziioannou & van Walstijn 2012, eq. (15); physics.md J.
+    """
+    n = target.p.size
+    fs = target.fs
+    empty = np.full(n, np.nan)
+
+    def infeasible(reason: str) -> ModelWindow:
+        return ModelWindow(empty, empty, penalty, math.inf, False, reason)
+
+    try:
+        check_stability(reed, fs)
+    except ValueError as exc:
+        return infeasible(f"unstable: {exc}")
+    lag, steady = 0, True
+    try:
+        with np.errstate(all="ignore"):
+            if settings.start == "history":
+                p_mod, u_mod = _run_from_history(reed, kernel, target, settings)
+            else:
+                p_mod, u_mod, lag, steady = _run_from_rest(reed, kernel, target, settings)
+    except _Infeasible as exc:
+        return infeasible(str(exc))
+    if np.std(p_mod) < 0.01 * np.std(target.p):
+        return infeasible("silent")
+    f2 = float(np.linalg.norm(target.p - p_mod))
+    if not math.isfinite(f2):
+        return infeasible("diverged")
+    return ModelWindow(p_mod, u_mod, f2, relative_residual(target.p, p_mod), True, "", lag, steady)
+
+
+class _Infeasible(Exception):
+    """The model cannot run the candidate, or its output is unusable (the reason)."""
+
+
+def _simulate(reed: ReedParameters, kernel: BoreKernel, n: int, state=None):
+    """Model pressure and flow over ``n`` samples; raises :class:`_Infeasible` on failure."""
+    try:
+        sim = simulate(reed, kernel, n, state=state)
+    except ValueError as exc:
+        raise _Infeasible(f"model: {exc}") from exc
+    if not np.all(np.isfinite(sim.p)):
+        raise _Infeasible("diverged")
+    return sim.p, sim.u
+
+
+def _run_from_history(
+    reed: ReedParameters, kernel: BoreKernel, target: TargetWindow, settings: ObjectiveSettings
+) -> tuple[np.ndarray, np.ndarray]:
+    """The model started from the target's history, over the window (conditioned)."""
+    n, fs = target.p.size, target.fs
+    filt = target.zero_mean
+    lp = settings.lowpass if filt else None
+    n_taps = kernel.h.size
+    n_lead = max(int(round(settings.lead_s * fs)), 2)
+    p_hist = pad_history(target.p_history, max(n_taps, n_lead))
+    u_hist = pad_history(target.u_history, max(n_taps, n_lead))
+    dp_lead = reed.p_m - p_hist[-n_lead:]
+    y_lead = reed_trajectory(reed, p_hist[-n_lead:], fs)
+    y, y_prev = float(y_lead[-1]), float(y_lead[-2])
+    if filt:
+        u_hist = u_hist + missing_mean_flow(reed, dp_lead, y_lead, u_hist[-n_lead:], fs, kernel.rho)
+    state = ModelState(
+        p_plus=0.5 * (p_hist[-n_taps:] + kernel.z0 * u_hist[-n_taps:]),
+        y=y,
+        y_prev=y_prev,
+        dp=float(dp_lead[-1]),
+    )
+    # Run on past the window when filtering: the linear-phase FIR needs its
+    # half-length of signal on both sides of the window.
+    n_pad = lp.delay + 1 if filt else 0
+    p_mod, u_mod = _simulate(reed, kernel, n + n_pad, state=state)
+    if filt:
+        ctx = lp.delay + 1
+        p_mod = _measured_pressure(np.concatenate([p_hist[-ctx:], p_mod]), lp, ctx, n)
+        u_mod = _measured_flow(np.concatenate([u_hist[-ctx:], u_mod]), lp, ctx, n, target)
+    return p_mod, u_mod
+
+
+def _run_from_rest(
+    reed: ReedParameters, kernel: BoreKernel, target: TargetWindow, settings: ObjectiveSettings
+) -> tuple[np.ndarray, np.ndarray, int, bool]:
+    """The model started from rest, settled, and synchronised with the target.
+
+    Returns the model's pressure and flow over the window, the lag found (samples) and
+    whether the model's oscillation was steady.
+    """
+    n, fs = target.p.size, target.fs
+    filt = target.zero_mean
+    lp = settings.lowpass if filt else None
+    period = _target_period(target)
+    n_lags = max(int(math.ceil(period)), 1)
+    n_settle = int(round(settings.settle_s * fs))
+    n_pad = lp.delay + 1 if filt else 0
+    p_all, u_all = _simulate(reed, kernel, n_settle + n + n_lags + n_pad)
+    if filt:
+        p_all = match_measurement(p_all, fs, lp, None)
+        u_all = match_measurement(u_all, fs, lp, None)
+    seg_p, seg_u = (
+        p_all[n_settle : p_all.size - n_pad],
+        u_all[n_settle : p_all.size - n_pad],
+    )
+    target_rms = float(np.std(target.p))
+    st = steady_state(p_all, period, silence_rms=0.01 * target_rms)
+    if not st.oscillating:
+        raise _Infeasible("silent")
+    lag = synchronise(target.p, seg_p, n_lags)
+    p_mod, u_mod = seg_p[lag : lag + n], seg_u[lag : lag + n]
+    if filt:
+        u_mod = u_mod - u_mod.mean() + target.u.mean()
+    return p_mod, u_mod, lag, st.steady
+
+
+def _target_period(target: TargetWindow) -> float:
+    period = estimate_period(
+        np.concatenate([target.p_history[-target.p.size :], target.p]), target.fs
+    )
+    return period if period > 0 else target.p.size / 4
+
+
+@dataclass(frozen=True)
+class F2Objective:
+    """F2 as a function of the free parameters, for the optimisers.
+
+    Calling the object with a vector of free-parameter values (SI units, in the order of
+    ``free``) returns F2 in Pa; an infeasible candidate (invalid reed, unstable step,
+    divergence, silence) returns ``penalty``, a large finite value. It never raises.
+
+    Attributes
+    ----------
+    kernel : BoreKernel
+        Prepared bore.
+    target : TargetWindow
+        Target window and history.
+    settings : ObjectiveSettings
+        Start method and filters.
+    base : ReedParameters
+        Values of the fixed parameters (and the start of the free ones).
+    free : tuple of str
+        Names of the free parameters (fields of ReedParameters).
+    contact_at_closure : bool
+        Tie the contact point to the rest opening (y_c = y_m) in every candidate.
+    fast : bool
+        Compute F2 and the residuals by the compiled evaluator of
+        :mod:`mpipe.inversion.fit.fastpath` (history start only; the same numbers to rounding).
+        False: by :func:`run_model`, the plain reference. :meth:`evaluate` (model pressure
+        and flow, for plots) always uses the reference.
+    """
+
+    kernel: BoreKernel
+    target: TargetWindow
+    settings: ObjectiveSettings
+    base: ReedParameters
+    free: tuple[str, ...]
+    contact_at_closure: bool = False
+    fast: bool = True
+
+    @functools.cached_property
+    def _evaluator(self):
+        # built on first use, once per window: the history spectra and buffers it holds
+        # are shared by every candidate of the window
+        from mpipe.inversion.fit.fastpath import WindowEvaluator
+
+        if not self.fast or self.settings.start != "history":
+            return None
+        return WindowEvaluator(self.kernel, self.target, self.settings)
+
+    @functools.cached_property
+    def _sensitivities(self):
+        # the Jacobian's work buffers, built on first use once per window
+        from mpipe.inversion.fit.sensitivities import SensitivityEvaluator
+
+        ev = self._evaluator
+        if ev is None:
+            return None
+        return SensitivityEvaluator(ev, self.free, self.contact_at_closure)
+
+    @property
+    def has_jacobian(self) -> bool:
+        """True when :meth:`jacobian` gives the model's own derivatives (compiled path)."""
+        return self._evaluator is not None
+
+    def jacobian(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Residuals (Pa) and their Jacobian from the model's forward sensitivities.
+
+        Parameters
+        ----------
+        x : ndarray
+            Free-parameter values, SI units, in the order of ``free``.
+
+        Returns
+        -------
+        (r, J) or None
+            ``r`` as :meth:`residuals`, ``J[i, j] = d r_i / d x_j`` (Pa per the SI unit of
+            parameter j), computed in one model run
+            (:mod:`mpipe.inversion.fit.sensitivities`); None for an infeasible candidate or
+            without the compiled evaluator (``fast`` false or a rest start).
+        """
+        sens = self._sensitivities
+        if sens is None:
+            return None
+        try:
+            reed = self.reed(x)
+        except ValueError:
+            return None
+        n = self.target.p.size
+        r = np.empty(n)
+        jac = np.empty((n, len(self.free)))
+        if sens.jacobian_into(reed, r, jac):
+            return None
+        return r, jac
+
+    @property
+    def penalty(self) -> float:
+        """F2 of an infeasible candidate, Pa: far above any feasible mismatch."""
+        return 1e3 * (float(np.linalg.norm(self.target.p)) + 1.0)
+
+    def reed(self, x: np.ndarray) -> ReedParameters:
+        """Reed parameters for free-parameter values ``x`` (may raise InvalidReedError)."""
+        values = {name: float(v) for name, v in zip(self.free, np.ravel(x), strict=True)}
+        if self.contact_at_closure:
+            values["y_c"] = values.get("y_m", self.base.y_m)
+        return dataclasses.replace(self.base, **values)
+
+    def evaluate(self, x: np.ndarray) -> ModelWindow:
+        """Model output and F2 for free-parameter values ``x``."""
+        try:
+            reed = self.reed(x)
+        except ValueError as exc:
+            n = self.target.p.size
+            nan = np.full(n, np.nan)
+            return ModelWindow(nan, nan, self.penalty, math.inf, False, f"invalid: {exc}")
+        return run_model(reed, self.kernel, self.target, self.settings, self.penalty)
+
+    def __call__(self, x: np.ndarray) -> float:
+        """F2 in Pa for free-parameter values ``x``."""
+        if self._evaluator is None:
+            return self.evaluate(x).f2
+        r = self.residuals(x)
+        return float(np.linalg.norm(r))
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        """Target minus model pressure over the window, Pa (F2 is its norm).
+
+        An infeasible candidate gives a constant vector whose norm is ``penalty``, so the
+        residual vector always has the window's length.
+        """
+        n = self.target.p.size
+        ev = self._evaluator
+        if ev is None:
+            w = self.evaluate(x)
+            if not w.feasible:
+                return np.full(n, self.penalty / math.sqrt(n))
+            return self.target.p - w.p
+        try:
+            reed = self.reed(x)
+        except ValueError:
+            return np.full(n, self.penalty / math.sqrt(n))
+        out = np.empty(n)
+        if ev.residuals_into(reed, out):
+            return np.full(n, self.penalty / math.sqrt(n))
+        return out

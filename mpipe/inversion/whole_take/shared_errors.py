@@ -1,0 +1,328 @@
+"""Errors shared by every window of a take: the front end's and the microphones' calibration.
+
+Two take-wide components of the uncertainty budget (docs/uncertainty.md), each written per
+window as ``<q>_se_<component>`` (same unit as q) for every parameter and combination:
+
+- ``calibration``: a common error ``a`` of the microphones' sensitivity scales p and u
+  alike. The reed model with the contact point held is invariant under
+  ``p, u, p_m, k, S, m, k_c -> a (...)``, ``lam -> sqrt(a) lam``, ``y_m, g, y_c`` unchanged
+  (:data:`SCALE_EXPONENTS`, derived in the docs), so ``se(ln q) = |e_q| se(ln a)``, with
+  ``se(ln a) = ln(10) / 20 * se_dB`` the reference microphone's stated sensitivity
+  uncertainty (:func:`sensitivity_se_db`).
+- ``frontend``: the separation's take-level estimate of theta (temperature, losses, Mach
+  number, position of the middle microphone) has standard errors. Each is propagated by
+  re-separating p0, u0 with theta moved by one SE
+  (:func:`mpipe.measurement.separation.perturbation.reseparate`), re-translating to the
+  mouthpiece (the temperature moves the translation too), and re-fitting a few ok windows
+  warm. The kernel temperature is re-fitted as well (its residual profile on the same
+  windows, three temperatures, parabola vertex), so the part of a front-end error that the
+  kernel temperature absorbs is not counted (the kernel's own SE is the ``temperature``
+  component). ``d ln q`` per SE, median over the windows, added in quadrature over theta.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from mpipe.inversion.fit.window import invert_window
+from mpipe.inversion.preparation.kernel import bore_kernel, fingered
+from mpipe.inversion.preparation.segments import pick_windows
+from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
+from mpipe.inversion.trust.combinations import COMBINATION_NAMES, combination_values
+from mpipe.inversion.trust.uncertainty import SE_PARAMETERS
+from mpipe.measurement.calibration import Calibration
+from mpipe.measurement.separation.perturbation import reseparate
+from mpipe.measurement.separation.settings import SeparationConfig
+from mpipe.measurement.translation import TranslationConfig, translate
+from mpipe.reed.parameters import ReedParameters
+
+#: Quantities with take-wide components.
+QUANTITIES = (*SE_PARAMETERS, *COMBINATION_NAMES)
+#: d ln q / d ln a for a common scale a of p and u, the contact point y_c held.
+SCALE_EXPONENTS = {"k": 1.0, "S": 1.0, "y_m": 0.0, "p_m": 1.0, "m": 1.0, "g": 0.0,
+                   "lam": 0.5, "k_c": 1.0, "y_c": 0.0, "p_M": 1.0, "gamma": 0.0,
+                   "zeta": 0.0, "f_r": 0.0, "Q_r": 0.0}  # fmt: skip
+#: Standard uncertainty of a microphone's sensitivity when the calibration states none, dB.
+DEFAULT_SENSITIVITY_SE_DB = 0.15
+#: Names of the front end's parameters, in the order of :class:`FrontEnd`'s arrays.
+FRONTEND_NAMES = ("temperature", "eta", "mach", "position")
+#: Ok windows the front end's sensitivity is measured on.
+FRONTEND_WINDOWS = 6
+#: Half-spacing of the kernel temperatures of the re-fit, degC.
+KERNEL_STEP_C = 0.25
+
+
+@dataclass(frozen=True)
+class FrontEnd:
+    """What the front end estimated, to propagate its errors.
+
+    Attributes
+    ----------
+    p0, u0 : ndarray
+        Pressure (Pa) and flow (m^3/s) at the reference plane, as translated.
+    temperature_c : ndarray or float
+        The temperature the translation used, degC (per sample or one value).
+    level : ndarray
+        Shape ``(4,)``: the take-level theta (degC, eta, Mach, position correction m).
+    level_se : ndarray
+        Shape ``(4,)``: its standard errors (0: held, not estimated).
+    band_hz : float
+        Highest frequency the separation passes, Hz.
+    translation : TranslationConfig
+        The translation's settings.
+    """
+
+    p0: np.ndarray
+    u0: np.ndarray
+    temperature_c: np.ndarray | float
+    level: np.ndarray
+    level_se: np.ndarray
+    band_hz: float
+    translation: TranslationConfig
+
+    @classmethod
+    def of(
+        cls, mouthpiece: Mapping, separation: SeparationConfig, translation: TranslationConfig
+    ) -> FrontEnd | None:
+        """The front end of a mouthpiece file's arrays; None without theta's SEs.
+
+        ``mouthpiece`` holds ``p0, u0, temperature_c, theta_level, theta_level_se``.
+        """
+        if "theta_level_se" not in mouthpiece:
+            return None
+        m = mouthpiece
+        return cls(m["p0"], m["u0"], m["temperature_c"], np.asarray(m["theta_level"], float),
+                   np.asarray(m["theta_level_se"], float),
+                   separation.band_edge_hz + separation.band_taper_hz, translation)  # fmt: skip
+
+
+def sensitivity_se_db(calibration: Calibration) -> tuple[float, str]:
+    """Standard uncertainty of the take's common sensitivity scale, dB, and where it is from.
+
+    The reference microphone's (the first: relative calibrations are against it) stated
+    ``sensitivity_se_db``; :data:`DEFAULT_SENSITIVITY_SE_DB` when it states none.
+    """
+    stated = getattr(calibration.microphones[0], "sensitivity_se_db", None)
+    if stated is None:
+        return DEFAULT_SENSITIVITY_SE_DB, "default (the calibration states none)"
+    return float(stated), "calibration file"
+
+
+def calibration_columns(table: pd.DataFrame, se_db: float) -> pd.DataFrame:
+    """``<q>_se_calibration`` = ``|q| |e_q| ln(10)/20 se_db`` for every quantity present."""
+    out = table.copy()
+    se_ln = math.log(10.0) / 20.0 * se_db
+    for name in QUANTITIES:
+        if name in out:
+            x = pd.to_numeric(out[name], errors="coerce").to_numpy(dtype=float)
+            out[f"{name}_se_calibration"] = np.abs(x) * abs(SCALE_EXPONENTS[name]) * se_ln
+    return out
+
+
+def _reed(row) -> ReedParameters:
+    return ReedParameters(**{k: float(row[k]) for k in (*PARAMETER_NAMES, "y_c", "alpha")})
+
+
+@dataclass(frozen=True)
+class _Refit:
+    """Inputs of the windows' warm re-fits."""
+
+    fs: float
+    calibration: Calibration
+    config: InversionConfig
+    zero_mean: bool
+    starts: Sequence[int]
+    warm: Sequence[ReedParameters]
+    kernels: dict = dataclasses.field(default_factory=dict)  # (T degC, fingering) -> (k, air)
+    names: Sequence[str] = ()  # each window's fingering ("" or none: the calibration's)
+
+    def kernel(self, t: float, name: str = ""):
+        """The bore kernel and air at ``t`` degC of a fingering, built once each."""
+        key = (round(float(t), 6), name)
+        if key not in self.kernels:
+            self.kernels[key] = bore_kernel(fingered(self.calibration, name), self.fs, key[0])
+        return self.kernels[key]
+
+
+def _logs(refit: _Refit, p, u, t: float) -> tuple[float, np.ndarray]:
+    """``R`` (Pa^2) and ``ln q`` (windows x quantities) of the windows re-fitted at ``t`` degC."""
+    total, logs = 0.0, []
+    names = list(refit.names) or [""] * len(refit.starts)
+    for start, warm, name in zip(refit.starts, refit.warm, names, strict=True):
+        kernel, air = refit.kernel(t, name)
+        # the re-fit's estimate and F2 only: its standard errors are not used
+        out = invert_window(p, u, refit.fs, start, kernel, air.rho, refit.config,
+                            zero_mean=refit.zero_mean, warm=warm, errors=False)  # fmt: skip
+        if out.reed is None or not math.isfinite(out.row["f2"]):
+            return math.nan, np.full((len(refit.starts), len(QUANTITIES)), np.nan)
+        total += float(out.row["f2"]) ** 2
+        values = {k: float(getattr(out.reed, k)) for k in (*PARAMETER_NAMES, "y_c")}
+        values.update(combination_values(values, kernel.z0, air.rho))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            logs.append(np.log([values.get(q, math.nan) for q in QUANTITIES]))
+    return total, np.array(logs)
+
+
+def _at_kernel_minimum(refit: _Refit, p, u, t0: float, refit_kernel: bool) -> np.ndarray:
+    """``ln q`` per window where the kernel temperature fits these signals best.
+
+    Three kernels ``t0 + (-h, 0, h)``; the windows' ``ln q`` is interpolated (parabola) at
+    the vertex of the summed residual, kept within ``2 h`` of ``t0``. Without
+    ``refit_kernel``, or without a minimum, at ``t0``.
+    """
+    if not refit_kernel:
+        return _logs(refit, p, u, t0)[1]
+    ts = (t0 - KERNEL_STEP_C, t0, t0 + KERNEL_STEP_C)
+    runs = [_logs(refit, p, u, t) for t in ts]
+    r = np.array([x[0] for x in runs])
+    logs = np.stack([x[1] for x in runs])  # (3, windows, quantities)
+    d = 0.0
+    a = r[0] + r[2] - 2 * r[1]
+    if np.all(np.isfinite(r)) and a > 0:
+        d = float(np.clip(0.5 * (r[0] - r[2]) / a, -2.0, 2.0))  # vertex, in steps of h
+    # Lagrange weights of the three points at offset d (in units of h)
+    w = np.array([0.5 * d * (d - 1), 1 - d * d, 0.5 * d * (d + 1)])
+    return np.tensordot(w, logs, axes=1)
+
+
+def frontend_sensitivity(
+    p: np.ndarray,
+    u: np.ndarray,
+    calibration: Calibration,
+    front: FrontEnd,
+    refit: _Refit,
+    *,
+    kernel_c: float,
+    refit_kernel: bool,
+) -> dict[str, np.ndarray]:
+    """``d ln q`` per standard error of each front-end parameter, median over a few windows.
+
+    Returns
+    -------
+    dict
+        Front-end parameter name -> array over :data:`QUANTITIES` (only the parameters with
+        a positive, finite SE).
+    """
+    fs = refit.fs
+    base_p, base_u = _translated(front.p0, front.u0, fs, calibration, front, 0.0)
+    base = _at_kernel_minimum(refit, p, u, kernel_c, refit_kernel)
+    out = {}
+    for j, name in enumerate(FRONTEND_NAMES):
+        se = float(front.level_se[j])
+        if not (math.isfinite(se) and se > 0):
+            continue
+        moved = np.array(front.level, dtype=float)
+        moved[j] += se
+        p0, u0 = reseparate(front.p0, front.u0, fs, calibration, front.level, moved,
+                            front.band_hz)  # fmt: skip
+        dt = se if name == "temperature" else 0.0
+        tp, tu = _translated(p0, u0, fs, calibration, front, dt)
+        logs = _at_kernel_minimum(refit, p + tp - base_p, u + tu - base_u, kernel_c, refit_kernel)
+        out[name] = np.nanmedian(logs - base, axis=0)
+    return out
+
+
+def _translated(p0, u0, fs, calibration, front: FrontEnd, dt: float):
+    temps = np.asarray(front.temperature_c, dtype=float) + dt
+    tr = translate(p0, u0, fs, calibration, front.translation, temps)
+    return tr.p, tr.u
+
+
+def frontend_columns(table: pd.DataFrame, sensitivity: dict[str, np.ndarray]) -> pd.DataFrame:
+    """``<q>_se_frontend`` = ``|q| sqrt(sum over theta of (d ln q per SE)^2)`` per window."""
+    out = table.copy()
+    for i, name in enumerate(QUANTITIES):
+        if name not in out:
+            continue
+        d = np.array([s[i] for s in sensitivity.values()], dtype=float)
+        rel = float(np.sqrt(np.sum(d[np.isfinite(d)] ** 2)))
+        x = pd.to_numeric(out[name], errors="coerce").to_numpy(dtype=float)
+        out[f"{name}_se_frontend"] = np.abs(x) * rel
+    return out
+
+
+def shared_components(
+    p: np.ndarray,
+    u: np.ndarray,
+    fs: float,
+    table: pd.DataFrame,
+    calibration: Calibration,
+    config: InversionConfig,
+    *,
+    zero_mean: bool,
+    kernel_c: float,
+    refit_kernel: bool,
+    front: FrontEnd | None = None,
+) -> tuple[pd.DataFrame, dict]:
+    """The windows table with ``<q>_se_calibration`` and (with ``front``) ``<q>_se_frontend``.
+
+    Parameters
+    ----------
+    p, u : ndarray
+        The take's mouthpiece pressure (Pa) and flow (m^3/s).
+    fs : float
+        Sample rate, Hz.
+    table : pandas.DataFrame
+        Windows table (parameters of every window; ``status``).
+    calibration : Calibration
+        The instrument (microphones' sensitivity uncertainty, bore).
+    config : InversionConfig
+        Inversion settings of the take.
+    zero_mean : bool
+        The flow is zero-mean.
+    kernel_c : float
+        The kernel temperature, degC.
+    refit_kernel : bool
+        The kernel temperature was fitted: re-fit it on the perturbed signals too.
+    front : FrontEnd, optional
+        The front end's estimate; None: no ``frontend`` component (absent).
+
+    Returns
+    -------
+    (table, record)
+        ``record``: ``sensitivity_se_db``, its source, and per front-end parameter its SE
+        and the relative effect on p_m, p_M, gamma and zeta (JSON-ready).
+    """
+    se_db, source = sensitivity_se_db(calibration)
+    out = calibration_columns(table, se_db)
+    record: dict = {"sensitivity_se_db": se_db, "sensitivity_se_source": source}
+    ok = table[table["status"].astype(str) == "ok"] if "status" in table else table
+    if front is None or not len(ok):
+        return out, record
+    rows = [ok.iloc[i] for i in pick_windows(range(len(ok)), FRONTEND_WINDOWS)]
+    starts = [int(round(float(r["t_start_s"]) * fs)) for r in rows]
+    names = [str(r.get("fingering", "") or "") for r in rows]
+    refit = _Refit(fs, calibration, config, zero_mean, starts, [_reed(r) for r in rows],
+                   names=names)  # fmt: skip
+    sens = frontend_sensitivity(p, u, calibration, front, refit, kernel_c=kernel_c,
+                                refit_kernel=refit_kernel)  # fmt: skip
+    record["frontend"] = {
+        name: {
+            "se": float(front.level_se[FRONTEND_NAMES.index(name)]),
+            **{f"dln_{q}": float(d[QUANTITIES.index(q)]) for q in ("p_m", "p_M", "gamma", "zeta")},
+        }
+        for name, d in sens.items()
+    }
+    return frontend_columns(out, sens), record
+
+
+__all__ = [
+    "DEFAULT_SENSITIVITY_SE_DB",
+    "FRONTEND_NAMES",
+    "FRONTEND_WINDOWS",
+    "FrontEnd",
+    "KERNEL_STEP_C",
+    "QUANTITIES",
+    "SCALE_EXPONENTS",
+    "calibration_columns",
+    "frontend_columns",
+    "frontend_sensitivity",
+    "sensitivity_se_db",
+    "shared_components",
+]

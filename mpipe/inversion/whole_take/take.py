@@ -1,0 +1,293 @@
+"""A whole take's inversion: the kernel temperature, every window, the widened error bars.
+
+The one function every door into the inversion calls (``mpipe run``, ``mpipe invert`` and
+the Python API ``mpipe.invert_take``), so that the same mouthpiece signals give the same
+table whichever is used:
+
+1. the temperature the signals carry (the wave separation's estimate, else the
+   calibration's; :func:`mpipe.inversion.preparation.kernel.take_temperature`);
+2. the kernel temperature fitted to the playing from there, on windows spread over every
+   note, each note with its own cold start
+   (:func:`mpipe.inversion.whole_take.temperature.fit_temperature`; ``inversion.temperature``);
+3. every window started from its note's cold start on the kernel at the fitted
+   temperature (:func:`mpipe.inversion.whole_take.tracking.track`);
+4. the uncertainty budget: the temperature's component of every quantity
+   (:func:`mpipe.inversion.whole_take.temperature.temperature_components`) beside the windows' own
+   (noise, model form), the model's discretisation at fs
+   (:mod:`mpipe.inversion.trust.discretisation`) and the take-wide components of the front end and
+   the
+   microphones' calibration (:mod:`mpipe.inversion.whole_take.shared_errors`), combined into every
+   ``<q>_se``
+   (:func:`mpipe.inversion.trust.budget.combine`);
+5. the take-level checks (:func:`mpipe.inversion.trust.diagnostics.take_checks`, with the
+   notes' own temperatures and ``extra_checks``): each reason
+   in :attr:`TakeInversion.checks` and in the table's ``take_checks`` column;
+6. the fitted reed's opening in every window: ``h_mean``, ``h_min`` (m) and
+   ``closed_fraction`` (:func:`mpipe.inversion.preparation.segments.reed_openings`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from threadpoolctl import threadpool_limits
+
+from mpipe.acoustics.air import Air
+from mpipe.core.signals import DiskArray, as_signal
+from mpipe.inversion.fit.execution import stage_workers
+from mpipe.inversion.pooling.take_pooling import pool_notes
+from mpipe.inversion.preparation.kernel import KernelSource, take_temperature
+from mpipe.inversion.preparation.segments import reed_openings
+from mpipe.inversion.settings import ExecutorConfig, InversionConfig
+from mpipe.inversion.trust.budget import combine
+from mpipe.inversion.trust.diagnostics import check_plausible, take_checks
+from mpipe.inversion.trust.discretisation import rate_errors
+from mpipe.inversion.whole_take.shared_errors import FrontEnd, shared_components
+from mpipe.inversion.whole_take.temperature import (
+    TemperatureFit,
+    fit_temperature,
+    temperature_components,
+)
+from mpipe.inversion.whole_take.tracking import (
+    RunOptions,
+    Tracking,
+    WindowPlan,
+    detect_zero_mean,
+    track,
+)
+from mpipe.measurement.calibration import Calibration
+from mpipe.reed.bore_kernel import BoreKernel
+
+
+@dataclass(frozen=True)
+class TakeInversion:
+    """Result of :func:`invert_take`.
+
+    Attributes
+    ----------
+    tracking : Tracking
+        Every window (its table carries ``kernel_temperature_c``, ``kernel_temperature_se_c``
+        and the widened ``<name>_se``).
+    temperature : TemperatureFit
+        The kernel temperature and how it was found.
+    kernel : BoreKernel
+        The bore kernel at that temperature (for the resynthesis).
+    air : Air
+        The air at that temperature.
+    checks : tuple of str
+        Why the take as a whole should not pass, one line each (empty: nothing found); see
+        :mod:`mpipe.inversion.trust.diagnostics`.
+    shared : dict
+        The take-wide components' inputs
+        (:func:`mpipe.inversion.whole_take.shared_errors.shared_components`):
+        the sensitivity's uncertainty and the front end's parameters with their effects.
+    """
+
+    tracking: Tracking
+    temperature: TemperatureFit
+    kernel: BoreKernel
+    air: Air
+    checks: tuple[str, ...] = ()
+    shared: dict = dataclasses.field(default_factory=dict)
+
+
+# More than ten parameters: the public door of a take's inversion; what the front end found
+# (its temperature, its estimate's SEs, checks before the inversion) is keyword-only.
+def invert_take(
+    p: np.ndarray,
+    u: np.ndarray,
+    fs: float,
+    calibration: Calibration,
+    config: InversionConfig,
+    executor: ExecutorConfig | None = None,
+    *,
+    windows: WindowPlan | Sequence[int] | pd.DataFrame,
+    temperature_c: np.ndarray | float | None = None,
+    options: RunOptions | None = None,
+    extra_checks: Sequence[str] = (),
+    front_end: FrontEnd | None = None,
+) -> TakeInversion:
+    """Invert the planned windows of a take (see the module docstring for the steps).
+
+    Parameters
+    ----------
+    p, u : ndarray
+        Mouthpiece pressure (Pa) and volume flow (m^3/s).
+    fs : float
+        Sample rate, Hz.
+    calibration : Calibration
+        The instrument (bore, air model).
+    config : InversionConfig
+        Inversion settings; its ``sample_rate`` is set to ``fs``.
+    executor : ExecutorConfig, optional
+        Local processes (default) or Dask.
+    windows : WindowPlan, sequence of int or DataFrame
+        The windows to invert (:class:`mpipe.inversion.whole_take.tracking.WindowPlan`: first
+        samples,
+        each window's note, which are steady), their first samples only (one note), or the
+        conditioning stage's plan table (its ``invert`` rows). Each note gets its own cold
+        start; the temperature is fitted on steady windows where a note has enough.
+    temperature_c : ndarray, float or None
+        The temperature the signals carry, degC (the separation's, per sample); None: the
+        calibration's.
+    options : RunOptions, optional
+        Progress bar, Dask client, checkpoint folder
+        (:class:`mpipe.inversion.whole_take.tracking.RunOptions`).
+    extra_checks : sequence of str
+        Reasons found before the inversion why the take should not pass (e.g. a
+        calibration other than the take's own), kept first among its checks.
+    front_end : FrontEnd, optional
+        The front end's estimate with its SEs: its share of every SE (``<q>_se_frontend``)
+        is measured; None leaves that component out.
+
+    Returns
+    -------
+    TakeInversion
+
+    Raises
+    ------
+    ValueError
+        When the signals are not what a clarinet can produce (a unit error), before any
+        window is inverted (:func:`mpipe.inversion.trust.diagnostics.check_plausible`).
+    """
+    # every matrix of the windows' searches and errors is small: a threaded BLAS only
+    # stalls on a busy machine (the pool's workers limit theirs; this covers one worker,
+    # the fit's cold start and the take-wide re-fits that run in this process)
+    with threadpool_limits(limits=1, user_api="blas"):
+        config = dataclasses.replace(config, sample_rate=fs)
+        front = take_temperature(temperature_c, calibration)
+        carried = temperature_c is not None and (
+            isinstance(temperature_c, DiskArray)
+            or np.isfinite(np.asarray(temperature_c, float)).any()
+        )
+        z_c = calibration.bore.entry_impedance(calibration.air_properties(front))
+        plan = WindowPlan.of(windows)
+        check_plausible(p, u, fs, list(plan.starts), int(round(config.window_s * fs)), z_c)
+        zero_mean = detect_zero_mean(u, config.signal, config.zero_mean_ratio)
+        executor = executor or ExecutorConfig()
+        workers = executor.workers or os.cpu_count() or 1
+        # a take on disk (DiskArray) stays there: every step below reads only its windows
+        p, u = as_signal(p), as_signal(u)
+        client = options.client if options is not None else None
+        # the fit's cold start and its windows spread over the workers (the same answer)
+        with stage_workers((p, u), executor, workers, client):
+            fit = fit_temperature(
+                p, u, fs, calibration, plan, config, zero_mean=zero_mean, front_end_c=front,
+                source="front end" if carried else "calibration",
+            )  # fmt: skip
+        source = KernelSource(calibration, fs, plan.fingering_map())
+        kernel, air = source.at(fit.temperature_c, plan.starts[0] if plan.starts else None)
+        result = _track_fingerings(p, u, fs, source, fit, config, executor, plan, options)
+        if config.pooling == "note":
+            # each note as one experiment, after its windows (serial, in time order), on its
+            # own fingering's bore
+            def kernel_of(name: str):
+                return source.named(fit.temperature_c, name)[0]
+
+            pooled = pool_notes(result.table, p, u, fs, kernel_of, config, zero_mean=zero_mean)
+            result = dataclasses.replace(result, table=pooled)
+        # the budget: the take-wide components beside the windows' own, then one combination
+        table = temperature_components(result.table, fit)
+        table, shared = shared_components(
+            p, u, fs, table, calibration, config, zero_mean=zero_mean, kernel_c=fit.temperature_c,
+            refit_kernel=fit.source == "fit", front=front_end,
+        )  # fmt: skip
+        table = rate_errors(table, fs)  # the model's discretisation at fs
+        table = combine(table, config.determined_limit)
+        openings, _ = reed_openings(table, p, fs, whole=False)  # what the reed did: time shut
+        table = pd.concat([table, openings], axis=1)
+        if fit.anchor is not None and len(table):
+            # the take's cold start was the fit's, on the first window: its agreement goes there
+            table.loc[table.index[0], "cold_starts_agreeing"] = fit.cold_starts_agreeing
+        agreeing = fit.cold_starts_agreeing if fit.anchor is not None else _first_agreeing(table)
+        checks = take_checks(
+            table, config, temperature_source=fit.source, temperature_note=fit.note,
+            cold_starts_agreeing=agreeing, notes=fit.notes, extra=extra_checks,
+        )  # fmt: skip
+        table["take_checks"] = "; ".join(checks)
+        return TakeInversion(
+            dataclasses.replace(result, table=table), fit, kernel, air, tuple(checks), shared
+        )
+
+
+def _track_fingerings(p, u, fs, source, fit, config, executor, plan, options) -> Tracking:
+    """:func:`track` on each fingering's windows with its own bore, merged in time order.
+
+    One fingering (the usual take) is one call. With several, each fingering's windows are
+    tracked on their bore at the one fitted temperature, each note from its own start;
+    the tables are merged by time (``window`` renumbered, histories re-keyed) and each row
+    names its ``fingering``.
+    """
+    anchors = dict(fit.anchors) or None
+    names = source.names if plan.fingerings is not None else [""]
+    if len(names) == 1:
+        kernel, air = source.at(fit.temperature_c, plan.starts[0])
+        result = track(p, u, fs, kernel, air.rho, config, executor, windows=plan,
+                       anchor=anchors, options=options)  # fmt: skip
+        return dataclasses.replace(result, table=result.table.copy().assign(fingering=names[0]))
+    parts = []
+    for name in names:
+        sub = plan.only(name)
+        kernel, air = source.at(fit.temperature_c, sub.starts[0])
+        opts = options
+        if options is not None and options.checkpoint is not None:
+            # one checkpoint folder per fingering: the windows are numbered per call
+            folder = f"{options.checkpoint}/{name or 'default'}"
+            opts = dataclasses.replace(options, checkpoint=folder)
+        mine = (
+            None
+            if anchors is None
+            else {g: anchors[g] for g in set(sub.segment_ids) if g in anchors}
+        )
+        res = track(p, u, fs, kernel, air.rho, config, executor, windows=sub,
+                    anchor=mine or None, options=opts)  # fmt: skip
+        parts.append(dataclasses.replace(res, table=res.table.copy().assign(fingering=name)))
+    return merge_trackings(parts)
+
+
+def merge_trackings(parts: Sequence[Tracking]) -> Tracking:
+    """Trackings of disjoint windows as one, in time order."""
+    tables, histories, corr = [], {}, []
+    for k, part in enumerate(parts):
+        t = part.table.copy()
+        t["_old"], t["_part"] = t["window"], k
+        tables.append(t)
+    table = pd.concat(tables, ignore_index=True).sort_values("t_start_s", kind="stable")
+    table = table.reset_index(drop=True)
+    table["window"] = np.arange(len(table))
+    new = {
+        (int(k), int(old)): int(w)
+        for k, old, w in zip(table["_part"], table["_old"], table["window"], strict=True)
+    }
+    for k, part in enumerate(parts):
+        histories.update({new[(k, int(i))]: h for i, h in part.histories.items()})
+        c = part.correlations.copy()
+        if len(c):
+            c["window"] = [new[(k, int(i))] for i in c["window"]]
+        corr.append(c)
+    correlations = pd.concat(corr, ignore_index=True).sort_values("t_start_s", kind="stable")
+    table = table.drop(columns=["_old", "_part"])
+    return Tracking(table, histories, parts[0].zero_mean, correlations.reset_index(drop=True))
+
+
+def _first_agreeing(table) -> int | None:
+    """The least agreement of the take's own cold starts (one per note), if it had any.
+
+    Only the notes' cold starts count: not a window's own cold retry (``retried_cold``).
+    """
+    if "cold_starts_agreeing" not in table:
+        return None
+    own = pd.Series(True, index=table.index)
+    for flag in ("warm", "retried_cold"):
+        if flag in table:
+            own &= table[flag].eq(False)
+    values = table.loc[own, "cold_starts_agreeing"].dropna()
+    return int(values.min()) if len(values) else None
+
+
+__all__ = ["RunOptions", "TakeInversion", "WindowPlan", "invert_take", "merge_trackings"]
