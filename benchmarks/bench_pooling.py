@@ -59,7 +59,7 @@ def wall_s(folder: Path) -> float:
     if not path.exists():
         return float("nan")
     data = json.loads(path.read_text())
-    return float(data.get("wall_s", data.get("stage", {}).get("wall_s", float("nan"))))
+    return float(data.get("wall_s", float("nan")))  # run_stage's record
 
 
 def note_flags(folder: Path, truth, name: str, limit: float = 0.10) -> tuple[int, int, int]:
