@@ -220,7 +220,7 @@ def invert_window(
         base = warm if warm is not None else start_point(s1, config)
         history = lead_in(p, u, start, n, kernel.n_taps, config.lead_s, fs)
         target = TargetWindow(pw, uw, *history, fs, zero_mean)
-        objective = _objective(kernel, target, base, config)
+        objective = window_objective(kernel, target, base, config)
         bounds = window_bounds(config, p, start, n, fs)
         search, agreeing = _search(objective, base, bounds, config, cold=cold)
         if agreeing is not None:
@@ -289,7 +289,7 @@ def _step1_columns(s1: Step1Result) -> dict:
     return row
 
 
-def _objective(
+def window_objective(
     kernel: BoreKernel, target: TargetWindow, base: ReedParameters, config: InversionConfig
 ) -> F2Objective:
     """F2 of the window over the configured search parameters, the others held at ``base``."""
@@ -414,4 +414,11 @@ def _uncertainty(
     return out, Correlation(tuple(names), cov.correlation())
 
 
-__all__ = ["WindowOutcome", "invert_window", "local_search", "start_point", "window_bounds"]
+__all__ = [
+    "WindowOutcome",
+    "invert_window",
+    "local_search",
+    "start_point",
+    "window_bounds",
+    "window_objective",
+]

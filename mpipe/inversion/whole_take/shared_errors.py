@@ -10,14 +10,14 @@ window as ``<q>_se_<component>`` (same unit as q) for every parameter and combin
   ``se(ln a) = ln(10) / 20 * se_dB`` the reference microphone's stated sensitivity
   uncertainty (:func:`sensitivity_se_db`).
 - ``frontend``: the separation's take-level estimate of theta (temperature, losses, Mach
-  number, position of the middle microphone) has standard errors. Each is propagated by
-  re-separating p0, u0 with theta moved by one SE
-  (:func:`mpipe.measurement.separation.perturbation.reseparate`), re-translating to the
-  mouthpiece (the temperature moves the translation too), and re-fitting a few ok windows
-  warm. The kernel temperature is re-fitted as well (its residual profile on the same
-  windows, three temperatures, parabola vertex), so the part of a front-end error that the
-  kernel temperature absorbs is not counted (the kernel's own SE is the ``temperature``
-  component). ``d ln q`` per SE, median over the windows, added in quadrature over theta.
+  number, position of the middle microphone) has standard errors. Each is propagated
+  linearly on the windows' own spans (:func:`frontend_linear`,
+  :mod:`mpipe.inversion.whole_take.frontend_propagation`): the change of p, u over a few ok
+  windows' spans for theta moved by one SE, and the shift of each window's minimum by
+  the implicit function theorem, the kernel temperature re-fitted through its shared row.
+  ``d ln q`` per SE, median over the windows, added in quadrature over theta. The
+  re-separation of the whole take with warm re-fits (:func:`frontend_refit`) is the
+  reference it was checked against.
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ from mpipe.inversion.preparation.segments import pick_windows
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
 from mpipe.inversion.trust.combinations import COMBINATION_NAMES, combination_values
 from mpipe.inversion.trust.uncertainty import SE_PARAMETERS
+from mpipe.inversion.whole_take import frontend_propagation as fp
 from mpipe.measurement.calibration import Calibration
 from mpipe.measurement.separation.perturbation import reseparate
 from mpipe.measurement.separation.settings import SeparationConfig
@@ -191,7 +192,7 @@ def _at_kernel_minimum(refit: _Refit, p, u, t0: float, refit_kernel: bool) -> np
     return np.tensordot(w, logs, axes=1)
 
 
-def frontend_sensitivity(
+def frontend_refit(
     p: np.ndarray,
     u: np.ndarray,
     calibration: Calibration,
@@ -201,7 +202,11 @@ def frontend_sensitivity(
     kernel_c: float,
     refit_kernel: bool,
 ) -> dict[str, np.ndarray]:
-    """``d ln q`` per standard error of each front-end parameter, median over a few windows.
+    """``d ln q`` per SE of each front-end parameter by re-separation and warm re-fits.
+
+    The reference method (slow: the whole take re-separated and re-translated for each
+    parameter, every window re-fitted at three kernel temperatures each time); the budget
+    uses :func:`frontend_linear`, which agrees with it (the tests compare them).
 
     Returns
     -------
@@ -226,6 +231,71 @@ def frontend_sensitivity(
         logs = _at_kernel_minimum(refit, p + tp - base_p, u + tu - base_u, kernel_c, refit_kernel)
         out[name] = np.nanmedian(logs - base, axis=0)
     return out
+
+
+def frontend_linear(
+    p,
+    u,
+    calibration: Calibration,
+    front: FrontEnd,
+    refit: _Refit,
+    *,
+    kernel_c: float,
+    refit_kernel: bool,
+) -> dict[str, np.ndarray]:
+    """``d ln q`` per SE of each front-end parameter, propagated linearly on the windows' spans.
+
+    :mod:`mpipe.inversion.whole_take.frontend_propagation`: dp, du over each window's span,
+    one Jacobian and one residual per perturbation per window, the kernel temperature
+    re-fitted through its shared column. Reads p, u, p0, u0 around the windows only.
+
+    Returns
+    -------
+    dict
+        As :func:`frontend_refit`.
+    """
+    fs, config = refit.fs, refit.config
+    spans = fp.Spans.of(front, calibration, fs)
+    n = int(round(config.window_s * fs))
+    lead = int(round(config.lead_s * fs))
+    names = list(refit.names) or [""] * len(refit.starts)
+    offsets = (-fp.KERNEL_STEP_C, 0.0, fp.KERNEL_STEP_C) if refit_kernel else (0.0,)
+    windows, airs = [], []
+    for start, warm, name in zip(refit.starts, refit.warm, names, strict=True):
+        built = {dt: refit.kernel(kernel_c + dt, name) for dt in offsets}
+        keep = max(max(k.n_taps for k, _ in built.values()), lead, 2, n)
+        a, b = max(start - keep, 0), start + n
+        changes = fp.span_changes(front, calibration, fs, spans, a, b)
+        lin = fp.linearise(
+            np.asarray(p[a:b], dtype=float), np.asarray(u[a:b], dtype=float), fs, start, warm,
+            lambda dt, built=built: built[dt][0] if dt in built else None, config, changes,
+            zero_mean=refit.zero_mean, span_start=a,
+        )  # fmt: skip
+        if lin is not None:
+            windows.append(lin)
+            airs.append({dt: (k.z0, air.rho) for dt, (k, air) in built.items()})
+    out = {}
+    closure = config.contact == "closure"
+    for j, name in enumerate(FRONTEND_NAMES):
+        se = float(front.level_se[j])
+        if not (math.isfinite(se) and se > 0) or not windows:
+            continue
+        dlnx, dt = fp.shifts(windows, name, len(config.search_parameters))
+        logs = [
+            fp.log_changes(w, d, config.search_parameters, (z[0.0], _between(z, dt)), closure)
+            for w, d, z in zip(windows, dlnx, airs, strict=True)
+        ]
+        out[name] = np.nanmedian(np.array(logs), axis=0)
+    return out
+
+
+def _between(z: dict, dt: float) -> tuple[float, float]:
+    """``(z0, rho)`` at the kernel temperature moved by ``dt`` degC, linear in ``dt``."""
+    if dt == 0.0 or len(z) < 3:
+        return z[0.0]
+    h = fp.KERNEL_STEP_C
+    lo, hi = z[-h], z[h]
+    return tuple(c + dt * (b - a) / (2 * h) for c, a, b in zip(z[0.0], lo, hi, strict=True))
 
 
 def _translated(p0, u0, fs, calibration, front: FrontEnd, dt: float):
@@ -300,8 +370,8 @@ def shared_components(
     names = [str(r.get("fingering", "") or "") for r in rows]
     refit = _Refit(fs, calibration, config, zero_mean, starts, [_reed(r) for r in rows],
                    names=names)  # fmt: skip
-    sens = frontend_sensitivity(p, u, calibration, front, refit, kernel_c=kernel_c,
-                                refit_kernel=refit_kernel)  # fmt: skip
+    sens = frontend_linear(p, u, calibration, front, refit, kernel_c=kernel_c,
+                           refit_kernel=refit_kernel)  # fmt: skip
     record["frontend"] = {
         name: {
             "se": float(front.level_se[FRONTEND_NAMES.index(name)]),
@@ -322,7 +392,8 @@ __all__ = [
     "SCALE_EXPONENTS",
     "calibration_columns",
     "frontend_columns",
-    "frontend_sensitivity",
+    "frontend_linear",
+    "frontend_refit",
     "sensitivity_se_db",
     "shared_components",
 ]

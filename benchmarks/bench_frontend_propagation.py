@@ -1,0 +1,92 @@
+"""The front-end component: linear propagation on the windows' spans against the re-fits.
+
+A virtual take (synth-take's ``make_take``, the example reed, 45 dB) is separated,
+translated and inverted (``invert_take`` without the front-end component); then the
+front-end component of 6 ok windows is computed both ways at the take's own fitted kernel
+temperature, kernel re-fitted: ``frontend_linear`` (the budget's) and ``frontend_refit``
+(the reference: the whole take re-separated and re-translated, 90 warm re-fits). Prints
+the CPU time (``time.process_time``) of each and, per quantity, both components (quadrature
+over theta) and their ratio.
+
+    PYTHONPATH=. python benchmarks/bench_frontend_propagation.py --duration 1.0
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from mpipe.cli.examples import EXAMPLE_CALIBRATION, EXAMPLE_REED
+from mpipe.cli.virtual_takes import SynthOptions, make_take
+from mpipe.inversion.preparation.conditioning import plan_inversion
+from mpipe.inversion.preparation.segments import pick_windows
+from mpipe.inversion.settings import ExecutorConfig
+from mpipe.inversion.whole_take.shared_errors import (
+    QUANTITIES,
+    FrontEnd,
+    _reed,
+    _Refit,
+    frontend_linear,
+    frontend_refit,
+)
+from mpipe.inversion.whole_take.take import invert_take
+from mpipe.measurement.calibration import load_calibration
+from mpipe.measurement.separation.stage import separate
+from mpipe.measurement.takes import read_take
+from mpipe.measurement.translation import translate
+from mpipe.pipeline.settings import load_pipeline
+
+PIPELINE = Path(__file__).resolve().parents[1] / "pipelines" / "simplified_clarinet.yaml"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=1.0)
+    parser.add_argument("--seed", type=int, default=1)
+    args = parser.parse_args()
+    dur = args.duration
+    with tempfile.TemporaryDirectory() as tmp:
+        options = SynthOptions(duration_s=dur, snr_db=45, seed=args.seed)
+        files = make_take(EXAMPLE_CALIBRATION, EXAMPLE_REED, Path(tmp) / "take.flac", options)
+        pipe = load_pipeline(PIPELINE)
+        cal = load_calibration(files.calibration)
+        take = read_take(files.audio, cal, fs=pipe.inversion.sample_rate)
+    fs = take.fs
+    sep = separate(take.pressures, fs, cal, pipe.separation, take.band_limit_hz)
+    tr = translate(sep.p0, sep.u0, fs, cal, pipe.translation, sep.temperature_track())
+    front = FrontEnd(tr.p0, tr.u0, tr.temperature_c, sep.track.level, sep.track.level_se,
+                     pipe.separation.band_edge_hz + pipe.separation.band_taper_hz,
+                     pipe.translation)  # fmt: skip
+    cond = dataclasses.replace(pipe.conditioning, edge_s=min(0.3, dur / 3))
+    plan = plan_inversion(tr.p, fs, cond, pipe.inversion.window_s, pipe.inversion.hop_s,
+                          end_s=dur - 0.05)  # fmt: skip
+    starts = plan.loc[plan["invert"], "start"].tolist()
+    done = invert_take(tr.p, tr.u, fs, cal, pipe.inversion, ExecutorConfig(workers=1),
+                       windows=starts, temperature_c=tr.temperature_c)  # fmt: skip
+    table = done.tracking.table
+    ok = table[table["status"].astype(str) == "ok"]
+    rows = [ok.iloc[i] for i in pick_windows(range(len(ok)), 6)]
+    picked = [int(round(float(r["t_start_s"]) * fs)) for r in rows]
+    config = dataclasses.replace(pipe.inversion, sample_rate=fs)
+    kc = done.temperature.temperature_c
+    print(f"take {dur:g} s: {len(table)} windows, {len(ok)} ok, kernel {kc:.2f} degC")
+    found = {}
+    for method in (frontend_linear, frontend_refit):
+        refit = _Refit(fs, cal, config, done.tracking.zero_mean, picked, [_reed(r) for r in rows])
+        t0 = time.process_time()
+        found[method.__name__] = method(tr.p, tr.u, cal, front, refit, kernel_c=kc,
+                                        refit_kernel=done.temperature.source == "fit")  # fmt: skip
+        print(f"{method.__name__}: CPU {time.process_time() - t0:.2f} s")
+    for q in ("k", "S", "y_m", "p_m", "lam", "p_M", "gamma", "zeta"):
+        i = QUANTITIES.index(q)
+        lin, ref = (float(np.sqrt(sum(d[i] ** 2 for d in found[m].values()))) for m in found)
+        print(f"{q:6s} linear {100 * lin:6.3f} %  refit {100 * ref:6.3f} %  ratio {lin / ref:.3f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,109 @@
+"""The front end's errors propagated linearly on the windows' spans (frontend_propagation)."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from mpipe.cli.examples import EXAMPLE_CALIBRATION, EXAMPLE_REED
+from mpipe.cli.virtual_takes import SynthOptions, make_take
+from mpipe.core.config import Where
+from mpipe.inversion.fit.window import invert_window
+from mpipe.inversion.preparation.kernel import bore_kernel
+from mpipe.inversion.settings import InversionConfig
+from mpipe.inversion.whole_take import frontend_propagation as fp
+from mpipe.inversion.whole_take.shared_errors import (
+    QUANTITIES,
+    FrontEnd,
+    _Refit,
+    _translated,
+    frontend_linear,
+    frontend_refit,
+)
+from mpipe.measurement.calibration import load_calibration
+from mpipe.measurement.separation.perturbation import reseparate
+from mpipe.measurement.separation.settings import SeparationConfig
+from mpipe.measurement.separation.stage import separate
+from mpipe.measurement.takes import read_take
+from mpipe.measurement.translation import TranslationConfig, translate
+from mpipe.reed.parameters import reed_from_mapping
+
+LEVEL = np.array([20.0, 0.85, 0.004, 1e-5])
+LEVEL_SE = np.array([1.4, 0.16, 0.002, 1e-5])
+
+
+def _front(p0, u0, temperature, band_hz=6000.0):
+    return FrontEnd(p0, u0, temperature, LEVEL, LEVEL_SE, band_hz, TranslationConfig())
+
+
+def test_span_changes_equal_the_whole_takes_reseparation_on_the_span(shipped_calibration):
+    # a played-like p0, u0 (harmonics plus noise) with a drifting temperature: the change
+    # of p, u over a span, from p0, u0 around it only, equals the whole take's
+    fs, n = 44100.0, 40000
+    rng = np.random.default_rng(3)
+    t = np.arange(n) / fs
+    p0 = sum(800 / k * np.sin(2 * np.pi * 147 * k * t + k) for k in range(1, 8))
+    p0 = p0 + rng.normal(0, 20, n)
+    u0 = 1e-4 * np.cos(2 * np.pi * 147 * t) + rng.normal(0, 2e-6, n)
+    front = _front(p0, u0, np.linspace(19.5, 20.5, n))
+    spans = fp.Spans.of(front, shipped_calibration, fs)
+    a, b = 19000, 21000
+    assert b + spans.margin < n  # the span reads well inside the take
+    changes = fp.span_changes(front, shipped_calibration, fs, spans, a, b)
+    base_p, base_u = _translated(p0, u0, fs, shipped_calibration, front, 0.0)
+    for j, name in enumerate(fp.FRONTEND_NAMES):
+        moved = LEVEL.copy()
+        moved[j] += LEVEL_SE[j]
+        q0, v0 = reseparate(p0, u0, fs, shipped_calibration, LEVEL, moved, front.band_hz)
+        dt = LEVEL_SE[0] if name == "temperature" else 0.0
+        tp, tu = _translated(q0, v0, fs, shipped_calibration, front, dt)
+        for got, whole in zip(changes[name], ((tp - base_p)[a:b], (tu - base_u)[a:b]), strict=True):
+            scale = float(np.sqrt(np.mean(whole**2)))
+            assert scale > 0
+            assert np.max(np.abs(got - whole)) < 0.02 * scale, name
+
+
+@pytest.fixture(scope="module")
+def short_take(tmp_path_factory):
+    """A 0.6 s take of the example reed through synth-take, separation and translation."""
+    folder = tmp_path_factory.mktemp("frontend")
+    files = make_take(EXAMPLE_CALIBRATION, EXAMPLE_REED, folder / "take.flac",
+                      SynthOptions(duration_s=0.6, snr_db=45, seed=1))  # fmt: skip
+    cal = load_calibration(files.calibration)
+    sep_cfg = SeparationConfig()
+    take = read_take(files.audio, cal, fs=44100.0)
+    sep = separate(take.pressures, take.fs, cal, sep_cfg, take.band_limit_hz)
+    tr = translate(sep.p0, sep.u0, take.fs, cal, TranslationConfig(), sep.temperature_track())
+    front = FrontEnd(tr.p0, tr.u0, tr.temperature_c, sep.track.level, sep.track.level_se,
+                     sep_cfg.band_edge_hz + sep_cfg.band_taper_hz, TranslationConfig())  # fmt: skip
+    with np.load(files.truth) as d:
+        truth = {k[5:]: float(d[k]) for k in d.files if k.startswith("reed_") and d[k].ndim == 0}
+    return cal, take.fs, tr, front, reed_from_mapping(truth, Where("truth"))
+
+
+def test_linear_propagation_agrees_with_the_refits_of_the_reseparated_take(short_take):
+    # the reference re-separates and re-translates the whole take and re-fits each window
+    # warm; the linear propagation reads the windows' spans only. Kernel held: the
+    # re-fit's kernel parabola needs the take's own fitted temperature (a whole inversion)
+    cal, fs, tr, front, truth = short_take
+    config = dataclasses.replace(InversionConfig(), sample_rate=fs)
+    kc = float(np.mean(tr.temperature_c))
+    kernel, air = bore_kernel(cal, fs, kc)
+    starts = [int(s * fs) for s in (0.25, 0.35, 0.45)]
+    warm = []
+    for s in starts:
+        reed = truth
+        for _ in range(2):  # the estimate, close to its minimum
+            reed = invert_window(tr.p, tr.u, fs, s, kernel, air.rho, config, zero_mean=True,
+                                 warm=reed, errors=False).reed  # fmt: skip
+        warm.append(reed)
+    got = {}
+    for method in (frontend_linear, frontend_refit):
+        refit = _Refit(fs, cal, config, True, starts, warm)
+        got[method] = method(tr.p, tr.u, cal, front, refit, kernel_c=kc, refit_kernel=False)
+    for q in ("p_m", "S", "lam", "p_M"):
+        i = QUANTITIES.index(q)
+        lin, ref = (math.hypot(*(d[i] for d in got[m].values())) for m in got)
+        assert ref > 0.005, q  # the component is there to compare (0.5 % of q)
+        assert lin == pytest.approx(ref, rel=0.35), q
