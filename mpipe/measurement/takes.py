@@ -28,9 +28,9 @@ import numpy as np
 import soundfile as sf
 
 from mpipe.core.errors import UserError
-from mpipe.core.resampling import resample
+from mpipe.core.resampling import rate_ratio, resample_blocks
 from mpipe.measurement.calibration import Calibration
-from mpipe.measurement.calibration_tables import divide_response, read_mic_calibration
+from mpipe.measurement.calibration_tables import divide_response_blocks, read_mic_calibration
 from mpipe.measurement.microphones import level_warning
 from mpipe.measurement.take_checks import (
     BAND_HZ,
@@ -132,8 +132,9 @@ def read_take(
         Required ratio of sample rate to ``band_hz``.
     fs : float, optional
         Sample rate of the pipeline, Hz: a take recorded at another rate is resampled to
-        it (:func:`resample`, after the checks and the calibration), so that every command
-        works at one rate whatever the interface recorded. None keeps the file's rate.
+        it (:func:`mpipe.core.resampling.resample`, in blocks, after the checks and the
+        calibration), so that every command works at one rate whatever the interface
+        recorded. None keeps the file's rate.
     check : bool
         Run the input sanity checks (:func:`mpipe.measurement.take_checks.check_take`).
 
@@ -176,7 +177,7 @@ def read_take(
     out_fs = float(fs)
     if target is not None and abs(target - fs) > 1e-9 * fs:
         log.info("%s: resampling %g Hz -> %g Hz (the pipeline's rate)", name, fs, target)
-        raw = resample(raw, fs, target)
+        raw = _resampled(raw, fs, target)
         out_fs = float(target)
     return Take(
         pressures=raw,
@@ -186,6 +187,19 @@ def read_take(
         clip_fraction=tuple(clip),  # type: ignore[arg-type]
         fs_file=float(fs),
     )
+
+
+def _resampled(raw: np.ndarray, fs: float, target: float) -> np.ndarray:
+    """:func:`mpipe.core.resampling.resample`, a block at a time into one array.
+
+    :func:`mpipe.core.resampling.resample_blocks`: the same samples to 1e-12 of the peak,
+    with no whole-take intermediates (the polyphase filter's upsampled copy).
+    """
+    up, down, _ = rate_ratio(fs, target)
+    out = np.empty((-(-raw.shape[0] * up // down), raw.shape[1]))
+    for j, y in resample_blocks(raw, fs, target):
+        out[j : j + y.shape[0]] = y
+    return out
 
 
 def _read_files(
@@ -299,7 +313,8 @@ def _apply_relative_calibration(
         if table is None:
             continue
         freqs, h = read_mic_calibration(table, band=band)
-        raw[:, i] = divide_response(raw[:, i], fs, freqs, h)
+        # as a filter, a block at a time: no FFT of the whole take (docs/memory.md)
+        raw[:, i] = divide_response_blocks(raw[:, i], fs, freqs, h)
         log.debug("%s: applied relative calibration %s", mic.name, table)
 
 

@@ -82,3 +82,25 @@ def test_missing_calibration_table(tmp_path, shipped_calibration):
     cal = write_calibration(tmp_path, shipped_calibration, calibration=(None, None, "gone.csv"))
     with pytest.raises(UserError, match=r"gone.csv: cannot read microphone calibration"):
         read_take(tmp_path / "take.flac", cal)
+
+
+@pytest.mark.parametrize(("n", "block"), [(3 * 44100 + 17, 1 << 16), (50001, 7777)])
+def test_the_relative_calibration_in_blocks_equals_the_whole_takes_fft(n, block):
+    # a smooth table, lengths no block divides: the block filter differs from the one FFT
+    # of the whole take by less than the whole take's path differs from itself when the
+    # take is 5000 samples shorter (its grid, and so its filter, follows the length)
+    from mpipe.measurement.calibration_tables import divide_response, divide_response_blocks
+
+    fs = 44100.0
+    freqs = np.linspace(20.0, 20000.0, 400)
+    h = (1 + 0.1 * np.sin(freqs / 3000)) * np.exp(1j * (0.2 * np.sin(freqs / 2000) + freqs * 2e-6))
+    x = np.random.default_rng(1).normal(size=n)
+    whole = divide_response(x, fs, freqs, h)
+    blocks = divide_response_blocks(x, fs, freqs, h, block=block)
+    rms = float(np.sqrt(np.mean(whole**2)))
+    err = float(np.sqrt(np.mean((blocks - whole) ** 2)))
+    m = n - 5000
+    shorter = divide_response(x[:m], fs, freqs, h)[: m - 3000] - whole[: m - 3000]
+    assert err < 1e-4 * rms
+    assert err < float(np.sqrt(np.mean(shorter**2)))
+    assert np.max(np.abs(blocks - whole)) < 1e-4 * np.max(np.abs(whole))
