@@ -9,12 +9,19 @@ the CPU time (``time.process_time``) of each and, per quantity, both components 
 over theta) and their ratio.
 
     PYTHONPATH=. python benchmarks/bench_frontend_propagation.py --duration 1.0
+
+With ``--mouthpiece`` (a ``mouthpiece.npz`` of ``mpipe separate``), ``--calibration`` and
+``--truth`` (synth-take's files) it runs one ``--method`` (linear or refit) on 6 windows
+spread over that take, warm from the truth, read from disk as ``mpipe run`` reads it, and
+prints its CPU time and the process's peak RSS (``ru_maxrss``): the memory figure of
+docs/memory.md, one method per process.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import resource
 import tempfile
 import time
 from pathlib import Path
@@ -44,11 +51,46 @@ from mpipe.pipeline.settings import load_pipeline
 PIPELINE = Path(__file__).resolve().parents[1] / "pipelines" / "simplified_clarinet.yaml"
 
 
+def on_disk(args) -> None:
+    """One method on a separated take read from disk: its CPU time and the peak RSS."""
+    from mpipe.core.config import Where
+    from mpipe.core.signals import open_npz
+    from mpipe.reed.parameters import reed_from_mapping
+
+    pipe = load_pipeline(PIPELINE)
+    cal = load_calibration(args.calibration)
+    mp = open_npz(args.mouthpiece)
+    fs = float(mp["fs"])
+    front = FrontEnd.of(mp, pipe.separation, pipe.translation)
+    with np.load(args.truth) as d:
+        truth = {k[5:]: float(d[k]) for k in d.files if k.startswith("reed_") and d[k].ndim == 0}
+    reed = reed_from_mapping(truth, Where(str(args.truth)))
+    n = len(mp["p"])
+    starts = [int(s) for s in np.linspace(0.3 * fs, n - 0.3 * fs, 6)]
+    config = dataclasses.replace(pipe.inversion, sample_rate=fs)
+    refit = _Refit(fs, cal, config, True, starts, [reed] * len(starts))
+    method = frontend_linear if args.method == "linear" else frontend_refit
+    kc = float(np.mean(np.asarray(front.temperature_c[: int(fs)])))
+    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    t0 = time.process_time()
+    method(mp["p"], mp["u"], cal, front, refit, kernel_c=kc, refit_kernel=True)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f"{method.__name__} on {n / fs:.1f} s: CPU {time.process_time() - t0:.2f} s, "
+          f"peak RSS {peak:.0f} MiB ({base:.0f} MiB before it)")  # fmt: skip
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=1.0)
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--mouthpiece", type=Path)
+    parser.add_argument("--calibration", type=Path)
+    parser.add_argument("--truth", type=Path)
+    parser.add_argument("--method", choices=("linear", "refit"), default="linear")
     args = parser.parse_args()
+    if args.mouthpiece is not None:
+        on_disk(args)
+        return
     dur = args.duration
     with tempfile.TemporaryDirectory() as tmp:
         options = SynthOptions(duration_s=dur, snr_db=45, seed=args.seed)

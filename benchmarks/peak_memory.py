@@ -19,6 +19,15 @@ import time
 
 
 def main(trace_path: str, command: list[str]) -> int:
+    measure(trace_path, command)
+    return 0
+
+
+def measure(trace_path: str, command: list[str]) -> tuple[float, int, float]:
+    """Run ``command``; its largest process's peak RSS (MiB), exit status and wall time (s).
+
+    Prints the PEAK line and, for ``mpipe run``, each stage's peak.
+    """
     import psutil
 
     t0 = time.time()
@@ -55,7 +64,7 @@ def main(trace_path: str, command: list[str]) -> int:
     print(line)
     for stage, mib in stage_peaks(trace_path).items():
         print(f"  {stage:>12}: {mib} MiB")
-    return 0
+    return peak / 2**20, int(proc.returncode), time.time() - t0
 
 
 def stage_peaks(trace_path: str) -> dict[str, int]:
