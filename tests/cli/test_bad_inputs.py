@@ -364,7 +364,7 @@ def test_ctrl_c_gives_one_line_and_a_resumable_folder(tmp_path, capsys, monkeypa
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(sep, "separate", interrupted)
+    monkeypatch.setattr(sep, "separate_take", interrupted)
     out = tmp_path / "out"
     assert main(_separate(take, out)) == 130
     err = capsys.readouterr().err.strip().splitlines()

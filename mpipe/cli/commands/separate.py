@@ -29,27 +29,29 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+import os
+import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from mpipe.cli.commands import add_fingering_option
 from mpipe.core.errors import UserError
-from mpipe.core.io import check_writable, folder_lock, write_atomic, write_csv, write_npz_atomic
+from mpipe.core.io import check_writable, folder_lock, write_atomic, write_csv
+from mpipe.core.signals import open_npz
 from mpipe.inversion.conditioning_settings import ConditioningConfig
 from mpipe.inversion.preparation.kernel import take_temperature
 from mpipe.inversion.settings import InversionConfig
 from mpipe.measurement.calibration import load_calibration, per_note
 from mpipe.measurement.measured_instrument import bore_description
 from mpipe.measurement.separation.settings import SeparationConfig
-from mpipe.measurement.separation.stage import separate
-from mpipe.measurement.takes import read_take
+from mpipe.measurement.separation.streaming import separate_take
 from mpipe.measurement.translation import (
     TranslationConfig,
     mouthpiece_noise,
-    translate,
     write_mouthpiece_wav,
 )
+from mpipe.measurement.translation_stream import translate_to_npz
 from mpipe.measurement.validation import ValidationConfig, validate
 from mpipe.measurement.validation_result import plot_impedance
 from mpipe.pipeline.note_validation import validate_notes
@@ -128,28 +130,45 @@ def _run(args: argparse.Namespace) -> int:
     log.info("%s", bore_description(cal))
     log.info("reading take %s", ", ".join(takes))
     sep_cfg, tr_cfg, val_cfg, rate = _settings(args)
-    take = read_take(takes if len(takes) > 1 else takes[0], cal, fs=rate)
     if args.fixed_mach is not None:
         if not -0.05 <= args.fixed_mach <= 0.1:
             raise UserError(
                 f"--fixed-mach: expected a value in [-0.05, 0.1], got {args.fixed_mach}"
             )
         sep_cfg = dataclasses.replace(sep_cfg, mach=args.fixed_mach)
-    fs = take.fs
-    try:
-        log.info("stage 1/3: wave separation")
-        sep = separate(take.pressures, fs, cal, sep_cfg, take.band_limit_hz)
-        del take  # the microphone pressures are not needed past the separation (memory)
-        log.info("stage 2/3: translation to the mouthpiece entry")
-        tr = translate(sep.p0, sep.u0, fs, cal, tr_cfg, sep.temperature_track())
-        log.info("stage 3/3: impedance validation")
-        t_eff = take_temperature(tr.temperature_c, cal)
-        val = _validation(tr, fs, cal, val_cfg, t_eff, args)
-        noise = mouthpiece_noise(fs, cal, sep.noise_psd, sep.median_theta(), t_eff, sep_cfg)
-    except ValueError as exc:
-        raise UserError(f"{takes[0]}: {exc}") from None
-    _write_outputs(out, fs, sep, tr, val, noise)
+    out.mkdir(parents=True, exist_ok=True)
+    # the block path of `mpipe run`: the signals go to disk, in blocks, as they are made
+    with tempfile.TemporaryDirectory(dir=out, prefix=".separate.") as scratch:
+        reference, mouthpiece = Path(scratch) / "reference.npz", Path(scratch) / "mouthpiece.npz"
+        try:
+            log.info("stage 1/3: wave separation")
+            found = separate_take(reference, takes if len(takes) > 1 else takes[0], cal,
+                                  sep_cfg, rate)  # fmt: skip
+            sep, fs = found["separation"], found["take"].fs
+            log.info("stage 2/3: translation to the mouthpiece entry")
+            ref = open_npz(reference)
+            t_eff = take_temperature(ref["temperature_c"], cal)
+            noise = mouthpiece_noise(fs, cal, sep.noise_psd, sep.median_theta(), t_eff, sep_cfg)
+            levels = {k: ref[k] for k in ("theta_level", "theta_level_se") if k in ref}
+            translate_to_npz(mouthpiece, ref["p0"], ref["u0"], ref["temperature_c"], fs, cal,
+                             tr_cfg, {**noise, **levels})  # fmt: skip
+            log.info("stage 3/3: impedance validation")
+            mp = open_npz(mouthpiece)
+            signals = _Signals(np.asarray(mp["p"]), np.asarray(mp["u"]))
+            val = _validation(signals, fs, cal, val_cfg, t_eff, args)
+            del signals
+        except ValueError as exc:
+            raise UserError(f"{takes[0]}: {exc}") from None
+        _write_outputs(out, fs, sep, mouthpiece, val)
     return _print_summary(sep, val, paths)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Signals:
+    """The mouthpiece pressure (Pa) and flow (m^3/s) the validation reads."""
+
+    p: np.ndarray
+    u: np.ndarray
 
 
 def _validation(tr, fs: float, cal, val_cfg, t_eff: float, args):
@@ -202,24 +221,24 @@ def _settings(args: argparse.Namespace):
     return sep_cfg, tr_cfg, val_cfg, rate
 
 
-def _write_outputs(out: Path, fs: float, sep, tr, val, noise: dict) -> None:
-    """Mouthpiece signals (npz, WAV), block and impedance tables and the impedance plot."""
-    out.mkdir(parents=True, exist_ok=True)
-    arrays = {
-        "fs": np.float64(fs),
-        "p": tr.p,
-        "u": tr.u,
-        "p0": tr.p0,
-        "u0": tr.u0,
-        "temperature_c": tr.temperature_c,
-        **noise,
-    }
+def _write_outputs(out: Path, fs: float, sep, mouthpiece: Path, val) -> None:
+    """Mouthpiece signals (npz, WAV), block and impedance tables and the impedance plot.
+
+    ``mouthpiece``: the ``mouthpiece.npz`` written beside ``out`` (moved into it).
+    """
+    mp = open_npz(mouthpiece)
+
+    def move(path: Path) -> None:
+        os.replace(mouthpiece, path)
+
     steps = [
-        (out / "mouthpiece.npz", lambda path: write_npz_atomic(path, **arrays)),
         (
             out / "mouthpiece.wav",
-            lambda path: write_atomic(path, lambda t: write_mouthpiece_wav(t, tr.p, tr.u, fs)),
+            lambda path: write_atomic(
+                path, lambda t: write_mouthpiece_wav(t, mp["p"], mp["u"], fs)
+            ),
         ),
+        (out / "mouthpiece.npz", move),
         (out / "blocks.csv", lambda path: write_csv(path, sep.blocks)),
         (out / "impedance.csv", lambda path: write_csv(path, val.table())),
         (out / "validation.csv", lambda path: write_csv(path, val.resonances)),
