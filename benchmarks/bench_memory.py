@@ -31,6 +31,8 @@ def _pipeline(folder: Path) -> Path:
     """``simplified_clarinet.yaml`` with a 2 s hop, written into ``folder``."""
     data = yaml.safe_load((ROOT / "pipelines" / "simplified_clarinet.yaml").read_text())
     data.setdefault("inversion", {})["hop_s"] = 2.0
+    # relative to the pipeline file: made absolute, the copy lives elsewhere
+    data["calibration"] = str((ROOT / "pipelines" / data["calibration"]).resolve())
     path = folder / "hop2.yaml"
     path.write_text(yaml.safe_dump(data))
     return path

@@ -7,7 +7,10 @@ Outputs in ``DIR``:
     ``p0`` (Pa) and ``u0`` (m^3/s) at the reference plane, ``temperature_c`` (degC per
     sample), all after the 7.25 kHz low-pass; the noise propagated from the microphones:
     ``u_noise_freq_hz`` (Hz), ``u_noise_psd`` ((m^3/s)^2/Hz) and ``p_noise_psd`` (Pa^2/Hz),
-    one-sided power spectral densities at the mouthpiece entry.
+    one-sided power spectral densities at the mouthpiece entry; ``theta_level`` and
+    ``theta_level_se``, the separation's take-level theta and its standard errors (as
+    ``mpipe run`` writes them). Written block by block (the block path of ``mpipe run``:
+    the take's pressures, then the reference-plane signals, go to disk as they are made).
 
 The take is resampled to ``--sample-rate`` (the pipeline's ``inversion.sample_rate``,
 100 kHz by default) when it was recorded at another rate. The exit status is 1 when the

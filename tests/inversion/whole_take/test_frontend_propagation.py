@@ -107,3 +107,27 @@ def test_linear_propagation_agrees_with_the_refits_of_the_reseparated_take(short
         lin, ref = (math.hypot(*(d[i] for d in got[m].values())) for m in got)
         assert ref > 0.005, q  # the component is there to compare (0.5 % of q)
         assert lin == pytest.approx(ref, rel=0.35), q
+
+
+def test_the_budget_gets_its_frontend_columns_from_the_linear_propagation(short_take):
+    # shared_components on a table of two ok windows (the truth as their estimate): the
+    # columns are |q| times the linear method's quadrature over theta
+    import pandas as pd
+
+    from mpipe.inversion.whole_take.shared_errors import shared_components
+
+    cal, fs, tr, front, truth = short_take
+    config = dataclasses.replace(InversionConfig(), sample_rate=fs)
+    values = {k: getattr(truth, k) for k in ("k", "S", "y_m", "p_m", "lam", "m", "g", "k_c")}
+    table = pd.DataFrame([{**values, "y_c": truth.y_c, "alpha": truth.alpha, "status": "ok",
+                           "t_start_s": t} for t in (0.3, 0.4)])  # fmt: skip
+    kc = float(np.mean(tr.temperature_c))
+    out, record = shared_components(tr.p, tr.u, fs, table, cal, config, zero_mean=True,
+                                    kernel_c=kc, refit_kernel=True, front=front)  # fmt: skip
+    assert set(record["frontend"]) == set(fp.FRONTEND_NAMES)
+    refit = _Refit(fs, cal, config, True, [int(round(t * fs)) for t in (0.3, 0.4)], [truth] * 2)
+    sens = frontend_linear(tr.p, tr.u, cal, front, refit, kernel_c=kc, refit_kernel=True)
+    i = QUANTITIES.index("p_m")
+    rel = math.sqrt(sum(d[i] ** 2 for d in sens.values()))
+    assert out["p_m_se_frontend"].tolist() == pytest.approx([truth.p_m * rel] * 2)
+    assert 0 < rel < 0.2
