@@ -52,6 +52,7 @@ ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 import bench_foreign as bf  # noqa: E402
 import foreign_sim as fsim  # noqa: E402
+from headline import record  # noqa: E402
 
 CAL = ROOT / "calibration" / "simplified_clarinet.yaml"
 HOLES = ROOT / "calibration" / "four_hole_clarinet.yaml"
@@ -537,6 +538,11 @@ def targets(cases: list[Case]) -> list[tuple[str, str, bool]]:
         ("must-fail: >= 95 % FAIL/CHECK with cause", f"{len(caught)} of {len(bad)}",
          len(caught) >= 0.95 * max(len(bad), 1)),
     ]  # fmt: skip
+    good_n, bad_n = max(len(good), 1), max(len(bad), 1)
+    record("verdicts: correct takes FAIL", 100 * n_fail / good_n, "%", target="<= 0")
+    record("verdicts: correct takes CHECK", 100 * n_check / good_n, "%", target="<= 5")
+    record("verdicts: must-fail caught with cause", 100 * len(caught) / bad_n, "%",
+           target=">= 95")  # fmt: skip
     print("\ntargets (issue 38)")
     for name, value, met in rows:
         print(f"  {'met   ' if met else 'MISSED'} {name}: {value}")
