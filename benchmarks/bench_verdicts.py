@@ -6,7 +6,7 @@ Usage: ``.venv/bin/python benchmarks/bench_verdicts.py [--quick] [--only correct
 
 **Correct takes** are played by two simulators and read through ``mpipe run`` as a user runs
 it (a subprocess, the shipped pipeline, ``--accept-failed-validation`` so that every stage's
-verdict is seen, not only the first):
+verdict is seen, not only the first; must-fail takes without it, as a user runs them):
 
 - mpipe's own virtual takes (``mpipe synth-take``, Table 1 reed): a steady note, the shipped
   crescendo, vibrato and tongued phrase, a diminuendo to near the threshold, a soft note
@@ -228,7 +228,7 @@ def run(cmd: list[str], take: Path, saved_name: str = "bench_verdict.json") -> d
 
 
 def run_take(files, folder: Path, label: str, rate: str, workers: int, extra: dict,
-             reuse: bool) -> tuple[dict, Path]:  # fmt: skip
+             reuse: bool, accept: bool = True) -> tuple[dict, Path]:  # fmt: skip
     out = folder / "runs" / label
     take = out / files.audio.stem
     saved = take / "bench_verdict.json"
@@ -236,8 +236,9 @@ def run_take(files, folder: Path, label: str, rate: str, workers: int, extra: di
         return json.loads(saved.read_text()), take
     pipe = pipeline(folder, files.calibration, rate, workers, f"{files.audio.stem}_{label}", extra)
     cmd = [sys.executable, "-m", "mpipe.cli.main", "run", str(pipe), str(files.audio),
-           "--calibration", str(files.calibration), "-o", str(out), "--force",
-           "--accept-failed-validation"]  # fmt: skip
+           "--calibration", str(files.calibration), "-o", str(out), "--force"]  # fmt: skip
+    if accept:  # correct takes: every stage's verdict is seen, not only the first
+        cmd.append("--accept-failed-validation")
     return run(cmd, take), take
 
 
@@ -432,7 +433,9 @@ def run_case(case: Case, folder: Path, args) -> Case:
         ran, take = run_invert(base_take, folder, case.fault, args.workers, args.reuse)
     elif case.fault:
         new, extra = faulted(files, folder, case.fault)
-        ran, take = run_take(new, folder, label, case.rate, args.workers, extra, args.reuse)
+        ran, take = run_take(
+            new, folder, label, case.rate, args.workers, extra, args.reuse, accept=False
+        )  # a user's run: stops at a failed validation
     else:
         ran, take = run_take(files, folder, label, case.rate, args.workers, {}, args.reuse)
     v = verdicts(take, ran)
