@@ -160,6 +160,9 @@ def note_budget(windows: pd.DataFrame, name: str) -> dict[str, float]:
         total = math.nan  # no statistical part: no combined SE
     out[f"{name}_se"] = total
     out.update({f"{name}_se_{c}": v for c, v in comps.items()})
+    if f"{name}_se_scale" in windows:
+        # the absolute scale's assumed share (an unstated calibration): beside the budget
+        out[f"{name}_se_scale"] = _median(_numbers(windows, f"{name}_se_scale")[keep])
     out[f"{name}_n_eff"] = n_eff
     out[f"{name}_window_se"] = _median(_numbers(windows, f"{name}_se")[keep])
     return out
