@@ -27,6 +27,7 @@ window as ``<q>_se_<component>`` (same unit as q) for every parameter and combin
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -45,6 +46,8 @@ from mpipe.measurement.separation.perturbation import reseparate
 from mpipe.measurement.separation.settings import SeparationConfig
 from mpipe.measurement.translation import TranslationConfig, translate
 from mpipe.reed.parameters import ReedParameters
+
+logger = logging.getLogger(__name__)
 
 #: Quantities with take-wide components.
 QUANTITIES = (*SE_PARAMETERS, *COMBINATION_NAMES)
@@ -176,7 +179,11 @@ def _logs(refit: _Refit, p, u, t: float) -> tuple[float, np.ndarray]:
         out = invert_window(p, u, refit.fs, start, kernel, air.rho, refit.config,
                             zero_mean=refit.zero_mean, warm=warm, errors=False)  # fmt: skip
         if out.reed is None or not math.isfinite(out.row["f2"]):
-            return math.nan, np.full((len(refit.starts), len(QUANTITIES)), np.nan)
+            # this window's re-fit failed: its row is NaN (left out of the median over
+            # windows, never a zero change) and the summed residual has no minimum
+            total = math.nan
+            logs.append(np.full(len(QUANTITIES), np.nan))
+            continue
         total += float(out.row["f2"]) ** 2
         values = {k: float(getattr(out.reed, k)) for k in (*PARAMETER_NAMES, "y_c")}
         values.update(combination_values(values, kernel.z0, air.rho))
@@ -240,7 +247,17 @@ def frontend_sensitivity(
         dt = se if name == "temperature" else 0.0
         tp, tu = _translated(p0, u0, fs, calibration, front, dt)
         logs = _at_kernel_minimum(refit, p + tp - base_p, u + tu - base_u, kernel_c, refit_kernel)
-        out[name] = np.nanmedian(logs - base, axis=0)
+        out[name] = _median_over_windows(logs - base)
+    return out
+
+
+def _median_over_windows(d: np.ndarray) -> np.ndarray:
+    """Median over the windows (rows) of their finite changes; NaN where none is finite."""
+    out = np.full(d.shape[1], np.nan)
+    for j in range(d.shape[1]):
+        col = d[:, j][np.isfinite(d[:, j])]
+        if col.size:
+            out[j] = float(np.median(col))
     return out
 
 
@@ -251,16 +268,27 @@ def _translated(p0, u0, fs, calibration, front: FrontEnd, dt: float):
 
 
 def frontend_columns(table: pd.DataFrame, sensitivity: dict[str, np.ndarray]) -> pd.DataFrame:
-    """``<q>_se_frontend`` = ``|q| sqrt(sum over theta of (d ln q per SE)^2)`` per window."""
+    """``<q>_se_frontend`` = ``|q| sqrt(sum over theta of (d ln q per SE)^2)`` per window.
+
+    A sensitivity that is not finite (every re-fit of that parameter failed) makes the
+    component NaN, not measured, for that quantity: mpipe <= 0.5 left it out of the sum,
+    counting a failed re-fit as no effect at all (issue 38). :func:`failed_refits` names
+    such parameters for the record.
+    """
     out = table.copy()
     for i, name in enumerate(QUANTITIES):
         if name not in out:
             continue
         d = np.array([s[i] for s in sensitivity.values()], dtype=float)
-        rel = float(np.sqrt(np.sum(d[np.isfinite(d)] ** 2)))
+        rel = float(np.sqrt(np.sum(d**2))) if np.all(np.isfinite(d)) else math.nan
         x = pd.to_numeric(out[name], errors="coerce").to_numpy(dtype=float)
         out[f"{name}_se_frontend"] = np.abs(x) * rel
     return out
+
+
+def failed_refits(sensitivity: dict[str, np.ndarray]) -> list[str]:
+    """The front-end parameters whose re-fits failed for some quantity (not measured)."""
+    return [name for name, d in sensitivity.items() if not np.all(np.isfinite(d))]
 
 
 def shared_components(
@@ -325,6 +353,11 @@ def shared_components(
                    names=names)  # fmt: skip
     sens = frontend_sensitivity(p, u, calibration, front, refit, kernel_c=kernel_c,
                                 refit_kernel=refit_kernel)  # fmt: skip
+    failed = failed_refits(sens)
+    if failed:
+        logger.warning("front-end component not measured: the re-fits of %s failed (NaN)",
+                       ", ".join(failed))  # fmt: skip
+        record["frontend_failed"] = failed
     record["frontend"] = {
         name: {
             "se": float(front.level_se[FRONTEND_NAMES.index(name)]),
@@ -344,6 +377,7 @@ __all__ = [
     "QUANTITIES",
     "SCALE_EXPONENTS",
     "calibration_columns",
+    "failed_refits",
     "frontend_columns",
     "frontend_sensitivity",
     "sensitivity_se_db",

@@ -13,8 +13,11 @@ from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
 from mpipe.inversion.trust.budget import combine
 from mpipe.inversion.trust.combinations import combination_values
 from mpipe.inversion.whole_take.shared_errors import (
+    QUANTITIES,
     SCALE_EXPONENTS,
     calibration_columns,
+    failed_refits,
+    frontend_columns,
     sensitivity_se_db,
     shared_components,
 )
@@ -90,3 +93,16 @@ def test_an_unstated_calibration_stays_out_of_the_error_bars(shipped_calibration
     rel = math.log(10) / 20 * 0.05
     assert "p_m_se_scale" not in out and record["sensitivity_se_db"] == 0.05
     assert combine(out, 0.1)["p_m_se"].iloc[0] == pytest.approx(math.hypot(9.0, 1800 * rel))
+
+
+def test_a_failed_front_end_refit_is_not_counted_as_no_effect():
+    # issue 38: a parameter whose re-fits all failed (NaN sensitivity) was left out of the
+    # root sum of squares, i.e. counted as 0; it must leave the component NaN (not measured)
+    table = pd.DataFrame({"p_m": [1800.0], "p_M": [3000.0]})
+    nan = np.full(len(QUANTITIES), np.nan)
+    good = np.full(len(QUANTITIES), 0.01)
+    out = frontend_columns(table, {"temperature": good, "eta": nan})
+    assert np.isnan(out["p_m_se_frontend"].iloc[0]) and np.isnan(out["p_M_se_frontend"].iloc[0])
+    assert failed_refits({"temperature": good, "eta": nan}) == ["eta"]
+    both = frontend_columns(table, {"temperature": good, "eta": 2 * good})
+    assert both["p_m_se_frontend"].iloc[0] == pytest.approx(1800 * math.hypot(0.01, 0.02))
