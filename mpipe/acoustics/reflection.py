@@ -47,7 +47,8 @@ class ReflectionFunction:
     acausal_energy : float
         Energy of the untruncated response in negative time, relative to the total.
     dc_reflectance : float
-        R(0) of the bore (before truncation).
+        R(0) of the bore (before truncation); ``h.sum()`` equals it (the truncated tail's
+        DC sum is restored, so the model's DC input impedance is the bore's).
     max_error_db : float
         Largest |Z| error, dB, between the truncated response and the exact reflectance
         in the verification band, over bins where |Z| >= Z0. For a measured bore, the
@@ -170,7 +171,7 @@ def reflection_function(
     # A measured bore's R carries the measurement's noise, which the truncation removes:
     # its in-band difference is recorded (the stated error), not a numerical failure.
     while True:
-        h = _truncate(causal, n_taps)
+        h = _with_dc(_truncate(causal, n_taps), float(r[0].real))
         error_db, error_r = _verify(h, r, freqs, n_fft, check_fmin_hz, check_band_hz)
         if error_db <= max_error_db or n_taps >= n_max or measured:
             break
@@ -201,6 +202,22 @@ def _truncate(causal: np.ndarray, n_taps: int) -> np.ndarray:
     n_fade = max(n_taps // 10, 1)
     h[-n_fade:] *= 0.5 * (1 + np.cos(np.pi * np.arange(1, n_fade + 1) / n_fade))
     return h
+
+
+def _with_dc(h: np.ndarray, dc: float) -> np.ndarray:
+    """``h`` with the DC sum of its discarded tail restored: ``sum(h) == dc``.
+
+    The response's slow tail (the bore's losses at the lowest frequencies) holds almost no
+    energy, so the energy criterion cuts it at a length that jumps with the rate (47-153 ms
+    on the shipped bore), but it carries 0.2-0.5 % of R(0): without it the model's DC input
+    impedance, (1 + sum h) / (1 - sum h), was 1.3-1.75 times the bore's, a different factor
+    at every rate, and with it the mouthpiece's mean pressure and p_m (a soft note's p_m
+    moved by -6.6 % at 96 kHz, issue 38). The missing sum is put back as a Hann-shaped
+    bump over the whole response: its spectrum lies below about 2 / duration (40 Hz for
+    50 ms), under the band the model is checked and fitted in.
+    """
+    bump = np.hanning(h.size + 2)[1:-1]
+    return h + (dc - float(np.sum(h))) * bump / float(np.sum(bump))
 
 
 def _verify(h, r, freqs, n_fft, fmin_hz, fmax_hz) -> tuple[float, float]:

@@ -95,7 +95,12 @@ def _uncertainty_columns() -> list[Column]:
     cols += [Column(component_column(n, c), FLOAT, unit_of(n),
                     f"{c} component of {n}'s standard uncertainty: {_COMPONENT_MEANINGS[c]}")
              for n in names for c in COMPONENTS]  # fmt: skip
-    cols += [_col(f"determined_{n}", FLAG, f"{n}'s relative SE is below determined_limit")
+    cols += [Column(f"{n}_se_scale", FLOAT, unit_of(n),
+                    f"{n}'s share of the absolute scale's assumed uncertainty (a calibrator's "
+                    "typical 0.15 dB) when the calibration states none; not in its _se")
+             for n in names]  # fmt: skip
+    cols += [_col(f"determined_{n}", FLAG,
+                  f"{n}'s within-take relative SE is below determined_limit")
              for n in names]  # fmt: skip
     return [
         *cols,

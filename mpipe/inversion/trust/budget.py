@@ -21,9 +21,12 @@ What a value of a component column means:
   and the combined one is NaN too;
 - inf: the data do not determine q; the combined one is inf.
 
-Take-wide components (temperature, and those of the front end and the calibration) are the
-same for every window of a take: pooling windows into a note must add them once, never
-divide them by sqrt(n).
+Take-wide components (rate, temperature, and those of the front end and the calibration)
+are the same for every window of a take: pooling windows into a note must add them once,
+never divide them by sqrt(n). They are not the window's: a window's status and its
+``determined_<q>`` judge the **within-take** uncertainty (:data:`WITHIN_TAKE`, noise and
+model form, :func:`within_take`), so no quantity is called undetermined because of an error
+every window of the take shares (issue 38).
 """
 
 from __future__ import annotations
@@ -52,6 +55,8 @@ QUANTITIES = (*SE_PARAMETERS, *COMBINATION_NAMES)
 
 #: Components computed per window (the others are shared by a take or a note).
 WINDOW_COMPONENTS = ("noise", "model")
+#: The components a window's status and ``determined_<q>`` judge: the within-take ones.
+WITHIN_TAKE = WINDOW_COMPONENTS
 
 
 def component_column(quantity: str, component: str) -> str:
@@ -86,19 +91,31 @@ def combined(components: Mapping[str, float]) -> float:
     return math.sqrt(total)
 
 
+def within_take(row: Mapping, quantity: str) -> float:
+    """One window's within-take SE of ``quantity``: its :data:`WITHIN_TAKE` components.
+
+    Falls back to ``<q>_se`` when the row has no ``<q>_se_noise`` (a table made before the
+    budget). NaN: no SE; inf: undetermined by the window's data.
+    """
+    if component_column(quantity, "noise") not in row:
+        return _float(row.get(f"{quantity}_se", math.nan))
+    return combined({c: _float(row.get(component_column(quantity, c), math.nan))
+                     for c in WITHIN_TAKE})  # fmt: skip
+
+
 def combine_row(row: MutableMapping, limit: float, values: Mapping | None = None) -> None:
     """Set ``<q>_se`` and ``determined_<q>`` of one window's row from its components.
 
     ``row`` holds ``<q>_se_<component>`` for the components it has, and q itself unless
-    ``values`` gives it; q stays determined when its combined SE over ``|q|`` is below
-    ``limit``.
+    ``values`` gives it; q stays determined when its within-take SE (:func:`within_take`)
+    over ``|q|`` is below ``limit``.
     """
     values = {**row, **(values or {})}
     for q in QUANTITIES:
         parts = {c: row[component_column(q, c)] for c in COMPONENTS
                  if component_column(q, c) in row}  # fmt: skip
-        se = combined(parts)
-        row[f"{q}_se"] = se
+        row[f"{q}_se"] = combined(parts)
+        se = within_take(row, q)
         value = _float(values.get(q, math.nan))
         det = f"determined_{q}"
         if det in row:
@@ -127,8 +144,8 @@ def combine(table: pd.DataFrame, limit: float) -> pd.DataFrame:
     -------
     pandas.DataFrame
         A copy; a quantity without a noise column is left as it was. ``determined_<q>``
-        can only turn false (the data decide what is determined, the combination whether
-        it is still within the limit).
+        can only turn false (the data decide what is determined, the within-take SE
+        whether it is still within the limit; a take-wide component never turns it).
     """
     out = table.copy()
     for q in QUANTITIES:
@@ -136,22 +153,27 @@ def combine(table: pd.DataFrame, limit: float) -> pd.DataFrame:
         if noise_col not in out or q not in out:
             continue
         noise = pd.to_numeric(out[noise_col], errors="coerce").to_numpy(dtype=float)
-        total = np.zeros(len(out))
-        for c in COMPONENTS:
-            col = component_column(q, c)
-            if col not in out:
-                continue
-            v = pd.to_numeric(out[col], errors="coerce").to_numpy(dtype=float)
-            total += np.where(np.isnan(v), 0.0, v * v)
-        se = np.where(np.isnan(noise), np.nan, np.sqrt(total))
-        out[f"{q}_se"] = se
+        out[f"{q}_se"] = _root_sum_square(out, q, COMPONENTS, noise)
         det = f"determined_{q}"
         if det in out:
+            se = _root_sum_square(out, q, WITHIN_TAKE, noise)
             x = np.abs(pd.to_numeric(out[q], errors="coerce").to_numpy(dtype=float))
             with np.errstate(invalid="ignore", divide="ignore"):
                 within = np.isfinite(se) & (se / x < limit)
             out[det] = out[det].astype(bool).to_numpy() & within
     return out
+
+
+def _root_sum_square(table: pd.DataFrame, q: str, components, noise: np.ndarray) -> np.ndarray:
+    """The root sum of squares of ``components`` of ``q`` (NaN where the noise is NaN)."""
+    total = np.zeros(len(table))
+    for c in components:
+        col = component_column(q, c)
+        if col not in table:
+            continue
+        v = pd.to_numeric(table[col], errors="coerce").to_numpy(dtype=float)
+        total += np.where(np.isnan(v), 0.0, v * v)
+    return np.where(np.isnan(noise), np.nan, np.sqrt(total))
 
 
 def budget_columns(components=COMPONENTS) -> tuple[str, ...]:
@@ -163,9 +185,11 @@ __all__ = [
     "COMPONENTS",
     "QUANTITIES",
     "WINDOW_COMPONENTS",
+    "WITHIN_TAKE",
     "budget_columns",
     "combine",
     "combine_row",
     "combined",
     "component_column",
+    "within_take",
 ]

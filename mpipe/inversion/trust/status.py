@@ -18,9 +18,12 @@ sanity checks. Otherwise, in order of precedence:
     than the free parameters (``dof = n_eff - p < 1``): it cannot measure the noise, and
     the standard errors, computed with one degree of freedom, are rough.
 ``undetermined``
-    The window's p_m or p_M (those searched) has no finite combined standard error: the data
-    do not determine it (a null direction), so its value cannot be reported as measured
-    (``status_reason`` says which).
+    None of the window's p_m and p_M (those searched) has a finite within-take standard
+    error (noise and model form, :func:`mpipe.inversion.trust.budget.within_take`): the
+    data determine neither. "Undetermined" belongs to the quantity: a window whose p_M
+    alone has no finite SE stays ``ok`` for its p_m (``determined_p_M`` is false and
+    ``status_reason`` names p_M), and a take-wide component (rate, temperature, front end,
+    calibration) never makes a window undetermined (issue 38).
 ``high-residual``
     The window's residual is not explained by its noise plus its note's own model-form
     level. Each window's residual is split at the note's harmonics
@@ -37,7 +40,14 @@ sanity checks. Otherwise, in order of precedence:
     played (a whole note in a wrong basin has no better window to compare with). And a
     window is high-residual when its relative residual exceeds ``residual_factor`` x that of
     a neighbour of its note (the window before or after it): a model mismatch changes
-    smoothly from window to window, a wrong basin does not. This catches a wrong minimum
+    smoothly from window to window, a wrong basin does not. Two guards keep the
+    comparison from firing on a window that merely sits beside an unusually good one:
+    the difference of the two residuals must exceed :data:`NEIGHBOUR_SD` times its sampling
+    standard deviation
+    (a residual of ``n_eff`` effective samples has a relative SD of ``1 / sqrt(2 n_eff)``),
+    and another minimum must show in the estimates: p_m or p_M must differ from the
+    neighbour's by more than :data:`NEIGHBOUR_SE` within-take SEs of the difference
+    (when both have finite SEs). This catches a wrong minimum
     whose misfit falls between the measured harmonics (the model's period differs), where
     the split counts it as noise, and a note with too few windows for a robust level.
 
@@ -53,6 +63,7 @@ import numpy as np
 import pandas as pd
 
 from mpipe.inversion.settings import InversionConfig
+from mpipe.inversion.trust.budget import within_take
 
 #: The statuses, best first.
 STATUSES = (
@@ -74,6 +85,13 @@ MIN_NOTE = 4
 
 #: Robust standard deviations (1.4826 MAD) above the note's median model-form level.
 MAD_FACTOR = 5.0
+#: Sampling SDs by which a residual must exceed ``residual_factor`` x its neighbour's.
+NEIGHBOUR_SD = 3.0
+#: Within-take SEs of the difference by which a window's p_m or p_M must differ from its
+#: neighbour's to be another minimum (a wrong basin in the batch test moved p_m by 15 %,
+#: hundreds of SEs; a steady clean note's window at +0.05 % was flagged by the residual
+#: ratio alone, issue 38).
+NEIGHBOUR_SE = 4.0
 
 
 def required_quantities(config: InversionConfig) -> tuple[str, ...]:
@@ -186,12 +204,16 @@ def window_status(row: dict, required: tuple[str, ...] = ("p_m", "p_M")) -> tupl
             status = "low-dof" if status == "ok" else status
             reasons.append(f"dof = {dof:.3g} < 1: the residual cannot measure the noise, SEs rough")
         if math.isfinite(dof):
-            bad = [q for q in required if not math.isfinite(_number(row.get(f"{q}_se")))]
-            if bad:
+            bad = [q for q in required if not math.isfinite(within_take(row, q))]
+            if bad and len(bad) == len(required):
                 status = "undetermined" if status == "ok" else status
+            if bad:
                 reasons.append(
-                    f"no finite standard error for {', '.join(bad)}: not determined by the data"
-                )
+                    f"no finite within-take standard error for {', '.join(bad)}: "
+                    "not determined by the data"
+                    + ("" if len(bad) == len(required) else
+                       f" (the window's {', '.join(q for q in required if q not in bad)} stands)")
+                )  # fmt: skip
     return status, "; ".join(reasons)
 
 
@@ -228,7 +250,9 @@ def classify(table: pd.DataFrame, config: InversionConfig, segments=None) -> pd.
     reasons = [r for _, r in provisional]
     rr = _column(out, "relative_residual")
     allowed = _allowed_model_residual(out, status, config, segments)
-    neighbour = _neighbour_residual(rr, status, out, segments)
+    neighbour, nearest = _neighbour_residual(rr, status, out, segments)
+    records = out.to_dict("records")
+    n_eff = _column(out, "n_eff")
     mr, nr = _column(out, "model_residual"), _column(out, "noise_residual")
     for i, value in enumerate(rr):
         if status[i] == "failed":
@@ -245,7 +269,9 @@ def classify(table: pd.DataFrame, config: InversionConfig, segments=None) -> pd.
                 f"(max of {config.residual_factor:g} x median, median + {MAD_FACTOR:g} MAD), "
                 f"and > its noise residual {nr[i]:.3g}"
             )
-        elif value > config.residual_factor * neighbour[i]:
+        elif value > config.residual_factor * neighbour[i] and _another_minimum(
+            records, i, nearest[i], required, n_eff, rr
+        ):
             why = (
                 f"relative residual {value:.3g} > {config.residual_factor:g} x its neighbour's "
                 f"{neighbour[i]:.3g} in the note: another minimum"
@@ -264,18 +290,44 @@ def _column(table: pd.DataFrame, name: str) -> np.ndarray:
     return pd.to_numeric(table[name], errors="coerce").to_numpy(dtype=float)
 
 
-def _neighbour_residual(rr, status, table, segments) -> np.ndarray:
-    """The smaller relative residual of each window's neighbours in its note (inf: none)."""
+def _neighbour_residual(rr, status, table, segments) -> tuple[np.ndarray, np.ndarray]:
+    """Each window's neighbour in its note with the smaller relative residual.
+
+    Returns that residual (inf: none) and the neighbour's row (-1: none).
+    """
     if segments is None:
         segments = table["segment"] if "segment" in table else np.zeros(len(table), dtype=int)
     seg = pd.to_numeric(pd.Series(list(segments)), errors="coerce").fillna(-1).to_numpy()
     usable = np.array([s != "failed" for s in status]) & np.isfinite(rr)
     out = np.full(rr.size, np.inf)
+    which = np.full(rr.size, -1)
     for i in range(rr.size):
         for j in (i - 1, i + 1):
-            if 0 <= j < rr.size and usable[j] and seg[j] == seg[i]:
-                out[i] = min(out[i], rr[j])
-    return out
+            if 0 <= j < rr.size and usable[j] and seg[j] == seg[i] and rr[j] < out[i]:
+                out[i], which[i] = rr[j], j
+    return out, which
+
+
+def _another_minimum(records, i, j, required, n_eff, rr) -> bool:
+    """Whether window i is in another minimum than its better neighbour j.
+
+    Its residual above j's must be beyond their sampling noise and its estimates must
+    differ from j's beyond their SEs (see the module docstring).
+    """
+    if j < 0:
+        return False
+    # the relative residual of n_eff effective samples has a relative SD 1 / sqrt(2 n_eff)
+    sd = math.hypot(rr[i], rr[j]) / math.sqrt(2.0 * max(n_eff[i], 1.0))
+    if math.isfinite(sd) and rr[i] - rr[j] <= NEIGHBOUR_SD * sd:
+        return False
+    jumps = []
+    for q in required:
+        xi, xj = _number(records[i].get(q)), _number(records[j].get(q))
+        se = math.hypot(within_take(records[i], q), within_take(records[j], q))
+        if math.isfinite(xi) and math.isfinite(xj) and math.isfinite(se) and se > 0:
+            jumps.append(abs(xi - xj) / se)
+    # without SEs the residual alone decides (the rule as it was)
+    return not jumps or max(jumps) > NEIGHBOUR_SE
 
 
 def _allowed_model_residual(table, status, config, segments) -> np.ndarray:
@@ -316,6 +368,8 @@ def summary_line(table: pd.DataFrame) -> str:
 __all__ = [
     "MAD_FACTOR",
     "MIN_NOTE",
+    "NEIGHBOUR_SD",
+    "NEIGHBOUR_SE",
     "RETRIED",
     "STATUSES",
     "classify",

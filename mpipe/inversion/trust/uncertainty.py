@@ -84,6 +84,15 @@ DIFF_STEP = 1e-4
 #: direction at about 1e-4 of the largest singular value; an identifiable direction of
 #: step 2 sits well above 1e-3 (measured on the Table 1 reed).
 RCOND = 1e-3
+#: Singular values below this fraction of the largest mark an *exact* invariance: a forward
+#: difference of step 1e-4 leaves one near 1e-4 of the largest, exact sensitivities far
+#: below. Between this and :data:`RCOND` a direction is weakly determined, not invisible: a
+#: quantity with a component along it gets the sandwich's (large, finite) SE from that
+#: direction's own singular value instead of inf. mpipe <= 0.5 gave inf for any component
+#: above 1e-3 of the quantity's exponents, so p_M = k y_m of a reed that barely touches y_c
+#: (a near scale invariance whose direction does not cancel in k y_m to 1e-3) was inf while
+#: p_M was within 0.4 % (issue 38).
+EXACT_NULL = 3e-4
 
 #: Parameters that may carry a standard error, in the table's order.
 SE_PARAMETERS = ("k", "S", "y_m", "p_m", "m", "g", "lam", "k_c", "y_c")
@@ -185,26 +194,40 @@ class Covariance:
     cov_model: np.ndarray | None = None
     noise_residual: float = math.nan
     model_residual: float = math.nan
+    exact_null: np.ndarray | None = None
+    cov_full: np.ndarray | None = None
+    cov_model_full: np.ndarray | None = None
 
     def log_se(self, exponents: np.ndarray, tol: float = 1e-3) -> float:
         """Standard error of ``e . ln x`` (the noise component).
 
-        Infinite when ``e`` has a component along a null direction larger than ``tol``
-        times its norm.
+        Infinite when ``e`` has a component larger than ``tol`` times its norm along an
+        exactly invariant direction (``exact_null``; all of ``null`` when it is not given).
+        Along a weakly determined null direction (singular value between
+        :data:`EXACT_NULL` and :data:`RCOND` times the largest) the SE is the sandwich's
+        over every measurable direction (``cov_full``): large for a quantity that lies
+        along it, barely changed for one that only grazes it.
         """
         e = np.asarray(exponents, dtype=float)
         norm = float(np.linalg.norm(e))
         if norm == 0:
             return 0.0
-        if self.null.size and np.max(np.abs(self.null @ e)) > tol * norm:
+        exact = self.null if self.exact_null is None else self.exact_null
+        if exact.size and np.max(np.abs(exact @ e)) > tol * norm:
             return math.inf
-        return math.sqrt(max(float(e @ self.cov @ e), 0.0))
+        cov = self.cov
+        if self.null.size and np.max(np.abs(self.null @ e)) > tol * norm:
+            if self.cov_full is None:
+                return math.inf
+            cov = self.cov_full
+        return math.sqrt(max(float(e @ cov @ e), 0.0))
 
     def model_form(self) -> Covariance | None:
         """The model-form component as a covariance of its own (None when it does not apply)."""
         if self.cov_model is None:
             return None
-        return dataclasses.replace(self, cov=self.cov_model, cov_model=None)
+        return dataclasses.replace(self, cov=self.cov_model, cov_full=self.cov_model_full,
+                                   cov_model=None, cov_model_full=None)  # fmt: skip
 
     def correlation(self) -> np.ndarray:
         """Correlation matrix of ``ln x`` over the determined directions.
@@ -298,12 +321,15 @@ def covariance(
     dof = n_eff - p
     sigma = float(np.linalg.norm(r)) / math.sqrt(max(dof, 1.0))
     _, sv, vt = np.linalg.svd(j, full_matrices=False)
-    keep = sv > rcond * (sv[0] if sv.size and sv[0] > 0 else 1.0)
+    top = sv[0] if sv.size and sv[0] > 0 else 1.0
+    keep = sv > rcond * top
+    measurable = sv > EXACT_NULL * top
     a_inv = (vt[keep].T / sv[keep] ** 2) @ vt[keep]
+    a_full = (vt[measurable].T / sv[measurable] ** 2) @ vt[measurable]
     gram, excess, n_eff, dof, extra = residual_grams(j, r, pressure, fs, floor, n_eff, dof)
     if excess is not None:
-        cov_model = a_inv @ excess @ a_inv
-        extra["cov_model"] = 0.5 * (cov_model + cov_model.T)
+        extra["cov_model"] = _sandwich(a_inv, excess)
+        extra["cov_model_full"] = _sandwich(a_full, excess)
     cov = a_inv @ gram @ a_inv
     return Covariance(
         names=tuple(names),
@@ -315,8 +341,15 @@ def covariance(
         tau=tau,
         n_eff=n_eff,
         dof=dof,
+        exact_null=vt[~measurable],
+        cov_full=_sandwich(a_full, gram),
         **extra,
     )
+
+
+def _sandwich(a_inv: np.ndarray, gram: np.ndarray) -> np.ndarray:
+    out = a_inv @ gram @ a_inv
+    return 0.5 * (out + out.T)
 
 
 def residual_grams(
@@ -385,6 +418,7 @@ def scale_direction(names: Sequence[str], alpha: float = 2.0) -> np.ndarray:
 __all__ = [
     "Covariance",
     "DIFF_STEP",
+    "EXACT_NULL",
     "RCOND",
     "SE_PARAMETERS",
     "SPECTRUM_BINS",

@@ -28,6 +28,12 @@ from mpipe.inversion.trust.combinations import (
 )
 from mpipe.inversion.trust.uncertainty import SE_PARAMETERS, Covariance, scale_direction
 
+#: The note of a window whose model-form component could not be measured.
+MODEL_FORM_NOT_MEASURED = (
+    "model form not measured (<q>_se_model NaN): the window has no period at which to split "
+    "the residual into noise and misfit at the harmonics; its SEs hold the noise alone"
+)
+
 
 def window_uncertainty(
     cov: Covariance | None,
@@ -101,6 +107,9 @@ def window_uncertainty(
         row["noise_residual"] = cov.noise_residual
         row["model_residual"] = cov.model_residual
         notes += _covariance_notes(cov, free, scaled, scale_gauge, alpha)
+        if cov.cov_model is None:
+            # never a silent zero: the component is NaN and the window says why
+            notes.append(MODEL_FORM_NOT_MEASURED)
     for name, reason in invalid.items():
         notes.append(f"{name}: no valid SE ({reason})")
     row["uncertainty_note"] = "; ".join(notes)
@@ -208,6 +217,7 @@ def correlation_records(
 
 __all__ = [
     "CORRELATION_COLUMNS",
+    "MODEL_FORM_NOT_MEASURED",
     "correlation_records",
     "uncertainty_columns",
     "window_uncertainty",

@@ -8,7 +8,11 @@ window as ``<q>_se_<component>`` (same unit as q) for every parameter and combin
   ``p, u, p_m, k, S, m, k_c -> a (...)``, ``lam -> sqrt(a) lam``, ``y_m, g, y_c`` unchanged
   (:data:`SCALE_EXPONENTS`, derived in the docs), so ``se(ln q) = |e_q| se(ln a)``, with
   ``se(ln a) = ln(10) / 20 * se_dB`` the reference microphone's stated sensitivity
-  uncertainty (:func:`sensitivity_se_db`).
+  uncertainty (:func:`sensitivity_se_db`). Only a stated uncertainty enters the budget.
+  When the calibration states none, nothing measured bounds the absolute scale: the
+  component is absent, and the typical uncertainty of a calibrator
+  (:data:`ASSUMED_SENSITIVITY_SE_DB`) goes to a column of its own, ``<q>_se_scale``, outside
+  ``<q>_se`` (issue 38: an unstated calibration added 1.73 % of p_m to every window).
 - ``frontend``: the separation's take-level estimate of theta (temperature, losses, Mach
   number, position of the middle microphone) has standard errors. Each is propagated
   linearly on the windows' own spans (:func:`frontend_linear`,
@@ -23,6 +27,7 @@ window as ``<q>_se_<component>`` (same unit as q) for every parameter and combin
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -43,14 +48,18 @@ from mpipe.measurement.separation.settings import SeparationConfig
 from mpipe.measurement.translation import TranslationConfig, translate
 from mpipe.reed.parameters import ReedParameters
 
+logger = logging.getLogger(__name__)
+
 #: Quantities with take-wide components.
 QUANTITIES = (*SE_PARAMETERS, *COMBINATION_NAMES)
 #: d ln q / d ln a for a common scale a of p and u, the contact point y_c held.
 SCALE_EXPONENTS = {"k": 1.0, "S": 1.0, "y_m": 0.0, "p_m": 1.0, "m": 1.0, "g": 0.0,
                    "lam": 0.5, "k_c": 1.0, "y_c": 0.0, "p_M": 1.0, "gamma": 0.0,
                    "zeta": 0.0, "f_r": 0.0, "Q_r": 0.0}  # fmt: skip
-#: Standard uncertainty of a microphone's sensitivity when the calibration states none, dB.
-DEFAULT_SENSITIVITY_SE_DB = 0.15
+#: The typical standard uncertainty of a microphone calibrated with a pistonphone or sound
+#: calibrator, dB (0.1-0.2 dB stated by such calibrators): reported as ``<q>_se_scale`` when
+#: the calibration states none, never added to ``<q>_se``.
+ASSUMED_SENSITIVITY_SE_DB = 0.15
 #: Names of the front end's parameters, in the order of :class:`FrontEnd`'s arrays.
 FRONTEND_NAMES = ("temperature", "eta", "mach", "position")
 #: Ok windows the front end's sensitivity is measured on.
@@ -104,25 +113,35 @@ class FrontEnd:
 
 
 def sensitivity_se_db(calibration: Calibration) -> tuple[float, str]:
-    """Standard uncertainty of the take's common sensitivity scale, dB, and where it is from.
+    """Stated standard uncertainty of the take's common sensitivity scale, dB, and its source.
 
     The reference microphone's (the first: relative calibrations are against it) stated
-    ``sensitivity_se_db``; :data:`DEFAULT_SENSITIVITY_SE_DB` when it states none.
+    ``sensitivity_se_db``; NaN when it states none (the source says so).
     """
     stated = getattr(calibration.microphones[0], "sensitivity_se_db", None)
     if stated is None:
-        return DEFAULT_SENSITIVITY_SE_DB, "default (the calibration states none)"
+        return math.nan, (
+            "not stated in the calibration file: the absolute scale is not in the error bars; "
+            f"a calibrator's typical {ASSUMED_SENSITIVITY_SE_DB:g} dB is in <q>_se_scale"
+        )
     return float(stated), "calibration file"
 
 
-def calibration_columns(table: pd.DataFrame, se_db: float) -> pd.DataFrame:
-    """``<q>_se_calibration`` = ``|q| |e_q| ln(10)/20 se_db`` for every quantity present."""
+def calibration_columns(
+    table: pd.DataFrame, se_db: float, component: str = "calibration"
+) -> pd.DataFrame:
+    """``<q>_se_<component>`` = ``|q| |e_q| ln(10)/20 se_db`` for every quantity present.
+
+    ``component`` is ``calibration`` for a stated uncertainty (a budget component) and
+    ``scale`` for the assumed one of an unstated calibration (its own column, outside the
+    combined SE).
+    """
     out = table.copy()
     se_ln = math.log(10.0) / 20.0 * se_db
     for name in QUANTITIES:
         if name in out:
             x = pd.to_numeric(out[name], errors="coerce").to_numpy(dtype=float)
-            out[f"{name}_se_calibration"] = np.abs(x) * abs(SCALE_EXPONENTS[name]) * se_ln
+            out[f"{name}_se_{component}"] = np.abs(x) * abs(SCALE_EXPONENTS[name]) * se_ln
     return out
 
 
@@ -161,7 +180,11 @@ def _logs(refit: _Refit, p, u, t: float) -> tuple[float, np.ndarray]:
         out = invert_window(p, u, refit.fs, start, kernel, air.rho, refit.config,
                             zero_mean=refit.zero_mean, warm=warm, errors=False)  # fmt: skip
         if out.reed is None or not math.isfinite(out.row["f2"]):
-            return math.nan, np.full((len(refit.starts), len(QUANTITIES)), np.nan)
+            # this window's re-fit failed: its row is NaN (left out of the median over
+            # windows, never a zero change) and the summed residual has no minimum
+            total = math.nan
+            logs.append(np.full(len(QUANTITIES), np.nan))
+            continue
         total += float(out.row["f2"]) ** 2
         values = {k: float(getattr(out.reed, k)) for k in (*PARAMETER_NAMES, "y_c")}
         values.update(combination_values(values, kernel.z0, air.rho))
@@ -229,7 +252,17 @@ def frontend_refit(
         dt = se if name == "temperature" else 0.0
         tp, tu = _translated(p0, u0, fs, calibration, front, dt)
         logs = _at_kernel_minimum(refit, p + tp - base_p, u + tu - base_u, kernel_c, refit_kernel)
-        out[name] = np.nanmedian(logs - base, axis=0)
+        out[name] = _median_over_windows(logs - base)
+    return out
+
+
+def _median_over_windows(d: np.ndarray) -> np.ndarray:
+    """Median over the windows (rows) of their finite changes; NaN where none is finite."""
+    out = np.full(d.shape[1], np.nan)
+    for j in range(d.shape[1]):
+        col = d[:, j][np.isfinite(d[:, j])]
+        if col.size:
+            out[j] = float(np.median(col))
     return out
 
 
@@ -305,16 +338,27 @@ def _translated(p0, u0, fs, calibration, front: FrontEnd, dt: float):
 
 
 def frontend_columns(table: pd.DataFrame, sensitivity: dict[str, np.ndarray]) -> pd.DataFrame:
-    """``<q>_se_frontend`` = ``|q| sqrt(sum over theta of (d ln q per SE)^2)`` per window."""
+    """``<q>_se_frontend`` = ``|q| sqrt(sum over theta of (d ln q per SE)^2)`` per window.
+
+    A sensitivity that is not finite (every re-fit of that parameter failed) makes the
+    component NaN, not measured, for that quantity: mpipe <= 0.5 left it out of the sum,
+    counting a failed re-fit as no effect at all (issue 38). :func:`failed_refits` names
+    such parameters for the record.
+    """
     out = table.copy()
     for i, name in enumerate(QUANTITIES):
         if name not in out:
             continue
         d = np.array([s[i] for s in sensitivity.values()], dtype=float)
-        rel = float(np.sqrt(np.sum(d[np.isfinite(d)] ** 2)))
+        rel = float(np.sqrt(np.sum(d**2))) if np.all(np.isfinite(d)) else math.nan
         x = pd.to_numeric(out[name], errors="coerce").to_numpy(dtype=float)
         out[f"{name}_se_frontend"] = np.abs(x) * rel
     return out
+
+
+def failed_refits(sensitivity: dict[str, np.ndarray]) -> list[str]:
+    """The front-end parameters whose re-fits failed for some quantity (not measured)."""
+    return [name for name, d in sensitivity.items() if not np.all(np.isfinite(d))]
 
 
 def shared_components(
@@ -330,7 +374,10 @@ def shared_components(
     refit_kernel: bool,
     front: FrontEnd | None = None,
 ) -> tuple[pd.DataFrame, dict]:
-    """The windows table with ``<q>_se_calibration`` and (with ``front``) ``<q>_se_frontend``.
+    """The windows table with the calibration's and (with ``front``) the front end's columns.
+
+    ``<q>_se_calibration`` when the calibration states its uncertainty, else
+    ``<q>_se_scale`` (outside the budget, see the module docstring); ``<q>_se_frontend``.
 
     Parameters
     ----------
@@ -360,8 +407,12 @@ def shared_components(
         and the relative effect on p_m, p_M, gamma and zeta (JSON-ready).
     """
     se_db, source = sensitivity_se_db(calibration)
-    out = calibration_columns(table, se_db)
-    record: dict = {"sensitivity_se_db": se_db, "sensitivity_se_source": source}
+    if math.isnan(se_db):
+        out = calibration_columns(table, ASSUMED_SENSITIVITY_SE_DB, "scale")
+    else:
+        out = calibration_columns(table, se_db)
+    record: dict = {"sensitivity_se_db": None if math.isnan(se_db) else se_db,
+                    "sensitivity_se_source": source}  # fmt: skip
     ok = table[table["status"].astype(str) == "ok"] if "status" in table else table
     if front is None or not len(ok):
         return out, record
@@ -372,6 +423,11 @@ def shared_components(
                    names=names)  # fmt: skip
     sens = frontend_linear(p, u, calibration, front, refit, kernel_c=kernel_c,
                            refit_kernel=refit_kernel)  # fmt: skip
+    failed = failed_refits(sens)
+    if failed:
+        logger.warning("front-end component not measured: the propagation of %s failed (NaN)",
+                       ", ".join(failed))  # fmt: skip
+        record["frontend_failed"] = failed
     record["frontend"] = {
         name: {
             "se": float(front.level_se[FRONTEND_NAMES.index(name)]),
@@ -383,7 +439,7 @@ def shared_components(
 
 
 __all__ = [
-    "DEFAULT_SENSITIVITY_SE_DB",
+    "ASSUMED_SENSITIVITY_SE_DB",
     "FRONTEND_NAMES",
     "FRONTEND_WINDOWS",
     "FrontEnd",
@@ -391,6 +447,7 @@ __all__ = [
     "QUANTITIES",
     "SCALE_EXPONENTS",
     "calibration_columns",
+    "failed_refits",
     "frontend_columns",
     "frontend_linear",
     "frontend_refit",

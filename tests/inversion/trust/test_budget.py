@@ -60,6 +60,22 @@ def test_the_table_and_the_row_combine_alike():
             assert (math.isnan(a) and math.isnan(b)) or a == pytest.approx(b), (i, q)
             assert bool(table.loc[i, f"determined_{q}"]) == row[f"determined_{q}"]
     assert math.isnan(table.loc[1, "k_se"]) and math.isinf(table.loc[2, "k_se"])
-    # 2 + 2 + T: above 20 % of 14 only with the temperature; the flag follows the combination
-    se4 = table.loc[4, "k_se"]
-    assert bool(table.loc[4, "determined_k"]) == (se4 / 14.0 < 0.2)
+    # 2 + 2 + T: the flag follows the within-take part (noise, model), not the temperature
+    assert bool(table.loc[4, "determined_k"]) == (math.hypot(2.0, 2.0) / 14.0 < 0.2)
+
+
+def test_no_quantity_is_undetermined_because_of_a_take_wide_component():
+    # issue 38: a within-take SE of 1 % with a take-wide rate or calibration term of 20 %
+    # (or inf, below the lowest rate) stays determined; the combined SE carries them
+    row = {q: 100.0 for q in QUANTITIES}
+    for q in QUANTITIES:
+        row[f"determined_{q}"] = True
+        row[component_column(q, "noise")] = 1.0
+        row[component_column(q, "rate")] = 20.0
+        row[component_column(q, "calibration")] = math.inf if q == "p_M" else 15.0
+    table = combine(pd.DataFrame([row]), limit=0.1)
+    combine_row(row, 0.1)
+    for q in ("p_m", "p_M", "k"):
+        assert bool(table.loc[0, f"determined_{q}"]) and row[f"determined_{q}"], q
+    assert table.loc[0, "p_m_se"] == pytest.approx(25.02, abs=0.01)
+    assert math.isinf(table.loc[0, "p_M_se"]) and math.isinf(row["p_M_se"])

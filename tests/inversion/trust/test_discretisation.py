@@ -73,8 +73,9 @@ def test_the_budget_combines_the_rate_by_root_sum_of_squares():
     out = budget.combine(table, 0.1)
     np.testing.assert_array_equal(out["p_m_se"][:3], [5.0, np.nan, np.inf])
     assert out["p_m_se"][3] == pytest.approx(math.hypot(30.0, 190.0))
-    # 10.7 % of p_m with the rate's share: no longer determined at a 10 % limit
-    assert list(out["determined_p_m"]) == [True, False, False, False]
+    # 10.7 % of p_m with the rate's share, 1.7 % within the take: a take-wide term does not
+    # make a quantity undetermined (issue 38)
+    assert list(out["determined_p_m"]) == [True, False, False, True]
 
 
 @pytest.mark.parametrize("rate", [22_050, 31_999])

@@ -387,3 +387,32 @@ def test_the_model_form_floor_is_a_fraction_of_the_pressure_at_the_harmonics():
           for f in (0.01, 0.02)]  # fmt: skip
     np.testing.assert_allclose(se[1] / se[0], 2.0, rtol=1e-6)  # linear in the floor
     assert np.all(se[0] > 0)
+
+
+def test_a_quantity_grazing_a_weak_direction_keeps_a_finite_se_equal_to_the_exact_one():
+    """Issue 38: p_M = k y_m was inf because a weakly determined direction grazed it.
+
+    A linear model whose columns a and b are nearly collinear (singular value ratio 6e-4,
+    below RCOND) and a quantity e = (1, 1.3, 0) that is not invariant: its SE must be the
+    exact least-squares one, s^2 e (J^T J)^-1 e for white noise (no pseudo-inverse), not
+    inf; a quantity along an exact invariance stays inf.
+    """
+    rng = np.random.default_rng(3)
+    n = 4000
+    base = rng.standard_normal((n, 2))
+    eps = 1.2e-3  # singular value ratio eps / 2 = 6e-4
+    jac = np.column_stack([base[:, 0], base[:, 0] + eps * rng.standard_normal(n), base[:, 1]])
+    r = rng.standard_normal(n)
+    cov = covariance(jac, r, ("a", "b", "c"))
+    assert cov.null.shape[0] == 1  # below RCOND: reported as a null direction
+    e = np.array([1.0, 1.3, 0.0])
+    exact = math.sqrt(e @ np.linalg.inv(jac.T @ jac) @ e) * np.std(r)
+    se = cov.log_se(e)
+    assert math.isfinite(se)
+    assert se == pytest.approx(exact, rel=0.1)
+    # the direction's orthogonal quantity (a + b) is as before
+    assert cov.log_se(np.array([1.0, 1.0, 0.0])) == pytest.approx(
+        math.sqrt(np.array([1, 1, 0.0]) @ cov.cov @ np.array([1, 1, 0.0])), rel=1e-6
+    )
+    same = np.column_stack([base[:, 0], base[:, 0], base[:, 1]])
+    assert math.isinf(covariance(same, r, ("a", "b", "c")).log_se(e))

@@ -34,3 +34,17 @@ def test_window_uncertainty_flags_and_delta_method():
     bound = window_uncertainty(cov, values, z_c=5e6, rho=1.2, invalid={"k": "on its bound"})
     assert math.isnan(bound["k_se"]) and math.isnan(bound["p_M_se"])
     assert "k: no valid SE" in bound["uncertainty_note"]
+
+
+def test_the_model_form_component_never_vanishes_silently():
+    # issue 38: a window without a period (no pressure to split the residual at its
+    # harmonics) had <q>_se_model NaN and nothing said so; with a period it is measured
+    names = ("k", "y_m", "p_m")
+    rng = np.random.default_rng(2)
+    values = {n: getattr(TABLE1, n) for n in ("k", "S", "y_m", "p_m", "m", "g", "lam", "k_c")}
+    values["y_c"] = TABLE1.y_c
+    cov = covariance(rng.standard_normal((400, 3)), 0.01 * rng.standard_normal(400), names)
+    row = window_uncertainty(cov, values, z_c=5e6, rho=1.2)
+    assert math.isnan(row["p_m_se_model"])
+    assert "model form not measured" in row["uncertainty_note"]
+    assert "no period" in row["uncertainty_note"]

@@ -1,18 +1,25 @@
 """Errors shared by a take's windows: calibration scale and front end (shared_errors)."""
 
+import dataclasses
 import math
 
+import numpy as np
 import pandas as pd
 import pytest
 
 from mpipe.inversion.fit.window import invert_window
 from mpipe.inversion.preparation.kernel import bore_kernel
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
+from mpipe.inversion.trust.budget import combine
 from mpipe.inversion.trust.combinations import combination_values
 from mpipe.inversion.whole_take.shared_errors import (
+    QUANTITIES,
     SCALE_EXPONENTS,
     calibration_columns,
+    failed_refits,
+    frontend_columns,
     sensitivity_se_db,
+    shared_components,
 )
 from mpipe.reed.model import simulate
 from mpipe.reed.parameters import ReedParameters
@@ -51,10 +58,51 @@ def test_a_scale_error_of_p_and_u_moves_the_parameters_by_the_derived_exponents(
 
 def test_calibration_columns_scale_each_window_by_its_exponent(shipped_calibration):
     se_db, source = sensitivity_se_db(shipped_calibration)
-    assert se_db == 0.15 and "default" in source
+    assert math.isnan(se_db) and "not stated" in source
     table = pd.DataFrame({"p_M": [3000.0, 4000.0], "gamma": [0.5, 0.6], "lam": [0.01, 0.01]})
     out = calibration_columns(table, 0.2)
     rel = math.log(10) / 20 * 0.2  # 2.33 % per 0.2 dB
     assert out["p_M_se_calibration"].tolist() == pytest.approx([3000 * rel, 4000 * rel])
     assert out["gamma_se_calibration"].tolist() == [0.0, 0.0]
     assert out["lam_se_calibration"].tolist() == pytest.approx([0.005 * rel] * 2)
+
+
+def test_an_unstated_calibration_stays_out_of_the_error_bars(shipped_calibration):
+    # issue 38: an unstated microphone calibration added 0.15 dB (1.73 % of p_m) to every
+    # window; only a stated uncertainty enters <q>_se, the assumed one has its own column
+    table = pd.DataFrame({"p_m": [1800.0], "p_m_se_noise": [9.0], "determined_p_m": [True],
+                          "status": ["ok"]})  # fmt: skip
+    out, record = shared_components(
+        np.zeros(10), np.zeros(10), 1e5, table, shipped_calibration, InversionConfig(),
+        zero_mean=False, kernel_c=20.0, refit_kernel=False,
+    )  # fmt: skip
+    assert "p_m_se_calibration" not in out
+    assert out["p_m_se_scale"].iloc[0] == pytest.approx(1800.0 * math.log(10) / 20 * 0.15)
+    assert combine(out, 0.1)["p_m_se"].iloc[0] == pytest.approx(9.0)
+    assert record["sensitivity_se_db"] is None and "not stated" in record["sensitivity_se_source"]
+    stated = dataclasses.replace(
+        shipped_calibration,
+        microphones=(dataclasses.replace(shipped_calibration.microphones[0],
+                                         sensitivity_se_db=0.05),
+                     *shipped_calibration.microphones[1:]),
+    )  # fmt: skip
+    out, record = shared_components(
+        np.zeros(10), np.zeros(10), 1e5, table, stated, InversionConfig(),
+        zero_mean=False, kernel_c=20.0, refit_kernel=False,
+    )  # fmt: skip
+    rel = math.log(10) / 20 * 0.05
+    assert "p_m_se_scale" not in out and record["sensitivity_se_db"] == 0.05
+    assert combine(out, 0.1)["p_m_se"].iloc[0] == pytest.approx(math.hypot(9.0, 1800 * rel))
+
+
+def test_a_failed_front_end_refit_is_not_counted_as_no_effect():
+    # issue 38: a parameter whose re-fits all failed (NaN sensitivity) was left out of the
+    # root sum of squares, i.e. counted as 0; it must leave the component NaN (not measured)
+    table = pd.DataFrame({"p_m": [1800.0], "p_M": [3000.0]})
+    nan = np.full(len(QUANTITIES), np.nan)
+    good = np.full(len(QUANTITIES), 0.01)
+    out = frontend_columns(table, {"temperature": good, "eta": nan})
+    assert np.isnan(out["p_m_se_frontend"].iloc[0]) and np.isnan(out["p_M_se_frontend"].iloc[0])
+    assert failed_refits({"temperature": good, "eta": nan}) == ["eta"]
+    both = frontend_columns(table, {"temperature": good, "eta": 2 * good})
+    assert both["p_m_se_frontend"].iloc[0] == pytest.approx(1800 * math.hypot(0.01, 0.02))
