@@ -48,6 +48,13 @@ RIPPLE_S = 0.02
 FOOT_S = 0.1
 #: Longest delay after a note within which a softer sound at its pitch is its echo, s.
 ECHO_S = 0.15
+#: Slowest decay of an echo, dB/s (a room of RT60 3 s); a softer sound that holds its
+#: level is a note (a subito piano, a soft slurred note), not an echo.
+ECHO_DECAY_DB_S = 20.0
+#: Shortest soft part after a note's fall (a subito piano) or between two louder notes (a
+#: soft slurred note) that is a note of its own, s: over a shorter span a room's decay
+#: (60 dB/s at RT60 1 s) is not told from a held level.
+HELD_S = 0.2
 
 
 def level_envelope(p: np.ndarray, fs: float, frame_s: float, step_s: float = 1e-3):
@@ -227,19 +234,24 @@ def note_spans(t, level, threshold, centres, f0, frame_s, conditioning, duration
     hop = float(np.median(np.diff(centres))) if centres.size > 1 else step
 
     def periodic(i0: int, i1: int) -> bool:
-        """Periodic frames over at least min_note_s inside ``[t[i0], t[i1 - 1]]``."""
+        """Periodic frames over min_note_s in ``[t[i0], t[i1 - 1]]``, a level that holds.
+
+        A room's reverberation is periodic too, but decays (:func:`_decays`).
+        """
         inside = (periodic_t >= t[i0]) & (periodic_t <= t[min(i1, t.size) - 1])
-        return bool(inside.sum() * hop >= c.min_note_s)
+        enough = inside.sum() * hop >= c.min_note_s
+        return bool(enough and not _decays(t[i0:i1], level[i0:i1]))
 
     spans = []
     for a, b in runs(mask):
         valleys = [(a + v0, a + v1) for v0, v1 in _valleys(level[a:b], depth, shortest)]
         cuts = [a, *[x for v in valleys for x in v], b]
-        pieces = list(zip(cuts[::2], cuts[1::2], strict=True))
+        pieces = [(x, y, False) for x, y in zip(cuts[::2], cuts[1::2], strict=True)]
         # a valley that is periodic is a soft note (slurred between two louder), not a gap
-        pieces = sorted(pieces + [v for v in valleys if periodic(*v)])
+        held = [(*v, True) for v in valleys if (v[1] - v[0]) * step >= HELD_S and periodic(*v)]
+        pieces = sorted(pieces + held)
         while pieces:
-            a1, b1 = pieces.pop(0)
+            a1, b1, held = pieces.pop(0)
             kept = _trim(a1, b1, level, t, periodic_t, frame_s, depth) if b1 - a1 > 1 else None
             if kept is None:
                 continue
@@ -249,15 +261,18 @@ def note_spans(t, level, threshold, centres, f0, frame_s, conditioning, duration
                 tail = median_filter(level[kept[1] : b1], max(int(RIPPLE_S / step), 1))
                 low = int(np.argmin(tail))
                 if tail[low:].max() * np.sqrt(depth) >= tail[low]:
-                    pieces.insert(0, (kept[1] + low, b1))
-                elif periodic(kept[1], b1):
+                    pieces.insert(0, (kept[1] + low, b1, False))
+                elif (b1 - kept[1]) * step >= HELD_S and periodic(kept[1], b1):
                     # a soft part that sounds on (a subito piano): a note if it does not
                     # decay as a room's echo does (:func:`_without_echoes` asks)
-                    pieces.insert(0, (kept[1], b1))
+                    pieces.insert(0, (kept[1], b1, True))
             if (kept[1] - kept[0]) * step >= c.min_note_s:
                 end = t[-1] + step if duration is None else duration
                 last = end if kept[1] == level.size else float(t[kept[1] - 1] + step)
-                spans.append((float(t[kept[0]]), last, float(t[max(kept[2], kept[0])])))
+                start = max(float(t[kept[0]]), spans[-1][1] if spans else 0.0)  # no overlap
+                sounding = max(float(t[max(kept[2], kept[0])]), start)
+                if last > start:
+                    spans.append((start, last, sounding, held))
     return _without_echoes(spans, t, level, centres, f0, depth, c.pitch_jump_cents)
 
 
@@ -271,29 +286,37 @@ def _without_echoes(spans, t, level, centres, f0, depth: float, jump: float):
     """The spans less those that are the reverberation of the note before them.
 
     An echo: it starts within :data:`ECHO_S` of that note's end, stays ``depth`` below that
-    note's level (90th percentile) and plays its pitch (within ``jump`` cents).
+    note's level (90th percentile) and plays its pitch (within ``jump`` cents). A span
+    found as a soft note whose level holds (``held``: a subito piano, a periodic valley)
+    is no echo.
     """
 
     def loudness(a, b):
         sel = level[(t >= a) & (t < b)]
         return (float(np.max(sel)), float(np.percentile(sel, 90))) if sel.size else (0.0, 0.0)
 
-    def decays(a, b):
-        """The level falls by edge_db / 2 from the first to the last quarter of [a, b)."""
-        sel = level[(t >= a) & (t < b)]
-        q = max(sel.size // 4, 1)
-        return sel.size < 4 or np.median(sel[-q:]) < np.sqrt(depth) * np.median(sel[:q])
-
     out = []
-    for a, b, sounding in spans:
+    for a, b, sounding, held in spans:
         if out:
             a0, b0, _ = out[-1]
             close = a - b0 < ECHO_S and loudness(a, b)[0] < depth * loudness(a0, b0)[1]
             pitch, pitch0 = _median_f0(centres, f0, a, b), _median_f0(centres, f0, a0, b0)
-            if close and abs(1200 * np.log2(pitch / pitch0)) < jump and decays(b0, b):
+            if close and abs(1200 * np.log2(pitch / pitch0)) < jump and not held:
                 continue
         out.append((a, b, sounding))
     return out
+
+
+def _decays(times: np.ndarray, level: np.ndarray) -> bool:
+    """The level (Pa) falls faster than :data:`ECHO_DECAY_DB_S` over ``times`` (s): a room's.
+
+    The slope of a straight line fitted to the level in dB; fewer than 4 samples decay.
+    """
+    sel = level > 0
+    if sel.sum() < 4:
+        return True
+    slope = np.polyfit(times[sel], 20 * np.log10(level[sel]), 1)[0]
+    return bool(slope < -ECHO_DECAY_DB_S)
 
 
 def _side_medians(times, cents, gap: float, side: float):
