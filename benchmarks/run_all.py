@@ -54,6 +54,7 @@ QUICK_ARGS = {
     "bench_segments": ["--seeds", "0"],
     "bench_segmentation": [],  # its OpenWInD takes: about 13 min once, then cached
     "bench_hole_corrections": [],
+    "bench_tube_4holes": [],
     "bench_dask": ["--runs", "2", "--batch", "2", "--duration", "1"],
     "bench_session": ["--takes", "4"],
     "bench_rate": ["--cases", "shipped", "--rates", "44100,100000", "--variants", "scheme"],

@@ -193,8 +193,34 @@ def synthesize(calibration: Calibration, reed, options: SynthOptions, score=None
             fs_out=options.fs_out,
             seed=noise_seed,
         ),
+        upstream=upstream_fingerings(calibration, score, fingered, n),
     )
     return take, run, mach
+
+
+def upstream_fingerings(calibration: Calibration, score, fingered, n: int) -> list:
+    """Each fingering's calibration and share of the take, when they differ upstream.
+
+    A hole between the mouthpiece and the reference plane (a register hole) changes the
+    transfer to the microphones, so the virtual recording must carry each note through its
+    own fingering's bore (empty when every fingering agrees there: one transfer).
+    """
+    if fingered is None:
+        return []
+    order = list(dict.fromkeys(score.fingerings(calibration.fingering)))
+    cals = [calibration.with_fingering(f) for f in order]
+    x_ref = calibration.reference_plane
+    ahead = {
+        tuple(sorted(h.name for h in c.bore.holes_between(0.0, x_ref) if c.bore.is_open(h)))
+        for c in cals
+    }
+    if len(ahead) < 2:
+        return []
+    src, tgt, w = fingered.source[:n], fingered.target[:n], np.asarray(fingered.weight[:n])
+    return [
+        (cal, np.where(src == k, 1.0 - w, 0.0) + np.where(tgt == k, w, 0.0))
+        for k, cal in enumerate(cals)
+    ]
 
 
 def score_bore(calibration: Calibration, score, air, fs: float, controls):

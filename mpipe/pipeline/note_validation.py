@@ -39,7 +39,7 @@ from mpipe.inversion.preparation.conditioning import bore_resonances
 from mpipe.inversion.preparation.kernel import take_temperature
 from mpipe.inversion.preparation.segments import segment_take
 from mpipe.measurement.calibration import AUTO, Calibration, note_fingerings, per_note
-from mpipe.measurement.fingerings import FingeringChoice, harmonic_lines, identify
+from mpipe.measurement.fingerings import NO_FIT_BELOW, FingeringChoice, harmonic_lines, identify
 from mpipe.measurement.measured_instrument import bore_description
 from mpipe.measurement.validation import ValidationConfig, validate
 from mpipe.measurement.validation_result import ValidationResult, plot_impedance
@@ -51,7 +51,8 @@ SEGMENT_PERIODS = 8
 #: Columns of ``notes.csv``.
 NOTE_COLUMNS = ("segment", "start_s", "end_s", "f0_hz", "fingering", "fingering_source",
                 "fingering_probability", "runner_up", "runner_up_probability",
-                "fingering_ambiguous", "verdict", "reason")  # fmt: skip
+                "fingering_ambiguous", "fingering_fit_p", "fingering_equivalents",
+                "verdict", "reason")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -104,8 +105,19 @@ def _choice_line(row) -> str:
         row.fingering, float(row.fingering_probability),
         row.runner_up if isinstance(row.runner_up, str) and row.runner_up else None,
         float(row.runner_up_probability), row.fingering_source,
+        fit_probability=_number(row.fingering_fit_p, 1.0),
+        equivalents=tuple(x for x in str(row.fingering_equivalents).split(",") if x),
     )  # fmt: skip
     return choice.line()
+
+
+def _number(value, default: float) -> float:
+    """A float from a table cell; ``default`` for a blank or missing one."""
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        return default
+    return x if math.isfinite(x) else default
 
 
 def needed_s(f0_hz: float, fs: float) -> float:
@@ -188,6 +200,10 @@ def validate_notes(
                     f"need {config.min_checks}: too quiet or unsteady); it differs at: "
                     + "; ".join(res.failures)
                 )
+        if choice is not None and not choice.fits and row["verdict"] != "cannot-verify":
+            # the note's fingering is not in the list: no listed bore can check or invert it
+            row["verdict"] = "fail"
+            row["reason"] = f"{choice.line()}: add the fingering played to the calibration"
         rows.append(row)
     table = pd.DataFrame(rows, columns=list(NOTE_COLUMNS))
     verdict, reason = _take_verdict(table)
@@ -313,11 +329,13 @@ def _choice_columns(choice: FingeringChoice | None) -> dict:
     if choice is None:
         return {"fingering": "", "fingering_source": "", "fingering_probability": math.nan,
                 "runner_up": "", "runner_up_probability": math.nan,
-                "fingering_ambiguous": False}  # fmt: skip
+                "fingering_ambiguous": False, "fingering_fit_p": math.nan,
+                "fingering_equivalents": ""}  # fmt: skip
     return {"fingering": choice.fingering, "fingering_source": choice.source,
             "fingering_probability": choice.probability, "runner_up": choice.runner_up or "",
             "runner_up_probability": choice.runner_up_probability,
-            "fingering_ambiguous": choice.ambiguous}  # fmt: skip
+            "fingering_ambiguous": choice.ambiguous, "fingering_fit_p": choice.fit_probability,
+            "fingering_equivalents": ",".join(choice.equivalents)}  # fmt: skip
 
 
 def _take_verdict(table: pd.DataFrame) -> tuple[str, str]:
@@ -339,6 +357,13 @@ def _take_verdict(table: pd.DataFrame) -> tuple[str, str]:
 def note_fingering_checks(table: pd.DataFrame) -> list[str]:
     """The take-level checks of the notes' fingerings: each ambiguous note, one line."""
     out = []
+    if "fingering_fit_p" in table:
+        fit = pd.to_numeric(table["fingering_fit_p"], errors="coerce").fillna(1.0)
+        for _, r in table[(fit < NO_FIT_BELOW) & (table["verdict"] != "cannot-verify")].iterrows():
+            out.append(
+                f"note {int(r.segment)}: no listed fingering fits its harmonics (the closest, "
+                f"{r.fingering}, at p = {float(r.fingering_fit_p):.1g}): add the fingering played"
+            )
     for _, r in table[table["fingering_ambiguous"].astype(bool)].iterrows():
         out.append(
             f"note {int(r.segment)}: the fingering is ambiguous: {r.fingering} "

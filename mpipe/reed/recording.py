@@ -204,6 +204,7 @@ def virtual_recording(
     mach: float = 0.0,
     recorder: RecorderOptions | None = None,
     drift_step_c: float = DRIFT_STEP_C,
+    upstream: Sequence[tuple[Calibration, np.ndarray]] = (),
 ) -> VirtualTake:
     """Record mouthpiece signals with the calibration's virtual wall microphones (N >= 2).
 
@@ -231,6 +232,12 @@ def virtual_recording(
         at ``fs``.
     drift_step_c : float
         Largest temperature step between the nodes of a drifting temperature, degC.
+    upstream : sequence of (Calibration, ndarray)
+        For a take whose fingerings differ between the mouthpiece and the reference plane
+        (a register hole there): each fingering's calibration and its share of every model
+        sample (shares summing to one). The field is rendered through each fingering's
+        bore and blended sample by sample, as the model blends their reflection functions
+        (:mod:`mpipe.reed.fingered_bore`); empty: ``calibration``'s bore throughout.
 
     Returns
     -------
@@ -260,7 +267,18 @@ def virtual_recording(
     up, down = output_rate_ratio(fs, fs_out)
     temps = _temperatures(temperature_c, calibration)
     sens = tuple(float(m.sensitivity) for m in calibration.microphones)
-    mics, p0, u0, pad, c_min = _render(p, u, fs, calibration, temps, mach, drift_step_c)
+    if upstream:
+        # each fingering's own transfer to the reference plane, weighted per sample
+        parts = [
+            (_render(p, u, fs, cal, temps, mach, drift_step_c), np.asarray(w, dtype=float))
+            for cal, w in upstream
+        ]
+        mics = sum(w[:, None] * r[0] for r, w in parts)
+        p0 = sum(w * r[1] for r, w in parts)
+        u0 = sum(w * r[2] for r, w in parts)
+        pad, c_min = parts[0][0][3], parts[0][0][4]
+    else:
+        mics, p0, u0, pad, c_min = _render(p, u, fs, calibration, temps, mach, drift_step_c)
     recorded = apply_gains(mics / np.asarray(sens), complex_gain(gains, phases), pad)
     recorded, mics, p_out, u_out, p0, u0 = (
         resample_by(x, up, down) for x in (recorded, mics, p, u, p0, u0)

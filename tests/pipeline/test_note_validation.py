@@ -83,3 +83,27 @@ def test_a_note_with_too_few_comparable_harmonics_is_cannot_verify_not_fail():
         p, u = np.concatenate([silence, p, silence]), np.concatenate([silence, u, silence])
         result = _validate(four_holes("xxoo"), p + rng.normal(0, 1e-3, p.size), u)
         assert result.notes["verdict"].iloc[0] == verdict, result.notes["reason"].iloc[0]
+
+
+def test_a_note_whose_fingering_is_not_listed_fails_and_says_so(tmp_path):
+    # xooo is played but the file lists only the other four: the note is not passed on
+    # the closest listed bore, it FAILs with "no listed fingering fits" and the take's
+    # checks say to add the fingering; the notes whose fingering is listed still pass
+    import yaml
+
+    from mpipe.measurement.calibration import load_calibration
+    from mpipe.pipeline.note_validation import note_fingering_checks
+    from tests.measurement.fingering_helpers import FOUR_HOLES
+
+    data = yaml.safe_load(FOUR_HOLES.read_text())
+    del data["fingerings"]["xooo"]
+    data["fingering"] = "auto"
+    path = tmp_path / "cal.yaml"
+    path.write_text(yaml.safe_dump(data))
+    p, u = _phrase(four_holes(), [("xxxx", 0.8), ("xooo", 0.8)])
+    result = _validate(load_calibration(path), p, u)
+    assert list(result.notes["verdict"]) == ["pass", "fail"]
+    assert "NO listed fingering fits" in result.notes["reason"].iloc[1]
+    checks = note_fingering_checks(result.notes)
+    assert len(checks) == 1 and "no listed fingering fits" in checks[0]
+    assert result.notes["fingering_fit_p"].iloc[0] > 0.01

@@ -48,6 +48,13 @@ RIPPLE_S = 0.02
 FOOT_S = 0.1
 #: Longest delay after a note within which a softer sound at its pitch is its echo, s.
 ECHO_S = 0.15
+#: Slowest decay of an echo, dB/s (a room of RT60 3 s); a softer sound that holds its
+#: level is a note (a subito piano, a soft slurred note), not an echo.
+ECHO_DECAY_DB_S = 20.0
+#: Shortest soft part after a note's fall (a subito piano) or between two louder notes (a
+#: soft slurred note) that is a note of its own, s: over a shorter span a room's decay
+#: (60 dB/s at RT60 1 s) is not told from a held level.
+HELD_S = 0.2
 
 
 def level_envelope(p: np.ndarray, fs: float, frame_s: float, step_s: float = 1e-3):
@@ -127,7 +134,10 @@ def _valleys(level: np.ndarray, depth: float, shortest: int) -> list[tuple[int, 
 
 
 def _trim(a: int, b: int, level, t, periodic_t, frame_s: float, depth: float):
-    """A stretch ``[a, b)`` of the level narrowed to its first note's edges, or None (no note).
+    """A stretch ``[a, b)`` narrowed to its first note: (foot, end, sounding index) or None.
+
+    The foot is where the blowing lifts the level off the floor; the sounding index, where
+    the attack brings the level within ``depth`` of the note's own level.
 
     The note lies within half an f0 frame of its periodic frames (a blowing pressure's rise
     before the oscillation grows is not yet the note), where its level is within ``depth``
@@ -149,7 +159,8 @@ def _trim(a: int, b: int, level, t, periodic_t, frame_s: float, depth: float):
     if ends[0] is None or ends[1] is None or ends[1] <= ends[0]:
         return None
     below = max(a - int(round(FOOT_S / (t[1] - t[0]))) if t.size > 1 else a, 0)
-    return _foot(level, below, ends[0], t), _decay_start(level, ends[0], ends[1], t, depth)
+    foot = _foot(level, below, ends[0], t)
+    return foot, _decay_start(level, ends[0], ends[1], t, depth), ends[0]
 
 
 def _foot(level, a: int, start: int, t) -> int:
@@ -206,8 +217,10 @@ def note_spans(t, level, threshold, centres, f0, frame_s, conditioning, duration
 
     Returns
     -------
-    list of (float, float)
-        Each note's start and end, s, in time order.
+    list of (float, float, float)
+        Each note's start (the blowing onset: the foot of its attack), end, and sounding
+        onset (where its level first comes within ``edge_db`` of its own level), s, in time
+        order.
     """
     c = conditioning
     step = float(t[1] - t[0]) if t.size > 1 else 1e-3
@@ -218,16 +231,27 @@ def note_spans(t, level, threshold, centres, f0, frame_s, conditioning, duration
     depth = 10 ** (-c.edge_db / 20)
     shortest = max(int(round(c.min_silence_s / step)), 1)
     periodic_t = centres[np.isfinite(f0)]
+    hop = float(np.median(np.diff(centres))) if centres.size > 1 else step
+
+    def periodic(i0: int, i1: int) -> bool:
+        """Periodic frames over min_note_s in ``[t[i0], t[i1 - 1]]``, a level that holds.
+
+        A room's reverberation is periodic too, but decays (:func:`_decays`).
+        """
+        inside = (periodic_t >= t[i0]) & (periodic_t <= t[min(i1, t.size) - 1])
+        enough = inside.sum() * hop >= c.min_note_s
+        return bool(enough and not _decays(t[i0:i1], level[i0:i1]))
+
     spans = []
     for a, b in runs(mask):
-        cuts = [
-            a,
-            *[x for v in _valleys(level[a:b], depth, shortest) for x in (a + v[0], a + v[1])],
-            b,
-        ]
-        pieces = list(zip(cuts[::2], cuts[1::2], strict=True))
+        valleys = [(a + v0, a + v1) for v0, v1 in _valleys(level[a:b], depth, shortest)]
+        cuts = [a, *[x for v in valleys for x in v], b]
+        pieces = [(x, y, False) for x, y in zip(cuts[::2], cuts[1::2], strict=True)]
+        # a valley that is periodic is a soft note (slurred between two louder), not a gap
+        held = [(*v, True) for v in valleys if (v[1] - v[0]) * step >= HELD_S and periodic(*v)]
+        pieces = sorted(pieces + held)
         while pieces:
-            a1, b1 = pieces.pop(0)
+            a1, b1, held = pieces.pop(0)
             kept = _trim(a1, b1, level, t, periodic_t, frame_s, depth) if b1 - a1 > 1 else None
             if kept is None:
                 continue
@@ -237,11 +261,18 @@ def note_spans(t, level, threshold, centres, f0, frame_s, conditioning, duration
                 tail = median_filter(level[kept[1] : b1], max(int(RIPPLE_S / step), 1))
                 low = int(np.argmin(tail))
                 if tail[low:].max() * np.sqrt(depth) >= tail[low]:
-                    pieces.insert(0, (kept[1] + low, b1))
+                    pieces.insert(0, (kept[1] + low, b1, False))
+                elif (b1 - kept[1]) * step >= HELD_S and periodic(kept[1], b1):
+                    # a soft part that sounds on (a subito piano): a note if it does not
+                    # decay as a room's echo does (:func:`_without_echoes` asks)
+                    pieces.insert(0, (kept[1], b1, True))
             if (kept[1] - kept[0]) * step >= c.min_note_s:
                 end = t[-1] + step if duration is None else duration
                 last = end if kept[1] == level.size else float(t[kept[1] - 1] + step)
-                spans.append((float(t[kept[0]]), last))
+                start = max(float(t[kept[0]]), spans[-1][1] if spans else 0.0)  # no overlap
+                sounding = max(float(t[max(kept[2], kept[0])]), start)
+                if last > start:
+                    spans.append((start, last, sounding, held))
     return _without_echoes(spans, t, level, centres, f0, depth, c.pitch_jump_cents)
 
 
@@ -255,7 +286,9 @@ def _without_echoes(spans, t, level, centres, f0, depth: float, jump: float):
     """The spans less those that are the reverberation of the note before them.
 
     An echo: it starts within :data:`ECHO_S` of that note's end, stays ``depth`` below that
-    note's level (90th percentile) and plays its pitch (within ``jump`` cents).
+    note's level (90th percentile) and plays its pitch (within ``jump`` cents). A span
+    found as a soft note whose level holds (``held``: a subito piano, a periodic valley)
+    is no echo.
     """
 
     def loudness(a, b):
@@ -263,27 +296,95 @@ def _without_echoes(spans, t, level, centres, f0, depth: float, jump: float):
         return (float(np.max(sel)), float(np.percentile(sel, 90))) if sel.size else (0.0, 0.0)
 
     out = []
-    for a, b in spans:
+    for a, b, sounding, held in spans:
         if out:
-            a0, b0 = out[-1]
+            a0, b0, _ = out[-1]
             close = a - b0 < ECHO_S and loudness(a, b)[0] < depth * loudness(a0, b0)[1]
             pitch, pitch0 = _median_f0(centres, f0, a, b), _median_f0(centres, f0, a0, b0)
-            if close and abs(1200 * np.log2(pitch / pitch0)) < jump:
+            if close and abs(1200 * np.log2(pitch / pitch0)) < jump and not held:
                 continue
-        out.append((a, b))
+        out.append((a, b, sounding))
     return out
 
 
+def _decays(times: np.ndarray, level: np.ndarray) -> bool:
+    """The level (Pa) falls faster than :data:`ECHO_DECAY_DB_S` over ``times`` (s): a room's.
+
+    The slope of a straight line fitted to the level in dB; fewer than 4 samples decay.
+    """
+    sel = level > 0
+    if sel.sum() < 4:
+        return True
+    slope = np.polyfit(times[sel], 20 * np.log10(level[sel]), 1)[0]
+    return bool(slope < -ECHO_DECAY_DB_S)
+
+
 def _side_medians(times, cents, gap: float, side: float):
-    """Median pitch over ``[t - gap - side, t - gap]`` and ``[t + gap, t + gap + side]``."""
-    before, after = np.full(times.size, np.nan), np.full(times.size, np.nan)
-    for i, t in enumerate(times):
-        lo = cents[(times >= t - gap - side) & (times <= t - gap)]
-        hi = cents[(times >= t + gap) & (times <= t + gap + side)]
-        lo, hi = lo[np.isfinite(lo)], hi[np.isfinite(hi)]
-        if lo.size >= 2 and hi.size >= 2:
-            before[i], after[i] = np.median(lo), np.median(hi)
-    return before, after
+    """Median pitch over ``[t - gap - side, t - gap]`` and ``[t + gap, t + gap + side]``.
+
+    Each side is a window of frames whose both ends only move forward with ``t``: every
+    frame enters and leaves it once, and a Fenwick tree over the pitches' ranks gives the
+    window's order statistics, so the whole track costs O(n log n) (a median per frame by
+    sorting each window cost O(n w log w), O(n^2) on a long note).
+    """
+    times = np.asarray(times, dtype=float)
+    cents = np.asarray(cents, dtype=float)
+    lo = _window_medians(times, cents, times - gap - side, times - gap)
+    hi = _window_medians(times, cents, times + gap, times + gap + side)
+    both = np.isfinite(lo) & np.isfinite(hi)
+    return np.where(both, lo, np.nan), np.where(both, hi, np.nan)
+
+
+def _window_medians(times, values, starts, stops) -> np.ndarray:
+    """Median of the finite ``values`` with ``starts[i] <= times <= stops[i]`` (NaN if < 2).
+
+    ``times``, ``starts`` and ``stops`` are non-decreasing.
+    """
+    n = times.size
+    first = np.searchsorted(times, starts, side="left")
+    last = np.searchsorted(times, stops, side="right")  # window: [first, last)
+    finite = np.isfinite(values)
+    order = np.argsort(np.where(finite, values, np.inf), kind="stable")
+    rank = np.empty(n, dtype=int)
+    rank[order] = np.arange(n)
+    tree = np.zeros(n + 1, dtype=int)
+    sorted_values = values[order]
+    out = np.full(n, np.nan)
+    head = tail = count = 0  # frames [head, tail) are in the tree
+    for i in range(n):
+        while tail < last[i]:
+            if finite[tail]:
+                _add(tree, rank[tail] + 1, 1)
+                count += 1
+            tail += 1
+        while head < first[i]:
+            if head < tail and finite[head]:
+                _add(tree, rank[head] + 1, -1)
+                count -= 1
+            head += 1
+        tail = max(tail, head)
+        if count >= 2:
+            k1, k2 = (count + 1) // 2, count // 2 + 1
+            out[i] = 0.5 * (sorted_values[_kth(tree, k1)] + sorted_values[_kth(tree, k2)])
+    return out
+
+
+def _add(tree: np.ndarray, i: int, delta: int) -> None:
+    while i < tree.size:
+        tree[i] += delta
+        i += i & -i
+
+
+def _kth(tree: np.ndarray, k: int) -> int:
+    """The 0-based rank of the k-th smallest (1-based k) element counted in the tree."""
+    pos, step = 0, 1 << (tree.size - 1).bit_length()
+    while step:
+        nxt = pos + step
+        if nxt < tree.size and tree[nxt] < k:
+            pos = nxt
+            k -= tree[nxt]
+        step >>= 1
+    return pos
 
 
 def pitch_cuts(start, end, centres, cents, frame_s, conditioning) -> list[float]:

@@ -38,7 +38,8 @@ from mpipe.reed.parameters import ReedParameters
 P_REF_PA = 20e-6
 #: Columns of :func:`segment_take`'s table.
 SEGMENT_COLUMNS = ("segment", "start_s", "end_s", "label", "duration_s", "f0_hz",
-                   "pitch_cents", "note", "regime", "rms_pa", "spl_db")  # fmt: skip
+                   "pitch_cents", "note", "regime", "rms_pa", "spl_db",
+                   "blowing_onset_s", "sounding_onset_s")  # fmt: skip
 
 
 def spl_db(rms_pa):
@@ -85,19 +86,23 @@ def segment_take(
     centres, f0, _ = f0_track(p, fs, frame, c.frame_hop_s, c.f0_min_hz, c.f0_max_hz)
     cents = pitch_cents(f0, c.a4_hz) if f0.size else np.array([])
     threshold = level_threshold(t_lev, level, centres, f0, c)
-    bounds: list[tuple[float, float, str]] = []
+    bounds: list[tuple[float, float, str, float, float]] = []
     edge = 0.0
-    for start, end in note_spans(t_lev, level, threshold, centres, f0, frame, c, duration):
+    spans = note_spans(t_lev, level, threshold, centres, f0, frame, c, duration)
+    for start, end, sounding in spans:
         if start > edge:
-            bounds.append((edge, start, "silence"))
+            bounds.append((edge, start, "silence", math.nan, math.nan))
         cuts = pitch_cuts(start, end, centres, cents, frame, c)
-        for a, b in zip([start, *cuts], [*cuts, end], strict=True):
-            bounds.append((a, b, "note"))
+        # the first note of a blowing starts with it; a slurred one at its pitch step
+        onsets = [(start, min(max(sounding, start), end)), *[(x, x) for x in cuts]]
+        for a, b, onset in zip([start, *cuts], [*cuts, end], onsets, strict=True):
+            bounds.append((a, b, "note", *onset))
         edge = end
     if edge < duration:
-        bounds.append((edge, duration, "silence"))
-    rows = [_describe(i, a, b, label, p, fs, centres, f0, c, resonances_hz)
-            for i, (a, b, label) in enumerate(bounds)]  # fmt: skip
+        bounds.append((edge, duration, "silence", math.nan, math.nan))
+    rows = [{**_describe(i, a, b, label, p, fs, centres, f0, c, resonances_hz),
+             "blowing_onset_s": blow, "sounding_onset_s": sound}
+            for i, (a, b, label, blow, sound) in enumerate(bounds)]  # fmt: skip
     table = pd.DataFrame(rows, columns=list(SEGMENT_COLUMNS))
     tracks = {"t_level_s": t_lev, "level_pa": level, "t_f0_s": centres, "f0_hz": f0,
               "threshold_pa": threshold, "frame_s": frame}  # fmt: skip

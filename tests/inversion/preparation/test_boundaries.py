@@ -114,3 +114,70 @@ def test_a_squeak_at_2400_hz_is_reported_at_its_own_frequency():
 def test_runs_gives_first_and_past_the_last():
     assert runs(np.array([0, 1, 1, 0, 1], bool)) == [(1, 3), (4, 5)]
     assert runs(np.zeros(3, bool)) == []
+
+
+def test_a_slurred_note_20_db_below_both_neighbours_is_kept():
+    # a valley that is periodic is a soft note, not a gap: three notes, not two
+    rng = np.random.default_rng(5)
+    notes = [(0.1, 0.4, 200.0, 200.0, 0, 0.0), (0.4, 0.7, 250.0, 250.0, 0, -20.0),
+             (0.7, 1.0, 300.0, 300.0, 0, 0.0)]  # fmt: skip
+    x = take(notes, 1.1, rng)
+    assert_notes(x, [(0.1, 0.4, 200.0), (0.4, 0.7, 250.0), (0.7, 1.0, 300.0)])
+
+
+def test_a_subito_piano_keeps_its_soft_part():
+    # loud, then 20 dB softer at once at the same pitch and held: the soft part is a note
+    # (not the loud note's decay, nor its echo: it does not decay)
+    rng = np.random.default_rng(6)
+    notes = [(0.1, 0.5, 220.0, 220.0, 0, 0.0), (0.5, 0.9, 220.0, 220.0, 0, -20.0)]
+    x = take(notes, 1.0, rng)
+    assert_notes(x, [(0.1, 0.5, 220.0), (0.5, 0.9, 220.0)])
+
+
+def test_a_reverberant_decay_after_a_note_is_still_not_a_note():
+    # the same soft sound decaying (exponentially, 20 dB down at the start): an echo
+    rng = np.random.default_rng(7)
+    x = take([(0.1, 0.5, 220.0, 220.0, 0, 0.0)], 1.0, rng)
+    tail = take([(0.5, 0.9, 220.0, 220.0, 0, -20.0)], 1.0, rng)
+    t = np.arange(x.size) / FS
+    x += tail * np.exp(-np.clip(t - 0.5, 0, None) / 0.05)
+    assert_notes(x, [(0.1, 0.5, 220.0)])
+
+
+def test_each_note_reports_its_blowing_and_its_sounding_onset():
+    # the blowing rises over 40 ms (a breath's foot) before the tone sounds: the note's
+    # start is the blowing onset, its sounding onset is where the tone reaches its level
+    rng = np.random.default_rng(8)
+    x = take([(0.2, 0.6, 200.0, 200.0, 0, 0.0)], 0.8, rng)
+    foot = slice(int(0.16 * FS), int(0.2 * FS))
+    ramp = np.linspace(0, 1, foot.stop - foot.start)
+    x[foot] += breath(x.size, LOUD * 10 ** (-12 / 20), rng)[foot] * ramp
+    segs, _ = segment_take(x, FS, COND)
+    note = segs[segs["label"] == "note"].iloc[0]
+    assert abs(note["sounding_onset_s"] - 0.2) < 0.01
+    assert note["blowing_onset_s"] <= note["sounding_onset_s"]
+    assert note["blowing_onset_s"] == note["start_s"]
+    silence = segs[segs["label"] == "silence"]
+    assert silence["sounding_onset_s"].isna().all()
+
+
+@pytest.mark.parametrize("n", [40, 700])
+def test_side_medians_equal_a_direct_median_per_frame(n):
+    # the Fenwick-tree windows against the direct median of each window (a second method),
+    # with unvoiced frames and an uneven frame grid
+    from mpipe.inversion.preparation.boundaries import _side_medians
+
+    rng = np.random.default_rng(n)
+    times = np.cumsum(rng.uniform(0.003, 0.007, n))
+    cents = rng.normal(0, 80, n)
+    cents[rng.random(n) < 0.25] = np.nan
+    gap, side = 0.03, 0.025
+    before, after = _side_medians(times, cents, gap, side)
+    for i, t in enumerate(times):
+        lo = cents[(times >= t - gap - side) & (times <= t - gap)]
+        hi = cents[(times >= t + gap) & (times <= t + gap + side)]
+        lo, hi = lo[np.isfinite(lo)], hi[np.isfinite(hi)]
+        if lo.size >= 2 and hi.size >= 2:
+            assert before[i] == np.median(lo) and after[i] == np.median(hi)
+        else:
+            assert np.isnan(before[i]) and np.isnan(after[i])
