@@ -47,10 +47,11 @@ class FigureQueue:
 
     Notes
     -----
-    The process is started with ``spawn`` (not ``fork``): the run's parent holds threads
-    (a progress bar, a Dask client) whose locks a forked child could inherit held. It is
-    started on the first figure, so a run draws nothing it does not need. The arguments
-    travel by pickling: a take on disk (``DiskArray``) travels as its file name.
+    The process is started as the inversion's local workers are (the platform's default:
+    ``fork`` on Linux, so no imports to repeat and no ``__main__`` guard needed in a
+    script that calls :func:`mpipe.pipeline.orchestration.run_take`), on the first figure
+    (the separation's, before any compiled kernel or worker pool exists in the parent).
+    The arguments travel by pickling: a take on disk (``DiskArray``) as its file name.
     """
 
     def __init__(self, background: bool = True) -> None:
@@ -64,7 +65,7 @@ class FigureQueue:
             fn(*args, **kwargs)
             return
         if self._pool is None:
-            self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+            self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context())
         future = self._pool.submit(fn, *args, **kwargs)
         self._pending.append((getattr(fn, "__name__", "figure"), future))
 
