@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from mpipe.core.io import write_atomic, write_csv
+from mpipe.core.io import write_csv
 from mpipe.inversion.preparation.conditioning import bore_resonances
 from mpipe.inversion.preparation.kernel import take_temperature
 from mpipe.inversion.preparation.segments import segment_take
@@ -43,6 +43,7 @@ from mpipe.measurement.fingerings import NO_FIT_BELOW, FingeringChoice, harmonic
 from mpipe.measurement.measured_instrument import bore_description
 from mpipe.measurement.validation import ValidationConfig, validate
 from mpipe.measurement.validation_result import ValidationResult, plot_impedance
+from mpipe.pipeline.figures import draw_now, path_second
 
 #: Fewest half-overlapping Welch segments of a note's impedance estimate (as the take's).
 MIN_AVERAGES = 8
@@ -210,7 +211,7 @@ def validate_notes(
     return NotesValidation(table, results, verdict, reason)
 
 
-def stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg):
+def stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg, draw=None):
     """The work of ``mpipe run``'s validation stage: the take, or each of its notes.
 
     A take of one note with one fingering is validated as a whole (the take's own spectra);
@@ -238,7 +239,8 @@ def stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg):
         write_csv(folder / "impedance.csv", val.table())
         write_csv(folder / "validation.csv", val.resonances)
         write_csv(folder / "harmonics.csv", val.harmonics)
-        write_atomic(folder / "impedance.png", lambda t: plot_impedance(val, t, 2000.0))
+        # at once, or by ``draw(fn, *args)`` (a background process: mpipe.pipeline.figures)
+        (draw or draw_now)(path_second, plot_impedance, val, folder / "impedance.png", 2000.0)
         verdict, reason = val.verdict, val.reason
         if notes is not None:
             write_csv(folder / "notes.csv", notes.notes)

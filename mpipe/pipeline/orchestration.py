@@ -47,12 +47,18 @@ from mpipe.measurement.separation.waves import Theta
 from mpipe.measurement.translation import mouthpiece_noise, write_mouthpiece_wav
 from mpipe.measurement.translation_stream import translate_to_npz
 from mpipe.pipeline import report
+from mpipe.pipeline.figures import FigureQueue, draw_now, path_second
 from mpipe.pipeline.manifest import PARTIAL, StageRecord, run_stage
 from mpipe.pipeline.note_validation import say_validation, with_fingerings
 from mpipe.pipeline.note_validation import stage_validation as _stage_validation
 from mpipe.pipeline.report import plot_blocks
 from mpipe.pipeline.settings import PipelineConfig
-from mpipe.pipeline.take_calibration import sidecar_check
+from mpipe.pipeline.take_calibration import (
+    calibration_inputs,
+    conditioning_config,
+    present,
+    sidecar_check,
+)
 
 log = logging.getLogger(__name__)
 
@@ -98,7 +104,7 @@ def take_name(paths: Sequence[str | Path]) -> str:
     return Path(paths[0]).stem
 
 
-def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
+def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig, draw=draw_now):
 
     def work(folder: Path):
         # one rate for the whole pipeline: takes at other rates are resampled when read
@@ -114,7 +120,7 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig):
         write_csv(folder / "blocks.csv", sep.blocks)
         track = sep.track
         words = track.sentence("°C", "±") if track is not None else ""
-        write_atomic(folder / "blocks.png", lambda t: plot_blocks(sep.blocks, t, words))
+        draw(path_second, plot_blocks, sep.blocks, folder / "blocks.png", words)
         b = sep.blocks
         summary = {
             "duration_s": found["n_samples"] / take.fs,
@@ -171,7 +177,8 @@ def _stage_translation(folder_sep: Path, cal: Calibration, cfg: PipelineConfig):
     return work
 
 
-def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig, notes=None):
+def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig, notes=None,
+                        draw=draw_now):  # fmt: skip
 
     inv = cfg.inversion
 
@@ -186,8 +193,7 @@ def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig,
         segments, table = with_fingerings(segments, table, notes, cal)
         write_csv(folder / "plan.csv", table)
         write_csv(folder / "segments.csv", segments)
-        plot_segments(segments, tracks, folder / "segments.png",
-                      cfg.conditioning.a4_hz)  # fmt: skip
+        draw(plot_segments, segments, tracks, folder / "segments.png", cfg.conditioning.a4_hz)
         f0 = table["f0_hz"].to_numpy(dtype=float)
         summary = {
             "windows": len(table),
@@ -204,9 +210,8 @@ def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig,
     return work
 
 
-def _stage_inversion(
-    mouthpiece: Path, plan: Path, cal: Calibration, cfg: PipelineConfig, client, checks=()
-):
+def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: PipelineConfig,
+                     client, checks=(), draw=draw_now):  # fmt: skip
     # lazy: the resynthesis module loads matplotlib (~0.4 s of every command's start-up)
     from mpipe.inversion.output import resynthesis as rs
     from mpipe.inversion.output.tracks_plot import plot_tracks
@@ -240,14 +245,14 @@ def _stage_inversion(
         write_csv(folder / "segments.csv", per_segment)
         written = write_table(table, folder)
         write_correlations(result.correlations, folder)
-        plot_tracks(table, folder / "tracks.png", per_segment, cal.fingering)
+        draw(plot_tracks, table, folder / "tracks.png", per_segment, cal.fingering)
         outputs = {"windows": "windows.csv", "tracks": "tracks.png", "segments": "segments.csv"}
         outputs["correlations"] = "correlations.csv"
         if any(w.suffix == ".parquet" for w in written):
             outputs["windows_parquet"] = "windows.parquet"
         outputs.update(
             rs.plot_fit_figures(
-                table, result.histories, p, u, fs, air.rho, inv, result.zero_mean, folder
+                table, result.histories, p, u, fs, air.rho, inv, result.zero_mean, folder, draw
             )
         )
         ok = table[table["status"] == "ok"]
@@ -278,7 +283,7 @@ def _stage_inversion(
     return work
 
 
-def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
+def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean, draw=draw_now):
     # lazy: the resynthesis module loads matplotlib (~0.4 s of every command's start-up)
     from mpipe.inversion.output import resynthesis_stream as rss
     from mpipe.inversion.output.note_figures import plot_notes, plot_overlays
@@ -308,9 +313,10 @@ def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
                      lambda tmp: rss.write_wav_blocks(tmp, res["p"], fs, full_scale))  # fmt: skip
         outputs = {"signals": "resynthesis.npz", "wav": "resynthesis.wav"}
         signals = ((p, u), (res["p"], res["u"]))
-        outputs.update(plot_overlays(table, *signals, fs, cfg.resynthesis.overlay_windows, folder))
+        count = cfg.resynthesis.overlay_windows
+        outputs.update(plot_overlays(table, *signals, fs, count, folder, draw))
         segments = pd.read_csv(windows.parent / "segments.csv")
-        outputs.update(plot_notes(table, segments, *signals, fs, folder, cal.fingering))
+        outputs.update(plot_notes(table, segments, *signals, fs, folder, cal.fingering, draw))
         rel = rss.residual_ratio(p, res["p"])
         summary = {"relative_residual_p": rel,
                    "samples_resynthesised": rss.resynthesised_samples(res["p"])}  # fmt: skip
@@ -357,6 +363,9 @@ def run_take_unlocked(
 ) -> TakeRun:
     """Run every stage on one take (the caller holds the lock of its output folder).
 
+    The figures are drawn in the background while later stages run (in this process
+    with ``executor.workers: 1``): :mod:`mpipe.pipeline.figures`.
+
     Parameters
     ----------
     cfg : PipelineConfig
@@ -388,13 +397,23 @@ def run_take_unlocked(
         When the validation FAILs and ``accept_failed_validation`` is not set: the run
         stops before the inversion.
     """
+    with FigureQueue(background=cfg.executor.workers != 1) as figures:
+        return _run_stages(
+            cfg, cal_path, take_paths, out, force, client, say, accept_failed_validation, name,
+            figures,
+        )  # fmt: skip
+
+
+def _run_stages(cfg, cal_path, take_paths, out, force, client, say, accept_failed_validation,
+                name, figures: FigureQueue) -> TakeRun:  # fmt: skip
+    """The body of :func:`run_take_unlocked`, its figures handed to ``figures``."""
     take_paths = [Path(p) for p in take_paths]
     cal = load_calibration(cal_path, cfg.fingering)
     name = name or take_name(take_paths)
     root = Path(out) / name
     d = {s: root / s for s in STAGES}
     records: dict[str, StageRecord] = {}
-    cal_inputs = _calibration_inputs(cal, cal_path)
+    cal_inputs = calibration_inputs(cal, cal_path)
     redone = False
     if cal.bore.measured_input is not None:  # not the geometry's theory: say so, and its fit
         say(f"[{name}]     {bore_description(cal)}")
@@ -417,7 +436,7 @@ def run_take_unlocked(
 
     takes = {f"take_{i}": p for i, p in enumerate(take_paths)}
     stage(1, "separation", {**takes, **cal_inputs}, cfg.separation,
-          _stage_separation(take_paths, cal, cfg))  # fmt: skip
+          _stage_separation(take_paths, cal, cfg, figures.draw))  # fmt: skip
     reference = d["separation"] / "reference.npz"
     blocks = d["separation"] / "blocks.csv"
     stage(2, "translation", {"reference": reference, **cal_inputs}, cfg.translation,
@@ -425,7 +444,8 @@ def run_take_unlocked(
     mouthpiece = d["translation"] / "mouthpiece.npz"
     val_config = {"validation": cfg.validation, "conditioning": cfg.conditioning}
     val = stage(3, "validation", {"mouthpiece": mouthpiece, "blocks": blocks, **cal_inputs},
-                val_config, _stage_validation(mouthpiece, blocks, cal, cfg))  # fmt: skip
+                val_config, _stage_validation(mouthpiece, blocks, cal, cfg,
+                                              figures.draw))  # fmt: skip
     verdict = val.summary["verdict"]
     say_validation(say, name, val.summary)
     if verdict == "fail":
@@ -437,8 +457,8 @@ def run_take_unlocked(
         say(f"[{name}]     inverting despite the FAILED validation (--accept-failed-validation)")
     notes = d["validation"] / "notes.csv"  # a phrase's fingerings, when validated per note
     cond = stage(4, "conditioning", {"mouthpiece": mouthpiece, **cal_inputs,
-                 **_present(notes=notes)}, _conditioning_config(cfg),
-                 _stage_conditioning(mouthpiece, cal, cfg, notes))  # fmt: skip
+                 **present(notes=notes)}, conditioning_config(cfg),
+                 _stage_conditioning(mouthpiece, cal, cfg, notes, figures.draw))  # fmt: skip
     say(f"[{name}]     {cond.summary['to_invert']} of {cond.summary['windows']} windows to invert")
     plan = d["conditioning"] / "plan.csv"
     inv_inputs = {"mouthpiece": mouthpiece, "plan": plan, "blocks": blocks, **cal_inputs}
@@ -446,7 +466,8 @@ def run_take_unlocked(
     mismatch = sidecar_check(take_paths, cal)
     inv = stage(5, "inversion", inv_inputs, cfg.inversion,
                 _stage_inversion(mouthpiece, plan, cal, cfg, client,
-                                 (mismatch, *val.summary.get("fingering_checks", []))))  # fmt: skip
+                                 (mismatch, *val.summary.get("fingering_checks", [])),
+                                 figures.draw))  # fmt: skip
     say(f"[{name}]     {inv.summary['temperature_line']}")
     for line in inv.summary.get("segment_lines", []):
         say(f"[{name}]     {line}")
@@ -459,33 +480,11 @@ def run_take_unlocked(
     zero_mean = bool(records["inversion"].summary["zero_mean_flow"])
     stage(6, "resynthesis", {"mouthpiece": mouthpiece, "windows": windows, **cal_inputs},
           {"resynthesis": cfg.resynthesis, "inversion": cfg.inversion},
-          _stage_resynthesis(mouthpiece, windows, cal, cfg, zero_mean))  # fmt: skip
+          _stage_resynthesis(mouthpiece, windows, cal, cfg, zero_mean, figures.draw))  # fmt: skip
+    figures.wait()  # the report shows them
     report = write_take_report(root, name, take_paths, cal_path, records)
     say(f"[{name}]     report: {report}")
     return TakeRun(name, root, records, report)
-
-
-def _calibration_inputs(cal: Calibration, cal_path: Path) -> dict:
-    """The files a calibration reads (every stage's inputs): itself, a measured bore, tables."""
-    found = {"calibration": cal_path}
-    if cal.bore.measured_input is not None:
-        found["measured_impedance"] = Path(cal.bore.measured_input.source)
-    for mic in cal.microphones:
-        path = cal.calibration_path(mic)
-        if path is not None:
-            found[f"mic_calibration_{mic.name}"] = path
-    return found
-
-
-def _conditioning_config(cfg: PipelineConfig) -> dict:
-    """The settings the conditioning stage depends on (its manifest's configuration)."""
-    return {"conditioning": cfg.conditioning, "window_s": cfg.inversion.window_s,
-            "hop_s": cfg.inversion.hop_s, "signal": cfg.inversion.signal}  # fmt: skip
-
-
-def _present(**paths: Path) -> dict:
-    """The paths that exist (an optional input of a stage)."""
-    return {k: v for k, v in paths.items() if v.exists()}
 
 
 def usable(run: TakeRun) -> bool:

@@ -132,7 +132,33 @@ def sidecar_check(take: Sequence[str | Path], calibration: Calibration) -> str:
     )
 
 
+def calibration_inputs(cal: Calibration, cal_path: Path) -> dict:
+    """The files a calibration reads (every stage's inputs): itself, a measured bore, tables."""
+    found = {"calibration": cal_path}
+    if cal.bore.measured_input is not None:
+        found["measured_impedance"] = Path(cal.bore.measured_input.source)
+    for mic in cal.microphones:
+        path = cal.calibration_path(mic)
+        if path is not None:
+            found[f"mic_calibration_{mic.name}"] = path
+    return found
+
+
+def conditioning_config(cfg) -> dict:
+    """The settings the conditioning stage depends on (its manifest's configuration)."""
+    return {"conditioning": cfg.conditioning, "window_s": cfg.inversion.window_s,
+            "hop_s": cfg.inversion.hop_s, "signal": cfg.inversion.signal}  # fmt: skip
+
+
+def present(**paths: Path) -> dict:
+    """The paths that exist (an optional input of a stage)."""
+    return {k: v for k, v in paths.items() if v.exists()}
+
+
 __all__ = [
+    "calibration_inputs",
+    "conditioning_config",
+    "present",
     "SENSITIVITY_TOLERANCE",
     "own_calibration",
     "same_calibration",

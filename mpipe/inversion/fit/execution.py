@@ -77,7 +77,9 @@ def run_windows(
     instead of recomputed.
 
     A window given with a previous row is a retry: it gets a cold start of its own, and its
-    row is replaced when the cold start reaches a lower F2 (``retried_cold`` either way).
+    row is replaced when the cold start reaches a lower F2 (``retried_cold`` either way);
+    when ``warm`` maps its start to a list of reeds (its neighbours' answers), it is warm
+    started from each of those instead, the lowest F2 kept.
     """
     with _one_blas_thread():
         return _run_windows_inner(job, items, warm, report)
@@ -108,6 +110,8 @@ def _one_window(job: Job, s: int, previous: dict | None, warm) -> tuple[dict, np
     saved = None if job.checkpoint is None else load_checkpoint(job.checkpoint, s)
     if previous is not None and saved is not None and saved[0].get("retried_cold"):
         row, hist = saved
+    elif previous is not None and isinstance(warm, Mapping) and s in warm:
+        row, hist = _retry_from(job, s, previous, warm[s])
     elif previous is not None:
         row, hist = _retry_cold(job, s, previous)
     elif saved is not None:
@@ -121,6 +125,22 @@ def _one_window(job: Job, s: int, previous: dict | None, warm) -> tuple[dict, np
         row, hist = o.row, None if o.search is None else o.search.history
     if job.checkpoint is not None and (saved is None or previous is not None):
         save_checkpoint(job.checkpoint, s, row, hist)
+    return row, hist
+
+
+def _retry_from(job: Job, s: int, previous: dict, starts) -> tuple[dict, np.ndarray | None]:
+    """Warm starts from ``starts`` (the neighbours' reeds), the lowest F2 kept if lower.
+
+    ``previous``'s row stays when none is lower. Not a cold retry: one may still follow.
+    """
+    row, hist = previous, None
+    for reed in starts:
+        o = invert_window(
+            job.p, job.u, job.fs, s, job.kernel, job.rho, job.config,
+            zero_mean=job.zero_mean, warm=reed,
+        )  # fmt: skip
+        if not o.row["error"] and o.row["f2"] < row["f2"]:
+            row, hist = o.row, None if o.search is None else o.search.history
     return row, hist
 
 

@@ -106,6 +106,7 @@ def plot_notes(
     fs: float,
     folder: str | Path,
     fingering: str | None = None,
+    draw=None,
 ) -> dict[str, str]:
     """Write ``flow_pressure_note_<n>.png`` for every note with an inverted window.
 
@@ -123,12 +124,15 @@ def plot_notes(
         Output folder.
     fingering : str, optional
         The fingering played.
+    draw : callable, optional
+        ``draw(fn, *args)`` draws a figure (e.g. in a background process); None: at once.
 
     Returns
     -------
     dict
         Output name (``note_<n>``) -> file name.
     """
+    draw = draw or _draw_now
     outputs = {}
     for _, note in note_rows(segments).iterrows():
         row = pick_window(table[table["segment"] == note["segment"]])
@@ -138,7 +142,7 @@ def plot_notes(
         name = f"flow_pressure_note_{note['number']}.png"
         sig = (measured[0][i0:i1], measured[1][i0:i1],
                resynthesised[0][i0:i1], resynthesised[1][i0:i1])  # fmt: skip
-        plot_note(sig, fs, row, Path(folder) / name, note_label(note, fingering))
+        draw(plot_note, sig, fs, row, Path(folder) / name, note_label(note, fingering))
         outputs[f"note_{note['number']}"] = name
     return outputs
 
@@ -150,6 +154,7 @@ def plot_overlays(
     fs: float,
     count: int,
     folder: str | Path,
+    draw=None,
 ) -> dict[str, str]:
     """Write ``overlay_<i>.png``: ``count`` whole windows spread over the take, with status.
 
@@ -165,12 +170,15 @@ def plot_overlays(
         Windows to draw (``resynthesis.overlay_windows``).
     folder : str or Path
         Output folder.
+    draw : callable, optional
+        ``draw(fn, *args)`` draws a figure (e.g. in a background process); None: at once.
 
     Returns
     -------
     dict
         Output name (``overlay_<i>``) -> file name.
     """
+    draw = draw or _draw_now
     ok = table[table["error"] == ""]
     if not len(ok):
         return {}
@@ -180,11 +188,16 @@ def plot_overlays(
         cut = slice(int(round(row["t_start_s"] * fs)), int(round(row["t_end_s"] * fs)))
         name = f"overlay_{j + 1}.png"
         t = np.arange(cut.start, cut.stop) / fs  # the window's times only, s
-        plot_signals(t, measured[0][cut], measured[1][cut], resynthesised[0][cut],
+        draw(plot_signals, t, measured[0][cut], measured[1][cut], resynthesised[0][cut],
                      resynthesised[1][cut], Path(folder) / name, window_words(row),
                      row["status"])  # fmt: skip
         outputs[f"overlay_{j + 1}"] = name
     return outputs
+
+
+def _draw_now(fn, *args):
+    """Draw a figure at once, in this process."""
+    return fn(*args)
 
 
 __all__ = ["note_figure", "plot_note", "plot_notes", "plot_overlays"]

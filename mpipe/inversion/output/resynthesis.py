@@ -390,6 +390,7 @@ def plot_fit_figures(
     config: InversionConfig,
     zero_mean: bool,
     folder: str | Path,
+    draw: Callable | None = None,
 ) -> dict[str, str]:
     """Figures 7 and 8 of the paper for the window that shows the first note best.
 
@@ -415,12 +416,16 @@ def plot_fit_figures(
         Whether the flow is zero-mean (measured).
     folder : str or Path
         Output folder.
+    draw : callable, optional
+        ``draw(fn, *args)`` draws a figure (e.g. in a background process); None: at once.
+        Step 1's fit is made where the figure is drawn.
 
     Returns
     -------
     dict
         Output name -> file name of the figures written.
     """
+    draw = draw or (lambda fn, *args: fn(*args))
     folder = Path(folder)
     rows = table
     if "segment" in table and table["segment"].notna().any():
@@ -429,16 +434,20 @@ def plot_fit_figures(
     if first is None:
         return {}
     i0, i1 = int(round(first["t_start_s"] * fs)), int(round(first["t_end_s"] * fs))
-    s1 = step1(
-        p[i0:i1], u[i0:i1], fs, rho=rho, lam=config.lam,
-        zero_mean=zero_mean, p_m=config.step1_p_m, y_c=config.y_c,
-    )  # fmt: skip
     f0 = float(first.get("f0_hz", np.nan))
-    plot_flow_pressure(p[i0:i1], u[i0:i1], fs, s1, folder / "flow_pressure.png",
-                       zero_mean, f0, "step 1 of " + window_words(first))  # fmt: skip
+    draw(plot_step1, (p[i0:i1], u[i0:i1]), fs, rho, config, zero_mean, f0,
+         "step 1 of " + window_words(first), folder / "flow_pressure.png")  # fmt: skip
     outputs = {"flow_pressure": "flow_pressure.png"}
     w = int(first["window"])
     if w in histories:
-        plot_history(histories[w], folder / "history.png")
+        draw(plot_history, histories[w], folder / "history.png")
         outputs["history"] = "history.png"
     return outputs
+
+
+def plot_step1(signals, fs, rho, config, zero_mean, f0, title, path) -> Path:
+    """Step 1 on one window (``signals``: its p in Pa, u in m^3/s), drawn as Figure 7."""
+    p, u = signals
+    s1 = step1(p, u, fs, rho=rho, lam=config.lam, zero_mean=zero_mean, p_m=config.step1_p_m,
+               y_c=config.y_c)  # fmt: skip
+    return plot_flow_pressure(p, u, fs, s1, path, zero_mean, f0, title)

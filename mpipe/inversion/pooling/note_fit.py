@@ -121,9 +121,10 @@ def fit_note(
     bounds: np.ndarray,
     n_fast: int,
     *,
-    max_iterations: int = 30,
+    max_iterations: int = 200,
     x_tolerance: float = 1e-6,
-    f_tolerance: float = 1e-9,
+    se_tolerance: float = 0.01,
+    f_tolerance: float | None = None,
 ) -> NoteFit:
     """Minimise the note's sum of squares over shared slow and per-window fast parameters.
 
@@ -140,11 +141,18 @@ def fit_note(
     n_fast : int
         How many leading columns are per window.
     max_iterations : int
-        Steps tried at most.
+        Steps tried at most (a safeguard: the fit stops by ``se_tolerance``).
     x_tolerance : float
         Stop when the step in log parameters is below ``x_tolerance (1 + ||z||)``.
-    f_tolerance : float
-        Or when an accepted step lowers the sum of squares by less than this fraction.
+    se_tolerance : float
+        Stop when an accepted step is below this many standard errors in every parameter:
+        its length in the fit's own metric, ``sqrt(dz' J'J dz) / sigma`` with
+        ``sigma^2 = cost / (N - P)``, bounds ``|dz_j| / se_j`` for every parameter j
+        (Cauchy-Schwarz), so the rule is measured in SEs, not in a relative fall of the
+        cost (which stopped a crescendo's stretch at 30 steps far from its minimum).
+    f_tolerance : float, optional
+        Or when an accepted step lowers the sum of squares by less than this fraction
+        (None: not used).
 
     Returns
     -------
@@ -193,10 +201,14 @@ def fit_note(
         gain = (cost - new_cost) / predicted if predicted > 0 else -1.0
         if gain > 0:
             fall = cost - new_cost
+            in_se = _step_in_se(jacs, dz, n_fast, new_cost)
             z, (res, jacs), cost = z_new, trial, new_cost
             mu *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
             nu = 2.0
-            if fall <= f_tolerance * cost:
+            if in_se <= se_tolerance:
+                message, converged = f"step below {se_tolerance:g} SE in every parameter", True
+                break
+            if f_tolerance is not None and fall <= f_tolerance * cost:
                 message, converged = "fall of the sum of squares below tolerance", True
                 break
         else:
@@ -206,6 +218,24 @@ def fit_note(
                 message, converged = "no step lowers the sum of squares", True
                 break
     return NoteFit(names, n_fast, np.exp(z), res, jacs, cost, start_cost, steps, converged, message)
+
+
+def _step_in_se(jacs, dz: np.ndarray, n_fast: int, cost: float) -> float:
+    """A step's length in standard errors: ``sqrt(sum_w |J_w dz_w|^2 / sigma^2)``.
+
+    ``sigma^2 = cost / (N - P)`` (N residual samples, P parameters); an upper bound on the
+    step of every parameter in units of its SE (the Gauss-Newton covariance).
+    """
+    n = sum(j.shape[0] for j in jacs)
+    p = n_fast * len(jacs) + dz.shape[1] - n_fast
+    sigma2 = cost / max(n - p, 1)
+    if not sigma2 > 0:
+        return math.inf
+    moved = sum(
+        float(np.sum((j @ np.concatenate([d[:n_fast], dz[0, n_fast:]])) ** 2))
+        for j, d in zip(jacs, dz, strict=True)
+    )
+    return math.sqrt(moved / sigma2)
 
 
 def note_covariance(

@@ -31,6 +31,7 @@ from collections.abc import Callable
 import numpy as np
 import pandas as pd
 
+from mpipe.inversion.fit.history_start import lead_in
 from mpipe.inversion.fit.objective import F2Objective, ObjectiveSettings, TargetWindow
 from mpipe.inversion.fit.window import window_bounds
 from mpipe.inversion.pooling.note_fit import fit_note, note_covariance, split_names
@@ -132,7 +133,10 @@ def _starts(rows: pd.DataFrame, names: tuple[str, ...], n_fast: int) -> np.ndarr
 def _objective(row, start, p, u, fs, kernel, config, zero_mean, names, n):
     """Window ``row``'s objective over the searched parameters, and its bounds (``names``)."""
     s = int(round(float(row["t_start_s"]) * fs))
-    target = TargetWindow(p[s : s + n], u[s : s + n], p[:s], u[:s], fs, zero_mean)
+    # the history the model reads (its lead-in and the bore's taps), as the window fit's:
+    # not the take's whole past, which cost 3.6x the memory on a two-note take
+    history = lead_in(p, u, s, n, kernel.n_taps, config.lead_s, fs)
+    target = TargetWindow(p[s : s + n], u[s : s + n], *history, fs, zero_mean)
     settings = ObjectiveSettings(
         lead_s=config.lead_s, lowpass=config.lowpass.design(fs) if zero_mean else None
     )

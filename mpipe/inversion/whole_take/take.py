@@ -7,7 +7,7 @@ table whichever is used:
 1. the temperature the signals carry (the wave separation's estimate, else the
    calibration's; :func:`mpipe.inversion.preparation.kernel.take_temperature`);
 2. the kernel temperature fitted to the playing from there, on windows spread over every
-   note, each note with its own cold start
+   note, one cold start per take (later notes start from the note before)
    (:func:`mpipe.inversion.whole_take.temperature.fit_temperature`; ``inversion.temperature``);
 3. every window started from its note's cold start on the kernel at the fitted
    temperature (:func:`mpipe.inversion.whole_take.tracking.track`);

@@ -51,7 +51,9 @@ from mpipe.inversion.whole_take.temperature_profile import (
     COARSE_C,
     FINE_C,
     Profile,
+    cold_starts,
     memo_start,
+    same_basin,
     settle,
 )
 from mpipe.inversion.whole_take.tracking import WindowPlan
@@ -180,7 +182,8 @@ def fit_temperature(
         Bore and air model.
     windows : WindowPlan or sequence of int
         The windows planned for inversion (:class:`mpipe.inversion.whole_take.tracking.WindowPlan`),
-        or their first samples (one segment). Each segment fitted gets its own cold start,
+        or their first samples (one segment). Each segment fitted gets its own start
+        (the first cold, later ones warm from the one before when that holds),
         and its windows start from it; the fit prefers steady windows (see
         :func:`pick_by_segment`).
     config : InversionConfig
@@ -211,7 +214,7 @@ def fit_temperature(
         firsts.setdefault(g, s)
     # each window on its note's fingering's bore (one bore when the take has one fingering)
     source = KernelSource(calibration, fs, plan.fingering_map(), build=_build)
-    cold = functools.partial(_cold_starts, p, u, fs, firsts, zero_mean, source)
+    cold = functools.partial(cold_starts, p, u, fs, firsts, zero_mean, source)
     solve = functools.partial(_solve, p, u, fs, source, chosen, config, zero_mean)
     runs, error = _profiles(solve, cold, config, groups, front_end_c, lo, hi)
     if not runs:
@@ -324,17 +327,6 @@ def _build(calibration, fs: float, t: float):
     return bore_kernel(calibration, fs, t)
 
 
-def _cold_starts(p, u, fs, firsts, zero_mean, source, t, config) -> dict:
-    """Segment -> the cold start of its first fitted window at ``t`` degC (stops at a failure)."""
-    out = {}
-    for g, start in firsts.items():
-        kernel, air = source.at(t, start)
-        out[g] = invert_window(p, u, fs, start, kernel, air.rho, config, zero_mean=zero_mean)
-        if out[g].reed is None:
-            break
-    return out
-
-
 def _solve(p, u, fs, source, chosen, config, zero_mean, t: float, warm: Sequence):
     """``R(T)`` (Pa^2), the windows' reeds and rows at kernel temperature ``t`` (degC)."""
     air = source.at(t)[1]
@@ -366,7 +358,8 @@ def _profiles(solve, cold, config, groups, t_cold, lo, hi):
     The cold start's basin depends on the kernel: one made at a temperature far from the
     fitted one may hold a wrong minimum (m and g collapsed), which warm starts then carry
     along the whole profile. The cold start is made again where the fit ended until the
-    fit ends near its own cold start (``RESTART_C``, at most ``RESTARTS`` times).
+    fit ends near its own cold start (``RESTART_C``, at most ``RESTARTS`` times), unless
+    one cold start there finds the profile's own basin (:func:`same_basin`).
     """
     runs, error = [], ""
     for _ in range(1 + RESTARTS):
@@ -383,6 +376,8 @@ def _profiles(solve, cold, config, groups, t_cold, lo, hi):
         runs.append((profile, settled, first, t_cold))
         if settled is None or abs(settled[0] - t_cold) <= RESTART_C:
             break
+        if same_basin(profile, settled[2], cold, config, groups[0]):
+            break  # the cold start made again finds the profile's own basin: nothing changes
         t_cold = min(max(settled[0], lo), hi)
     return runs, error
 

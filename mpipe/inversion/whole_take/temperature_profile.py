@@ -2,7 +2,9 @@
 
 :class:`Profile` memoises ``R(T) = sum over the fitted windows of F2^2`` with each window's
 reed re-fitted at T (warm started from the nearest temperature tried); :func:`settle`
-finds its minimum (:mod:`mpipe.inversion.whole_take.temperature` uses both).
+finds its minimum (:mod:`mpipe.inversion.whole_take.temperature` uses both). The profile's
+starts: one cold start per take, later notes warm from the note before (:func:`cold_starts`),
+and whether a cold start made again would change anything (:func:`same_basin`).
 """
 
 from __future__ import annotations
@@ -14,9 +16,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mpipe.inversion.fit.window import invert_window
+from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
 from mpipe.inversion.trust.note_temperature import parabola_vertex
 from mpipe.reed.parameters import ReedParameters
 
+#: Two reeds are in one basin of step 2 when every parameter agrees to this log distance
+#: (5 %): the basins a cold start far from the fitted temperature falls into differ by
+#: factors (m and g collapsed), the warm and cold searches of one basin by far less.
+BASIN_TOLERANCE = 0.05
 #: Spacing of the coarse and the fine triples of :func:`settle`, degC.
 COARSE_C = 1.0
 FINE_C = 0.25
@@ -122,4 +130,78 @@ def memo_start(profile: Profile) -> float:
     return near if near is not None and abs(near - start) <= FINE_C / 2 else start
 
 
-__all__ = ["COARSE_C", "FINE_C", "Profile", "memo_start", "settle"]
+def cold_starts(p, u, fs, firsts, zero_mean, source, t, config, only=None) -> dict:
+    """Segment -> the start of its first fitted window at ``t`` degC (stops at a failure).
+
+    One cold start per take: the first note is cold-started, each later note starts warm
+    from the note before it and is cold-started only when that start does not hold
+    (:func:`holds`): a note's reed is near its neighbour's, and the global search costs
+    about 0.7 s of CPU per note. ``only``: the cold start of that segment alone.
+    """
+    out, before, first = {}, None, None
+    for g, start in firsts.items():
+        if only is not None and g != only:
+            continue
+        kernel, air = source.at(t, start)
+        fit = None
+        if before is not None:
+            fit = invert_window(p, u, fs, start, kernel, air.rho, config,
+                                zero_mean=zero_mean, warm=before.reed)  # fmt: skip
+            fit = fit if holds(fit, first, config) else None
+        if fit is None:
+            fit = invert_window(p, u, fs, start, kernel, air.rho, config, zero_mean=zero_mean)
+        out[g] = fit
+        if fit.reed is None:
+            break
+        before, first = fit, first or fit
+    return out
+
+
+def holds(fit, first, config: InversionConfig) -> bool:
+    """Whether a note's warm start is as good as a cold start would be.
+
+    Converged, and its relative residual within ``residual_factor`` of the take's cold
+    start's (the rule that makes a window ``high-residual``,
+    :func:`mpipe.inversion.trust.status.classify`): a start in a wrong basin plays the
+    note markedly worse than the cold-started note played its own.
+    """
+    if fit.reed is None or not fit.row.get("optimiser_converged"):
+        return False
+    ours, theirs = fit.row.get("relative_residual"), first.row.get("relative_residual")
+    if ours is None or theirs is None or not (math.isfinite(ours) and math.isfinite(theirs)):
+        return False
+    return ours <= config.residual_factor * theirs
+
+
+def same_basin(profile: Profile, centre: float, cold, config, group) -> bool:
+    """Whether a cold start at ``centre`` (degC) lands in the profile's own basin.
+
+    One cold start, of the first note's first fitted window at the temperature the profile
+    settled at, beside that window's warm-tracked reed there: when every parameter agrees
+    within :data:`BASIN_TOLERANCE`, making every note's cold start again and settling a
+    second profile would reproduce the first (the repeat cost 2-3 s of CPU on a 2 s take).
+    Otherwise the repeat is made. (The reeds are compared, not their F2: at a temperature
+    far from its own minimum the right basin may fit worse than a wrong one.)
+    """
+    tried = profile.tried.get(round(centre, 4))
+    first = cold(centre, config, only=group).get(group)
+    if tried is None or not tried[1] or first is None or first.reed is None:
+        return False
+    warm = tried[1][0]
+    return all(
+        abs(math.log(getattr(first.reed, name) / getattr(warm, name))) <= BASIN_TOLERANCE
+        for name in PARAMETER_NAMES
+        if getattr(first.reed, name) > 0 and getattr(warm, name) > 0
+    )
+
+
+__all__ = [
+    "COARSE_C",
+    "FINE_C",
+    "Profile",
+    "cold_starts",
+    "holds",
+    "memo_start",
+    "same_basin",
+    "settle",
+]

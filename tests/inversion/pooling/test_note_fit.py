@@ -110,3 +110,25 @@ def test_pooled_se_of_a_slow_parameter_is_below_the_per_window_one(note):
     single = np.sqrt(np.median([np.diag(c)[2:] for c in own], axis=0))
     # five windows: the note's information on the slow ones is at least one window's
     assert np.all(pooled < single)
+
+
+def test_the_fit_stops_by_its_step_in_standard_errors(note):
+    # the stop is measured in SEs, not in a relative fall of the cost: the fit stopped by
+    # it lies within 0.05 SE (the note's own covariance) of the same fit run on to a step
+    # of 1e-12, in every slow and every fast parameter
+    kernel, p0, u = note
+    p = _noisy(p0, 5)
+    objectives, bounds = _windows(kernel, p, u, range(10000, 20000, N))
+    start = np.tile(TRUTH, (len(objectives), 1))
+    start[:, :2] *= 0.98
+    start[:, 2:] *= 1.05
+    fit = fit_note(objectives, start, bounds, 2, x_tolerance=0.0)  # the SE rule alone
+    assert fit.converged and "SE in every parameter" in fit.message
+    full = fit_note(objectives, start, bounds, 2, x_tolerance=1e-12, se_tolerance=0.0,
+                    max_iterations=500)  # fmt: skip
+    cov, _ = note_covariance(full, [o.target.p for o in objectives], FS)
+    slow = np.log(fit.x[0, 2:] / full.x[0, 2:]) / np.sqrt(np.diag(cov.slow))
+    assert np.all(np.abs(slow) < 0.05), slow
+    for i in range(len(objectives)):
+        fast = np.log(fit.x[i, :2] / full.x[i, :2]) / np.sqrt(np.diag(cov.window(i))[:2])
+        assert np.all(np.abs(fast) < 0.05), (i, fast)

@@ -145,11 +145,13 @@ class _FakeWorld:
         )
         self.right, self.wrong = base, dataclasses.replace(base, m=0.01, g=400.0)
         self.cold_starts = []
+        self.calls = 0
 
     def bore_kernel(self, calibration, fs, t):
         return SimpleNamespace(t=t, z0=4e6), SimpleNamespace(rho=1.2)
 
     def invert_window(self, p, u, fs, start, kernel, rho, config, *, zero_mean, warm=None):
+        self.calls += 1
         if warm is None:
             self.cold_starts.append(kernel.t)
             warm = self.wrong if abs(kernel.t - 20.0) > 1.5 else self.right
@@ -164,18 +166,27 @@ class _FakeWorld:
             "dof": 92.0,
             "cold_starts_agreeing": 5.0,
             "error": "",
+            "optimiser_converged": True,
+            "relative_residual": math.sqrt(r) / 1e4,
         }
         return SimpleNamespace(reed=reed, row=row)
+
+
+def _faked(monkeypatch):
+    from mpipe.inversion.whole_take import temperature, temperature_profile
+
+    world = _FakeWorld()
+    for module in (temperature, temperature_profile):
+        monkeypatch.setattr(module, "invert_window", world.invert_window)
+    monkeypatch.setattr(temperature, "bore_kernel", world.bore_kernel)
+    return world, temperature
 
 
 @pytest.mark.parametrize("restarts", [0, 2])
 def test_a_cold_start_far_from_the_fitted_temperature_is_made_again(monkeypatch, restarts):
     from mpipe.inversion.settings import InversionConfig
-    from mpipe.inversion.whole_take import temperature
 
-    world = _FakeWorld()
-    monkeypatch.setattr(temperature, "invert_window", world.invert_window)
-    monkeypatch.setattr(temperature, "bore_kernel", world.bore_kernel)
+    world, temperature = _faked(monkeypatch)
     monkeypatch.setattr(temperature, "RESTARTS", restarts)
     fit = temperature.fit_temperature(
         np.zeros(10_000), np.zeros(10_000), 1e5, None, [0, 2000, 4000], InversionConfig(),
@@ -190,6 +201,53 @@ def test_a_cold_start_far_from_the_fitted_temperature_is_made_again(monkeypatch,
         assert fit.anchor.m == world.wrong.m
     slope = 0.2 / (1 + 0.2 * (fit.temperature_c - 20))  # d ln S / dT of the fake
     assert fit.sensitivity["S"] == pytest.approx(slope, rel=0.05)
+
+
+def test_a_cold_start_made_again_in_the_same_basin_settles_no_second_profile(monkeypatch):
+    # from 20.8 degC the cold start finds the right basin already; the fit ends at 20.0,
+    # 0.8 degC away: one cold start there checks the basin (the same), and the profile of
+    # the first run is the answer: every other call is one of its evaluations
+    from mpipe.inversion.settings import InversionConfig
+
+    world, temperature = _faked(monkeypatch)
+    fit = temperature.fit_temperature(
+        np.zeros(10_000), np.zeros(10_000), 1e5, None, [0, 2000, 4000], InversionConfig(),
+        zero_mean=True, front_end_c=20.8,
+    )  # fmt: skip
+    assert fit.temperature_c == pytest.approx(20.0, abs=0.01)
+    assert world.cold_starts == pytest.approx([20.8, 20.0])
+    assert world.calls == 2 + 3 * len(fit.evaluations)
+    assert "cold start repeated" not in fit.note
+
+
+def test_later_notes_start_from_the_note_before_one_cold_start_per_take(monkeypatch):
+    from mpipe.inversion.settings import InversionConfig
+    from mpipe.inversion.whole_take.tracking import WindowPlan
+
+    world, temperature = _faked(monkeypatch)
+    plan = WindowPlan([0, 2000, 4000, 6000, 8000, 9000], segments=[1, 1, 2, 2, 3, 3])
+    fit = temperature.fit_temperature(
+        np.zeros(10_000), np.zeros(10_000), 1e5, None, plan, InversionConfig(),
+        zero_mean=True, front_end_c=20.0,
+    )  # fmt: skip
+    assert world.cold_starts == [20.0]  # three notes, one cold start
+    assert set(fit.anchors) == {1, 2, 3}
+    assert fit.temperature_c == pytest.approx(20.0, abs=0.01)
+
+
+def test_a_warm_note_start_holds_only_converged_and_near_the_cold_residual():
+    from mpipe.inversion.settings import InversionConfig
+    from mpipe.inversion.whole_take.temperature_profile import holds
+
+    def fit(converged, residual):
+        row = {"optimiser_converged": converged, "relative_residual": residual}
+        return SimpleNamespace(reed=object(), row=row)
+
+    first, config = fit(True, 0.01), InversionConfig()
+    assert holds(fit(True, 0.029), first, config)
+    assert not holds(fit(True, 0.031), first, config)  # residual_factor 3: a wrong basin
+    assert not holds(fit(False, 0.01), first, config)
+    assert not holds(SimpleNamespace(reed=None, row={}), first, config)
 
 
 def test_settle_returns_a_fine_triple_that_was_evaluated():
