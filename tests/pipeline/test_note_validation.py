@@ -83,3 +83,15 @@ def test_a_note_with_too_few_comparable_harmonics_is_cannot_verify_not_fail():
         p, u = np.concatenate([silence, p, silence]), np.concatenate([silence, u, silence])
         result = _validate(four_holes("xxoo"), p + rng.normal(0, 1e-3, p.size), u)
         assert result.notes["verdict"].iloc[0] == verdict, result.notes["reason"].iloc[0]
+
+
+def test_the_validation_names_each_note_by_its_number_in_the_take():
+    # silences before, between and after the notes: the notes are segments 1 and 3, but the
+    # take's notes 1 and 2 (as the inversion, the tables and the figures number them)
+    cal = four_holes()
+    p, u = _phrase(cal, [("xxoo", 0.3), ("xooo", 0.3)], seed=1)
+    result = _validate(cal, p, u)
+    assert list(result.notes["segment"]) == [1, 3]
+    assert list(result.notes["note_number"]) == [1, 2]
+    lines = result.lines()
+    assert [line.split(" (")[0] for line in lines] == ["note 1", "note 2"], lines

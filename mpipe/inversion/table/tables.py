@@ -203,7 +203,7 @@ def segment_lines(summary: pd.DataFrame) -> list[str]:
             x for x in (str(r.get("note") or ""), str(r.get("regime") or ""), fingering) if x
         )
         lines.append(
-            f"note {number} (segment {int(r['segment'])}) at {r['start_s']:.3f} s "
+            f"note {number} at {r['start_s']:.3f} s "
             f"({r['duration_s']:.2f} s"
             f"{', ' + what if what else ''}, {r['spl_db']:.0f} dB SPL): "
             f"{int(r.get('ok_windows', 0))} of {int(r.get('windows', 0))} windows ok"

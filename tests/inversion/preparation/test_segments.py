@@ -108,8 +108,10 @@ def test_a_note_is_labelled_with_its_f0_in_hz():
         label = note_label(row)
         # the label's Hz is the note's measured f0, and its name that f0's
         assert label.endswith(f"{row['f0_hz']:.1f} Hz") and row["note"] in label
-    silent = {"segment": 3, "note": "", "f0_hz": float("nan")}
-    assert note_label(silent) == "3: "
+    # the number is the note's in the take (notes only), not its segment id
+    assert notes["note_number"].tolist() == list(range(1, len(notes) + 1))
+    silent = {"segment": 3, "note_number": 2, "note": "", "f0_hz": float("nan")}
+    assert note_label(silent) == "2: "
 
 
 def test_steady_selection_keeps_the_papers_rule():
