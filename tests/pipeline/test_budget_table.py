@@ -45,3 +45,13 @@ def test_the_report_renders_one_budget_per_note_with_its_meaning():
     page = render("t", "m", [Section("Summary", tables=tuple(tables))])
     assert "combined standard uncertainty" in page
     assert '<td class="text">75</td>' in page and '<td class="text">60</td>' in page
+
+
+def test_the_budget_headers_carry_no_temperature_unit_and_inf_reads_undetermined():
+    # the value columns hold each row's quantity in its own unit (p_M in Pa): never °C
+    # (issue 42: every budget table headed its value column "u [°C]")
+    tables = budget_tables(_notes())
+    page = render("t", "m", [Section("Summary", tables=tuple(tables))])
+    assert "<th>u_c</th>" in page and "°C" not in page
+    assert '<td class="text">Pa</td>' in page
+    assert "∞ (undetermined)" in page  # gamma's infinite SE, not a bare value

@@ -60,6 +60,24 @@ def test_segment_tables_give_each_note_its_own_line():
     assert list(params["p_m [Pa]"]) == ["1807 ± 3", "2001"]  # no SE: none is claimed
 
 
+def test_an_infinite_se_reads_undetermined_not_held_fixed():
+    # a bare value means "held fixed" (docs/outputs.md): an infinite SE must read otherwise
+    import pandas as pd
+
+    from mpipe.pipeline.html_report import fmt
+    from mpipe.pipeline.report import segment_tables
+
+    segs = pd.DataFrame({
+        "segment": [0, 1], "label": ["note", "note"], "start_s": [0.0, 0.5],
+        "duration_s": [0.4, 0.4], "note": ["G#2", "G#2"], "f0_hz": [104.3, 104.4],
+        "regime": ["fundamental"] * 2, "spl_db": [154.4, 156.0], "windows": [17, 19],
+        "ok_windows": [13, 15], "p_m_median": [1807.0, 2001.0], "p_m_se": [np.inf, np.nan],
+    })  # fmt: skip
+    _, params = segment_tables(segs)
+    assert list(params["p_m [Pa]"]) == ["1807 ± ∞ (undetermined)", "2001"]
+    assert fmt(float("inf")) == "∞" and fmt(float("nan")) == "–"
+
+
 def test_window_table_gives_each_value_with_its_se_note_pitch_and_reason_in_words():
     from mpipe.pipeline.report_windows import window_table
 
