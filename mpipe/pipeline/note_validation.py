@@ -185,6 +185,10 @@ def validate_notes(
             cal = calibration.with_fingering(choice.fingering) if choice else calibration
             cfg = dataclasses.replace(config, note_f0_hz=f0, trim_s=0.0)
             res = validate(p[a:b], u[a:b], fs, cal, cfg, temperature_c)
+            fingering = f", fingering {choice.fingering}" if choice else ""
+            res = dataclasses.replace(
+                res, label=f"note {i + 1} ({note.start_s:.2f}-{note.end_s:.2f} s{fingering})"
+            )
             results[int(note.segment)] = res
             row["verdict"], row["reason"] = res.verdict, res.reason
             if res.verdict == "fail" and res.checks < config.min_checks:

@@ -310,7 +310,7 @@ def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean):
         signals = ((p, u), (res["p"], res["u"]))
         outputs.update(plot_overlays(table, *signals, fs, cfg.resynthesis.overlay_windows, folder))
         segments = pd.read_csv(windows.parent / "segments.csv")
-        outputs.update(plot_notes(table, segments, *signals, fs, folder, cal.fingering))
+        outputs.update(plot_notes(table, segments, *signals, fs, folder, cal.fingering, zero_mean))
         rel = rss.residual_ratio(p, res["p"])
         summary = {"relative_residual_p": rel,
                    "samples_resynthesised": rss.resynthesised_samples(res["p"])}  # fmt: skip

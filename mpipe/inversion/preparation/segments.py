@@ -328,6 +328,26 @@ def plot_segments(segments: pd.DataFrame, tracks: dict, path, a4_hz: float = 440
     a4_hz : float
         A4 of the take, Hz (the segment table's note names and cents already follow it).
     """
+    import matplotlib.pyplot as plt
+
+    fig = segments_figure(segments, tracks)
+    try:
+        return write_atomic(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    finally:
+        plt.close(fig)
+
+
+#: Margin of the pitch axis around the notes' playing frequencies (a factor, log axis).
+F0_MARGIN = 1.25
+
+
+def segments_figure(segments: pd.DataFrame, tracks: dict):
+    """The figure :func:`plot_segments` writes (a matplotlib Figure).
+
+    The pitch axis is logarithmic and spans the notes' own playing frequencies with a
+    margin (a linear axis up to ``f0_max_hz`` flattened the notes); each note's label
+    (its number in the take, name, f0) goes on the lowest row where it overlaps none.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -344,22 +364,43 @@ def plot_segments(segments: pd.DataFrame, tracks: dict, path, a4_hz: float = 440
     ax_p.plot(tracks["t_f0_s"], tracks["f0_hz"], ".", ms=2, color="k")
     ax_p.set_ylabel("f0 [Hz]")
     ax_p.set_xlabel("time [s]")
+    notes = segments[segments["label"] == "note"]
+    f0 = pd.to_numeric(notes["f0_hz"], errors="coerce").to_numpy(float)
+    f0 = f0[np.isfinite(f0) & (f0 > 0)]
+    if f0.size:
+        ax_p.set_yscale("log")
+        ax_p.set_ylim(f0.min() / F0_MARGIN, f0.max() * F0_MARGIN)
     numbers = note_numbers(segments)
-    for _, s in segments[segments["label"] == "note"].iterrows():
+    labels = []
+    for _, s in notes.iterrows():
         s = s.copy()
         s["note_number"] = numbers[int(s["segment"])]
         for ax in (ax_l, ax_p):
             ax.axvspan(s["start_s"], s["end_s"], color="tab:green", alpha=0.12, lw=0)
             ax.axvline(s["start_s"], color="tab:green", lw=0.6)
-        ax_p.annotate(note_label(s), (s["start_s"], 1.0),
-                      xycoords=("data", "axes fraction"), va="top", fontsize=7)  # fmt: skip
+        labels.append(ax_p.annotate(note_label(s), (s["start_s"], 1.0), xytext=(2, -2),
+                                    textcoords="offset points", xycoords=("data", "axes fraction"),
+                                    va="top", fontsize=7))  # fmt: skip
     for ax in (ax_l, ax_p):
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    try:
-        return write_atomic(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
-    finally:
-        plt.close(fig)
+    _stagger(fig, labels)
+    return fig
+
+
+def _stagger(fig, labels: list) -> None:
+    """Move each label down a row until it overlaps no label before it (display boxes)."""
+    renderer = fig.canvas.get_renderer()
+    placed: list = []
+    for text in labels:
+        row = 0
+        while True:
+            text.set_position((2, -2 - 9 * row))
+            box = text.get_window_extent(renderer)
+            if not any(box.overlaps(other) for other in placed) or row > 20:
+                break
+            row += 1
+        placed.append(box)
 
 
 def note_segments(summary: pd.DataFrame) -> pd.DataFrame:
@@ -379,6 +420,7 @@ __all__ = [
     "note_label",
     "note_numbers",
     "plot_segments",
+    "segments_figure",
     "reed_openings",
     "segment_take",
     "spl_db",
