@@ -139,3 +139,22 @@ def test_a_take_of_several_blocks_has_no_seams():
     want = np.real((m[0, 0] + m[0, 1] * np.exp(0.3j) / z0) * np.exp(2j * np.pi * f * t))
     inner = slice(10_000, -10_000)
     assert np.max(np.abs(res.p - want)[inner]) < 2e-3 * np.max(np.abs(want))
+
+
+def test_a_quiet_translation_does_not_repeat_its_line_on_the_console(caplog):
+    # issue 42: the inversion's front-end budget re-translates the take once per quantity,
+    # and each printed "translation: ..." again
+    import logging
+
+    from mpipe.measurement.calibration import load_calibration
+    from mpipe.measurement.translation import TranslationConfig, translate
+
+    root = Path(__file__).resolve().parents[2]
+    cal = load_calibration(root / "calibration" / "simplified_clarinet.yaml")
+    x = np.zeros(4096)
+    caplog.set_level(logging.INFO, logger="mpipe.measurement.translation")
+    translate(x, x, FS, cal, TranslationConfig(), quiet=True)
+    assert "translation:" not in caplog.text
+    translate(x, x, FS, cal, TranslationConfig())
+    said = [r.getMessage() for r in caplog.records if r.getMessage().startswith("translation:")]
+    assert len(said) == 1, said

@@ -432,6 +432,7 @@ def plot_fit_figures(
     s1 = step1(
         p[i0:i1], u[i0:i1], fs, rho=rho, lam=config.lam,
         zero_mean=zero_mean, p_m=config.step1_p_m, y_c=config.y_c,
+        where=f"the step-1 figure's window at {first['t_start_s']:.3f}-{first['t_end_s']:.3f} s",
     )  # fmt: skip
     f0 = float(first.get("f0_hz", np.nan))
     plot_flow_pressure(p[i0:i1], u[i0:i1], fs, s1, folder / "flow_pressure.png",

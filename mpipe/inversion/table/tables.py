@@ -105,6 +105,12 @@ def _checkpoint_path(checkpoint: Path, start: int) -> Path:
     return checkpoint / f"w{start:010d}.json"
 
 
+def saved_windows(checkpoint: str | Path, starts) -> int:
+    """How many of the windows starting at ``starts`` (samples) a checkpoint folder holds."""
+    folder = Path(checkpoint)
+    return sum(_checkpoint_path(folder, int(s)).exists() for s in starts)
+
+
 def save_checkpoint(checkpoint: Path, start: int, row: WindowRecord, history) -> None:
     """Save the result of the window starting at sample ``start`` (JSON, atomically)."""
     record = {
@@ -234,6 +240,7 @@ __all__ = [
     "histories_and_correlations",
     "load_checkpoint",
     "save_checkpoint",
+    "saved_windows",
     "segment_lines",
     "why_no_window",
     "window_table",

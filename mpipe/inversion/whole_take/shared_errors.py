@@ -230,7 +230,8 @@ def frontend_sensitivity(
 
 def _translated(p0, u0, fs, calibration, front: FrontEnd, dt: float):
     temps = np.asarray(front.temperature_c, dtype=float) + dt
-    tr = translate(p0, u0, fs, calibration, front.translation, temps)
+    # quiet: the separation stage said the translation once; this repeats it per quantity
+    tr = translate(p0, u0, fs, calibration, front.translation, temps, quiet=True)
     return tr.p, tr.u
 
 

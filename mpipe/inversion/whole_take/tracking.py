@@ -36,7 +36,7 @@ from mpipe.inversion.preparation.conditioning import is_zero_mean
 from mpipe.inversion.preparation.span import span_samples
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.table.records import reed_from_row, typed
-from mpipe.inversion.table.tables import histories_and_correlations, window_table
+from mpipe.inversion.table.tables import histories_and_correlations, saved_windows, window_table
 from mpipe.inversion.trust.status import RETRIED, classify
 from mpipe.inversion.trust.window_errors import CORRELATION_COLUMNS
 from mpipe.reed.bore_kernel import BoreKernel
@@ -336,6 +336,9 @@ def track(
     if checkpoint is not None:
         checkpoint = Path(checkpoint)
         checkpoint.mkdir(parents=True, exist_ok=True)
+        reused = saved_windows(checkpoint, starts)
+        if reused:  # a resumed run says what it did not redo
+            log.info("resuming: %d of %d windows reused from %s", reused, len(starts), checkpoint)
     job = Job(p, u, fs, kernel, rho, config, zero_mean, checkpoint)
     workers = executor.workers or os.cpu_count() or 1
     update = options.progress.update if options.progress is not None else None
