@@ -53,6 +53,7 @@ from mpipe.pipeline.note_validation import stage_validation as _stage_validation
 from mpipe.pipeline.report import plot_blocks
 from mpipe.pipeline.settings import PipelineConfig
 from mpipe.pipeline.take_calibration import sidecar_check
+from mpipe.pipeline.warmup import start_warmup, wait_for_warmup
 
 log = logging.getLogger(__name__)
 
@@ -61,14 +62,8 @@ class ValidationFailed(UserError):
     """The impedance validation failed and the run stops before the inversion."""
 
 
-STAGES = (
-    "separation",
-    "translation",
-    "validation",
-    "conditioning",
-    "inversion",
-    "resynthesis",
-)
+STAGES = ("separation", "translation", "validation", "conditioning", "inversion",
+          "resynthesis")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -172,7 +167,6 @@ def _stage_translation(folder_sep: Path, cal: Calibration, cfg: PipelineConfig):
 
 
 def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig, notes=None):
-
     inv = cfg.inversion
 
     def work(folder: Path):
@@ -214,6 +208,7 @@ def _stage_inversion(
     inv = cfg.inversion
 
     def work(folder: Path):
+        wait_for_warmup()  # the workers then load the compiled kernels from numba's cache
         checkpoint = folder / PARTIAL / "windows"
         mp = open_npz(mouthpiece)  # p, u stay on disk: the windows read their samples
         fs = float(mp["fs"])
@@ -338,6 +333,7 @@ def run_take(
     holds it: two runs on one folder would mix their results.
     """
     name = name or take_name([Path(p) for p in take_paths])
+    start_warmup()  # a first run: the kernels compile while the first stages run
     with folder_lock(Path(out) / name):
         return run_take_unlocked(
             cfg, cal_path, take_paths, out, force, client, say, accept_failed_validation, name
