@@ -14,12 +14,19 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
+# the numba kernels compile once at install (about 25 s; cache=True keeps them): the first
+# `make demo` then starts with them; without it they compile in the background of the
+# demo's first stages (mpipe/pipeline/warmup.py)
+WARMUP := $(BIN)/python -m mpipe.pipeline.warmup || echo "kernels not compiled now: they compile on first use"
+
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e .
+	$(WARMUP)
 	touch $@
 
 $(TEST_STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e ".[test]"
+	$(WARMUP)
 	touch $@ $(STAMP)
 
 demo: $(STAMP)

@@ -279,3 +279,24 @@ def test_every_calibration_key_is_documented(tmp_path):
             assert key in str(exc)
         else:
             raise AssertionError(f"{key} accepted in a calibration file")
+
+
+def test_the_fingered_phrase_says_what_it_plays_and_playing_md_what_the_code_does():
+    # issue 42: the score said "the fourth note 30 dB softer" with every note at p_m 1800;
+    # playing.md said a fingering change makes other fingerings' results wrong and that a
+    # phrase's validation compares one f0's harmonics (each note has its own bore and its
+    # own validation now)
+    import yaml
+
+    root = Path(__file__).resolve().parents[1]
+    text = (root / "examples" / "scores" / "fingered_phrase.yaml").read_text()
+    notes = yaml.safe_load(text)["notes"]
+    header = "".join(line for line in text.splitlines() if line.startswith("#"))
+    if "softer" in header or "louder" in header:
+        assert len({n.get("p_m") for n in notes}) > 1, "a dynamic the notes do not play"
+    else:
+        assert len({n.get("p_m") for n in notes}) == 1 and "1800" in header
+    playing = (root / "docs" / "playing.md").read_text()
+    assert "inversion of other fingerings are then wrong" not in playing
+    assert "only the harmonics of that one f0" not in playing
+    assert "note by note" in playing and "its own fingering's bore" in playing

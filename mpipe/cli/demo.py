@@ -25,6 +25,7 @@ from mpipe.cli.main import main as cli_main
 from mpipe.inversion.table.records import flags, read_windows
 from mpipe.inversion.trust.combinations import combination_values
 from mpipe.measurement.calibration import load_calibration
+from mpipe.pipeline.warmup import start_warmup
 
 ROOT = Path(__file__).resolve().parents[2]
 CALIBRATION = ROOT / "calibration" / "simplified_clarinet.yaml"
@@ -98,6 +99,9 @@ def note_table(notes: pd.DataFrame, truth: dict, true_p_m: float, calibration) -
 def main(out_dir: Path = ROOT / "demo_output") -> int:
     """Run the demo and return an exit code."""
     out_dir.mkdir(parents=True, exist_ok=True)
+    # a first run: the numba kernels compile in the background from here (the inversion
+    # waits for them, mpipe.pipeline.warmup)
+    start_warmup()
     print("== 1/3 input impedance of the shipped instrument", flush=True)
     code = cli_main(
         ["impedance", str(CALIBRATION), "--force",

@@ -200,7 +200,13 @@ class TranslationPlan:
 
     @classmethod
     def of(
-        cls, fs: float, calibration: Calibration, config: TranslationConfig, t_min, t_max
+        cls,
+        fs: float,
+        calibration: Calibration,
+        config: TranslationConfig,
+        t_min,
+        t_max,
+        level: int = logging.INFO,
     ) -> TranslationPlan:
         """The plan for a take whose temperature (degC) spans ``t_min..t_max``."""
         lp = design_lowpass(fs, config.lowpass_hz, config.transition_hz, config.stopband_db)
@@ -217,7 +223,8 @@ class TranslationPlan:
         # the transfer matrices are evaluated only below it (the Bessel functions dominate).
         band = freqs <= min(fs / 2, config.lowpass_hz + config.transition_hz)
         nodes = _nodes(np.array([t_min, t_max]), config.temperature_step_c)
-        log.info(
+        log.log(
+            level,
             "translation: %.4f m to the mouthpiece at %s degC, FFT blocks of %d samples",
             calibration.reference_plane,
             f"{nodes[0]:.2f}" if nodes.size == 1 else f"{nodes[0]:.2f}..{nodes[-1]:.2f}",
@@ -262,6 +269,7 @@ def translate(
     calibration: Calibration,
     config: TranslationConfig,
     temperature_c: float | np.ndarray | None = None,
+    quiet: bool = False,
 ) -> TranslationResult:
     """Carry p0, u0 from the reference plane to the mouthpiece entry and low-pass them.
 
@@ -281,6 +289,10 @@ def translate(
         Effective temperature in degC, constant or one value per sample (for example
         :meth:`mpipe.measurement.separation.SeparationResult.temperature_track`); default the
         calibration's.
+    quiet : bool
+        Log the plan at DEBUG, not INFO: a translation repeated inside another stage (the
+        inversion's front-end budget re-translates the take once per front-end quantity)
+        does not repeat the stage's line on the console.
 
     Returns
     -------
@@ -304,7 +316,8 @@ def translate(
     if temperature_c is None:
         temperature_c = calibration.air.temperature_c
     temps = np.broadcast_to(np.asarray(temperature_c, dtype=float), (n,))
-    plan = TranslationPlan.of(fs, calibration, config, float(np.min(temps)), float(np.max(temps)))
+    plan = TranslationPlan.of(fs, calibration, config, float(np.min(temps)), float(np.max(temps)),
+                              logging.DEBUG if quiet else logging.INFO)  # fmt: skip
     lp = plan.lowpass
     p, u = np.zeros(n), np.zeros(n)
     for a, b in plan.bounds(n):

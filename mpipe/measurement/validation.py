@@ -289,6 +289,7 @@ def validate(
 
     resonances = resonance_errors(freqs, z_me, z_th, coh, band, config, measurable=not tonal)
     harmonics = harmonic_errors(freqs, err_db, err_deg, coh, s_pp, s_uu, f0, config)
+    fine = _fine_grid(freqs)
     result = ValidationResult(
         freqs=freqs,
         z_measured=z_me,
@@ -306,6 +307,9 @@ def validate(
         checks=int(np.sum(np.isfinite(resonances.error_cents)) if resonances.size else 0)
         + int(harmonics.compared.sum() if len(harmonics) else 0),
         min_checks=config.min_checks,
+        theory_hz=fine,
+        theory_z=input_impedance(calibration.bore, 2 * np.pi * fine, air) / z0,
+        label=_fingering_label(calibration),
     )
     if result.failures:
         suspects = suspect_inputs(result, calibration)
@@ -314,6 +318,24 @@ def validate(
         result = dataclasses.replace(result, suspects=suspects)
     log.info("validation: %s (%s)", result.verdict, result.reason)
     return result
+
+
+#: The fine theory's step and top, Hz: a clarinet resonance is a few Hz wide (Q ~ 30 at
+#: 150 Hz), so its peak on a 0.25 Hz grid is within a small fraction of a dB; the figure
+#: shows up to 2 kHz.
+FINE_STEP_HZ, FINE_TOP_HZ = 0.25, 2500.0
+
+
+def _fingering_label(calibration) -> str:
+    """``"fingering xxoo"``: the fingering compared, for the figure ("" none named)."""
+    name = getattr(calibration, "fingering", None)
+    return f"fingering {name}" if isinstance(name, str) and name and name != "auto" else ""
+
+
+def _fine_grid(freqs: np.ndarray) -> np.ndarray:
+    """Frequencies (Hz) of the fine theory: up to the Welch grid's top or FINE_TOP_HZ."""
+    top = min(float(freqs[-1]), FINE_TOP_HZ) if len(freqs) else 0.0
+    return np.arange(FINE_STEP_HZ, top + FINE_STEP_HZ / 2, FINE_STEP_HZ)
 
 
 def _trimmed(

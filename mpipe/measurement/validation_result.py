@@ -56,6 +56,11 @@ class ValidationResult:
     suspects : tuple of str
         On a FAIL, the inputs that can produce such errors, most likely first (see
         :func:`mpipe.measurement.validation.suspect_inputs`).
+    theory_hz, theory_z : ndarray
+        The theory on a fine grid (Hz; ``Z / Z0``), for the figure: on the Welch grid a
+        resonance a few Hz wide falls between bins and its peak is lost (empty: none).
+    label : str
+        What was compared, for the figure's title (the note and its fingering).
     """
 
     freqs: np.ndarray
@@ -74,6 +79,9 @@ class ValidationResult:
     checks: int = 0
     min_checks: int = 1
     suspects: tuple[str, ...] = field(default_factory=tuple)
+    theory_hz: np.ndarray = field(default_factory=lambda: np.empty(0))
+    theory_z: np.ndarray = field(default_factory=lambda: np.empty(0, complex))
+    label: str = ""
 
     @property
     def passed(self) -> bool:
@@ -154,15 +162,15 @@ def db(z: np.ndarray) -> np.ndarray:
     return 20 * np.log10(np.maximum(np.abs(z), 1e-300))
 
 
-def plot_impedance(
-    result: ValidationResult, path: str | Path, fmax_hz: float | None = None
-) -> None:
+def plot_impedance(result: ValidationResult, path: str | Path, fmax_hz: float | None = None):
     """Draw the paper's Fig. 10: |z| in dB, theory and measurement, coherence below (PNG).
 
     For a played note the measurement is drawn as points at its harmonics (filled where
     compared, hollow where masked), not as a dense curve that holds only there.
 
-    Uses the Agg canvas directly, so no global pyplot state is touched.
+    Uses the Agg canvas directly, so no global pyplot state is touched. The title names
+    what was compared (``result.label``: the note and its fingering); the theory is drawn on
+    its fine grid (:func:`theory_curve`). Returns the figure.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg  # lazy: ~0.5 s of start-up
     from matplotlib.figure import Figure
@@ -173,7 +181,8 @@ def plot_impedance(
     fig = Figure(figsize=(8, 6))
     FigureCanvasAgg(fig)
     ax1, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
-    ax1.plot(f, db(result.z_theory[sel]), "k-", lw=1.2, label="theory")
+    f_th, z_th = theory_curve(result, fmax)
+    ax1.plot(f_th, db(z_th), "k-", lw=1.2, label="theory")
     h = result.harmonics
     if np.isfinite(result.f0_hz) and len(h):
         # A played note measures Z only at its harmonics (between them the ratio is leakage):
@@ -190,7 +199,12 @@ def plot_impedance(
     else:
         ax1.plot(f, db(result.z_measured[sel]), "r--", lw=1.0, label="measured (H1)")
     ax1.set_ylabel("|Z / Z0| (dB)")
-    ax1.set_title(f"Input impedance ({result.verdict}, T = {result.temperature_c:.2f} degC)")
+    what = f"{result.label}: " if result.label else ""
+    ax1.set_title(
+        f"Input impedance of {what or 'the take: '}{result.verdict.upper()}, "
+        f"T = {result.temperature_c:.2f} degC",
+        fontsize=10,
+    )
     ax1.legend(loc="upper right")
     ax1.grid(alpha=0.3)
     ax2.plot(f, result.coherence[sel], "b-", lw=0.8)
@@ -200,6 +214,18 @@ def plot_impedance(
     ax2.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, format="png", dpi=100)
+    return fig
 
 
-__all__ = ["ValidationResult", "db", "plot_impedance"]
+def theory_curve(result: ValidationResult, fmax_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """The theory to draw up to ``fmax_hz`` (Hz): the fine grid, the Welch grid above it."""
+    coarse = result.freqs <= fmax_hz
+    if not len(result.theory_hz):
+        return result.freqs[coarse], result.z_theory[coarse]
+    fine = result.theory_hz <= fmax_hz
+    above = coarse & (result.freqs > result.theory_hz[-1])
+    return (np.concatenate([result.theory_hz[fine], result.freqs[above]]),
+            np.concatenate([result.theory_z[fine], result.z_theory[above]]))  # fmt: skip
+
+
+__all__ = ["ValidationResult", "db", "plot_impedance", "theory_curve"]

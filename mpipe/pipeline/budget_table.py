@@ -73,11 +73,13 @@ def budget_tables(notes: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
         table = budget_table(note)
         if not len(table):
             continue
-        where = f"segment {int(note['segment'])}" if "segment" in note else ""
-        if "start_s" in note:
-            where += f", from {float(note['start_s']):.3f} s"
-        ok = f", {int(note['ok_windows'])} ok windows" if "ok_windows" in note else ""
-        out.append((f"Uncertainty budget of note {number} ({where}{ok}). {MEANING}", table))
+        # the note's number in the take, as the console and the figures give it (not its
+        # segment id)
+        parts = [f"from {float(note['start_s']):.3f} s"] if "start_s" in note else []
+        if "ok_windows" in note:
+            parts.append(f"{int(note['ok_windows'])} ok windows")
+        where = f" ({', '.join(parts)})" if parts else ""
+        out.append((f"Uncertainty budget of note {number}{where}. {MEANING}", table))
     return out
 
 

@@ -92,7 +92,10 @@ class Section:
 
 
 def fmt(value, digits: int = DIGITS) -> str:
-    """A number rounded to ``digits`` significant digits; "–" for a missing value."""
+    """A number rounded to ``digits`` significant digits; "–" missing, "∞" infinite.
+
+    An infinite value is an undetermined standard error: never "–", which means not evaluated.
+    """
     if value is None:
         return "–"
     if isinstance(value, bool | np.bool_):
@@ -101,6 +104,8 @@ def fmt(value, digits: int = DIGITS) -> str:
         return str(int(value))
     if isinstance(value, float | np.floating):
         v = float(value)
+        if math.isinf(v):
+            return "∞" if v > 0 else "−∞"
         if not math.isfinite(v):
             return "–"
         if v == int(v) and abs(v) < 10**digits:

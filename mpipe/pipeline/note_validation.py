@@ -50,8 +50,8 @@ MIN_AVERAGES = 8
 #: Fewest periods of the note in one Welch segment (see the module docstring).
 SEGMENT_PERIODS = 8
 #: Columns of ``notes.csv``.
-NOTE_COLUMNS = ("segment", "start_s", "end_s", "f0_hz", "fingering", "fingering_source",
-                "fingering_probability", "runner_up", "runner_up_probability",
+NOTE_COLUMNS = ("segment", "note_number", "start_s", "end_s", "f0_hz", "fingering",
+                "fingering_source", "fingering_probability", "runner_up", "runner_up_probability",
                 "fingering_ambiguous", "fingering_fit_p", "fingering_equivalents",
                 "verdict", "reason")  # fmt: skip
 
@@ -95,10 +95,16 @@ class NotesValidation:
         out = []
         for _, r in self.notes.iterrows():
             out.append(
-                f"note {int(r.segment)} ({r.start_s:.2f}-{r.end_s:.2f} s, {r.f0_hz:.1f} Hz): "
+                f"note {_number(r)} ({r.start_s:.2f}-{r.end_s:.2f} s, {r.f0_hz:.1f} Hz): "
                 f"{_choice_line(r)}; validation {str(r.verdict).upper()} ({r.reason})"
             )
         return out
+
+
+def _number(row) -> int:
+    """The note's number in the take (its segment id in a notes.csv written before)."""
+    number = getattr(row, "note_number", None)
+    return int(row.segment if number is None or number != number else number)
 
 
 def _choice_line(row) -> str:
@@ -176,7 +182,8 @@ def validate_notes(
         a, b = int(round(note.start_s * fs)) + trim, int(round(note.end_s * fs)) - trim
         f0 = float(note.f0_hz)
         choice = _choose(p[a:b], u[a:b], fs, f0, calibration, given, i, temperature_c)
-        row = {"segment": int(note.segment), "start_s": float(note.start_s),
+        row = {"segment": int(note.segment), "note_number": i + 1,
+               "start_s": float(note.start_s),
                "end_s": float(note.end_s), "f0_hz": f0, **_choice_columns(choice)}  # fmt: skip
         need = needed_s(f0, fs) if math.isfinite(f0) else math.inf
         if (b - a) / fs < need:
@@ -191,6 +198,10 @@ def validate_notes(
             cal = calibration.with_fingering(choice.fingering) if choice else calibration
             cfg = dataclasses.replace(config, note_f0_hz=f0, trim_s=0.0)
             res = validate(p[a:b], u[a:b], fs, cal, cfg, temperature_c)
+            fingering = f", fingering {choice.fingering}" if choice else ""
+            res = dataclasses.replace(
+                res, label=f"note {i + 1} ({note.start_s:.2f}-{note.end_s:.2f} s{fingering})"
+            )
             results[int(note.segment)] = res
             row["verdict"], row["reason"] = res.verdict, res.reason
             if res.verdict == "fail" and res.checks < config.min_checks:
@@ -350,10 +361,10 @@ def _take_verdict(table: pd.DataFrame) -> tuple[str, str]:
     tally = f"{n_pass} of {len(table)} notes PASS, {n_fail} FAIL, {n_cv} CANNOT-VERIFY"
     if n_fail:
         first = table[table["verdict"] == "fail"].iloc[0]
-        return "fail", f"{tally}; note {int(first.segment)}: {first.reason}"
+        return "fail", f"{tally}; note {_number(first)}: {first.reason}"
     if n_pass:
         return "pass", tally
-    return "cannot-verify", f"{tally}; note {int(table.iloc[0].segment)}: {table.iloc[0].reason}"
+    return "cannot-verify", f"{tally}; note {_number(table.iloc[0])}: {table.iloc[0].reason}"
 
 
 def note_fingering_checks(table: pd.DataFrame) -> list[str]:
@@ -368,7 +379,7 @@ def note_fingering_checks(table: pd.DataFrame) -> list[str]:
             )
     for _, r in table[table["fingering_ambiguous"].astype(bool)].iterrows():
         out.append(
-            f"note {int(r.segment)}: the fingering is ambiguous: {r.fingering} "
+            f"note {_number(r)}: the fingering is ambiguous: {r.fingering} "
             f"(p = {r.fingering_probability:.2f}) or {r.runner_up} "
             f"(p = {r.runner_up_probability:.2f}); give --fingering with one name per note"
         )

@@ -59,6 +59,7 @@ from mpipe.pipeline.take_calibration import (
     present,
     sidecar_check,
 )
+from mpipe.pipeline.warmup import start_warmup, wait_for_warmup
 
 log = logging.getLogger(__name__)
 
@@ -67,14 +68,8 @@ class ValidationFailed(UserError):
     """The impedance validation failed and the run stops before the inversion."""
 
 
-STAGES = (
-    "separation",
-    "translation",
-    "validation",
-    "conditioning",
-    "inversion",
-    "resynthesis",
-)
+STAGES = ("separation", "translation", "validation", "conditioning", "inversion",
+          "resynthesis")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -219,6 +214,7 @@ def _stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipeli
     inv = cfg.inversion
 
     def work(folder: Path):
+        wait_for_warmup()  # the workers then load the compiled kernels from numba's cache
         checkpoint = folder / PARTIAL / "windows"
         mp = open_npz(mouthpiece)  # p, u stay on disk: the windows read their samples
         fs = float(mp["fs"])
@@ -316,7 +312,9 @@ def _stage_resynthesis(mouthpiece: Path, windows: Path, cal, cfg, zero_mean, dra
         count = cfg.resynthesis.overlay_windows
         outputs.update(plot_overlays(table, *signals, fs, count, folder, draw))
         segments = pd.read_csv(windows.parent / "segments.csv")
-        outputs.update(plot_notes(table, segments, *signals, fs, folder, cal.fingering, draw))
+        outputs.update(
+            plot_notes(table, segments, *signals, fs, folder, cal.fingering, draw, zero_mean)
+        )
         rel = rss.residual_ratio(p, res["p"])
         summary = {"relative_residual_p": rel,
                    "samples_resynthesised": rss.resynthesised_samples(res["p"])}  # fmt: skip
@@ -344,6 +342,7 @@ def run_take(
     holds it: two runs on one folder would mix their results.
     """
     name = name or take_name([Path(p) for p in take_paths])
+    start_warmup()  # a first run: the kernels compile while the first stages run
     with folder_lock(Path(out) / name):
         return run_take_unlocked(
             cfg, cal_path, take_paths, out, force, client, say, accept_failed_validation, name

@@ -9,6 +9,7 @@ page itself (embedded figures, numbered tables, rounding) is
 
 from __future__ import annotations
 
+import math
 import textwrap
 from collections.abc import Sequence
 from pathlib import Path
@@ -225,9 +226,18 @@ def segment_tables(segments: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
         med, se = notes[f"{name}_median"].to_numpy(float), notes[f"{name}_se"]
         unit = unit_of(name)
         header = f"{name} [{unit}]" if unit and unit != "–" else name
-        params[header] = [f"{fmt(m, 4)} ± {fmt(e, 2)}" if np.isfinite(e) else fmt(m, 4)
-                          for m, e in zip(med, se.to_numpy(float), strict=True)]  # fmt: skip
+        params[header] = [_median_se(m, e) for m, e in zip(med, se.to_numpy(float), strict=True)]
     return played, pd.DataFrame(params)
+
+
+def _median_se(median: float, se: float) -> str:
+    """``"1807 ± 3"``; ``"1807 ± ∞ (undetermined)"`` for an infinite SE.
+
+    The value alone when no SE is claimed (NaN: a quantity held fixed, or no ok window).
+    """
+    if math.isinf(se):
+        return f"{fmt(median, 4)} ± ∞ (undetermined)"
+    return f"{fmt(median, 4)} ± {fmt(se, 2)}" if np.isfinite(se) else fmt(median, 4)
 
 
 def _summary_section(

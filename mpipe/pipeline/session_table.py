@@ -37,8 +37,9 @@ PLAYED = {
     "windows": "windows",
     "ok_windows": "ok_windows",
 }
-#: A take-level reason that names one note (:mod:`mpipe.inversion.trust.diagnostics`).
-NOTE_REASON = re.compile(r"note segment (\d+)\b")
+#: A take-level reason that names one note by its number in the take
+#: (:mod:`mpipe.inversion.trust.diagnostics`).
+NOTE_REASON = re.compile(r"cannot play note (\d+)\b")
 
 
 def _summary(folder: Path, stage: str) -> dict | None:
@@ -63,7 +64,8 @@ def note_verdict(row: Mapping, validation: str, take_checks: list[str]) -> tuple
     ok, n = int(row["ok_windows"]), int(row["windows"])
     if ok == 0:
         return "FAIL", f"none of its {n} windows ok"
-    mine = [c for c in take_checks if (m := NOTE_REASON.search(c)) and int(m[1]) == row["segment"]]
+    number = row["note_number"] if "note_number" in row else row["segment"]
+    mine = [c for c in take_checks if (m := NOTE_REASON.search(c)) and int(m[1]) == number]
     if mine:
         return "CHECK", mine[0]
     if validation != "pass":

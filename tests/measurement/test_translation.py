@@ -182,3 +182,22 @@ def test_each_note_is_translated_through_its_own_fingering(tmp_path):
 
     assert error(per_note.p, (0.15, 0.28)) < 1e-3 and error(per_note.p, (0.45, 0.58)) < 1e-3
     assert error(one.p, (0.45, 0.58)) > 0.01  # the register hole matters here
+
+
+def test_a_quiet_translation_does_not_repeat_its_line_on_the_console(caplog):
+    # issue 42: the inversion's front-end budget re-translates the take once per quantity,
+    # and each printed "translation: ..." again
+    import logging
+
+    from mpipe.measurement.calibration import load_calibration
+    from mpipe.measurement.translation import TranslationConfig, translate
+
+    root = Path(__file__).resolve().parents[2]
+    cal = load_calibration(root / "calibration" / "simplified_clarinet.yaml")
+    x = np.zeros(4096)
+    caplog.set_level(logging.INFO, logger="mpipe.measurement.translation")
+    translate(x, x, FS, cal, TranslationConfig(), quiet=True)
+    assert "translation:" not in caplog.text
+    translate(x, x, FS, cal, TranslationConfig())
+    said = [r.getMessage() for r in caplog.records if r.getMessage().startswith("translation:")]
+    assert len(said) == 1, said

@@ -39,7 +39,19 @@ def test_the_report_renders_one_budget_per_note_with_its_meaning():
     tables = budget_tables(_notes())
     assert len(tables) == 1  # the silence has none
     caption, _ = tables[0]
-    assert caption.startswith("Uncertainty budget of note 1 (segment 1, from 0.100 s")
+    # the note by its number in the take (segment 1 is note 1: one silence before it)
+    assert caption.startswith("Uncertainty budget of note 1 (from 0.100 s")
+    assert "segment" not in caption
     page = render("t", "m", [Section("Summary", tables=tuple(tables))])
     assert "combined standard uncertainty" in page
     assert '<td class="text">75</td>' in page and '<td class="text">60</td>' in page
+
+
+def test_the_budget_headers_carry_no_temperature_unit_and_inf_reads_undetermined():
+    # the value columns hold each row's quantity in its own unit (p_M in Pa): never °C
+    # (issue 42: every budget table headed its value column "u [°C]")
+    tables = budget_tables(_notes())
+    page = render("t", "m", [Section("Summary", tables=tuple(tables))])
+    assert "<th>u_c</th>" in page and "°C" not in page
+    assert '<td class="text">Pa</td>' in page
+    assert "∞ (undetermined)" in page  # gamma's infinite SE, not a bare value

@@ -107,3 +107,40 @@ def test_a_note_whose_fingering_is_not_listed_fails_and_says_so(tmp_path):
     checks = note_fingering_checks(result.notes)
     assert len(checks) == 1 and "no listed fingering fits" in checks[0]
     assert result.notes["fingering_fit_p"].iloc[0] > 0.01
+
+
+def test_the_validation_names_each_note_by_its_number_in_the_take():
+    # silences before, between and after the notes: the notes are segments 1 and 3, but the
+    # take's notes 1 and 2 (as the inversion, the tables and the figures number them)
+    cal = four_holes()
+    p, u = _phrase(cal, [("xxoo", 0.3), ("xooo", 0.3)], seed=1)
+    result = _validate(cal, p, u)
+    assert list(result.notes["segment"]) == [1, 3]
+    assert list(result.notes["note_number"]) == [1, 2]
+    lines = result.lines()
+    assert [line.split(" (")[0] for line in lines] == ["note 1", "note 2"], lines
+
+
+def test_the_impedance_figure_names_the_note_and_draws_the_theory_at_its_peak(tmp_path):
+    # issue 42: impedance.png did not say which note or fingering, and its theory on the
+    # Welch grid peaked near 17 dB where the theory itself (`mpipe impedance`) gives 24.3 dB
+    from mpipe.acoustics.bore import input_impedance
+    from mpipe.measurement.validation_result import db, plot_impedance
+
+    cal = four_holes()
+    p, u = _phrase(cal, [("xxxx", 0.5), ("xxoo", 0.8)], seed=2)
+    shown = _validate(cal, p, u).shown()
+    fig = plot_impedance(shown, tmp_path / "z.png", 2000.0)
+    title = fig.axes[0].get_title()
+    assert "note 2" in title and "fingering xxoo" in title, title
+    # the theory's first peak, found on a 0.005 Hz grid around it
+    mine = cal.with_fingering("xxoo")
+    air = mine.air_properties(20.0)
+    f1 = first_resonance(cal, "xxoo")
+    f = np.arange(f1 - 5.0, f1 + 5.0, 0.005)
+    peak = float(np.max(db(input_impedance(mine.bore, 2 * np.pi * f, air) / shown.z0)))
+    x, y = fig.axes[0].lines[0].get_data()
+    near = (x > f1 - 20) & (x < f1 + 20)
+    assert abs(np.max(np.asarray(y)[near]) - peak) < 0.3, (np.max(y), peak)
+    coarse = db(shown.z_theory[np.abs(shown.freqs - f1) < 20])
+    assert np.max(coarse) < peak - 0.5  # the Welch grid alone misses it: the test means something

@@ -74,6 +74,24 @@ def test_segment_tables_give_each_note_its_own_line():
     assert list(params["p_m [Pa]"]) == ["1807 ± 3", "2001"]  # no SE: none is claimed
 
 
+def test_an_infinite_se_reads_undetermined_not_held_fixed():
+    # a bare value means "held fixed" (docs/outputs.md): an infinite SE must read otherwise
+    import pandas as pd
+
+    from mpipe.pipeline.html_report import fmt
+    from mpipe.pipeline.report import segment_tables
+
+    segs = pd.DataFrame({
+        "segment": [0, 1], "label": ["note", "note"], "start_s": [0.0, 0.5],
+        "duration_s": [0.4, 0.4], "note": ["G#2", "G#2"], "f0_hz": [104.3, 104.4],
+        "regime": ["fundamental"] * 2, "spl_db": [154.4, 156.0], "windows": [17, 19],
+        "ok_windows": [13, 15], "p_m_median": [1807.0, 2001.0], "p_m_se": [np.inf, np.nan],
+    })  # fmt: skip
+    _, params = segment_tables(segs)
+    assert list(params["p_m [Pa]"]) == ["1807 ± ∞ (undetermined)", "2001"]
+    assert fmt(float("inf")) == "∞" and fmt(float("nan")) == "–"
+
+
 def test_window_table_gives_each_value_with_its_se_note_pitch_and_reason_in_words():
     from mpipe.pipeline.report_windows import window_table
 
@@ -184,9 +202,48 @@ def fingered_run(tmp_path_factory):
                              local_starts=3)  # fmt: skip
     pipe = folder / "pipeline.yaml"
     pipe.write_text(yaml.safe_dump(data))
+    lines: list[str] = []
     run = run_take(load_pipeline(pipe), take.calibration, [take.audio], folder / "out",
-                   say=lambda s: None)  # fmt: skip
+                   say=lines.append)  # fmt: skip
+    (run.folder.parent / "console.txt").write_text("\n".join(lines))
     return run.folder
+
+
+def test_a_note_has_one_number_in_console_tables_and_figures(fingered_run):
+    # a silence before each note: the notes are not segments 1 and 2, yet the take's notes
+    # 1 and 2 everywhere (issue 42: "note 3", "note 2 (segment 3)", "note segment 5")
+    from mpipe.inversion.output.tracks_plot import tracks_figure
+    from mpipe.inversion.preparation.segments import note_label
+    from mpipe.inversion.table.records import read_windows
+
+    for stage in ("conditioning", "inversion"):
+        segs = pd.read_csv(fingered_run / stage / "segments.csv")
+        notes = segs[segs["label"] == "note"]
+        assert list(notes["note_number"]) == [1, 2], stage
+        assert list(notes["segment"]) != [1, 2]  # the test means something
+        assert (segs.loc[segs["label"] != "note", "note_number"] == 0).all()
+    by_segment = dict(zip(notes["segment"], notes["note_number"], strict=True))
+    windows = read_windows(fingered_run / "inversion" / "windows.csv")
+    assert list(windows["note_number"]) == [by_segment[g] for g in windows["segment"]]
+    # segments.png's labels and tracks.png's title
+    assert [note_label(r).split(":")[0] for _, r in notes.iterrows()] == ["1", "2"]
+    fig = tracks_figure(windows, segs, "xxoo")
+    try:
+        title = fig._suptitle.get_text()
+        assert "note 1:" in title and "note 2:" in title and "note 3" not in title
+    finally:
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)
+    # the console: the inversion's note lines, and never a segment id for a note
+    console = (fingered_run.parent / "console.txt").read_text()
+    starts = [f"note {n} at {t:.3f} s" for n, t in zip([1, 2], notes["start_s"], strict=True)]
+    assert all(s in console for s in starts), console
+    assert "(segment" not in console and "note segment" not in console
+    assert set(re.findall(r"\bnote (\d+)\b", console)) <= {"1", "2"}, console
+    # the report's tables: what was played and the per-window table's note column
+    text = (fingered_run / "report.html").read_text()
+    assert "Uncertainty budget of note 1 (from" in text and "Uncertainty budget of note 2" in text
 
 
 def test_report_of_a_fingered_phrase_tables_and_figures(fingered_run):

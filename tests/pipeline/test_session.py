@@ -145,14 +145,15 @@ def test_where_the_takes_run_is_checked_before_any_work(folder, option, expected
 
 
 def test_a_notes_verdict():
-    row = {"segment": 2, "windows": 4, "ok_windows": 4}
+    row = {"segment": 2, "note_number": 1, "windows": 4, "ok_windows": 4}
     assert note_verdict(row, "pass", [])[0] == "PASS"
     assert note_verdict({**row, "ok_windows": 0}, "pass", [])[0] == "FAIL"
     assert note_verdict({**row, "ok_windows": 3}, "pass", [])[0] == "CHECK"
     assert note_verdict(row, "cannot-verify", [])[0] == "CHECK"
-    mine = "the model cannot play note segment 2 (0.1-0.5 s): ..."
+    # the check names the note by its number in the take (1), not its segment id (2)
+    mine = "the model cannot play note 1 (0.1-0.5 s): ..."
     assert note_verdict(row, "pass", [mine]) == ("CHECK", mine)
-    assert note_verdict(row, "pass", [mine.replace("segment 2", "segment 3")])[0] == "PASS"
+    assert note_verdict(row, "pass", [mine.replace("note 1", "note 2")])[0] == "PASS"
     assert note_verdict(row, "pass", ["median relative residual 0.3 ..."])[0] == "CHECK"
 
 

@@ -28,6 +28,10 @@ from mpipe.inversion.fit.flow_fit import (
 log = logging.getLogger(__name__)
 
 
+#: Absolute tolerance of the p_m search, Pa.
+XTOL_PA = 1e-2
+
+
 def estimate_p_m(
     p: np.ndarray,
     u: np.ndarray,
@@ -39,7 +43,7 @@ def estimate_p_m(
     refine: bool = True,
     y_c: float | None = None,
     bounds: tuple[float, float] = (1.0, 2.0),
-    xtol: float = 1e-2,
+    where: str = "",
 ) -> float:
     """Mouth pressure that minimises the step-1 misfit, profiled over the flow coefficients.
 
@@ -72,8 +76,9 @@ def estimate_p_m(
         As in :func:`mpipe.inversion.fit.flow_fit.fit_branch`.
     bounds : tuple of float
         Search interval as factors of max p over the window (dimensionless).
-    xtol : float
-        Absolute tolerance of the search, Pa.
+    where : str
+        Which window this is (``"window at 0.250-0.300 s"``), named by the warning when the
+        estimate lies at a search bound.
 
     Returns
     -------
@@ -122,7 +127,7 @@ def estimate_p_m(
     p_m = 0.5 * (lo + hi)
     for _ in range(MAX_REFITS):
         res = optimize.minimize_scalar(
-            profile, bounds=(lo, hi), method="bounded", options={"xatol": xtol}
+            profile, bounds=(lo, hi), method="bounded", options={"xatol": XTOL_PA}
         )
         p_m = float(res.x)
         x, _ = regressors(p, p_m, fs, rho, zero_mean)
@@ -130,9 +135,13 @@ def estimate_p_m(
         if all(np.array_equal(a, b) for a, b in zip(new, masks, strict=True)):
             break
         masks = new
-    if min(p_m - lo, hi - p_m) < 10 * xtol:
+    if min(p_m - lo, hi - p_m) < 10 * XTOL_PA:
         log.warning(
-            "step 1: the p_m estimate %.1f Pa lies at a search bound [%.1f, %.1f] Pa", p_m, lo, hi
+            "step 1%s: the p_m estimate %.1f Pa lies at a search bound [%.1f, %.1f] Pa",
+            f" ({where})" if where else "",
+            p_m,
+            lo,
+            hi,
         )
     return p_m
 

@@ -84,6 +84,7 @@ def step1(
     zero_mean: bool = False,
     refine: bool = True,
     y_c: float | None = None,
+    where: str = "",
 ) -> Step1Result:
     """Run step 1 on one window: both branches.
 
@@ -111,6 +112,8 @@ def step1(
     y_c : float, optional
         Displacement where reed-lay contact begins, m; see
         :func:`mpipe.inversion.fit.flow_fit.fit_branch`.
+    where : str
+        Which window this is, for the console (a p_m estimate at a search bound names it).
 
     Returns
     -------
@@ -130,7 +133,8 @@ def step1(
     if p_m is None or (isinstance(p_m, str) and p_m == "max"):
         pm, method = max_p, "max"
     elif isinstance(p_m, str) and p_m == "estimate":
-        pm = estimate_p_m(p, u, fs, rho=rho, lam=lam, zero_mean=zero_mean, refine=refine, y_c=y_c)
+        pm = estimate_p_m(p, u, fs, rho=rho, lam=lam, zero_mean=zero_mean, refine=refine,
+                          y_c=y_c, where=where)  # fmt: skip
         method = "estimate"
     elif isinstance(p_m, str):
         raise ValueError(f"p_m must be a pressure in Pa, 'max' or 'estimate', got {p_m!r}")

@@ -215,7 +215,8 @@ def invert_window(
         if pw.size < n:
             raise ValueError(f"window at {start / fs:.4f} s runs past the end of the take")
         if cold:
-            s1 = _step1(pw, uw, fs, rho, config, zero_mean)
+            s1 = _step1(pw, uw, fs, rho, config, zero_mean,
+                        f"window at {start / fs:.3f}-{(start + n) / fs:.3f} s")  # fmt: skip
             row.update(_step1_columns(s1))
         base = warm if warm is not None else start_point(s1, config)
         history = lead_in(p, u, start, n, kernel.n_taps, config.lead_s, fs)
@@ -263,9 +264,18 @@ def window_bounds(
 
 
 def _step1(
-    pw: np.ndarray, uw: np.ndarray, fs: float, rho: float, config: InversionConfig, zero_mean: bool
+    pw: np.ndarray,
+    uw: np.ndarray,
+    fs: float,
+    rho: float,
+    config: InversionConfig,
+    zero_mean: bool,
+    where: str = "",
 ) -> Step1Result:
-    """Step 1 on the window's pressure ``pw`` (Pa) and flow ``uw`` (m^3/s), as configured."""
+    """Step 1 on the window's pressure ``pw`` (Pa) and flow ``uw`` (m^3/s), as configured.
+
+    ``where`` names the window (its span in the take) for the console.
+    """
     estimate = config.step1_p_m == "estimate"
     return step1(
         pw,
@@ -277,6 +287,7 @@ def _step1(
         zero_mean=zero_mean,
         # with contact from closure, step 1's shut-reed test already covers it
         y_c=config.y_c if estimate and config.contact != "closure" else None,
+        where=where,
     )
 
 

@@ -38,6 +38,7 @@ def plot_note(
     row: pd.Series,
     path: str | Path,
     title: str,
+    zero_mean: bool = False,
 ) -> Path:
     """Two periods of one window: p(t), u(t) and u against p, measured and resynthesised.
 
@@ -53,20 +54,54 @@ def plot_note(
         PNG file.
     title : str
         The note's label; the window and its status are added.
+    zero_mean : bool
+        Whether the flow is zero-mean (its mean lost in the measurement): u is then drawn
+        and labelled as the flow's variation about its mean, not as the flow itself.
 
     Returns
     -------
     Path
     """
-    return save_figure(note_figure(signals, fs, row, title), path)
+    return save_figure(note_figure(signals, fs, row, title, zero_mean), path)
 
 
-def note_figure(signals, fs: float, row: pd.Series, title: str):
+#: A period whose peak-to-peak pressure is below this fraction of the window's median is
+#: a tapered (or dying) edge: the two periods shown end before it.
+FULL_AMPLITUDE = 0.8
+
+
+def full_amplitude_end(p: np.ndarray, fs: float, f0_hz: float) -> int:
+    """Samples of a window up to its last period at full amplitude.
+
+    Periods are counted back from the window's end; those whose peak-to-peak pressure is
+    below :data:`FULL_AMPLITUDE` of the median period's (a tapered edge, a release) are
+    dropped, so u against p draws no false branch towards p = 0.
+    """
+    p = np.asarray(p, dtype=float)
+    if not (np.isfinite(f0_hz) and f0_hz > 0):
+        return p.size
+    n = int(round(fs / f0_hz))
+    k = p.size // n if n >= 2 else 0
+    if k < 3:
+        return p.size
+    spans = [p[p.size - (j + 1) * n : p.size - j * n] for j in range(k)]
+    pp = np.array([np.ptp(x) for x in spans])
+    ref = float(np.median(pp))
+    j = 0
+    while j < k - 2 and pp[j] < FULL_AMPLITUDE * ref:
+        j += 1
+    return p.size - j * n
+
+
+def note_figure(signals, fs: float, row: pd.Series, title: str, zero_mean: bool = False):
     """The figure :func:`plot_note` writes (a matplotlib Figure)."""
     import matplotlib.pyplot as plt
 
     p, u, p_res, u_res = (np.asarray(x, dtype=float) for x in signals)
-    show = two_periods(p, fs, float(row.get("f0_hz", np.nan)))
+    f0 = float(row.get("f0_hz", np.nan))
+    end = full_amplitude_end(p, fs, f0)
+    part = two_periods(p[:end], fs, f0)
+    show = slice(part.start, part.stop)
     t_ms = 1e3 * (np.arange(p.size)[show] / fs)
     t0 = float(row["t_start_s"])
     fig = plt.figure(figsize=(11, 4.6))
@@ -74,7 +109,10 @@ def note_figure(signals, fs: float, row: pd.Series, title: str):
     a_p = fig.add_subplot(grid[0, 0])
     a_u = fig.add_subplot(grid[1, 0], sharex=a_p)
     a_up = fig.add_subplot(grid[:, 1])
-    for ax, meas, res, label in ((a_p, p, p_res, "p [Pa]"), (a_u, u, u_res, "u [m³/s]")):
+    # a zero-mean flow is the flow's variation about its unknown mean: said so, never drawn
+    # as the flow itself (it goes negative while the reed is shut)
+    u_name = "u − ū [m³/s] (zero-mean: the mean flow is not measured)" if zero_mean else "u [m³/s]"
+    for ax, meas, res, label in ((a_p, p, p_res, "p [Pa]"), (a_u, u, u_res, u_name)):
         ax.plot(t_ms, meas[show], color="0.6", lw=2.2, label="measured")
         ax.plot(t_ms, res[show], color="k", lw=0.9, label="resynthesised")
         ax.set_ylabel(label)
@@ -86,7 +124,7 @@ def note_figure(signals, fs: float, row: pd.Series, title: str):
     for ax in (a_u, a_up):
         ax.ticklabel_format(axis="y", style="sci", scilimits=(0, 0))  # u in 10^-5 m^3/s
     a_up.set_xlabel("p [Pa]")
-    a_up.set_ylabel("u [m³/s]")
+    a_up.set_ylabel("u − ū [m³/s] (zero-mean)" if zero_mean else "u [m³/s]")
     a_up.grid(alpha=0.3)
     p_m = float(row.get("p_m", np.nan))
     if np.isfinite(p_m):
@@ -107,6 +145,7 @@ def plot_notes(
     folder: str | Path,
     fingering: str | None = None,
     draw=None,
+    zero_mean: bool = False,
 ) -> dict[str, str]:
     """Write ``flow_pressure_note_<n>.png`` for every note with an inverted window.
 
@@ -126,6 +165,8 @@ def plot_notes(
         The fingering played.
     draw : callable, optional
         ``draw(fn, *args)`` draws a figure (e.g. in a background process); None: at once.
+    zero_mean : bool
+        Whether the flow is zero-mean (:func:`plot_note`).
 
     Returns
     -------
@@ -142,7 +183,7 @@ def plot_notes(
         name = f"flow_pressure_note_{note['number']}.png"
         sig = (measured[0][i0:i1], measured[1][i0:i1],
                resynthesised[0][i0:i1], resynthesised[1][i0:i1])  # fmt: skip
-        draw(plot_note, sig, fs, row, Path(folder) / name, note_label(note, fingering))
+        draw(plot_note, sig, fs, row, Path(folder) / name, note_label(note, fingering), zero_mean)
         outputs[f"note_{note['number']}"] = name
     return outputs
 

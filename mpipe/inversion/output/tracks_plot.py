@@ -57,7 +57,8 @@ def ok_limits(x: np.ndarray, ok: np.ndarray, lo=None, hi=None, pad: float = 0.08
     if not v.size:
         return None
     a, b = float(v.min()), float(v.max())
-    span = b - a if b > a else max(abs(a), 1e-30) * 0.05
+    # one value (a fraction that is 0 everywhere): a range around it, not 1e-30 wide
+    span = b - a if b > a else (abs(a) * 0.05 if a else 0.5)
     return a - pad * span, b + pad * span
 
 
@@ -161,15 +162,31 @@ def tracks_figure(
     return fig
 
 
+#: Quantities that are fractions (0..1): values below TINY_FRACTION are drawn as 0 (a
+#: closed fraction of 1e-33 is a reed that never shut, not a number worth an axis).
+FRACTIONS = ("closed_fraction",)
+TINY_FRACTION = 1e-9
+
+
 def _panel(ax, table, name, t, ok, brk) -> None:
-    """One quantity: band, line, points by status, axis from the ok windows, off-scale marks."""
+    """One quantity: band, line, points by status, axis from the ok windows, off-scale marks.
+
+    The axis is set by the ok windows whose estimate is determined (an ok but undetermined
+    window may sit decades away); the line joins ok windows only and breaks at every window
+    that is not ok (those are markers, never joined into spikes); a quantity held fixed
+    gets its value written in the panel instead of an empty plot.
+    """
     x = pd.to_numeric(table[name], errors="coerce").to_numpy(dtype=float)
+    if name in FRACTIONS:
+        x = np.where(np.abs(x) < TINY_FRACTION, 0.0, x)
     title = f"{name} [{unit_of(name) or '-'}]"
     lo = hi = None
     det = np.ones(len(t), bool)
     se_col = f"{name}_se"
     if se_col in table:
         se = pd.to_numeric(table[se_col], errors="coerce").to_numpy(dtype=float)
+        if np.isnan(se[ok]).all() and _held_fixed(ax, x, ok, title):
+            return
         band = np.isfinite(se) & ok
         lo, hi = _band(x, se)
         lo, hi = np.where(band, lo, np.nan), np.where(band, hi, np.nan)
@@ -177,14 +194,16 @@ def _panel(ax, table, name, t, ok, brk) -> None:
                         color="tab:blue", alpha=0.25, lw=0)  # fmt: skip
         det = flags(table, f"determined_{name}")
         if np.isnan(se[ok]).all():
-            title += " fixed"
             det = np.ones(len(t), bool)
         elif not ok.any() or det[ok].mean() < 0.5:
             title += " UNDETERMINED"
         with np.errstate(invalid="ignore", divide="ignore"):
             narrow = np.abs(se) <= BAND_LIMIT * np.abs(x)
         lo, hi = np.where(narrow, lo, np.nan), np.where(narrow, hi, np.nan)
-    limits = ok_limits(x, ok, lo, hi)
+    elif not np.isfinite(x).any() and _held_fixed(ax, x, ok, title):
+        return
+    scale_ok = ok & det if (ok & det & np.isfinite(x)).any() else ok
+    limits = ok_limits(x, scale_ok, lo, hi)
     shown = x.copy()
     if limits is not None:
         shown = np.clip(x, *limits)
@@ -196,13 +215,54 @@ def _panel(ax, table, name, t, ok, brk) -> None:
         if off.any():
             title += f" ({int(off.sum())} off scale)"
         ax.set_ylim(*limits)
-    ax.plot(_split(t, brk), _split(shown, brk), "-", color="0.6", lw=0.6)
+    line = np.where(ok, shown, np.nan)  # not-ok windows break the line
+    ax.plot(_split(t, brk), _split(line, brk), "-", color="0.6", lw=0.6)
     ax.plot(t[ok & det], x[ok & det], "k.", ms=5)
     ax.plot(t[ok & ~det], x[ok & ~det], "o", mfc="none", mec="tab:red", ms=4)
     inside = ~ok & (shown == x)
     ax.plot(t[inside], x[inside], ".", color="0.7", ms=4)
+    title += _plain_ticks(ax, limits)
     ax.set_title(title, fontsize=9, color="tab:red" if "UNDET" in title else "k")
     ax.tick_params(labelsize=7)
+
+
+def _held_fixed(ax, x: np.ndarray, ok: np.ndarray, title: str) -> bool:
+    """Write "held fixed at <value>" in a panel whose quantity has no SE and one value."""
+    values = np.unique(x[ok & np.isfinite(x)]) if ok.any() else np.unique(x[np.isfinite(x)])
+    if values.size > 1:
+        return False
+    what = f"held fixed at {values[0]:.4g}" if values.size else "held fixed (not estimated)"
+    ax.text(0.5, 0.5, what, transform=ax.transAxes, ha="center", va="center", fontsize=9)
+    ax.set_yticks([])
+    ax.set_title(title + " fixed", fontsize=9)
+    ax.tick_params(labelsize=7)
+    return True
+
+
+def _plain_ticks(ax, limits) -> str:
+    """Tick labels without matplotlib's offset text (it overlapped the title).
+
+    Values beyond 1e4 or below 1e-2 are labelled in units of a power of ten, given in the
+    title (``" ×1e6"``); the labels carry the digits that tell neighbouring ticks apart.
+    """
+    from matplotlib.ticker import FuncFormatter
+
+    if limits is None:
+        ax.ticklabel_format(axis="y", useOffset=False, style="plain")
+        return ""
+    big = max(abs(limits[0]), abs(limits[1]))
+    power = int(np.floor(np.log10(big))) if big > 0 else 0
+    power = 0 if -2 <= power <= 4 else power
+    scale = 10.0**power
+
+    def label(v, _pos):
+        ticks = ax.yaxis.get_majorticklocs()
+        step = np.min(np.diff(ticks)) / scale if len(ticks) > 1 else abs(v / scale) or 1.0
+        places = min(max(0, -int(np.floor(np.log10(step)))), 12) if step > 0 else 0
+        return f"{v / scale:.{places}f}"
+
+    ax.yaxis.set_major_formatter(FuncFormatter(label))
+    return f" ×1e{power}" if power else ""
 
 
 def _shade_notes(ax, notes: pd.DataFrame) -> None:

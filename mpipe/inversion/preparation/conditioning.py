@@ -415,7 +415,7 @@ def plan_take(
     if len(table):
         table = assign_windows(table, segments, c, tracks)
     else:
-        for col in ("segment", "phase", "inside", "pitch_cents", "regime", "spl_db"):
+        for col in ("segment", "note_number", "phase", "inside", "pitch_cents", "regime", "spl_db"):
             table[col] = pd.Series(dtype=object)
     if c.select == "steady":
         table["invert"] = table["steady"] | (c.invert_transients & (table["reason"] != "silent"))

@@ -37,8 +37,8 @@ from mpipe.reed.parameters import ReedParameters
 #: Reference pressure of the sound pressure level, Pa.
 P_REF_PA = 20e-6
 #: Columns of :func:`segment_take`'s table.
-SEGMENT_COLUMNS = ("segment", "start_s", "end_s", "label", "duration_s", "f0_hz",
-                   "pitch_cents", "note", "regime", "rms_pa", "spl_db",
+SEGMENT_COLUMNS = ("segment", "note_number", "start_s", "end_s", "label", "duration_s",
+                   "f0_hz", "pitch_cents", "note", "regime", "rms_pa", "spl_db",
                    "blowing_onset_s", "sounding_onset_s")  # fmt: skip
 
 
@@ -47,6 +47,18 @@ def spl_db(rms_pa):
     with np.errstate(divide="ignore"):
         out = 20.0 * np.log10(np.asarray(rms_pa, dtype=float) / P_REF_PA)
     return float(out) if out.ndim == 0 else out
+
+
+def note_numbers(segments: pd.DataFrame) -> dict[int, int]:
+    """Segment id -> the note's number in the take (1, 2, ... over the notes only).
+
+    The one number a note goes by in the console, the tables and the figures; silences have
+    none. Read from the label (a table written before ``note_number`` existed numbers the same).
+    """
+    if segments is None or not len(segments) or "segment" not in segments:
+        return {}
+    notes = segments[segments["label"] == "note"] if "label" in segments else segments
+    return {int(g): i + 1 for i, g in enumerate(notes["segment"])}
 
 
 def segment_take(
@@ -104,6 +116,8 @@ def segment_take(
              "blowing_onset_s": blow, "sounding_onset_s": sound}
             for i, (a, b, label, blow, sound) in enumerate(bounds)]  # fmt: skip
     table = pd.DataFrame(rows, columns=list(SEGMENT_COLUMNS))
+    is_note = (table["label"] == "note").to_numpy()
+    table["note_number"] = np.where(is_note, np.cumsum(is_note), 0).astype(int)
     tracks = {"t_level_s": t_lev, "level_pa": level, "t_f0_s": centres, "f0_hz": f0,
               "threshold_pa": threshold, "frame_s": frame}  # fmt: skip
     return table, tracks
@@ -126,7 +140,7 @@ def _describe(i, a, b, label, p, fs, centres, f0, c, resonances_hz) -> dict:
         inside = (centres >= a) & (centres <= b) & np.isfinite(f0)
         f = float(np.median(f0[inside])) if inside.any() else math.nan
     return {
-        "segment": i, "start_s": float(a), "end_s": float(b), "label": label,
+        "segment": i, "note_number": 0, "start_s": float(a), "end_s": float(b), "label": label,
         "duration_s": float(b - a), "f0_hz": f, "pitch_cents": pitch_cents(f, c.a4_hz),
         "note": note_name(f, c.a4_hz),
         "regime": regime(f, resonances_hz) if label == "note" else "silence",
@@ -167,6 +181,8 @@ def assign_windows(
     phase = np.where(t0 < s0 + c.onset_s, "onset", np.where(t1 > s1 - c.release_s, "release",
                      "sustain"))  # fmt: skip
     out["segment"] = seg["segment"].to_numpy(int)
+    numbers = note_numbers(segments)
+    out["note_number"] = [numbers.get(int(g), 0) for g in out["segment"]]
     out["phase"] = np.where(note, phase, "silence")
     out["inside"] = note & (t0 >= s0 + skip - 1e-9) & (t1 <= s1 + 1e-9)
     cf, f0 = tracks["t_f0_s"], tracks["f0_hz"]
@@ -187,7 +203,7 @@ def assign_windows(
 
 
 #: Per-window columns of the plan carried into the windows table (what was played).
-PLAYED_COLUMNS = ("phase", "f0_hz", "pitch_cents", "regime", "rms_pa", "spl_db")
+PLAYED_COLUMNS = ("note_number", "phase", "f0_hz", "pitch_cents", "regime", "rms_pa", "spl_db")
 
 
 def with_played(table: pd.DataFrame, plan: pd.DataFrame) -> pd.DataFrame:
@@ -292,10 +308,15 @@ def pick_by_segment(
 
 
 def note_label(row) -> str:
-    """A note's label on the plots: its number, name and f0 in Hz (``"1: G#2 +8 c, 104.0 Hz"``)."""
+    """A note's label on the plots: its number in the take, name and f0 in Hz.
+
+    (``"1: G#2 +8 c, 104.0 Hz"``; the number is ``note_number``, the one the console and
+    the tables use, not the segment id.)
+    """
     f0 = float(row["f0_hz"])
     hz = f", {f0:.1f} Hz" if math.isfinite(f0) else ""
-    return f"{int(row['segment'])}: {row['note']}{hz}"
+    number = row.get("note_number", row.get("segment"))
+    return f"{int(number)}: {row['note']}{hz}"
 
 
 def plot_segments(segments: pd.DataFrame, tracks: dict, path, a4_hz: float = 440.0):
@@ -311,6 +332,26 @@ def plot_segments(segments: pd.DataFrame, tracks: dict, path, a4_hz: float = 440
         PNG file (written atomically).
     a4_hz : float
         A4 of the take, Hz (the segment table's note names and cents already follow it).
+    """
+    import matplotlib.pyplot as plt
+
+    fig = segments_figure(segments, tracks)
+    try:
+        return write_atomic(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    finally:
+        plt.close(fig)
+
+
+#: Margin of the pitch axis around the notes' playing frequencies (a factor, log axis).
+F0_MARGIN = 1.25
+
+
+def segments_figure(segments: pd.DataFrame, tracks: dict):
+    """The figure :func:`plot_segments` writes (a matplotlib Figure).
+
+    The pitch axis is logarithmic and spans the notes' own playing frequencies with a
+    margin (a linear axis up to ``f0_max_hz`` flattened the notes); each note's label
+    (its number in the take, name, f0) goes on the lowest row where it overlaps none.
     """
     import matplotlib
 
@@ -328,19 +369,43 @@ def plot_segments(segments: pd.DataFrame, tracks: dict, path, a4_hz: float = 440
     ax_p.plot(tracks["t_f0_s"], tracks["f0_hz"], ".", ms=2, color="k")
     ax_p.set_ylabel("f0 [Hz]")
     ax_p.set_xlabel("time [s]")
-    for _, s in segments[segments["label"] == "note"].iterrows():
+    notes = segments[segments["label"] == "note"]
+    f0 = pd.to_numeric(notes["f0_hz"], errors="coerce").to_numpy(float)
+    f0 = f0[np.isfinite(f0) & (f0 > 0)]
+    if f0.size:
+        ax_p.set_yscale("log")
+        ax_p.set_ylim(f0.min() / F0_MARGIN, f0.max() * F0_MARGIN)
+    numbers = note_numbers(segments)
+    labels = []
+    for _, s in notes.iterrows():
+        s = s.copy()
+        s["note_number"] = numbers[int(s["segment"])]
         for ax in (ax_l, ax_p):
             ax.axvspan(s["start_s"], s["end_s"], color="tab:green", alpha=0.12, lw=0)
             ax.axvline(s["start_s"], color="tab:green", lw=0.6)
-        ax_p.annotate(note_label(s), (s["start_s"], 1.0),
-                      xycoords=("data", "axes fraction"), va="top", fontsize=7)  # fmt: skip
+        labels.append(ax_p.annotate(note_label(s), (s["start_s"], 1.0), xytext=(2, -2),
+                                    textcoords="offset points", xycoords=("data", "axes fraction"),
+                                    va="top", fontsize=7))  # fmt: skip
     for ax in (ax_l, ax_p):
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    try:
-        return write_atomic(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
-    finally:
-        plt.close(fig)
+    _stagger(fig, labels)
+    return fig
+
+
+def _stagger(fig, labels: list) -> None:
+    """Move each label down a row until it overlaps no label before it (display boxes)."""
+    renderer = fig.canvas.get_renderer()
+    placed: list = []
+    for text in labels:
+        row = 0
+        while True:
+            text.set_position((2, -2 - 9 * row))
+            box = text.get_window_extent(renderer)
+            if not any(box.overlaps(other) for other in placed) or row > 20:
+                break
+            row += 1
+        placed.append(box)
 
 
 def note_segments(summary: pd.DataFrame) -> pd.DataFrame:
@@ -358,7 +423,9 @@ __all__ = [
     "pick_by_segment",
     "pick_windows",
     "note_label",
+    "note_numbers",
     "plot_segments",
+    "segments_figure",
     "reed_openings",
     "segment_take",
     "spl_db",

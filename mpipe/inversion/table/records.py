@@ -130,7 +130,12 @@ _INVERSION: tuple[Column, ...] = (
     _col("window", COUNT, "window index in the take"),
     _col("t_start_s", FLOAT, "window start"),
     _col("t_end_s", FLOAT, "window end"),
-    _col("segment", COUNT, "segment (note) the window belongs to"),
+    _col("segment", COUNT, "segment (note or silence) the window belongs to"),
+    _col(
+        "note_number",
+        COUNT,
+        "the window's note: its number in the take (1, 2, ... over notes only; 0 in a silence)",
+    ),
     *(_col(n, FLOAT, _PARAMETER_MEANINGS[n]) for n in (*PARAMETER_NAMES, "y_c")),
     _col("alpha", FLOAT, "exponent of the contact force"),
     _col("kernel_temperature_c", FLOAT, "air temperature of the bore model"),

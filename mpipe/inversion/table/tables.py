@@ -105,6 +105,12 @@ def _checkpoint_path(checkpoint: Path, start: int) -> Path:
     return checkpoint / f"w{start:010d}.json"
 
 
+def saved_windows(checkpoint: str | Path, starts) -> int:
+    """How many of the windows starting at ``starts`` (samples) a checkpoint folder holds."""
+    folder = Path(checkpoint)
+    return sum(_checkpoint_path(folder, int(s)).exists() for s in starts)
+
+
 def save_checkpoint(checkpoint: Path, start: int, row: WindowRecord, history) -> None:
     """Save the result of the window starting at sample ``start`` (JSON, atomically)."""
     record = {
@@ -203,7 +209,7 @@ def segment_lines(summary: pd.DataFrame) -> list[str]:
             x for x in (str(r.get("note") or ""), str(r.get("regime") or ""), fingering) if x
         )
         lines.append(
-            f"note {number} (segment {int(r['segment'])}) at {r['start_s']:.3f} s "
+            f"note {number} at {r['start_s']:.3f} s "
             f"({r['duration_s']:.2f} s"
             f"{', ' + what if what else ''}, {r['spl_db']:.0f} dB SPL): "
             f"{int(r.get('ok_windows', 0))} of {int(r.get('windows', 0))} windows ok"
@@ -234,6 +240,7 @@ __all__ = [
     "histories_and_correlations",
     "load_checkpoint",
     "save_checkpoint",
+    "saved_windows",
     "segment_lines",
     "why_no_window",
     "window_table",

@@ -146,7 +146,7 @@ def take_checks(
             "reed parameters carry its error and the SEs leave it out"
         )
     if notes is not None and notes.reason():
-        reasons.append(notes.reason())
+        reasons.append(notes.reason(note_numbers_of(table)))
     if cold_starts_agreeing is not None and cold_starts_agreeing < MIN_AGREEING:
         reasons.append(
             f"the cold start's minimum was reached by {cold_starts_agreeing} of its "
@@ -215,11 +215,28 @@ def _unplayable_notes(table: pd.DataFrame) -> list[str]:
         t1 = pd.to_numeric(rows.get("t_end_s", t0), errors="coerce")
         when = f" ({t0.min():.2f}-{t1.max():.2f} s)" if t0.notna().any() else ""
         reasons.append(
-            f"the model cannot play note segment {g}{when}: {int(bad.sum())} of {len(rows)} "
+            f"the model cannot play {_which(rows, g)}{when}: {int(bad.sum())} of {len(rows)} "
             f"windows not ok ({which}): a reed outside the search bounds, or a bore or "
             "fingering that does not match this note"
         )
     return reasons
+
+
+def _which(rows: pd.DataFrame, segment) -> str:
+    """``"note 2"`` (the note's number in the take), or ``"segment 3"`` outside a note."""
+    number = pd.to_numeric(rows.get("note_number", pd.Series(dtype=float)), errors="coerce")
+    number = number[number > 0]
+    return f"note {int(number.iloc[0])}" if len(number) else f"segment {segment}"
+
+
+def note_numbers_of(table: pd.DataFrame) -> dict[int, int]:
+    """Segment id -> note number of a window table's windows (those in a note)."""
+    if "segment" not in table or "note_number" not in table:
+        return {}
+    seg = pd.to_numeric(table["segment"], errors="coerce")
+    number = pd.to_numeric(table["note_number"], errors="coerce")
+    keep = seg.notna() & number.notna() & (number > 0)
+    return dict(zip(seg[keep].astype(int), number[keep].astype(int), strict=True))
 
 
 def _outlier_windows(table: pd.DataFrame) -> list[str]:

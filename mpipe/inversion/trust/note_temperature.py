@@ -89,8 +89,12 @@ class NoteTemperatures:
         )
         return out + (f", chi^2 p = {self.first_p:.2g}" if math.isfinite(self.first_p) else "")
 
-    def reason(self) -> str:
-        """One line for the take's checks ("" when the notes agree)."""
+    def reason(self, numbers: dict | None = None) -> str:
+        """One line for the take's checks ("" when the notes agree).
+
+        ``numbers`` maps a segment id to its note's number in the take (the name the line
+        gives a left-out note; without one it names the segment).
+        """
         if not self.disagree:
             return ""
         each = ", ".join(
@@ -106,7 +110,11 @@ class NoteTemperatures:
         if self.excluded:
             parts.append(
                 "left out of the take's kernel temperature: "
-                + "; ".join(f"segment {g} ({why})" for g, why in self.excluded.items())
+                + "; ".join(
+                    (f"note {numbers[g]}" if numbers and g in numbers else f"segment {g}")
+                    + f" ({why})"
+                    for g, why in self.excluded.items()
+                )
                 + (f" (each note's: {each} degC)" if len(parts) == 0 else "")
             )
         return "; ".join(parts)

@@ -333,7 +333,8 @@ def _between(z: dict, dt: float) -> tuple[float, float]:
 
 def _translated(p0, u0, fs, calibration, front: FrontEnd, dt: float):
     temps = np.asarray(front.temperature_c, dtype=float) + dt
-    tr = translate(p0, u0, fs, calibration, front.translation, temps)
+    # quiet: the separation stage said the translation once; this repeats it per quantity
+    tr = translate(p0, u0, fs, calibration, front.translation, temps, quiet=True)
     return tr.p, tr.u
 
 

@@ -36,7 +36,7 @@ from mpipe.inversion.preparation.conditioning import is_zero_mean
 from mpipe.inversion.preparation.span import span_samples
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.table.records import reed_from_row, typed
-from mpipe.inversion.table.tables import histories_and_correlations, window_table
+from mpipe.inversion.table.tables import histories_and_correlations, saved_windows, window_table
 from mpipe.inversion.trust.status import RETRIED, classify
 from mpipe.inversion.trust.window_errors import CORRELATION_COLUMNS
 from mpipe.reed.bore_kernel import BoreKernel
@@ -149,16 +149,22 @@ class WindowPlan:
     fingerings : tuple of str or None
         The fingering of each window's note (the plan's ``fingering``; "" the calibration's
         own): each window is inverted on its fingering's bore; None: the calibration's.
+    notes : tuple of int or None
+        The number of each window's note in the take (the plan's ``note_number``: 1, 2, ...
+        over the notes only, 0 in a silence), the number the console and the report use;
+        None: 1 for all when the plan has no segments either, else unknown.
     """
 
     starts: tuple[int, ...]
     segments: tuple[int, ...] | None = None
     steady: tuple[bool, ...] | None = None
     fingerings: tuple[str, ...] | None = None
+    notes: tuple[int, ...] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "starts", tuple(int(s) for s in self.starts))
-        for name, kind in (("segments", int), ("steady", bool), ("fingerings", str)):
+        for name, kind in (("segments", int), ("steady", bool), ("fingerings", str),
+                           ("notes", int)):  # fmt: skip
             values = getattr(self, name)
             if values is None:
                 continue
@@ -185,6 +191,7 @@ class WindowPlan:
                 rows["segment"].astype(int).tolist() if "segment" in rows else None,
                 rows["steady"].astype(bool).tolist() if "steady" in rows else None,
                 _names(rows["fingering"]) if "fingering" in rows else None,
+                rows["note_number"].astype(int).tolist() if "note_number" in rows else None,
             )
         return cls(tuple(windows))
 
@@ -218,12 +225,23 @@ class WindowPlan:
             return None if values is None else tuple(values[i] for i in keep)
 
         return WindowPlan(pick(self.starts), pick(self.segments), pick(self.steady),
-                          pick(self.fingerings))  # fmt: skip
+                          pick(self.fingerings), pick(self.notes))  # fmt: skip
 
     @property
     def segment_ids(self) -> list[int]:
         """The segment of each window (0 for all when the plan has none)."""
         return list(self.segments) if self.segments is not None else [0] * len(self.starts)
+
+    @property
+    def note_ids(self) -> list:
+        """The note number of each window.
+
+        1 for all when the plan has neither notes nor segments (one note); NA when it has
+        segments only.
+        """
+        if self.notes is not None:
+            return list(self.notes)
+        return [1 if self.segments is None else pd.NA] * len(self.starts)
 
 
 @dataclass(frozen=True)
@@ -318,6 +336,9 @@ def track(
     if checkpoint is not None:
         checkpoint = Path(checkpoint)
         checkpoint.mkdir(parents=True, exist_ok=True)
+        reused = saved_windows(checkpoint, starts)
+        if reused:  # a resumed run says what it did not redo
+            log.info("resuming: %d of %d windows reused from %s", reused, len(starts), checkpoint)
     job = Job(p, u, fs, kernel, rho, config, zero_mean, checkpoint)
     workers = executor.workers or os.cpu_count() or 1
     update = options.progress.update if options.progress is not None else None
@@ -338,6 +359,8 @@ def track(
     if config.retry_cold:
         table = _retry_not_ok(job, results, table, in_time, **run)
     table["segment"] = in_time
+    table["note_number"] = [n for _, n in sorted(zip(starts, plan.note_ids, strict=True),
+                                                 key=lambda x: x[0])]  # fmt: skip
     histories, correlations = histories_and_correlations(results)
     table["window"] = np.arange(len(table))
     return Tracking(

@@ -271,6 +271,19 @@ def _smoothed_track(
     return smooth, smooth_se, c_track, choice
 
 
+def noise_line(psd: np.ndarray) -> str:
+    """The console's line of the channels' one-sided noise PSD (Pa^2/Hz), in 3 digits.
+
+    Each value in scientific notation (a fixed-point print showed 1e-9 as ``0.``); a take
+    without measurable noise (a noiseless synthetic take) says so instead of a row of zeros.
+    """
+    psd = np.asarray(psd, dtype=float)
+    if not np.any(psd > 0):
+        return "separation: no noise measured in the channels (noise PSD 0: a noiseless take)"
+    values = ", ".join(f"{v:.3g}" for v in psd)
+    return f"separation: noise PSD per channel {values} Pa^2/Hz (one-sided)"
+
+
 def _log_outcome(result: SeparationResult, median_j: float) -> None:
     for line in result.bound_warnings():
         log.warning("separation: %s", line)
@@ -387,10 +400,7 @@ def estimate(
     plan = _plan(x, fs, calibration, config)
     _log_plan(plan, config, n_mics, fs)
     noise_raw = noise_levels(x, fs, config, band_limit_hz)
-    log.info(
-        "separation: noise PSD per channel %s Pa^2/Hz (one-sided)",
-        np.array2string(2 * noise_raw, precision=3),
-    )
+    log.info("%s", noise_line(2 * noise_raw))
     spectra_list, noise, uses, fitted = _prepare_blocks(x, fs, plan, noise_raw, config)
     fits = estimate_blocks(
         spectra_list, uses, fitted, noise, plan.geometry, plan.start, plan.prior, config,

@@ -40,3 +40,16 @@ def test_p_m_estimate_input_checks():
         estimate_p_m(p, u, FS, rho=RHO, lam=0.013, bounds=(2.0, 1.0))
     with pytest.raises(ValueError, match="max p"):
         estimate_p_m(p - 5000.0, u, FS, rho=RHO, lam=0.013)
+
+
+def test_a_p_m_estimate_at_a_search_bound_names_its_window(caplog):
+    # issue 42: "step 1: the p_m estimate ... lies at a search bound" did not say where
+    import logging
+
+    p = pressure()
+    u = quasi_static_flow(p, FS, rho=RHO, **TRUE)
+    caplog.set_level(logging.WARNING, logger="mpipe.inversion.fit.mouth_pressure")
+    # the truth (1800 Pa) lies above [max p, 1.05 max p]: the estimate ends on the bound
+    estimate_p_m(p, u, FS, rho=RHO, lam=TRUE["lam"], bounds=(1.0, 1.05),
+                 where="window at 0.250-0.300 s")  # fmt: skip
+    assert "step 1 (window at 0.250-0.300 s): the p_m estimate" in caplog.text, caplog.text

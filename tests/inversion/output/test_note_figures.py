@@ -47,3 +47,25 @@ def test_a_figure_per_note_labelled_with_the_windows_status(tmp_path):
         assert 19.0 <= span <= 20.0
     finally:
         plt.close(fig)
+
+
+def test_a_zero_mean_flow_is_labelled_so_and_a_tapered_edge_is_not_drawn():
+    # issue 42: the zero-mean flow was labelled as the flow, and a window's tapered end drew
+    # a false branch of u against p towards p = 0
+    import matplotlib.pyplot as plt
+
+    n = np.arange(int(0.05 * FS))
+    p = 1000.0 * np.sin(2 * np.pi * 100.0 * n / FS)
+    taper = np.ones(n.size)
+    taper[-200:] = np.linspace(1.0, 0.0, 200)  # the last two periods fade out
+    p, u = p * taper, 4e-5 * np.cos(2 * np.pi * 100.0 * n / FS) * taper
+    row = pd.Series({"window": 3, "t_start_s": 0.1, "f0_hz": 100.0, "p_m": 1800.0, "status": "ok",
+                     "status_reason": "", "relative_residual": 0.01})  # fmt: skip
+    fig = note_figure((p, u, p, u), FS, row, "note 1", zero_mean=True)
+    try:
+        a_p, a_u, a_up = fig.axes[:3]
+        assert "zero-mean" in a_u.get_ylabel() and "zero-mean" in a_up.get_ylabel()
+        shown = np.asarray(a_p.lines[0].get_ydata(), dtype=float)
+        assert np.ptp(shown[-100:]) > 1900  # the last period shown is at full amplitude
+    finally:
+        plt.close(fig)

@@ -55,9 +55,41 @@ def test_tracks_figure_scales_to_ok_windows_and_names_the_notes():
         ax = fig.axes[0]
         lo, hi = ax.get_ylim()
         assert hi < 1e7 and lo > 8e6  # 6e7 would flatten the five ok windows to a line
-        assert ax.get_title() == "k [Pa/m] (1 off scale)"
+        assert ax.get_title() == "k [Pa/m] (1 off scale) ×1e6"
         title = fig._suptitle.get_text()
         assert "note 1: G#2 +8 c, 104.3 Hz, fingering xxoo" in title
         assert "note 2: C3 -3 c, 130.6 Hz" in title
+    finally:
+        plt.close(fig)
+
+
+def test_tracks_axes_lines_fixed_panels_and_tiny_fractions_read_right():
+    # issue 42: an ok-but-undetermined k_c at 7e12 stretched its axis, closed_fraction showed
+    # 1e-33, a fixed y_c's panel was empty, grey lines joined not-ok windows into spikes,
+    # and the axis multiplier overlapped the titles
+    import matplotlib.pyplot as plt
+
+    table = _table()
+    k_c = np.array([8.2e10, 8.3e10, 8.1e10, 7e12, 8.4e10, 8.2e10])
+    table = table.assign(
+        k_c=k_c, k_c_se=0.05 * k_c, determined_k_c=[True, True, True, False, True, True],
+        y_c=4e-4, y_c_se=np.nan, closed_fraction=1e-33,
+    )  # fmt: skip
+    table.loc[3, "status"] = "ok"
+    fig = tracks_figure(table)
+    try:
+        fig.canvas.draw()
+        axes = {ax.get_title().split(" [")[0]: ax for ax in fig.axes if ax.get_visible()}
+        assert axes["k_c"].get_ylim()[1] < 1e11  # the determined windows' range
+        lo, hi = axes["closed_fraction"].get_ylim()
+        assert lo <= 0.0 <= hi and hi - lo > 0.05  # a reed that never shut: 0, not 1e-33
+        texts = [t.get_text() for t in axes["y_c"].texts]
+        assert texts == ["held fixed at 0.0004"], texts
+        grey = [ln for ln in axes["k"].lines if ln.get_color() == "0.6"]
+        (line,) = grey
+        y = np.asarray(line.get_ydata(), dtype=float)
+        assert np.isnan(y[2]) and np.isfinite(y[[0, 1]]).all()  # window 2 (at-bound) unjoined
+        for ax in axes.values():
+            assert ax.yaxis.get_offset_text().get_text() == "", ax.get_title()
     finally:
         plt.close(fig)

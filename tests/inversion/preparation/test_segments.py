@@ -108,8 +108,10 @@ def test_a_note_is_labelled_with_its_f0_in_hz():
         label = note_label(row)
         # the label's Hz is the note's measured f0, and its name that f0's
         assert label.endswith(f"{row['f0_hz']:.1f} Hz") and row["note"] in label
-    silent = {"segment": 3, "note": "", "f0_hz": float("nan")}
-    assert note_label(silent) == "3: "
+    # the number is the note's in the take (notes only), not its segment id
+    assert notes["note_number"].tolist() == list(range(1, len(notes) + 1))
+    silent = {"segment": 3, "note_number": 2, "note": "", "f0_hz": float("nan")}
+    assert note_label(silent) == "2: "
 
 
 def test_steady_selection_keeps_the_papers_rule():
@@ -143,3 +145,35 @@ def test_played_columns_join_by_window_start():
     out = with_played(table, plan)
     assert out["phase"].tolist() == ["sustain"] and out["f0_hz"].tolist() == [147.5]
     assert spl_db(20e-6) == 0.0 and spl_db(2.0) == pytest.approx(100.0)
+
+
+def test_segments_figure_labels_do_not_overlap_and_the_pitch_axis_fits_the_notes():
+    # issue 42: labels of close notes overlapped, and a linear f0 axis up to 1200 Hz
+    # flattened notes at 100-200 Hz
+    import matplotlib.pyplot as plt
+
+    from mpipe.inversion.preparation.segments import segments_figure
+
+    x, _ = phrase(0)
+    _, segs = plan_take(x, FS, COND, 0.02, 0.02)
+    tracks = segment_take(x, FS, COND)[1]
+    # crowd them: six notes 0.08 s apart (each label is wider than that on the figure)
+    start = 0.1 + 0.08 * np.arange(6)
+    crowded = pd.DataFrame({
+        "segment": range(6), "note_number": range(1, 7), "label": "note", "start_s": start,
+        "end_s": start + 0.08, "note": "D3 +0 c", "f0_hz": [146.8, 164.8, 185.0, 196.0, 150, 160],
+    })  # fmt: skip
+    for table in (segs, crowded):
+        fig = segments_figure(table, tracks)
+        try:
+            ax_p = fig.axes[1]
+            renderer = fig.canvas.get_renderer()
+            boxes = [t.get_window_extent(renderer) for t in ax_p.texts]
+            assert len(boxes) == int((table["label"] == "note").sum())
+            assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[:i])
+            f0 = table.loc[table["label"] == "note", "f0_hz"].to_numpy(float)
+            lo, hi = ax_p.get_ylim()
+            assert ax_p.get_yscale() == "log"
+            assert lo < np.nanmin(f0) and np.nanmax(f0) < hi < 1.5 * np.nanmax(f0)
+        finally:
+            plt.close(fig)

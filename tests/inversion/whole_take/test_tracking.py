@@ -137,7 +137,9 @@ def test_sample_rate_mismatch(take):
         track(sim.p, sim.u, 44100.0, kernel, rho, LIGHT)
 
 
-def test_interrupted_tracking_resumes_without_redoing_windows(take, tmp_path, monkeypatch):
+def test_interrupted_tracking_resumes_without_redoing_windows(take, tmp_path, monkeypatch, caplog):
+    import logging
+
     import mpipe.inversion.fit.execution as execution
 
     kernel, rho, sim = take
@@ -158,11 +160,14 @@ def test_interrupted_tracking_resumes_without_redoing_windows(take, tmp_path, mo
         return real(*args, **kwargs)
 
     monkeypatch.setattr(execution, "invert_window", counting)
+    caplog.set_level(logging.INFO, logger="mpipe.inversion.whole_take.tracking")
     resumed = track(
         sim.p, sim.u, FS, kernel, rho, LIGHT, ExecutorConfig(workers=1), windows=windows,
         options=RunOptions(checkpoint=ckpt),
     )  # fmt: skip
     assert calls == [32000]  # only the lost window is redone, from the same cold start
+    # and the resumed run says how many it reused (issue 42)
+    assert "resuming: 1 of 2 windows reused" in caplog.text, caplog.text
     cols = ["t_start_s", "k", "p_m", "f2", "warm"]
     pd.testing.assert_frame_equal(resumed.table[cols], first.table[cols], rtol=1e-12)
 

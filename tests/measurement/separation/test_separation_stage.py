@@ -151,3 +151,12 @@ def test_blocks_cover_every_sample_of_every_length(duration_s, fs, extra):
     for s in starts:
         total[length + s : length + s + length] += win
     np.testing.assert_allclose(total[length : length + n], 1.0, atol=1e-12)
+
+
+def test_the_noise_line_prints_each_channel_in_three_digits_or_says_none():
+    # issue 42: the console printed "noise PSD per channel [0. 0. 0.]" for 1e-9 Pa^2/Hz
+    from mpipe.measurement.separation.stage import noise_line
+
+    line = noise_line(np.array([1.23e-9, 4.5e-10, 2e-9]))
+    assert "1.23e-09, 4.5e-10, 2e-09 Pa^2/Hz" in line and "0." not in line
+    assert "no noise measured" in noise_line(np.zeros(3))
