@@ -20,10 +20,9 @@ import soundfile
 from mpipe import __version__
 from mpipe.acoustics.bore import find_resonances, input_impedance
 from mpipe.acoustics.reflection import reflection_function
-from mpipe.cli.commands import add_fingering_option
+from mpipe.cli.commands import add_fingering_option, load_one_fingering
 from mpipe.core.errors import UserError
 from mpipe.core.io import check_writable, write_atomic
-from mpipe.measurement.calibration import load_calibration
 from mpipe.reed.bore_kernel import prepare_bore
 from mpipe.reed.model import METHODS, Simulation, simulate
 from mpipe.reed.parameters import check_stability, load_reed
@@ -80,7 +79,7 @@ def add_parser(sub) -> None:
         "(compiled, the same numbers) or numpy (the plain reference, slow) (default: fast)",
     )
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    add_fingering_option(p)
+    add_fingering_option(p, per_note=False)
     p.set_defaults(func=run)
 
 
@@ -91,7 +90,7 @@ def _sha256(path: str | Path) -> str:
 def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe simulate``."""
     outputs, n = _checked_arguments(args)
-    cal = load_calibration(args.calibration, args.fingering)
+    cal = load_one_fingering(args.calibration, args.fingering, "mpipe simulate")
     reed = load_reed(args.reed)
     air = cal.air_properties()
     sim, kernel = _simulate(args, cal, reed, air, n)
