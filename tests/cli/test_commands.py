@@ -77,3 +77,47 @@ def test_a_takes_calibration_copy_names_no_per_note_default(tmp_path, capsys):
     copy = yaml.safe_load((tmp_path / "t.calibration.yaml").read_text())
     assert copy.get("fingering") in (None, *data["fingerings"]), copy.get("fingering")
     assert "fingering auto" not in capsys.readouterr().out
+
+
+SIMPLE = ROOT / "calibration" / "simplified_clarinet.yaml"
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["impedance", "{cal}", "--csv", "{cal}"],
+        ["impedance", "{cal}", "--measured", "{tmp}/z.txt", "--plot", "{tmp}/z.txt"],
+        ["simulate", "{cal}", "--reed", "{reed}", "--duration", "0.01", "-o", "{reed}"],
+        ["config", "{tmp}/pipe.yaml", "-o", "{tmp}/pipe.yaml"],
+        [
+            "calibrate",
+            "switch",
+            "{cal}",
+            "{tmp}/a.wav",
+            "{tmp}/b.wav",
+            "--mic",
+            "mic2",
+            "-o",
+            "{tmp}/b.wav",
+        ],  # fmt: skip
+    ],
+    ids=["impedance-csv", "impedance-plot", "simulate", "config", "calibrate"],
+)
+def test_no_command_writes_over_one_of_its_inputs(tmp_path, capsys, argv):
+    # copies of the inputs in tmp_path: a failing check must not touch the shipped files
+    (tmp_path / "cal.yaml").write_text(SIMPLE.read_text())
+    (tmp_path / "reed.yaml").write_text(REED.read_text())
+    (tmp_path / "pipe.yaml").write_text(
+        (ROOT / "pipelines" / "simplified_clarinet.yaml").read_text()
+    )
+    for name in ("z.txt", "a.wav", "b.wav"):
+        (tmp_path / name).write_bytes(b"input")
+    names = {"cal": tmp_path / "cal.yaml", "reed": tmp_path / "reed.yaml", "tmp": tmp_path}
+    words = [w.format(**names) for w in argv]
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    assert main([*words, "--force"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "this output is the input" in err, err
+    output = words[words.index(next(w for w in words if w in ("--csv", "--plot", "-o"))) + 1]
+    assert err.count(output) == 2, err  # both paths named: the output and the input
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before

@@ -98,7 +98,11 @@ def add_parser(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe impedance``."""
-    check_writable([p for p in (args.plot, args.csv) if p], args.force)
+    check_writable(
+        [p for p in (args.plot, args.csv) if p],
+        args.force,
+        {"CALIBRATION": args.calibration, "--measured": args.measured},
+    )
     try:
         cal = load_one_fingering(args.calibration, args.fingering, "mpipe impedance")
     except ConfigError:

@@ -122,7 +122,7 @@ def _checked_arguments(args: argparse.Namespace) -> tuple[list, int]:
     outputs = [p for p in (args.output, args.wav, args.plot) if p]
     if len({Path(p).resolve() for p in outputs}) < len(outputs):
         raise UserError("-o, --wav and --plot must name different files")
-    check_writable(outputs, args.force)
+    check_writable(outputs, args.force, {"CALIBRATION": args.calibration, "--reed": args.reed})
     if not (math.isfinite(args.duration) and args.duration > 0):
         raise UserError(f"--duration: expected a positive number of seconds, got {args.duration}")
     if not (math.isfinite(args.fs) and args.fs > 0):
