@@ -24,6 +24,11 @@ PARAMETER_NAMES = ("k", "S", "y_m", "p_m", "m", "g", "lam", "k_c")
 #: rate it bounds, Hz (measured: :mod:`mpipe.inversion.trust.discretisation` says how).
 ORDER = 1.26
 LOWEST_RATE_HZ = 32000.0
+#: Highest model rate, Hz: above the rates of audio interfaces (384 kHz at most) and the
+#: highest the resampler converts every integer rate to exactly. Above it the inversion's
+#: cost grows with the rate for no gain, and the discretisation bound (measured from
+#: 22.05 to 100 kHz) would be extrapolated past 4x.
+HIGHEST_RATE_HZ = 400000.0
 
 
 @dataclass(frozen=True)
@@ -100,8 +105,12 @@ class ParameterBounds:
 
 def check_model_rate(value: float) -> str | None:
     """The check of ``inversion.sample_rate``: None, or why the rate is refused."""
-    if not value <= 1e6:
-        return f"expected at most 1e+06 Hz, got {value:g}"
+    if not value <= HIGHEST_RATE_HZ:
+        return (
+            f"{value:g} Hz is above {HIGHEST_RATE_HZ:g} Hz, above any recording rate (the "
+            "inversion's cost grows with the rate for no gain; its discretisation bound is "
+            "measured up to 100 kHz); use at most that"
+        )
     if not value >= LOWEST_RATE_HZ:
         return (
             f"{value:g} Hz is below {LOWEST_RATE_HZ:g} Hz, the lowest model rate whose "
@@ -420,7 +429,7 @@ class InversionConfig:
         "rates when inverted (mpipe invert). At least "
         f"{LOWEST_RATE_HZ:g} Hz: below it the model's discretisation bias is not bounded "
         '(docs/uncertainty.md, "The model\'s rate"); its share of every error bar falls '
-        f"as rate^-{ORDER:g}",
+        f"as rate^-{ORDER:g}. At most {HIGHEST_RATE_HZ:g} Hz (above any recording rate)",
         check_model_rate,
         default=100_000.0,
     )
