@@ -20,14 +20,10 @@ from mpipe.measurement.translation import TranslationConfig
 #: Reed parameters that step 2 may optimise (physics.md I); y_c and alpha stay fixed.
 PARAMETER_NAMES = ("k", "S", "y_m", "p_m", "m", "g", "lam", "k_c")
 
-#: Order in 1/fs of the bound on the model's discretisation bias, and the lowest model
-#: rate it bounds, Hz (measured: :mod:`mpipe.inversion.trust.discretisation` says how).
+#: Order in 1/fs of the model's bias bound, the lowest rate it bounds (Hz, measured: see
+#: :mod:`mpipe.inversion.trust.discretisation`), the highest rate (above any recording's).
 ORDER = 1.26
 LOWEST_RATE_HZ = 32000.0
-#: Highest model rate, Hz: above the rates of audio interfaces (384 kHz at most) and the
-#: highest the resampler converts every integer rate to exactly. Above it the inversion's
-#: cost grows with the rate for no gain, and the discretisation bound (measured from
-#: 22.05 to 100 kHz) would be extrapolated past 4x.
 HIGHEST_RATE_HZ = 400000.0
 
 
@@ -106,11 +102,7 @@ class ParameterBounds:
 def check_model_rate(value: float) -> str | None:
     """The check of ``inversion.sample_rate``: None, or why the rate is refused."""
     if not value <= HIGHEST_RATE_HZ:
-        return (
-            f"{value:g} Hz is above {HIGHEST_RATE_HZ:g} Hz, above any recording rate (the "
-            "inversion's cost grows with the rate for no gain; its discretisation bound is "
-            "measured up to 100 kHz); use at most that"
-        )
+        return f"{value:g} Hz is above {HIGHEST_RATE_HZ:g} Hz (any recording's); use at most that"
     if not value >= LOWEST_RATE_HZ:
         return (
             f"{value:g} Hz is below {LOWEST_RATE_HZ:g} Hz, the lowest model rate whose "

@@ -39,6 +39,14 @@ FLAT_RUN = 5
 LEVEL_RANGE_PA = (0.02, 2.0e4)
 #: Largest plausible RMS ratio between two microphones a few cm apart in one bore.
 MAX_LEVEL_RATIO = 10.0
+#: A take holds a note when some channel oscillates by at least this, Pa rms about its mean,
+#: for ``NOTE_MIN_S`` (frames of ``NOTE_FRAME_S``): the default ``conditioning.min_rms_pa``,
+#: below which the pipeline calls a window silent (a played clarinet's mouthpiece: 1-5 kPa).
+#: Not one frame: the bore rings for a few tens of ms when a mouth pressure under the
+#: blowing threshold starts or stops.
+NOTE_MIN_RMS_PA = 10.0
+NOTE_FRAME_S = 0.025
+NOTE_MIN_S = 0.1
 #: Shortest take, s: one 100 ms adaptive-estimation block (physics.md E.5) plus the 10 ms
 #: discarded at each end after translation (physics.md F.1), with margin.
 MIN_DURATION_S = 0.2
@@ -123,6 +131,38 @@ def check_channel(x: np.ndarray, where: str, max_fraction: float) -> None:
             f"{where}: {100 * flat / x.size:.3g} % of samples in flat tops at {hi:+.3g} / "
             f"{lo:+.3g} of full scale; the take is clipped below full scale (preamplifier "
             "or converter input)"
+        )
+
+
+def check_note(pressures: np.ndarray, fs: float, calibration: Calibration, name: str) -> None:
+    """Refuse a take in which no note sounds, naming the level found and the threshold.
+
+    The level is the one the take holds for ``NOTE_MIN_S``: the RMS about its own mean of
+    each ``NOTE_FRAME_S`` frame (the loudest channel's), the ``NOTE_MIN_S``-th loudest
+    frame's, Pa. A breath or a mouth pressure under the blowing threshold stays far below
+    ``NOTE_MIN_RMS_PA``. Checked before the DC offset, which such a take (a static pressure
+    and no oscillation) would otherwise be blamed on.
+
+    Raises
+    ------
+    UserError
+        When the take does not oscillate by ``NOTE_MIN_RMS_PA`` for ``NOTE_MIN_S``.
+    """
+    frame = max(int(round(NOTE_FRAME_S * fs)), 2)
+    n = pressures.shape[0] // frame
+    need = max(int(round(NOTE_MIN_S / NOTE_FRAME_S)), 1)
+    if n < need:
+        return  # too short to tell (refused as too short anyway)
+    frames = np.asarray(pressures[: n * frame]).reshape(n, frame, -1)
+    levels = np.max(np.std(frames, axis=1), axis=1)
+    level = float(np.sort(levels)[-need])
+    if level < NOTE_MIN_RMS_PA:
+        sens = ", ".join(f"{m.sensitivity:g}" for m in calibration.microphones)
+        raise UserError(
+            f"{name}: no note found: the take oscillates by {level:.3g} Pa rms at most over "
+            f"{NOTE_MIN_S:g} s, below the {NOTE_MIN_RMS_PA:g} Pa of a sounding note "
+            "(conditioning.min_rms_pa's default); expected a played note (or check the "
+            f"microphones' sensitivities, {sens} Pa per full-scale unit)"
         )
 
 
