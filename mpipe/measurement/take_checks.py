@@ -204,3 +204,56 @@ def check_take(pressures: np.ndarray, fs: float, calibration: Calibration, name:
     problem = check_channel_order(pressures, fs, calibration)
     if problem:
         raise UserError(f"{name}: {problem}")
+
+
+#: Frames of the polarity check, s (two periods of the lowest clarinet note).
+POLARITY_FRAME_S = 0.02
+#: A beating reed holds the flow at its minimum (closed) for at least this fraction of the
+#: sounding time; the polarity is called inverted when the flow's maximum holds instead,
+#: ``POLARITY_RATIO`` times longer than its minimum.
+POLARITY_PLATEAU = 0.15
+POLARITY_RATIO = 3.0
+
+
+def plateau_fractions(u: np.ndarray, p: np.ndarray, fs: float) -> tuple[float, float]:
+    """Fractions of the sounding time the flow spends near its minimum and its maximum.
+
+    Per ``POLARITY_FRAME_S`` frame whose pressure oscillates by ``NOTE_MIN_RMS_PA``: the
+    samples within 10 % of the frame's range of its minimum, and of its maximum. A beating
+    reed, shut for part of each period, holds the flow into the instrument at its minimum
+    (zero, the zero-mean flow's lowest value): a long floor and short peaks. Inverting the
+    sign of every channel inverts p and u alike and leaves ``Z = P / U`` (the validation)
+    unchanged, but turns the floor into a ceiling.
+    """
+    frame = max(int(round(POLARITY_FRAME_S * fs)), 4)
+    n = min(u.size, p.size) // frame
+    if n == 0:
+        return 0.0, 0.0
+    uf = np.asarray(u[: n * frame], dtype=float).reshape(n, frame)
+    sounding = np.std(np.asarray(p[: n * frame], dtype=float).reshape(n, frame), axis=1)
+    uf = uf[sounding >= NOTE_MIN_RMS_PA]
+    if uf.size == 0:
+        return 0.0, 0.0
+    lo, hi = uf.min(axis=1, keepdims=True), uf.max(axis=1, keepdims=True)
+    band = 0.1 * (hi - lo)
+    return float(np.mean(uf <= lo + band)), float(np.mean(uf >= hi - band))
+
+
+def check_polarity(u: np.ndarray, p: np.ndarray, fs: float, name: str) -> None:
+    """Refuse mouthpiece signals whose every channel was recorded with inverted polarity.
+
+    Raises
+    ------
+    UserError
+        When the flow holds its maximum (:func:`plateau_fractions`) for at least
+        ``POLARITY_PLATEAU`` of the sounding time and ``POLARITY_RATIO`` times longer than
+        its minimum.
+    """
+    floor, ceiling = plateau_fractions(u, p, fs)
+    if ceiling >= POLARITY_PLATEAU and ceiling >= POLARITY_RATIO * floor:
+        raise UserError(
+            f"{name}: all channels' polarity inverted: the mouthpiece flow holds its maximum "
+            f"for {100 * ceiling:.0f} % of the sounding time and its minimum for "
+            f"{100 * floor:.0f} % (a beating reed, shut, holds it at its minimum); invert "
+            "every channel (or the sign of every microphones[].sensitivity)"
+        )

@@ -41,6 +41,7 @@ from mpipe.inversion.preparation.segments import segment_take
 from mpipe.measurement.calibration import AUTO, Calibration, note_fingerings, per_note
 from mpipe.measurement.fingerings import FingeringChoice, harmonic_lines, identify
 from mpipe.measurement.measured_instrument import bore_description
+from mpipe.measurement.take_checks import check_polarity
 from mpipe.measurement.validation import ValidationConfig, validate
 from mpipe.measurement.validation_result import ValidationResult, plot_impedance
 
@@ -208,6 +209,8 @@ def stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg):
             mp = {k: data[k] for k in data.files}
         t_eff = take_temperature(mp.get("temperature_c"), cal)
         fs = float(mp["fs"])
+        # Z = P / U passes with every channel inverted; the reed's shut phase does not
+        check_polarity(mp["u"], mp["p"], fs, str(mouthpiece))
         notes = None
         if per_note(cal.fingering) or _notes(mp["p"], fs, cfg) != 1:
             # a phrase, or a fingering per note: each note against its own fingering
