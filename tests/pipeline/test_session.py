@@ -109,6 +109,20 @@ def test_a_bad_session_file_is_one_line_naming_file_take_and_key(folder, text, e
     assert not (folder / "out").exists()  # before any work
 
 
+def test_a_file_listed_twice_says_so_and_its_advice_works(folder):
+    # it was a name clash ("give one of them another 'name'"), and renaming one met a
+    # second refusal ("listed twice")
+    path = _write(folder, "pipeline: pipeline.yaml\ntakes:\n  - a.wav\n  - b.wav\n  - a.wav\n")
+    with pytest.raises(UserError) as info:
+        load_session(path)
+    message = str(info.value)
+    assert "takes[2] (a): take:" in message and "a.wav is listed twice" in message, message
+    assert "takes[0] lists it too" in message and "remove one" in message
+    # the advice followed: one entry removed
+    path = _write(folder, "pipeline: pipeline.yaml\ntakes:\n  - a.wav\n  - b.wav\n")
+    assert [t.name for t in load_session(path).takes] == ["a", "b"]
+
+
 def test_a_calibration_other_than_the_takes_own_is_refused(folder):
     # a take with its own calibration beside it (as synth-take writes) read with another:
     # its pressures would scale by the ratio of the sensitivities
