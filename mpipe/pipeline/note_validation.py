@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from mpipe.core.errors import UserError
 from mpipe.core.io import write_atomic, write_csv
 from mpipe.inversion.preparation.conditioning import bore_resonances
 from mpipe.inversion.preparation.kernel import take_temperature
@@ -147,16 +148,20 @@ def validate_notes(
 
     Raises
     ------
-    ValueError
+    UserError
         When a list of fingerings does not give one per note (naming both counts).
     """
     segments, _ = segment_take(p, fs, conditioning, bore_resonances(calibration))
     notes = segments[segments["label"] == "note"].reset_index(drop=True)
     given = note_fingerings(calibration.fingering)
     if given is not None and len(given) != len(notes):
-        raise ValueError(
+        # bad input (exit 2), named as soon as the notes are known: counted on the
+        # mouthpiece pressure, as every later stage counts them
+        starts = ", ".join(f"{t:.2f}" for t in notes["start_s"])
+        raise UserError(
             f"fingering: {len(given)} fingerings given ({calibration.fingering}) for the "
-            f"{len(notes)} notes found; give one per note, or auto"
+            f"{len(notes)} notes found (starting at {starts or '-'} s); give one per note, "
+            "or auto"
         )
     rows, results = [], {}
     trim = int(round(config.trim_s * fs))
