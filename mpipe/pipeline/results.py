@@ -228,7 +228,10 @@ def load_run(out: str | Path, take: str | None = None) -> RunData:
         path = folder / stage / "manifest.json"
         if path.exists():
             manifests[stage] = json.loads(path.read_text())
-    unfinished = () if flat else tuple(s for s in STAGES if s not in manifests)
+    # a validation FAIL stops mpipe run there: the later stages are not unfinished
+    failed = manifests.get("validation", {}).get("summary", {}).get("verdict") == "fail"
+    ran = STAGES[: STAGES.index("validation") + 1] if failed else STAGES
+    unfinished = () if flat else tuple(s for s in ran if s not in manifests)
     if unfinished:
         log.warning("%s: unfinished run: %s did not finish (no manifest.json); its tables "
                     "may be missing or partial: run the same mpipe run again", folder,

@@ -45,6 +45,13 @@ def test_a_half_written_run_says_which_stages_did_not_finish(tmp_path, caplog):
     assert take.is_dir()
 
 
+def test_a_run_stopped_by_a_failed_validation_is_not_unfinished(tmp_path):
+    take = _run_folder(tmp_path)
+    (take / "validation" / "manifest.json").write_text(json.dumps({"summary": {"verdict": "fail"}}))
+    (take / "conditioning" / "manifest.json").unlink()
+    assert load_run(tmp_path).unfinished == ()
+
+
 def test_a_truncated_windows_table_is_one_line_naming_the_file(tmp_path):
     take = _run_folder(tmp_path, finished=(
         "separation", "translation", "validation", "conditioning", "inversion"))  # fmt: skip
