@@ -16,9 +16,10 @@ from pathlib import Path
 import numpy as np
 
 from mpipe.acoustics.reflection import reflection_function
+from mpipe.cli.commands import load_one_fingering
 from mpipe.core.errors import UserError
-from mpipe.core.io import check_writable
-from mpipe.measurement.calibration import Calibration, load_calibration
+from mpipe.core.io import check_not_inputs, check_writable
+from mpipe.measurement.calibration import Calibration
 from mpipe.reed.bore_kernel import prepare_bore
 from mpipe.reed.controls import control_curves, make_controls, play
 from mpipe.reed.fingered_bore import fingered_bore
@@ -75,7 +76,8 @@ class SynthOptions:
         Length of the pieces over which reed parameters that vary are held, s
         (:mod:`mpipe.reed.controls`).
     fingering : str or None
-        The fingering played (a name of the calibration's fingerings); None: its default.
+        The fingering played (one name of the calibration's fingerings; not ``auto`` nor a
+        list: a score gives per-note fingerings); None: its default.
     """
 
     duration_s: float | None
@@ -301,8 +303,18 @@ def make_take(
     out = Path(out)
     check_file_rate(out, options.fs_out if options.fs_out is not None else options.fs_model)
     planned = take_file_paths(out, options.mic_calibration)
-    check_writable([planned.audio, planned.sidecar, planned.truth, planned.calibration], force)
-    calibration = load_calibration(calibration_path, options.fingering)
+    outputs = [planned.audio, planned.sidecar, planned.truth, planned.calibration]
+    inputs = {"CALIBRATION": calibration_path, "--reed": reed_path, "--score": options.score}
+    try:
+        # the sidecar d.yaml of -o d.flac would overwrite a score d.yaml (also with --force)
+        check_not_inputs([*outputs, *planned.mic_calibrations], inputs)
+    except UserError as exc:
+        raise UserError(
+            f"{exc} (-o TAKE.flac also writes TAKE.yaml, TAKE.truth.npz, "
+            "TAKE.calibration.yaml and TAKE.micN_calibration.csv beside it)"
+        ) from None
+    check_writable(outputs, force)
+    calibration = load_one_fingering(calibration_path, options.fingering, "mpipe synth-take")
     n_mics = len(calibration.microphones)
     for name, values in (
         ("gain_error_db", options.gain_error_db),

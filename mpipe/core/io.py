@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextlib
 import os
 import tempfile
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -26,20 +26,28 @@ def _umask() -> int:
     return mask
 
 
-def check_writable(paths: Iterable[str | Path], force: bool) -> None:
+def check_writable(
+    paths: Iterable[str | Path],
+    force: bool,
+    inputs: Mapping[str, str | Path | None] | None = None,
+) -> None:
     """Check output files before any work: their folders writable, none overwritten.
 
     Existing files are refused unless ``force`` is set; the folders are created when
-    missing, and must be writable (:func:`check_output_folder`).
+    missing, and must be writable (:func:`check_output_folder`). An output that is one of
+    the command's ``inputs`` (what names it, e.g. ``--score``, to its path; None: not
+    given) is refused even with ``force``: the command would overwrite what it reads.
 
     Raises
     ------
     OutputExistsError
         Naming the first existing file.
     UserError
-        Naming an output that is a folder, or a folder that cannot be written.
+        Naming an output that is an input (both paths), an output that is a folder, or a
+        folder that cannot be written.
     """
     paths = [Path(p) for p in paths]
+    check_not_inputs(paths, inputs or {})
     for p in paths:
         if p.is_dir():
             raise UserError(f"{p}: is a folder; expected an output file name")
@@ -47,6 +55,35 @@ def check_writable(paths: Iterable[str | Path], force: bool) -> None:
             raise OutputExistsError(f"{p} exists; use --force to overwrite it")
     for parent in dict.fromkeys(p.parent for p in paths):
         check_output_folder(parent)
+
+
+def check_not_inputs(
+    outputs: Iterable[str | Path], inputs: Mapping[str, str | Path | None]
+) -> None:
+    """Refuse an output file that is one of the inputs (the same path, or a link to it).
+
+    Raises
+    ------
+    UserError
+        Naming the output and the input (and what names it), whatever ``--force`` says.
+    """
+    for out in outputs:
+        for what, given in inputs.items():
+            if given is not None and _same_file(Path(out), Path(given)):
+                raise UserError(
+                    f"{out}: this output is the input {what} {given}; writing it would "
+                    "overwrite what the command reads (also with --force): choose another "
+                    "output name"
+                )
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    if a.resolve() == b.resolve():
+        return True
+    try:
+        return os.path.samefile(a, b)  # a hard link, or another spelling of one file
+    except OSError:
+        return False  # one of them does not exist yet
 
 
 @contextmanager

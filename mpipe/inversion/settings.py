@@ -20,10 +20,11 @@ from mpipe.measurement.translation import TranslationConfig
 #: Reed parameters that step 2 may optimise (physics.md I); y_c and alpha stay fixed.
 PARAMETER_NAMES = ("k", "S", "y_m", "p_m", "m", "g", "lam", "k_c")
 
-#: Order in 1/fs of the bound on the model's discretisation bias, and the lowest model
-#: rate it bounds, Hz (measured: :mod:`mpipe.inversion.trust.discretisation` says how).
+#: Order in 1/fs of the model's bias bound, the lowest rate it bounds (Hz, measured: see
+#: :mod:`mpipe.inversion.trust.discretisation`), the highest rate (above any recording's).
 ORDER = 1.26
 LOWEST_RATE_HZ = 32000.0
+HIGHEST_RATE_HZ = 400000.0
 
 
 @dataclass(frozen=True)
@@ -100,8 +101,8 @@ class ParameterBounds:
 
 def check_model_rate(value: float) -> str | None:
     """The check of ``inversion.sample_rate``: None, or why the rate is refused."""
-    if not value <= 1e6:
-        return f"expected at most 1e+06 Hz, got {value:g}"
+    if not value <= HIGHEST_RATE_HZ:
+        return f"{value:g} Hz is above {HIGHEST_RATE_HZ:g} Hz (any recording's); use at most that"
     if not value >= LOWEST_RATE_HZ:
         return (
             f"{value:g} Hz is below {LOWEST_RATE_HZ:g} Hz, the lowest model rate whose "
@@ -420,7 +421,7 @@ class InversionConfig:
         "rates when inverted (mpipe invert). At least "
         f"{LOWEST_RATE_HZ:g} Hz: below it the model's discretisation bias is not bounded "
         '(docs/uncertainty.md, "The model\'s rate"); its share of every error bar falls '
-        f"as rate^-{ORDER:g}",
+        f"as rate^-{ORDER:g}. At most {HIGHEST_RATE_HZ:g} Hz (above any recording rate)",
         check_model_rate,
         default=100_000.0,
     )

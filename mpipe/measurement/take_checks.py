@@ -39,6 +39,14 @@ FLAT_RUN = 5
 LEVEL_RANGE_PA = (0.02, 2.0e4)
 #: Largest plausible RMS ratio between two microphones a few cm apart in one bore.
 MAX_LEVEL_RATIO = 10.0
+#: A take holds a note when some channel oscillates by at least this, Pa rms about its mean,
+#: for ``NOTE_MIN_S`` (frames of ``NOTE_FRAME_S``): the default ``conditioning.min_rms_pa``,
+#: below which the pipeline calls a window silent (a played clarinet's mouthpiece: 1-5 kPa).
+#: Not one frame: the bore rings for a few tens of ms when a mouth pressure under the
+#: blowing threshold starts or stops.
+NOTE_MIN_RMS_PA = 10.0
+NOTE_FRAME_S = 0.025
+NOTE_MIN_S = 0.1
 #: Shortest take, s: one 100 ms adaptive-estimation block (physics.md E.5) plus the 10 ms
 #: discarded at each end after translation (physics.md F.1), with margin.
 MIN_DURATION_S = 0.2
@@ -126,6 +134,38 @@ def check_channel(x: np.ndarray, where: str, max_fraction: float) -> None:
         )
 
 
+def check_note(pressures: np.ndarray, fs: float, calibration: Calibration, name: str) -> None:
+    """Refuse a take in which no note sounds, naming the level found and the threshold.
+
+    The level is the one the take holds for ``NOTE_MIN_S``: the RMS about its own mean of
+    each ``NOTE_FRAME_S`` frame (the loudest channel's), the ``NOTE_MIN_S``-th loudest
+    frame's, Pa. A breath or a mouth pressure under the blowing threshold stays far below
+    ``NOTE_MIN_RMS_PA``. Checked before the DC offset, which such a take (a static pressure
+    and no oscillation) would otherwise be blamed on.
+
+    Raises
+    ------
+    UserError
+        When the take does not oscillate by ``NOTE_MIN_RMS_PA`` for ``NOTE_MIN_S``.
+    """
+    frame = max(int(round(NOTE_FRAME_S * fs)), 2)
+    n = pressures.shape[0] // frame
+    need = max(int(round(NOTE_MIN_S / NOTE_FRAME_S)), 1)
+    if n < need:
+        return  # too short to tell (refused as too short anyway)
+    frames = np.asarray(pressures[: n * frame]).reshape(n, frame, -1)
+    levels = np.max(np.std(frames, axis=1), axis=1)
+    level = float(np.sort(levels)[-need])
+    if level < NOTE_MIN_RMS_PA:
+        sens = ", ".join(f"{m.sensitivity:g}" for m in calibration.microphones)
+        raise UserError(
+            f"{name}: no note found: the take oscillates by {level:.3g} Pa rms at most over "
+            f"{NOTE_MIN_S:g} s, below the {NOTE_MIN_RMS_PA:g} Pa of a sounding note "
+            "(conditioning.min_rms_pa's default); expected a played note (or check the "
+            f"microphones' sensitivities, {sens} Pa per full-scale unit)"
+        )
+
+
 def check_take(pressures: np.ndarray, fs: float, calibration: Calibration, name: str) -> None:
     """Input sanity of a calibrated take, each failure one line naming what is wrong.
 
@@ -164,3 +204,56 @@ def check_take(pressures: np.ndarray, fs: float, calibration: Calibration, name:
     problem = check_channel_order(pressures, fs, calibration)
     if problem:
         raise UserError(f"{name}: {problem}")
+
+
+#: Frames of the polarity check, s (two periods of the lowest clarinet note).
+POLARITY_FRAME_S = 0.02
+#: A beating reed holds the flow at its minimum (closed) for at least this fraction of the
+#: sounding time; the polarity is called inverted when the flow's maximum holds instead,
+#: ``POLARITY_RATIO`` times longer than its minimum.
+POLARITY_PLATEAU = 0.15
+POLARITY_RATIO = 3.0
+
+
+def plateau_fractions(u: np.ndarray, p: np.ndarray, fs: float) -> tuple[float, float]:
+    """Fractions of the sounding time the flow spends near its minimum and its maximum.
+
+    Per ``POLARITY_FRAME_S`` frame whose pressure oscillates by ``NOTE_MIN_RMS_PA``: the
+    samples within 10 % of the frame's range of its minimum, and of its maximum. A beating
+    reed, shut for part of each period, holds the flow into the instrument at its minimum
+    (zero, the zero-mean flow's lowest value): a long floor and short peaks. Inverting the
+    sign of every channel inverts p and u alike and leaves ``Z = P / U`` (the validation)
+    unchanged, but turns the floor into a ceiling.
+    """
+    frame = max(int(round(POLARITY_FRAME_S * fs)), 4)
+    n = min(u.size, p.size) // frame
+    if n == 0:
+        return 0.0, 0.0
+    uf = np.asarray(u[: n * frame], dtype=float).reshape(n, frame)
+    sounding = np.std(np.asarray(p[: n * frame], dtype=float).reshape(n, frame), axis=1)
+    uf = uf[sounding >= NOTE_MIN_RMS_PA]
+    if uf.size == 0:
+        return 0.0, 0.0
+    lo, hi = uf.min(axis=1, keepdims=True), uf.max(axis=1, keepdims=True)
+    band = 0.1 * (hi - lo)
+    return float(np.mean(uf <= lo + band)), float(np.mean(uf >= hi - band))
+
+
+def check_polarity(u: np.ndarray, p: np.ndarray, fs: float, name: str) -> None:
+    """Refuse mouthpiece signals whose every channel was recorded with inverted polarity.
+
+    Raises
+    ------
+    UserError
+        When the flow holds its maximum (:func:`plateau_fractions`) for at least
+        ``POLARITY_PLATEAU`` of the sounding time and ``POLARITY_RATIO`` times longer than
+        its minimum.
+    """
+    floor, ceiling = plateau_fractions(u, p, fs)
+    if ceiling >= POLARITY_PLATEAU and ceiling >= POLARITY_RATIO * floor:
+        raise UserError(
+            f"{name}: all channels' polarity inverted: the mouthpiece flow holds its maximum "
+            f"for {100 * ceiling:.0f} % of the sounding time and its minimum for "
+            f"{100 * floor:.0f} % (a beating reed, shut, holds it at its minimum); invert "
+            "every channel (or the sign of every microphones[].sensitivity)"
+        )

@@ -40,6 +40,7 @@ from mpipe.measurement.take_checks import (
     MIN_DURATION_S,
     check_channel,
     check_finite,
+    check_note,
     check_rate_and_duration,
     check_take,
     clip_fraction,
@@ -164,7 +165,11 @@ def read_take(
     mics = calibration.microphones
     channels = tuple(m.channel for m in mics)
     if check:
-        # after every file-format and calibration-table error: these are about the signal
+        # after every file-format and calibration-table error: these are about the signal;
+        # no note first (a static pressure alone reads as a DC offset), unless the level
+        # says the sensitivities are off (the warning below names them)
+        if level_warning(raw, name) is None:
+            check_note(raw, fs, calibration, name)
         for mic, c in zip(mics, channels, strict=True):
             check_channel(
                 data[:, c - 1], f"{names[c]}: channel {c} ({mic.name})", max_clip_fraction

@@ -260,8 +260,14 @@ def _missing(paths: list[str]) -> list[str]:
 def summary_lines(
     outcomes: Sequence[tuple[Sequence[Path], TakeRun | Exception, float]],
     names: Sequence[str] | None = None,
+    states: dict[str, str] | None = None,
 ) -> list:
-    """One line per take: its verdict, its windows, its wall time; or why it failed."""
+    """One line per take: its verdict, its windows, its wall time; or why it failed.
+
+    ``states`` (take name to state), when given, says each take's state: a session's
+    ``session_takes.csv`` state (``check`` with its take-level checks or a validation
+    short of PASS), which the line must not contradict.
+    """
     lines = []
     for i, (t, result, wall) in enumerate(outcomes):
         name = take_name(t) if names is None else names[i]
@@ -272,6 +278,8 @@ def summary_lines(
         inv = result.records["inversion"].summary
         verdict = result.records["validation"].summary.get("verdict", "?").upper()
         state = "ok" if usable(result) else "failed: no window has status ok"
+        if states and states.get(name) and usable(result):
+            state = states[name]
         lines.append(
             f"  {name}: {state}; validation {verdict}; {inv.get('status_line', '')} ({wall:.1f} s)"
         )

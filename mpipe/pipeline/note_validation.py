@@ -34,13 +34,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from mpipe.core.io import write_csv
+from mpipe.core.errors import UserError
+from mpipe.core.io import write_atomic, write_csv
 from mpipe.inversion.preparation.conditioning import bore_resonances
 from mpipe.inversion.preparation.kernel import take_temperature
 from mpipe.inversion.preparation.segments import segment_take
 from mpipe.measurement.calibration import AUTO, Calibration, note_fingerings, per_note
 from mpipe.measurement.fingerings import NO_FIT_BELOW, FingeringChoice, harmonic_lines, identify
 from mpipe.measurement.measured_instrument import bore_description
+from mpipe.measurement.take_checks import check_polarity
 from mpipe.measurement.validation import ValidationConfig, validate
 from mpipe.measurement.validation_result import ValidationResult, plot_impedance
 from mpipe.pipeline.figures import draw_now, path_second
@@ -165,16 +167,20 @@ def validate_notes(
 
     Raises
     ------
-    ValueError
+    UserError
         When a list of fingerings does not give one per note (naming both counts).
     """
     segments, _ = segment_take(p, fs, conditioning, bore_resonances(calibration))
     notes = segments[segments["label"] == "note"].reset_index(drop=True)
     given = note_fingerings(calibration.fingering)
     if given is not None and len(given) != len(notes):
-        raise ValueError(
+        # bad input (exit 2), named as soon as the notes are known: counted on the
+        # mouthpiece pressure, as every later stage counts them
+        starts = ", ".join(f"{t:.2f}" for t in notes["start_s"])
+        raise UserError(
             f"fingering: {len(given)} fingerings given ({calibration.fingering}) for the "
-            f"{len(notes)} notes found; give one per note, or auto"
+            f"{len(notes)} notes found (starting at {starts or '-'} s); give one per note, "
+            "or auto"
         )
     rows, results = [], {}
     trim = int(round(config.trim_s * fs))
@@ -236,6 +242,8 @@ def stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg, draw
             mp = {k: data[k] for k in data.files}
         t_eff = take_temperature(mp.get("temperature_c"), cal)
         fs = float(mp["fs"])
+        # Z = P / U passes with every channel inverted; the reed's shut phase does not
+        check_polarity(mp["u"], mp["p"], fs, str(mouthpiece))
         notes = None
         if per_note(cal.fingering) or _notes(mp["p"], fs, cfg) != 1:
             # a phrase, or a fingering per note: each note against its own fingering

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import html
 import json
+import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,8 +20,11 @@ from types import MappingProxyType
 import numpy as np
 import pandas as pd
 
+from mpipe.core.errors import UserError
 from mpipe.core.units import unit_of
 from mpipe.inversion.table.records import read_windows
+
+log = logging.getLogger(__name__)
 
 #: Tables of a take folder: name -> (stage folder, file).
 TABLES = {
@@ -38,6 +42,28 @@ SIGNALS = {
     "mouthpiece": ("translation", "mouthpiece.npz"),
     "resynthesis": ("resynthesis", "resynthesis.npz"),
 }
+
+
+#: The stages of ``mpipe run``, in order (each writes its manifest.json when it finished).
+STAGES = ("separation", "translation", "validation", "conditioning", "inversion", "resynthesis")
+
+
+class _Found(dict):
+    """Tables or signals by name; a missing one says why (an unfinished run, a name)."""
+
+    def __init__(self, items: dict, what: str, unfinished: tuple[str, ...]):
+        super().__init__(items)
+        self._what, self._unfinished = what, unfinished
+
+    def __missing__(self, name: str):
+        stage = dict(TABLES, **SIGNALS).get(name.split(".")[0], (None,))[0]
+        why = (
+            f"stage {stage!r} did not finish (the run is unfinished: "
+            f"{', '.join(self._unfinished)} missing; run the same mpipe run again)"
+            if stage in self._unfinished
+            else f"this run has {', '.join(self) or 'none'}"
+        )
+        raise KeyError(f"{self._what}[{name!r}]: not in this run: {why}")
 
 
 @dataclass(frozen=True, repr=False)
@@ -63,6 +89,9 @@ class RunData:
         Unit of every table column (``"windows.k"``) and signal (``"mouthpiece.p"``).
     manifests : Mapping[str, dict]
         Each finished stage's manifest: configuration, input hashes, summary, timings.
+    unfinished : tuple of str
+        The stages of ``mpipe run`` with no manifest (a run killed or still running):
+        their tables and signals may be missing or partial.
     """
 
     folder: Path
@@ -71,6 +100,7 @@ class RunData:
     signals: Mapping[str, np.ndarray]
     units: Mapping[str, str]
     manifests: Mapping[str, dict]
+    unfinished: tuple[str, ...] = ()
 
     def unit(self, name: str) -> str:
         """Unit of ``"table.column"`` or ``"file.signal"``."""
@@ -85,6 +115,9 @@ class RunData:
     def _lines(self) -> list[tuple[str, str]]:
         """(name, what) of the short descriptions (text and HTML)."""
         out = [("folder", str(self.folder)), ("fs", f"{self.fs:g} Hz")]
+        if self.unfinished:
+            what = ", ".join(self.unfinished)
+            out.append(("UNFINISHED", f"{what} did not finish (run the same mpipe run again)"))
         if self.verdict is not None:
             out.append(("validation", self.verdict))
         windows = self.tables.get("windows")
@@ -191,25 +224,25 @@ def load_run(out: str | Path, take: str | None = None) -> RunData:
         return folder / file if flat else folder / stage / file
 
     tables, units, manifests = {}, {}, {}
-    for stage in ("separation", "translation", "validation", "conditioning", "inversion",
-                  "resynthesis"):  # fmt: skip
+    for stage in STAGES:
         path = folder / stage / "manifest.json"
         if path.exists():
             manifests[stage] = json.loads(path.read_text())
+    # a validation FAIL stops mpipe run there: the later stages are not unfinished
+    failed = manifests.get("validation", {}).get("summary", {}).get("verdict") == "fail"
+    ran = STAGES[: STAGES.index("validation") + 1] if failed else STAGES
+    unfinished = () if flat else tuple(s for s in ran if s not in manifests)
+    if unfinished:
+        log.warning("%s: unfinished run: %s did not finish (no manifest.json); its tables "
+                    "may be missing or partial: run the same mpipe run again", folder,
+                    ", ".join(unfinished))  # fmt: skip
     if flat and (folder / "run.json").exists():
         manifests["invert"] = json.loads((folder / "run.json").read_text())
     for name, (stage, file) in TABLES.items():
         path = where(stage, file)
         if not path.exists():
             continue
-        parquet = path.with_suffix(".parquet")
-        if name == "windows":
-            # typed by the window schema: flags as bool, counts as Int64, text "" when empty
-            table = read_windows(parquet if parquet.exists() else path)
-        elif parquet.exists():
-            table = pd.read_parquet(parquet)
-        else:
-            table = pd.read_csv(path, keep_default_na=False, na_values=[""])
+        table = _read_table(name, path)
         if "error" in table.columns:
             table["error"] = [("" if pd.isna(v) else str(v)) for v in table["error"]]
         tables[name] = table
@@ -230,11 +263,31 @@ def load_run(out: str | Path, take: str | None = None) -> RunData:
     return RunData(
         folder=folder,
         fs=fs,
-        tables=MappingProxyType(tables),
-        signals=MappingProxyType(signals),
+        tables=MappingProxyType(_Found(tables, "tables", unfinished)),
+        signals=MappingProxyType(_Found(signals, "signals", unfinished)),
         units=MappingProxyType(units),
         manifests=MappingProxyType(manifests),
+        unfinished=unfinished,
     )
+
+
+def _read_table(name: str, path: Path) -> pd.DataFrame:
+    """One table (its parquet twin when there is one), or one line naming a damaged file."""
+    parquet = path.with_suffix(".parquet")
+    read = parquet if parquet.exists() else path
+    try:
+        if name == "windows":
+            # typed by the window schema: flags as bool, counts as Int64, text "" when empty
+            return read_windows(read)
+        if read == parquet:
+            return pd.read_parquet(parquet)
+        return pd.read_csv(path, keep_default_na=False, na_values=[""])
+    except (ValueError, pd.errors.ParserError, pd.errors.EmptyDataError, OSError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise UserError(
+            f"{read}: cannot be read ({first.replace(f'{read}: ', '')}); the file is "
+            "truncated or damaged: run the stage again (mpipe run ... --force)"
+        ) from None
 
 
 __all__ = ["RunData", "load_run"]

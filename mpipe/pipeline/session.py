@@ -159,9 +159,16 @@ def load_session(path: str | Path) -> Session:
     entries = data.get("takes")
     if not isinstance(entries, list) or not entries:
         raise UserError(f"{source}: takes: expected a list of takes (each with a 'take' file)")
-    takes, seen = [], {}
+    takes, seen, files = [], {}, {}
     for i, entry in enumerate(entries):
         take = _take(source, i, entry, cfg, default_cal, default_fingering)
+        # one file twice is not a name clash: renaming one would only meet this refusal
+        first = files.setdefault(take.files[0].resolve(), i)
+        if first != i:
+            raise UserError(
+                f"{_where(source, i, take.name, 'take')}: {take.files[0]} is listed twice "
+                f"(takes[{first}] lists it too): remove one of the two entries"
+            )
         if take.name in seen:
             raise UserError(
                 f"{_where(source, i, take.name, 'name')}: takes[{seen[take.name]}] has this "
@@ -169,10 +176,6 @@ def load_session(path: str | Path) -> Session:
             )
         seen[take.name] = i
         takes.append(take)
-    for i, take in enumerate(takes):
-        earlier = [t.files[0].resolve() for t in takes[:i]]
-        if take.files[0].resolve() in earlier:
-            raise UserError(f"{_where(source, i, take.name, 'take')}: listed twice in the session")
     checked: dict = {}
     for i, take in enumerate(takes):
         _check_take(source, i, take, cfg, checked)

@@ -17,11 +17,14 @@ import re
 from collections.abc import Mapping
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from mpipe.core.io import write_atomic, write_csv
+from mpipe.measurement.calibration import load_calibration, per_note
 from mpipe.pipeline.manifest import MANIFEST
 from mpipe.pipeline.session import Session, SessionTake
+from mpipe.reed.score import Score, load_score
 
 #: The note table's columns kept as they are, renamed (note table -> session table).
 PLAYED = {
@@ -95,7 +98,7 @@ def take_notes(session: Session, take: SessionTake, out: Path) -> pd.DataFrame:
             "take": take.name,
             "note": range(1, len(table) + 1),
             "calibration": _shown(take.calibration, base),
-            "fingering": take.fingering or "",
+            "fingering": note_fingerings(take, table),
         }
     )
     for old, new in PLAYED.items():
@@ -107,7 +110,62 @@ def take_notes(session: Session, take: SessionTake, out: Path) -> pd.DataFrame:
     verdicts = [note_verdict(r, validation, checks) for _, r in table.iterrows()]
     rows["verdict"] = [v for v, _ in verdicts]
     rows["verdict_reason"] = [r for _, r in verdicts]
+    if take.score is not None:
+        for name, values in played_columns(load_score(take.score), rows).items():
+            rows[name] = values
     return rows
+
+
+def note_fingerings(take: SessionTake, table: pd.DataFrame) -> list[str]:
+    """Each note's own fingering name (not the take's whole list).
+
+    The note table's, else the take's one fingering, else its calibration's default
+    (blank for an instrument without fingerings).
+    """
+    one = None if per_note(take.fingering) else take.fingering
+    if one is None:
+        default = load_calibration(take.calibration).fingering
+        one = None if per_note(default) else default
+    own = table["fingering"] if "fingering" in table else pd.Series([""] * len(table))
+    return [str(f) if isinstance(f, str) and f else (one or "") for f in own]
+
+
+#: Columns of the score's note matched to each measured note (by the longest overlap of
+#: their sounding spans): what was played beside what was measured.
+PLAYED_COLUMNS = ("played_note", "played_p_m", "p_m_minus_played", "p_m_rel_to_played",
+                  "played_fingering", "fingering_as_played")  # fmt: skip
+
+
+def played_columns(score: Score, rows: pd.DataFrame) -> dict[str, list]:
+    """Played vs measured for each measured note: the score's note, p_m (Pa) and fingering.
+
+    ``played_p_m`` is the score's mouth pressure at the middle of the note's sounding span
+    (blank when the score leaves it to the reed file); ``p_m_minus_played`` the measured
+    ``p_m_median`` less it, Pa, and ``p_m_rel_to_played`` that over it;
+    ``fingering_as_played`` whether the note's fingering is the score's.
+    """
+    spans = np.asarray(score.sounding(), dtype=float).reshape(-1, 2)
+    names = score.fingerings(None)
+    out: dict[str, list] = {c: [] for c in PLAYED_COLUMNS}
+    for _, row in rows.iterrows():
+        overlap = np.minimum(spans[:, 1], row["offset_s"]) - np.maximum(spans[:, 0], row["onset_s"])
+        j = int(np.argmax(overlap)) if overlap.size and overlap.max() > 0 else None
+        note = None if j is None else score.notes[j]
+        played = np.nan
+        if note is not None and note.p_m:
+            t, v = np.asarray(note.p_m, dtype=float).reshape(-1, 2).T
+            played = float(np.interp(0.5 * (spans[j, 0] + spans[j, 1]) - score.starts()[j], t, v))
+        measured = float(row.get("p_m_median", np.nan))
+        fingering = (names[j] or "") if j is not None else ""
+        out["played_note"].append(pd.NA if j is None else j + 1)
+        out["played_p_m"].append(played)
+        out["p_m_minus_played"].append(measured - played)
+        out["p_m_rel_to_played"].append((measured - played) / played)
+        out["played_fingering"].append(fingering)
+        out["fingering_as_played"].append(
+            pd.NA if not fingering or not row["fingering"] else fingering == row["fingering"]
+        )
+    return out
 
 
 def take_row(session: Session, take: SessionTake, out: Path, result) -> dict:

@@ -59,3 +59,20 @@ def test_synth_take_says_what_it_wrote_once(tmp_path):
     assert out.returncode == 0, out.stderr
     assert (out.stdout + out.stderr).count("wrote") == 1, (out.stdout, out.stderr)
     assert "t.calibration.yaml" in out.stdout
+
+
+def test_synth_take_never_writes_its_sidecar_over_the_score_it_reads(tmp_path, capsys):
+    # -o d.flac writes the sidecar d.yaml: with --score d.yaml --force it overwrote the score
+    from mpipe.cli.main import main
+
+    score = tmp_path / "d.yaml"
+    text = (SHIPPED.parents[1] / "examples" / "scores" / "phrase.yaml").read_text()
+    score.write_text(text)
+    argv = ["synth-take", str(SHIPPED), "--reed", str(REED), "--score", str(score),
+            "-o", str(tmp_path / "d.flac")]  # fmt: skip
+    for extra in ([], ["--force"]):
+        assert main([*argv, *extra]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "--score" in err, err
+        assert err.count(str(score)) == 2 and "also with --force" in err, err
+        assert score.read_text() == text and not (tmp_path / "d.flac").exists()

@@ -81,3 +81,16 @@ def test_the_lock_file_is_gone_after_a_run_and_a_run_after_it_locks_again(tmp_pa
         with pytest.raises(UserError, match="in use by another mpipe run"):
             with folder_lock(folder):
                 pass
+
+
+def test_an_output_that_is_an_input_is_refused_naming_both(tmp_path):
+    from mpipe.core.io import check_writable
+
+    score = tmp_path / "d.yaml"
+    score.write_text("notes: []\n")
+    link = tmp_path / "link.yaml"
+    os.link(score, link)  # another name of the same file
+    for out in (score, tmp_path / "." / "d.yaml", link):
+        with pytest.raises(UserError, match=rf"{out}: this output is the input --score {score}"):
+            check_writable([out], True, {"--score": score, "--reed": None})
+    check_writable([tmp_path / "other.yaml"], True, {"--score": score})

@@ -126,3 +126,57 @@ def test_a_float_file_above_one_is_not_clipped(tmp_path, shipped_calibration):
     take = read_take(big, cal_big)
     assert take.clip_fraction == (0.0, 0.0, 0.0)
     np.testing.assert_allclose(take.pressures, ref.pressures, rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("snr", [None, "40"])
+def test_a_take_with_no_note_says_no_note_found(tmp_path, capsys, snr):
+    # a synth-take whose mouth pressure (300 Pa) stays under the blowing threshold: the bore
+    # holds a static pressure (blamed as a DC offset) and rings only at the onset
+    from pathlib import Path
+
+    from mpipe.cli.main import main
+
+    root = Path(__file__).resolve().parents[2]
+    reed = (root / "calibration" / "reed_table1.yaml").read_text()
+    (tmp_path / "soft.yaml").write_text(reed.replace("p_m: 1800.0", "p_m: 300.0"))
+    argv = ["synth-take", str(root / "calibration" / "simplified_clarinet.yaml"), "--reed",
+            str(tmp_path / "soft.yaml"), "--duration", "0.3", "--fs-model", "50000",
+            "-o", str(tmp_path / "q.flac")]  # fmt: skip
+    assert main(argv + (["--snr", snr] if snr else [])) == 0
+    capsys.readouterr()
+    pipe = root / "pipelines" / "simplified_clarinet.yaml"
+    assert main(["run", str(pipe), str(tmp_path / "q.flac"), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "q.flac: no note found" in err, err
+    assert "below the 10 Pa" in err and "DC offset" not in err and "suspect" not in err
+    level = float(err.split("oscillates by ")[1].split(" Pa")[0])
+    assert level < 1.0  # the truth: no oscillation past the onset
+
+
+def test_all_channels_inverted_is_named_as_the_cause(tmp_path, capsys):
+    # a synth-take with every channel's sign flipped: Z = P / U (the validation) is unchanged
+    # and the inversion blamed the reed; the shut reed's flow floor becomes a ceiling
+    from pathlib import Path
+
+    from mpipe.cli.main import main
+
+    root = Path(__file__).resolve().parents[2]
+    argv = ["synth-take", str(root / "calibration" / "simplified_clarinet.yaml"), "--reed",
+            str(root / "calibration" / "reed_table1.yaml"), "--duration", "0.3",
+            "--fs-model", "50000", "-o", str(tmp_path / "t.flac")]  # fmt: skip
+    assert main(argv) == 0
+    x, fs = sf.read(tmp_path / "t.flac")
+    sf.write(tmp_path / "n.flac", -x, fs, subtype="PCM_24")
+    (tmp_path / "n.calibration.yaml").write_text((tmp_path / "t.calibration.yaml").read_text())
+    capsys.readouterr()
+    pipe = root / "pipelines" / "simplified_clarinet.yaml"
+    assert main(["run", str(pipe), str(tmp_path / "n.flac"), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "all channels' polarity inverted" in err, err
+    assert not (tmp_path / "out" / "n" / "inversion" / "windows.csv").exists()
+    # the same take as recorded passes the check (its floor, not its ceiling, holds)
+    from mpipe.measurement.take_checks import plateau_fractions
+
+    truth = np.load(tmp_path / "t.truth.npz")
+    floor, ceiling = plateau_fractions(truth["u"], truth["p"], float(truth["fs"]))
+    assert floor > 3 * ceiling

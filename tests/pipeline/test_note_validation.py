@@ -144,3 +144,30 @@ def test_the_impedance_figure_names_the_note_and_draws_the_theory_at_its_peak(tm
     assert abs(np.max(np.asarray(y)[near]) - peak) < 0.3, (np.max(y), peak)
     coarse = db(shown.z_theory[np.abs(shown.freqs - f1) < 20])
     assert np.max(coarse) < peak - 0.5  # the Welch grid alone misses it: the test means something
+
+
+def test_a_fingering_list_of_the_wrong_length_is_bad_input(tmp_path, capsys):
+    # a one-note synth-take given two fingerings: exit 2 naming both counts (it was exit 1,
+    # a failed take), as soon as the notes are known, before the validation and inversion
+    from pathlib import Path
+
+    import yaml
+
+    from mpipe.cli.main import main
+
+    root = Path(__file__).resolve().parents[2]
+    cal = root / "calibration" / "four_hole_clarinet.yaml"
+    argv = ["synth-take", str(cal), "--reed", str(root / "calibration" / "reed_table1.yaml"),
+            "--duration", "0.4", "--fs-model", "50000", "-o", str(tmp_path / "f.flac")]  # fmt: skip
+    assert main(argv) == 0
+    pipe = yaml.safe_load((root / "pipelines" / "simplified_clarinet.yaml").read_text())
+    pipe["calibration"] = str(cal)
+    (tmp_path / "pipe.yaml").write_text(yaml.safe_dump(pipe))
+    capsys.readouterr()
+    argv = ["run", str(tmp_path / "pipe.yaml"), str(tmp_path / "f.flac"),
+            "--fingering", "xxxx,xxoo", "-o", str(tmp_path / "out")]  # fmt: skip
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert "2 fingerings given (xxxx,xxoo) for the 1 notes found" in err, err
+    assert not (tmp_path / "out" / "f" / "inversion").exists()

@@ -22,7 +22,7 @@ from mpipe.cli.main import main
 from mpipe.cli.virtual_takes import SynthOptions, make_take
 from mpipe.core.errors import UserError
 from mpipe.pipeline.session import load_session
-from mpipe.pipeline.session_table import PLAYED, note_verdict
+from mpipe.pipeline.session_table import PLAYED, note_verdict, write_session_tables
 
 ROOT = Path(__file__).resolve().parents[2]
 PLAIN = ROOT / "calibration" / "simplified_clarinet.yaml"
@@ -109,6 +109,20 @@ def test_a_bad_session_file_is_one_line_naming_file_take_and_key(folder, text, e
     assert not (folder / "out").exists()  # before any work
 
 
+def test_a_file_listed_twice_says_so_and_its_advice_works(folder):
+    # it was a name clash ("give one of them another 'name'"), and renaming one met a
+    # second refusal ("listed twice")
+    path = _write(folder, "pipeline: pipeline.yaml\ntakes:\n  - a.wav\n  - b.wav\n  - a.wav\n")
+    with pytest.raises(UserError) as info:
+        load_session(path)
+    message = str(info.value)
+    assert "takes[2] (a): take:" in message and "a.wav is listed twice" in message, message
+    assert "takes[0] lists it too" in message and "remove one" in message
+    # the advice followed: one entry removed
+    path = _write(folder, "pipeline: pipeline.yaml\ntakes:\n  - a.wav\n  - b.wav\n")
+    assert [t.name for t in load_session(path).takes] == ["a", "b"]
+
+
 def test_a_calibration_other_than_the_takes_own_is_refused(folder):
     # a take with its own calibration beside it (as synth-take writes) read with another:
     # its pressures would scale by the ratio of the sensitivities
@@ -165,6 +179,77 @@ TAKES = (
     ("open_h4", HOLES, "xxxo", 2000.0),
     ("closed", HOLES, "xxxx", 1900.0),
 )
+
+
+def _finished_take(out: Path, name: str, segments: dict, checks=(), verdict="pass") -> None:
+    """A take's folder as mpipe run leaves it, as far as the session tables read it."""
+    import json
+
+    for stage, summary in (
+        ("validation", {"verdict": verdict}),
+        ("inversion", {"take_checks": list(checks), "status_counts": {"ok": 4}, "windows": 4}),
+    ):
+        (out / name / stage).mkdir(parents=True, exist_ok=True)
+        (out / name / stage / "manifest.json").write_text(json.dumps({"summary": summary}))
+    n = len(segments["start_s"])
+    table = {"segment": range(1, n + 1), "label": ["note"] * n, "duration_s": [0.4] * n,
+             "f0_hz": [150.0] * n, "pitch_cents": [0.0] * n, "note": ["D3"] * n,
+             "regime": ["fundamental"] * n, "spl_db": [150.0] * n, "windows": [2] * n,
+             "ok_windows": [2] * n, "p_m_se": [20.0] * n, **segments}  # fmt: skip
+    pd.DataFrame(table).to_csv(out / name / "inversion" / "segments.csv", index=False)
+
+
+def test_each_note_names_its_own_fingering_and_what_the_score_played(folder):
+    # a take in two fingerings with the calibration's default (xxxx) for its second note;
+    # its score played xxoo at 1800 Pa, then xxxx at 1500 Pa (the truth beside the result)
+    (folder / "score.yaml").write_text(
+        "end: 0.05\nnotes:\n"
+        "  - {duration: 0.5, fingering: xxoo, p_m: 1800, attack: 0.02}\n"
+        "  - {duration: 0.5, fingering: xxxx, p_m: [[0, 1400], [0.5, 1600]]}\n"
+    )
+    path = _write(folder, "pipeline: pipeline.yaml\ntakes:\n  - {take: a.wav, calibration: "
+                          "holes.yaml, score: score.yaml}\n")  # fmt: skip
+    session = load_session(path)
+    out = folder / "out"
+    measured = {"start_s": [0.01, 0.52], "end_s": [0.49, 1.0], "fingering": ["xxoo", ""],
+                "p_m_median": [1700.0, 1500.0]}  # fmt: skip
+    _finished_take(out, "a", measured)
+    written = write_session_tables(session, out, {"a": object()})
+    notes = pd.read_csv(written["notes"], keep_default_na=False, na_values=[""])
+    assert list(notes["fingering"]) == ["xxoo", "xxxx"]  # not the list, not blank
+    assert list(notes["played_note"]) == [1, 2]
+    # the score's p_m at the middle of each note's sounding span: 1800; 1400 -> 1600 at 0.25 s
+    np.testing.assert_allclose(notes["played_p_m"], [1800.0, 1500.0], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(notes["p_m_minus_played"], [-100.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(notes["p_m_rel_to_played"], [-100 / 1800, 0.0], atol=1e-9)
+    assert list(notes["played_fingering"]) == ["xxoo", "xxxx"]
+    assert list(notes["fingering_as_played"]) == [True, True]
+
+
+def test_the_console_says_the_state_session_takes_csv_says(folder, capsys, monkeypatch):
+    # the console said "phrase: ok" where session_takes.csv said check
+    from mpipe.pipeline import batch
+
+    path = _write(folder, "pipeline: pipeline.yaml\ntakes:\n  - a.wav\n")
+    out = folder / "out"
+    checks = ["the cold start's minimum was reached by 1 of its 8 short searches"]
+    _finished_take(out, "a", {"start_s": [0.1], "end_s": [0.9], "p_m_median": [1700.0]}, checks)
+
+    class Run:
+        records = {"inversion": type("R", (), {"summary": {"status_counts": {"ok": 4},
+                                                          "status_line": "4 ok"}})(),
+                   "validation": type("R", (), {"summary": {"verdict": "pass"}})()}  # fmt: skip
+
+    def run_takes(configs, cals, takes, out, force, client, **kw):
+        return [(takes[0], Run(), 1.0)]
+
+    monkeypatch.setattr(session_command, "run_takes", run_takes)
+    assert main(["session", str(path), "-o", str(out)]) == 0
+    takes = pd.read_csv(out / "session_takes.csv", keep_default_na=False)
+    assert list(takes["state"]) == ["check"]
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("  a: "))
+    assert line.startswith("  a: check;"), line
+    assert batch.summary_lines([([path], Run(), 1.0)], ["a"])[0].startswith("  a: ok;")
 
 
 @pytest.fixture(scope="module")

@@ -128,7 +128,8 @@ def run_sensitivity(args: argparse.Namespace) -> int:
 
 def _setup(args):
 
-    check_writable([args.output], args.force)
+    recordings = {what: getattr(args, what, None) for what in ("first", "second", "recording")}
+    check_writable([args.output], args.force, {"CALIBRATION": args.calibration, **recordings})
     cal = load_calibration(args.calibration)
     ref = cal.microphones[0].name
     if args.mic == ref:

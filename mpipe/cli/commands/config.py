@@ -54,7 +54,8 @@ def run(args: argparse.Namespace) -> int:
         given = "PIPELINE" if args.pipeline else "--calibration"
         raise UserError(f"--markdown documents the defaults of every setting; it takes no {given}")
     if args.output:
-        check_writable([args.output], args.force)
+        inputs = {"PIPELINE": args.pipeline, "--calibration": args.calibration}
+        check_writable([args.output], args.force, inputs)
     if args.markdown:
         text = settings_markdown()
     else:

@@ -9,11 +9,10 @@ import numpy as np
 import pandas as pd
 
 from mpipe.acoustics.radiation import RADIATION_MODELS
-from mpipe.cli.commands import add_fingering_option
+from mpipe.cli.commands import add_fingering_option, load_one_fingering
 from mpipe.core.config import ConfigError
 from mpipe.core.errors import UserError
 from mpipe.core.io import check_writable, write_atomic, write_csv
-from mpipe.measurement.calibration import load_calibration
 from mpipe.measurement.impedance import format_resonances, impedance_curve, plot_impedance
 from mpipe.measurement.impedance_comparison import compare, plot_comparison
 from mpipe.measurement.measured_impedance import read_measured_impedance
@@ -56,7 +55,7 @@ def add_parser(sub) -> None:
         help="write frequency_hz, z_real, z_imag, zc (Pa s/m^3) (default: none)",
     )
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    add_fingering_option(p)
+    add_fingering_option(p, per_note=False)
     m = p.add_argument_group(
         "measured impedance",
         "compare a measured input impedance with the theory (resonances in cents, peak "
@@ -99,9 +98,13 @@ def add_parser(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe impedance``."""
-    check_writable([p for p in (args.plot, args.csv) if p], args.force)
+    check_writable(
+        [p for p in (args.plot, args.csv) if p],
+        args.force,
+        {"CALIBRATION": args.calibration, "--measured": args.measured},
+    )
     try:
-        cal = load_calibration(args.calibration, args.fingering)
+        cal = load_one_fingering(args.calibration, args.fingering, "mpipe impedance")
     except ConfigError:
         if _looks_like_table(args.calibration):
             raise UserError(

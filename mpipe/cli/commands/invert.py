@@ -155,7 +155,11 @@ def run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     out = Path(args.output)
-    check_writable([out / name for name in (*OUTPUTS, "windows.parquet")], args.force)
+    check_writable(
+        [out / name for name in (*OUTPUTS, "windows.parquet")],
+        args.force,
+        {"MOUTHPIECE": args.mouthpiece, "--pipeline": args.pipeline},
+    )
     cfg = load_pipeline(args.pipeline)
     if args.fingering is not None:
         cfg = dataclasses.replace(cfg, fingering=args.fingering)

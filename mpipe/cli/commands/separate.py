@@ -205,7 +205,9 @@ def _inputs(args: argparse.Namespace) -> tuple[list[str], str, Path, list[Path]]
         raise UserError(f"{cal_path}: the last argument must be the calibration YAML file")
     out = Path(args.output)
     paths = [out / name for name in OUTPUTS]
-    check_writable(paths, args.force)
+    inputs = {f"take {t}": t for t in takes}
+    inputs.update({"CALIBRATION": cal_path, "--pipeline": args.pipeline})
+    check_writable(paths, args.force, inputs)
     return takes, cal_path, out, paths
 
 

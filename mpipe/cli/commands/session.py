@@ -6,6 +6,8 @@ import argparse
 import dataclasses
 from pathlib import Path
 
+import pandas as pd
+
 from mpipe.core.cluster import check_scheduler
 from mpipe.core.errors import UserError
 from mpipe.core.io import check_output_folder, folder_lock
@@ -113,7 +115,10 @@ def run(args: argparse.Namespace) -> int:
             client.close()
     done.sort(key=lambda d: d[0])
     print(f"{n} takes:")
-    print("\n".join(summary_lines([d[1:] for d in done], [names[d[0]] for d in done])))
+    # the state session_takes.csv gives each take (ok, check or failed), not a second opinion
+    table = pd.read_csv(written["takes"], keep_default_na=False)
+    states = dict(zip(table["take"].astype(str), table["state"].astype(str), strict=True))
+    print("\n".join(summary_lines([d[1:] for d in done], [names[d[0]] for d in done], states)))
     failed = [
         name
         for name, r in results.items()

@@ -20,10 +20,9 @@ import soundfile
 from mpipe import __version__
 from mpipe.acoustics.bore import find_resonances, input_impedance
 from mpipe.acoustics.reflection import reflection_function
-from mpipe.cli.commands import add_fingering_option
+from mpipe.cli.commands import add_fingering_option, load_one_fingering
 from mpipe.core.errors import UserError
 from mpipe.core.io import check_writable, write_atomic
-from mpipe.measurement.calibration import load_calibration
 from mpipe.reed.bore_kernel import prepare_bore
 from mpipe.reed.model import METHODS, Simulation, simulate
 from mpipe.reed.parameters import check_stability, load_reed
@@ -80,7 +79,7 @@ def add_parser(sub) -> None:
         "(compiled, the same numbers) or numpy (the plain reference, slow) (default: fast)",
     )
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    add_fingering_option(p)
+    add_fingering_option(p, per_note=False)
     p.set_defaults(func=run)
 
 
@@ -91,7 +90,7 @@ def _sha256(path: str | Path) -> str:
 def run(args: argparse.Namespace) -> int:
     """Execute ``mpipe simulate``."""
     outputs, n = _checked_arguments(args)
-    cal = load_calibration(args.calibration, args.fingering)
+    cal = load_one_fingering(args.calibration, args.fingering, "mpipe simulate")
     reed = load_reed(args.reed)
     air = cal.air_properties()
     sim, kernel = _simulate(args, cal, reed, air, n)
@@ -123,7 +122,7 @@ def _checked_arguments(args: argparse.Namespace) -> tuple[list, int]:
     outputs = [p for p in (args.output, args.wav, args.plot) if p]
     if len({Path(p).resolve() for p in outputs}) < len(outputs):
         raise UserError("-o, --wav and --plot must name different files")
-    check_writable(outputs, args.force)
+    check_writable(outputs, args.force, {"CALIBRATION": args.calibration, "--reed": args.reed})
     if not (math.isfinite(args.duration) and args.duration > 0):
         raise UserError(f"--duration: expected a positive number of seconds, got {args.duration}")
     if not (math.isfinite(args.fs) and args.fs > 0):

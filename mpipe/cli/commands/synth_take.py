@@ -76,7 +76,7 @@ def add_parser(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed (0)")
     p.add_argument("-o", "--output", required=True, metavar="TAKE.flac", help="audio file")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    add_fingering_option(p)
+    add_fingering_option(p, per_note=False)
     p.set_defaults(func=run)
 
 

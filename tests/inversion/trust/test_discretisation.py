@@ -147,3 +147,18 @@ def test_a_fresh_measurement_at_a_rate_not_fitted_lies_within_the_bound(at_44k):
         np.testing.assert_allclose(
             table[f"{q}_se_rate"], table[q].abs() * relative_uncertainty(q, FS), rtol=1e-12
         )
+
+
+@pytest.mark.parametrize("rate", [400_001, 1e6])
+def test_a_pipeline_above_the_highest_rate_is_refused_in_one_line(tmp_path, rate):
+    # 1e6 was accepted; the discretisation bound is measured up to 100 kHz only
+    from mpipe.inversion.settings import HIGHEST_RATE_HZ
+
+    (tmp_path / "cal.yaml").write_text("name: x\n")
+    path = tmp_path / "pipe.yaml"
+    path.write_text(f"calibration: cal.yaml\ninversion:\n  sample_rate: {rate}\n")
+    with pytest.raises(ConfigError) as info:
+        load_pipeline(path)
+    message = str(info.value)
+    assert "\n" not in message and str(path) in message
+    assert f"inversion.sample_rate: {rate:g} Hz is above {HIGHEST_RATE_HZ:g} Hz" in message
