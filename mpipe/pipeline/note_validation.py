@@ -35,7 +35,7 @@ import numpy as np
 import pandas as pd
 
 from mpipe.core.errors import UserError
-from mpipe.core.io import write_atomic, write_csv
+from mpipe.core.io import write_csv
 from mpipe.inversion.preparation.conditioning import bore_resonances
 from mpipe.inversion.preparation.kernel import take_temperature
 from mpipe.inversion.preparation.segments import segment_take
@@ -114,13 +114,13 @@ def _choice_line(row) -> str:
         row.fingering, float(row.fingering_probability),
         row.runner_up if isinstance(row.runner_up, str) and row.runner_up else None,
         float(row.runner_up_probability), row.fingering_source,
-        fit_probability=_number(row.fingering_fit_p, 1.0),
+        fit_probability=_cell(row.fingering_fit_p, 1.0),
         equivalents=tuple(x for x in str(row.fingering_equivalents).split(",") if x),
     )  # fmt: skip
     return choice.line()
 
 
-def _number(value, default: float) -> float:
+def _cell(value, default: float) -> float:
     """A float from a table cell; ``default`` for a blank or missing one."""
     try:
         x = float(value)

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import math
 import textwrap
-from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +22,7 @@ from mpipe.inversion.table.records import read_windows
 from mpipe.pipeline.budget_table import budget_tables
 from mpipe.pipeline.html_report import Figure, Section, fmt, write_report
 from mpipe.pipeline.report_windows import WINDOW_CAPTION, reasons, resynthesis_figures, window_table
+from mpipe.pipeline.verdict import overall_verdict
 
 #: Reed parameters summarised at the top of a take's report, in this order.
 SUMMARY_PARAMETERS = ("k", "S", "y_m", "p_m", "lam", "m", "g", "k_c")
@@ -83,61 +83,6 @@ def flag_windows(windows: pd.DataFrame) -> pd.DataFrame:
             "reason": reasons(bad),
         }
     )
-
-
-#: A note whose result rests on fewer than this fraction of its windows makes the take CHECK.
-#: Windows that are not ok are flagged one by one with their reason; the take as a whole asks
-#: for a look only where a note's value rests on a minority of its windows (issue 38: the rule
-#: "any window not ok" fired on most correct takes, where one or two windows at a note's
-#: attack or release sit on a bound).
-MIN_NOTE_OK_FRACTION = 0.5
-#: Notes with fewer windows than this are not judged by :data:`MIN_NOTE_OK_FRACTION`.
-MIN_NOTE_WINDOWS = 3
-
-
-def _thin_notes(windows: pd.DataFrame) -> list[str]:
-    """Each note resting on a minority of its windows, as "note i: a of b windows ok"."""
-    if "segment" not in windows or not len(windows):
-        return []
-    out = []
-    groups = windows.groupby("segment", sort=True)["status"]
-    for i, (_, status) in enumerate(groups, start=1):
-        n, ok = len(status), int((status == "ok").sum())
-        if n >= MIN_NOTE_WINDOWS and ok < MIN_NOTE_OK_FRACTION * n:
-            out.append(f"note {i}: {ok} of {n} windows ok")
-    return out
-
-
-def overall_verdict(
-    validation: str | bool, windows: pd.DataFrame, take_checks: Sequence[str] = ()
-) -> tuple:
-    """``(label, kind)`` of the take: FAIL, CHECK or PASS, with the reason in the label.
-
-    ``validation`` is the validation's verdict (``"pass"``, ``"fail"``, ``"cannot-verify"``)
-    or a bool (passed); ``take_checks`` the inversion's take-level reasons
-    (:func:`mpipe.inversion.trust.diagnostics.take_checks`), each of which makes the take CHECK.
-    A take whose windows are not all ok still PASSes (each such window is flagged with its
-    reason) unless a note rests on fewer than :data:`MIN_NOTE_OK_FRACTION` of its windows.
-    """
-    if isinstance(validation, bool):
-        validation = "pass" if validation else "fail"
-    n = len(windows)
-    n_ok = int((windows["status"] == "ok").sum()) if n else 0
-    if validation == "fail":
-        return "FAIL: the impedance validation failed", "fail"
-    if n_ok == 0:
-        return "FAIL: no window has status ok (no usable result)", "fail"
-    if validation != "pass":
-        return "CHECK: the impedance validation could not verify the measurement", "check"
-    if take_checks:
-        return "CHECK: " + "; ".join(take_checks), "check"
-    thin = _thin_notes(windows)
-    if thin:
-        return "CHECK: " + "; ".join(thin) + " (see their reasons)", "check"
-    if n_ok < n:
-        return (f"PASS: validation passed, {n_ok} of {n} windows ok ({n - n_ok} flagged with "
-                "their reasons)", "pass")  # fmt: skip
-    return f"PASS: validation passed, all {n} windows ok", "pass"
 
 
 def _read_csv(path: Path) -> pd.DataFrame:

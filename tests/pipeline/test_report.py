@@ -42,18 +42,6 @@ def test_summary_lists_windows_that_are_not_ok():
     assert params.loc["k", "unit"] == "Pa/m"
 
 
-def test_a_note_resting_on_a_minority_of_its_windows_makes_the_take_check():
-    status = ["ok"] * 8 + ["at-bound"] + ["ok", "at-bound", "at-bound", "at-bound"]
-    windows = pd.DataFrame({"segment": [1] * 9 + [3] * 4, "status": status})
-    label, kind = overall_verdict("pass", windows)
-    # the second note (segment 3) has 1 of 4 windows ok; the first, 8 of 9, is not named
-    assert kind == "check"
-    assert "note 2: 1 of 4 windows ok" in label
-    assert "note 1" not in label
-    # the same first note alone: one window at a bound does not ask for a look
-    assert overall_verdict("pass", windows.iloc[:9])[1] == "pass"
-
-
 def test_segment_tables_give_each_note_its_own_line():
     import pandas as pd
 
