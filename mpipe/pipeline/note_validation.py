@@ -7,20 +7,18 @@ note's fingering is given or found (:func:`mpipe.measurement.fingerings.identify
 harmonic lines), and the note's own span of P and U is compared with the theory of its own
 fingering (:func:`mpipe.measurement.validation.validate`, the note's f0 given).
 
-A note too short for the comparison is not failed: the impedance estimate needs
-``MIN_AVERAGES`` half-overlapping Welch segments (fewer make every bin coherent), and each
-segment must hold ``SEGMENT_PERIODS`` periods of the note: a harmonic counts when its line
-stands 20 dB above the median of the f0 / df bins around it, and the Hann window spreads
-a line over about four bins, so with fewer than about eight bins between harmonics the
-line is compared with its own skirt and no harmonic counts (a 0.3 s note at 104 Hz and
-100 kHz has 4.3 periods per segment). A note shorter than ``(MIN_AVERAGES + 1) / 2``
-segments of that length (rounded up to a power of two, as the estimate's) is
-CANNOT-VERIFY, with the length it had and the length it needed. So is a note whose
-comparison rests on fewer than ``min_checks`` quantities (a soft note whose lines are
-too weak, a note whose pitch glides): a PASS needs ``min_checks``, and one of a phrase's
-notes does not FAIL the take on less (the reason names what differed). The take's verdict is
-FAIL when a verifiable note fails, PASS when at least one note passes and none fails,
-CANNOT-VERIFY otherwise, and "no note" (CANNOT-VERIFY) when the take holds none.
+A short note is verified on what it has: its harmonics are read on frames of
+:data:`~mpipe.measurement.harmonic_impedance.FRAME_PERIODS` periods
+(:mod:`mpipe.measurement.harmonic_impedance`), so a note needs only
+:data:`~mpipe.measurement.harmonic_impedance.MIN_FRAMES` half-overlapping frames (10 periods,
+96 ms at 104 Hz, at any sample rate); fewer frames widen each harmonic's measured
+uncertainty, and so its tolerance. A note shorter than that is CANNOT-VERIFY, with the
+length it had and the length it needed. So is a note whose comparison rests on fewer than
+``min_checks`` harmonics (a soft note whose lines are too weak, a note whose pitch glides):
+a PASS needs ``min_checks``, and one of a phrase's notes does not FAIL the take on less (the
+reason names what differed). The take's verdict is FAIL when a verifiable note fails,
+PASS when at least one note passes and none fails, CANNOT-VERIFY otherwise, and "no note"
+(CANNOT-VERIFY) when the take holds none; its headline counts the notes verified.
 """
 
 from __future__ import annotations
@@ -41,16 +39,13 @@ from mpipe.inversion.preparation.kernel import take_temperature
 from mpipe.inversion.preparation.segments import segment_take
 from mpipe.measurement.calibration import AUTO, Calibration, note_fingerings, per_note
 from mpipe.measurement.fingerings import NO_FIT_BELOW, FingeringChoice, harmonic_lines, identify
+from mpipe.measurement.harmonic_impedance import FRAME_PERIODS, MIN_FRAMES
 from mpipe.measurement.measured_instrument import bore_description
 from mpipe.measurement.take_checks import check_polarity
 from mpipe.measurement.validation import ValidationConfig, validate
 from mpipe.measurement.validation_result import ValidationResult, plot_impedance
 from mpipe.pipeline.figures import draw_now, path_second
 
-#: Fewest half-overlapping Welch segments of a note's impedance estimate (as the take's).
-MIN_AVERAGES = 8
-#: Fewest periods of the note in one Welch segment (see the module docstring).
-SEGMENT_PERIODS = 8
 #: Columns of ``notes.csv``.
 NOTE_COLUMNS = ("segment", "note_number", "start_s", "end_s", "f0_hz", "fingering",
                 "fingering_source", "fingering_probability", "runner_up", "runner_up_probability",
@@ -129,10 +124,10 @@ def _cell(value, default: float) -> float:
     return x if math.isfinite(x) else default
 
 
-def needed_s(f0_hz: float, fs: float) -> float:
-    """Shortest note the validation can compare, s (see the module docstring)."""
-    segment = 2 ** math.ceil(math.log2(SEGMENT_PERIODS * fs / f0_hz))
-    return (MIN_AVERAGES + 1) / 2 * segment / fs
+def needed_s(f0_hz: float) -> float:
+    """Shortest note the validation can compare, s: :data:`MIN_FRAMES` half-overlapping frames."""
+    periods = FRAME_PERIODS + (MIN_FRAMES - 1) * (FRAME_PERIODS // 2)
+    return periods / f0_hz
 
 
 def validate_notes(
@@ -191,7 +186,7 @@ def validate_notes(
         row = {"segment": int(note.segment), "note_number": i + 1,
                "start_s": float(note.start_s),
                "end_s": float(note.end_s), "f0_hz": f0, **_choice_columns(choice)}  # fmt: skip
-        need = needed_s(f0, fs) if math.isfinite(f0) else math.inf
+        need = needed_s(f0) if math.isfinite(f0) else math.inf
         if (b - a) / fs < need:
             row["verdict"] = "cannot-verify"
             row["reason"] = (
@@ -266,6 +261,7 @@ def stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg, draw
             verdict, reason = notes.verdict, notes.reason
         summary = {
             "verdict": verdict,
+            "headline": headline(verdict, notes.notes if notes is not None else None),
             "reason": reason,
             "passed": verdict == "pass",
             "failures": list(val.failures) if verdict == "fail" else [],
@@ -366,13 +362,27 @@ def _take_verdict(table: pd.DataFrame) -> tuple[str, str]:
     counts = table["verdict"].value_counts()
     n_fail, n_pass = int(counts.get("fail", 0)), int(counts.get("pass", 0))
     n_cv = len(table) - n_fail - n_pass
-    tally = f"{n_pass} of {len(table)} notes PASS, {n_fail} FAIL, {n_cv} CANNOT-VERIFY"
+    # the headline counts the notes actually verified: a PASS of 2 of 6 notes says so
+    tally = (f"{n_pass} of {len(table)} notes verified (PASS), {n_fail} FAIL, "
+             f"{n_cv} CANNOT-VERIFY")  # fmt: skip
     if n_fail:
         first = table[table["verdict"] == "fail"].iloc[0]
         return "fail", f"{tally}; note {_number(first)}: {first.reason}"
     if n_pass:
+        unverified = table[table["verdict"] == "cannot-verify"]
+        if len(unverified):
+            first = unverified.iloc[0]
+            return "pass", f"{tally}; note {int(first.segment)}: {first.reason}"
         return "pass", tally
     return "cannot-verify", f"{tally}; note {_number(table.iloc[0])}: {table.iloc[0].reason}"
+
+
+def headline(verdict: str, table: pd.DataFrame | None) -> str:
+    """The take's validation in a few words: ``PASS (2 of 6 notes verified)``."""
+    if table is None or not len(table):
+        return verdict.upper()
+    n_pass = int((table["verdict"] == "pass").sum())
+    return f"{verdict.upper()} ({n_pass} of {len(table)} notes verified)"
 
 
 def note_fingering_checks(table: pd.DataFrame) -> list[str]:
@@ -396,7 +406,8 @@ def note_fingering_checks(table: pd.DataFrame) -> list[str]:
 
 def say_validation(say: Callable[[str], None], name: str, summary: dict) -> None:
     """The validation's verdict, and each note's line (fingering, verdict) of a phrase."""
-    say(f"[{name}]     impedance validation: {summary['verdict'].upper()} "
+    say(f"[{name}]     impedance validation: "
+        f"{summary.get('headline', summary['verdict'].upper())} "
         f"({summary.get('reason', '')})")  # fmt: skip
     for line in summary.get("note_lines", []):
         say(f"[{name}]       {line}")
@@ -404,6 +415,7 @@ def say_validation(say: Callable[[str], None], name: str, summary: dict) -> None
 
 __all__ = [
     "say_validation",
+    "headline",
     "NOTE_COLUMNS",
     "NotesValidation",
     "needed_s",

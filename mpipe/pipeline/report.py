@@ -199,7 +199,7 @@ def _summary_section(
     params = parameter_summary(windows)
     med_res = inv.get("relative_residual_median")
     summary_text = (
-        f"Impedance validation: {val['verdict'].upper()} (band error "
+        f"Impedance validation: {val.get('headline', val['verdict'].upper())} (band error "
         f"{fmt(val['band_error_db'], 3)} dB). {inv.get('status_line', '')}. A window is ok "
         "when the search met its tolerance, no parameter sits on a search bound and its "
         "residual is within a few times the take's best. Median relative residual of the "
@@ -294,7 +294,7 @@ def _measurement_section(
         f"scale {fmt(sep['loss_scale_median'], 3)}, Mach number {fmt(sep['mach_median'], 2)}"
         f"{'' if sep.get('theta', 'estimated') == 'estimated' else ' (' + sep['theta'] + ')'}. "
         + (f"{sep['drift_sentence']} " if sep.get("drift_sentence") else "")
-        + f"Verdict: {val['verdict'].upper()}"
+        + f"Verdict: {val.get('headline', val['verdict'].upper())}"
         + (f" ({val['reason']})" if val.get("reason") else "")
         + "."
         + "".join(f"\nNote {line}." for line in val.get("note_lines", []))

@@ -99,8 +99,7 @@ USER_SETTINGS: dict[str, tuple[str, ...]] = {
         "max_resonance_cents",
         "max_peak_db",
         "max_band_db",
-        "max_harmonic_db",
-        "max_harmonic_deg",
+        "false_alarm",
     ),
     "conditioning": ("f0_min_hz", "f0_max_hz", "select", "silence_db"),
     "inversion": (

@@ -2,7 +2,7 @@ import numpy as np
 
 from mpipe.inversion.conditioning_settings import ConditioningConfig
 from mpipe.measurement.validation import ValidationConfig, validate
-from mpipe.pipeline.note_validation import needed_s, validate_notes
+from mpipe.pipeline.note_validation import headline, needed_s, validate_notes
 from tests.measurement.fingering_helpers import first_resonance, four_holes, theory_note
 
 FS = 10000.0
@@ -50,17 +50,23 @@ def test_a_given_list_plays_a_fingering_per_note_and_a_wrong_one_fails():
     assert set(wrong.notes["fingering_source"]) == {"given"}
 
 
-def test_a_note_too_short_to_verify_is_cannot_verify_not_fail():
-    # a 60 ms blip and a 0.3 s note are shorter than 8 Welch averages of 8 periods; the
-    # same notes 0.8 s long pass (the check is not blind)
+def test_a_short_note_is_verified_on_what_it_has_and_the_headline_counts_it():
+    # Issue 38 / 42: a clean 0.3 s note was CANNOT-VERIFY ("the estimate at 104 Hz needs
+    # 369 ms"); read on frames of four periods it is verified (PASS) from 10 periods on, and
+    # the same note on the wrong fingering FAILs (the shorter note is not waved through). A
+    # 60 ms blip stays CANNOT-VERIFY, and the take's headline counts the notes verified.
     cal = four_holes()
-    for duration in (0.06, 0.3):
-        p, u = _phrase(cal, [("xxoo", duration)])
-        result = _validate(cal, p, u)
-        assert result.verdict == "cannot-verify"
-        assert "too short to verify" in result.notes["reason"].iloc[0]
-        assert needed_s(120.0, FS) > duration
-    assert _validate(cal, *_phrase(cal, [("xxoo", 0.8)])).verdict == "pass"
+    p, u = _phrase(cal, [("xxoo", 0.3)])
+    result = _validate(cal, p, u)
+    assert result.verdict == "pass", result.reason
+    assert _validate(four_holes("xxxx"), p, u).verdict == "fail"
+    assert needed_s(120.0) < 0.1
+    p, u = _phrase(cal, [("xxoo", 0.06), ("xxoo", 0.8)])
+    result = _validate(cal, p, u)
+    assert list(result.notes["verdict"]) == ["cannot-verify", "pass"]
+    assert "too short to verify" in result.notes["reason"].iloc[0]
+    assert result.reason.startswith("1 of 2 notes verified")
+    assert headline(result.verdict, result.notes) == "PASS (1 of 2 notes verified)"
 
 
 def test_a_take_without_a_note_says_no_note():
