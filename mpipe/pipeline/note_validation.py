@@ -372,7 +372,7 @@ def _take_verdict(table: pd.DataFrame) -> tuple[str, str]:
         unverified = table[table["verdict"] == "cannot-verify"]
         if len(unverified):
             first = unverified.iloc[0]
-            return "pass", f"{tally}; note {int(first.segment)}: {first.reason}"
+            return "pass", f"{tally}; note {_number(first)}: {first.reason}"
         return "pass", tally
     return "cannot-verify", f"{tally}; note {_number(table.iloc[0])}: {table.iloc[0].reason}"
 
