@@ -35,6 +35,7 @@ from headline import record as headline  # noqa: E402
 from scipy.signal import windows  # noqa: E402
 
 from mpipe.acoustics.reflection import reflection_function  # noqa: E402
+from mpipe.core.resampling import resample  # noqa: E402
 from mpipe.measurement.calibration import load_calibration  # noqa: E402
 from mpipe.measurement.separation.settings import SeparationConfig  # noqa: E402
 from mpipe.measurement.separation.stage import separate  # noqa: E402
@@ -45,7 +46,6 @@ from mpipe.measurement.separation.waves import (  # noqa: E402
     wavenumbers,
     zk_excess,
 )
-from mpipe.measurement.takes import resample  # noqa: E402
 from mpipe.reed.bore_kernel import prepare_bore  # noqa: E402
 from mpipe.reed.model import simulate  # noqa: E402
 from mpipe.reed.parameters import load_reed  # noqa: E402

@@ -22,11 +22,15 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import resource
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from headline import record  # noqa: E402
 
 from mpipe.cli.examples import EXAMPLE_CALIBRATION, EXAMPLE_REED
 from mpipe.cli.virtual_takes import SynthOptions, make_take
@@ -117,17 +121,24 @@ def main() -> None:
     config = dataclasses.replace(pipe.inversion, sample_rate=fs)
     kc = done.temperature.temperature_c
     print(f"take {dur:g} s: {len(table)} windows, {len(ok)} ok, kernel {kc:.2f} degC")
-    found = {}
+    found, cpus = {}, {}
     for method in (frontend_linear, frontend_refit):
         refit = _Refit(fs, cal, config, done.tracking.zero_mean, picked, [_reed(r) for r in rows])
         t0 = time.process_time()
         found[method.__name__] = method(tr.p, tr.u, cal, front, refit, kernel_c=kc,
                                         refit_kernel=done.temperature.source == "fit")  # fmt: skip
-        print(f"{method.__name__}: CPU {time.process_time() - t0:.2f} s")
+        cpu = time.process_time() - t0
+        print(f"{method.__name__}: CPU {cpu:.2f} s")
+        cpus[method.__name__] = cpu
     for q in ("k", "S", "y_m", "p_m", "lam", "p_M", "gamma", "zeta"):
         i = QUANTITIES.index(q)
         lin, ref = (float(np.sqrt(sum(d[i] ** 2 for d in found[m].values()))) for m in found)
         print(f"{q:6s} linear {100 * lin:6.3f} %  refit {100 * ref:6.3f} %  ratio {lin / ref:.3f}")
+        if q in ("p_m", "p_M"):
+            record(f"front-end component of {q}, linear over re-fit", lin / ref, target="")
+    record(
+        "front-end component, CPU", cpus["frontend_linear"], "s", baseline=cpus["frontend_refit"]
+    )
 
 
 if __name__ == "__main__":

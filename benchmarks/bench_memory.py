@@ -21,6 +21,7 @@ import sys
 from pathlib import Path
 
 import yaml
+from headline import record
 from peak_memory import measure
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -91,6 +92,7 @@ def main() -> int:
     print()
     for name, d, peak, code, wall in results:
         print(f"{name:10s} {d:6g} s: {peak:6.0f} MiB (exit {code}, {wall:.0f} s wall)")
+        record(f"peak memory: {name}, {d:g} s take", peak, "MiB", target="< 1024")
     return 0
 
 

@@ -9,11 +9,16 @@ centre. docs/uncertainty.md, "A note's value and its uncertainty", holds the tab
 from __future__ import annotations
 
 import math
+import sys
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from mpipe.inversion.trust.notes import note_budget
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from headline import record  # noqa: E402
+
+from mpipe.inversion.trust.notes import note_budget  # noqa: E402
 
 TRUTH = 10.0
 NOTES = 1000
@@ -51,6 +56,9 @@ def main() -> None:
     for rhos in ([0.3, 0.6], [0.0], [0.3], [0.6], [0.8]):
         cov, rms = coverage(rhos)
         print(f"rho {rhos}: 2-SE coverage {cov:.3f}, RMS z {rms:.3f}")
+        if rhos == [0.3, 0.6]:
+            record("trending notes: per-note 2-SE coverage", cov, target=">= 0.90")
+            record("trending notes: per-note RMS z", rms, target="<= 1.25")
 
 
 if __name__ == "__main__":

@@ -50,6 +50,9 @@ QUICK_ARGS = {
     "bench_pooling": ["--quick", "--cases", "crescendo"],
     "bench_openwind": ["--duration", "1"],
     "bench_foreign": ["--quick"],
+    "bench_note_coverage": [],
+    "bench_frontend_propagation": ["--duration", "1"],
+    "bench_memory": ["--durations", "20", "--folder", "benchmarks/.cache/memory"],
     "bench_verdicts": ["--quick", "--rates", "default", "--snrs", "45"],
     "bench_segments": ["--seeds", "0"],
     "bench_segmentation": [],  # its OpenWInD takes: about 13 min once, then cached

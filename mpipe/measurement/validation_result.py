@@ -55,7 +55,7 @@ class ValidationResult:
         Fewest compared quantities for a PASS.
     suspects : tuple of str
         On a FAIL, the inputs that can produce such errors, most likely first (see
-        :func:`mpipe.measurement.validation.suspect_inputs`).
+        :func:`mpipe.measurement.validation_suspects.suspect_inputs`).
     theory_hz, theory_z : ndarray
         The theory on a fine grid (Hz; ``Z / Z0``), for the figure: on the Welch grid a
         resonance a few Hz wide falls between bins and its peak is lost (empty: none).

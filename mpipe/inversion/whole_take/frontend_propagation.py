@@ -33,6 +33,7 @@ the reference; ``tests/inversion/whole_take/test_frontend_propagation.py`` compa
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -88,8 +89,10 @@ class Spans:
         else:
             lo, hi = signal_range(temps)
         dt = _temperature_se(front)
-        base = TranslationPlan.of(fs, calibration, front.translation, lo, hi)
-        warm = TranslationPlan.of(fs, calibration, front.translation, lo + dt, hi + dt)
+        base = TranslationPlan.of(fs, calibration, front.translation, lo, hi, level=logging.DEBUG)
+        warm = TranslationPlan.of(
+            fs, calibration, front.translation, lo + dt, hi + dt, level=logging.DEBUG
+        )
         return cls(base, warm, span_margin(base, fs))
 
 

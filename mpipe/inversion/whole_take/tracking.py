@@ -431,22 +431,6 @@ def _retry_not_ok(
     ]
     if not redo:
         return table
-    # first from the neighbours' answers (a warm search each), then a global search for
-    # the windows those leave not ok: a cold start costs about 0.7 s of CPU per window
-    near = _neighbours(results, table, redo, segments)
-    if near:
-        items = [(_start(results[i], job.fs), results[i][0]) for i in redo if i in near]
-        starts = {_start(results[i], job.fs): near[i] for i in near}
-        again = dispatch(job, items, starts, executor, workers, client, None)
-        for i, new in zip(sorted(near), sorted(again, key=lambda r: r[0]["t_start_s"]),
-                          strict=True):  # fmt: skip
-            results[i] = new
-        table = classify(window_table(results), job.config, segments)
-        redo = [i for i in redo if table.loc[i, "status"] in RETRIED]
-        log.info("%d windows retried from their neighbours: %d still not ok", len(near),
-                 len(redo))  # fmt: skip
-        if not redo:
-            return table
     log.info("%d windows not ok after their warm start: cold-starting them", len(redo))
     items = [(_start(results[i], job.fs), results[i][0]) for i in redo]
     again = dispatch(job, items, None, executor, workers, client, None)
@@ -458,24 +442,6 @@ def _retry_not_ok(
 def _start(result, fs: float) -> int:
     """A window's first sample, from its row."""
     return int(round(result[0]["t_start_s"] * fs))
-
-
-def _neighbours(results: list, table: pd.DataFrame, redo: list, segments: list) -> dict:
-    """Window -> the reeds of the nearest ok windows of its note before and after it.
-
-    Windows in time order (``results``, ``table`` and ``segments`` alike); a window with no
-    ok neighbour in its note is left out.
-    """
-    ok = [i for i in range(len(results)) if table.loc[i, "status"] == "ok"]
-    out = {}
-    for i in redo:
-        mine = [j for j in ok if segments[j] == segments[i]]
-        before = [j for j in mine if j < i][-1:]
-        after = [j for j in mine if j > i][:1]
-        reeds = [reed_from_row(results[j][0]) for j in (*before, *after)]
-        if reeds:
-            out[i] = reeds
-    return out
 
 
 __all__ = [

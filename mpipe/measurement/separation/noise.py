@@ -133,7 +133,7 @@ def noise_levels(
 def resampler_response(freqs: np.ndarray, fs: float, fs_file: float) -> np.ndarray:
     """Power response of the resampling from ``fs_file`` to ``fs`` at ``freqs`` (Hz).
 
-    The upsampled unit impulse of :func:`mpipe.measurement.takes.resample` (the one place
+    The upsampled unit impulse of :func:`mpipe.core.resampling.resample` (the one place
     that changes rates), its squared spectrum normalised to the average in the lowest
     half of the file's band (1 where the resampler passes white noise unchanged).
 

@@ -239,21 +239,3 @@ def test_windows_a_cold_start_cannot_fix_keep_their_warm_result(take):
     out = track(sim.p, sim.u, FS, kernel, rho, starved, ExecutorConfig(workers=1),
                 windows=windows)  # fmt: skip
     assert out.table["retried_cold"].sum() >= 1
-
-
-def test_a_retry_starts_from_the_nearest_ok_windows_of_its_note():
-    from mpipe.inversion.whole_take.tracking import _neighbours
-
-    reed = {"S": 7e-5, "y_m": 4e-4, "p_m": 1800.0, "lam": 0.013, "m": 0.05, "g": 3000.0,
-            "k_c": 8e10, "y_c": 4e-4, "alpha": 2.0}  # fmt: skip
-    rows = [{"k": 1e6 * (i + 1), **reed} for i in range(6)]
-    results = [(r, None) for r in rows]
-    table = pd.DataFrame(
-        {"status": ["ok", "ok", "not-converged", "at-bound", "ok", "high-residual"]}
-    )
-    segments = [1, 1, 1, 1, 1, 2]
-    near = _neighbours(results, table, [2, 5], segments)
-    # window 2: the ok windows 1 (before) and 4 (after, past the at-bound 3); window 5 is
-    # alone in its note: no neighbour, a cold start
-    assert [r.k for r in near[2]] == [2e6, 5e6]
-    assert 5 not in near

@@ -13,8 +13,8 @@ import numpy as np
 from scipy import signal
 
 from mpipe.acoustics import ducts
+from mpipe.core.resampling import resample
 from mpipe.measurement.calibration import load_calibration
-from mpipe.measurement.takes import resample
 from mpipe.reed.recorder import RecorderOptions
 from mpipe.reed.recording import virtual_recording
 
