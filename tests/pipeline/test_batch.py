@@ -48,7 +48,8 @@ def _pipeline(folder: Path, take, workers: int, scheduler: str | None = None) ->
         data["executor"] = {"kind": "dask", "scheduler": scheduler}
     data["conditioning"] = {"edge_s": 0.25}
     data["inversion"]["hop_s"] = 0.04  # three windows between 0.25 s and 0.37 s
-    # light inversion: the executors are tested here, the estimator elsewhere
+    # light inversion: the executors are tested here, the estimator elsewhere (32 design
+    # points: with 16, the soft player's cold start missed its basin on the DC-corrected kernel)
     data["inversion"].update(design_points=32, local_starts=2, temperature="front-end")
     path = folder / f"pipeline{workers}{'dask' if scheduler else ''}.yaml"
     path.write_text(yaml.safe_dump(data))
