@@ -8,6 +8,7 @@ its sidecar, the truth and a calibration copy that fits the file (:func:`make_ta
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import logging
 from dataclasses import asdict, dataclass
@@ -357,6 +358,10 @@ def make_take(
     truth["swell"] = options.swell
     truth["breath_noise_pa"] = options.breath_noise_pa
     truth.update(played_truth(run, options.chunk_s))
+    if score is not None and len(set(score.fingerings(calibration.fingering))) > 1:
+        # the take plays several fingerings: its calibration copy names no default, so that
+        # mpipe finds each note's (auto) instead of validating every note on one
+        calibration = dataclasses.replace(calibration, fingering=None)
     return _write(
         out,
         take,

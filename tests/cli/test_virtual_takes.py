@@ -128,3 +128,26 @@ def test_a_register_hole_upstream_of_the_microphones_is_recorded_through_each_no
         truth = apply_lowpass(take.p, back.lowpass)[a:b]
         errors[name] = np.max(np.abs(back.p[a:b] - truth)) / np.max(np.abs(truth))
     assert errors["xxxx"] < 1e-3 and errors["rxxxx"] < 1e-3, errors
+
+
+def test_a_take_of_several_fingerings_leaves_each_notes_to_be_found(tmp_path):
+    # the verdict corpus (issue 38): a score slurring xxxx -> xxoo was written with the
+    # calibration's default xxxx, so mpipe run validated both notes on xxxx and FAILed the
+    # correct take; its copy names no default, so each note's fingering is found (auto)
+    from pathlib import Path
+
+    from mpipe.cli.virtual_takes import SynthOptions, make_take
+    from mpipe.measurement.calibration import load_calibration
+
+    root = Path(__file__).resolve().parents[2]
+    cal, reed = (
+        root / "calibration" / "four_hole_clarinet.yaml",
+        root / "calibration" / "reed_table1.yaml",
+    )
+    score = tmp_path / "s.yaml"
+    notes = [{"duration": 0.1, "fingering": f, "p_m": 1800.0} for f in ("xxxx", "xxoo")]
+    score.write_text(yaml.safe_dump({"notes": notes}))
+    options = SynthOptions(duration_s=None, score=str(score), fs_model=50_000.0)
+    files = make_take(cal, reed, tmp_path / "t.flac", options)
+    assert "fingering" not in yaml.safe_load(files.calibration.read_text())
+    assert load_calibration(files.calibration).fingering == "auto"
