@@ -101,26 +101,11 @@ def test_a_register_hole_upstream_of_the_microphones_is_recorded_through_each_no
     # and the reference plane) open was recorded as if it were closed, and failed its
     # validation. Carried back through each note's own fingering (the translation, a second
     # module), the truth at the reference plane must give the model's mouthpiece signals.
-    from mpipe.cli.virtual_takes import synthesize
     from mpipe.core.filters import apply_lowpass
-    from mpipe.measurement.calibration import load_calibration
     from mpipe.measurement.translation import TranslationConfig, translate
-    from mpipe.reed.parameters import load_reed
-    from mpipe.reed.score import score_from_mapping
+    from tests.measurement.fingering_helpers import register_hole_take
 
-    data = yaml.safe_load(FOUR_HOLES.read_text())
-    data["bore"]["holes"].insert(0, {"name": "reg", "position": 0.15, "radius": 0.0015,
-                                     "chimney": 0.012})  # fmt: skip
-    data["fingerings"]["rxxxx"] = ["reg"]
-    data["fingering"] = "xxxx"
-    path = tmp_path / "reg.yaml"
-    path.write_text(yaml.safe_dump(data))
-    cal = load_calibration(path)
-    score = score_from_mapping({"notes": [
-        {"duration": 0.3, "fingering": "xxxx", "p_m": 1800.0, "attack": 0.02},
-        {"duration": 0.3, "fingering": "rxxxx", "p_m": 1800.0, "attack": 0.005},
-    ]})  # fmt: skip
-    take, _, _ = synthesize(cal, load_reed(REED), SynthOptions(duration_s=None, seed=0), score)
+    cal, take = register_hole_take(tmp_path)
     errors = {}
     for name, span in (("xxxx", (0.15, 0.28)), ("rxxxx", (0.45, 0.58))):
         back = translate(take.p0, take.u0, take.fs, cal.with_fingering(name), TranslationConfig())

@@ -68,3 +68,33 @@ def theory_note(
     p += rng.normal(0.0, np.std(p) * 10 ** (-snr_db / 20), n)
     u += rng.normal(0.0, np.std(u) * 10 ** (-snr_db / 20), n)
     return p, u
+
+
+def register_hole_take(folder: Path):
+    """``(calibration, take)`` of the four-hole clarinet with a register hole at 0.15 m.
+
+    The hole lies upstream of the microphones; the take plays a note of ``xxxx`` then one of
+    ``rxxxx`` (the hole open), 0.3 s each. The take is synth-take's engine (:func:`mpipe.cli.virtual_takes.synthesize`), its truth
+    p0, u0 at the reference plane and p, u at the mouthpiece.
+    """
+    import yaml
+
+    from mpipe.cli.virtual_takes import SynthOptions, synthesize
+    from mpipe.reed.parameters import load_reed
+    from mpipe.reed.score import score_from_mapping
+
+    data = yaml.safe_load(FOUR_HOLES.read_text())
+    data["bore"]["holes"].insert(0, {"name": "reg", "position": 0.15, "radius": 0.0015,
+                                     "chimney": 0.012})  # fmt: skip
+    data["fingerings"]["rxxxx"] = ["reg"]
+    data["fingering"] = "xxxx"
+    path = Path(folder) / "reg.yaml"
+    path.write_text(yaml.safe_dump(data))
+    cal = load_calibration(path)
+    score = score_from_mapping({"notes": [
+        {"duration": 0.3, "fingering": "xxxx", "p_m": 1800.0, "attack": 0.02},
+        {"duration": 0.3, "fingering": "rxxxx", "p_m": 1800.0, "attack": 0.005},
+    ]})  # fmt: skip
+    reed = load_reed(FOUR_HOLES.parent / "reed_table1.yaml")
+    take, _, _ = synthesize(cal, reed, SynthOptions(duration_s=None, seed=0), score)
+    return cal, take

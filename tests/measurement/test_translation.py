@@ -145,31 +145,12 @@ def test_each_note_is_translated_through_its_own_fingering(tmp_path):
     # a register hole between the mouthpiece and the reference plane, open in the second
     # note only: one fingering for the take misses the model's p by percents in that note;
     # the translation per note gives it (the take by synth-take's engine, its truth p0, u0)
-    import yaml
-
-    from mpipe.cli.virtual_takes import SynthOptions, synthesize
     from mpipe.core.filters import apply_lowpass
-    from mpipe.measurement.calibration import load_calibration
     from mpipe.measurement.translation import TranslationConfig, translate
     from mpipe.measurement.translation_notes import translate_per_note
-    from mpipe.reed.parameters import load_reed
-    from mpipe.reed.score import score_from_mapping
-    from tests.measurement.fingering_helpers import FOUR_HOLES
+    from tests.measurement.fingering_helpers import register_hole_take
 
-    data = yaml.safe_load(FOUR_HOLES.read_text())
-    data["bore"]["holes"].insert(0, {"name": "reg", "position": 0.15, "radius": 0.0015,
-                                     "chimney": 0.012})  # fmt: skip
-    data["fingerings"]["rxxxx"] = ["reg"]
-    data["fingering"] = "xxxx"
-    path = tmp_path / "reg.yaml"
-    path.write_text(yaml.safe_dump(data))
-    cal = load_calibration(path)
-    score = score_from_mapping({"notes": [
-        {"duration": 0.3, "fingering": "xxxx", "p_m": 1800.0, "attack": 0.02},
-        {"duration": 0.3, "fingering": "rxxxx", "p_m": 1800.0, "attack": 0.005},
-    ]})  # fmt: skip
-    reed = load_reed(FOUR_HOLES.parent / "reed_table1.yaml")
-    take, _, _ = synthesize(cal, reed, SynthOptions(duration_s=None, seed=0), score)
+    cal, take = register_hole_take(tmp_path)
     cfg = TranslationConfig()
     notes = [(0.0, 0.3, "xxxx"), (0.3, 0.6, "rxxxx")]
     per_note = translate_per_note(take.p0, take.u0, take.fs, cal, notes, cfg)

@@ -60,12 +60,13 @@ SCALE_EXPONENTS = {"k": 1.0, "S": 1.0, "y_m": 0.0, "p_m": 1.0, "m": 1.0, "g": 0.
 #: calibrator, dB (0.1-0.2 dB stated by such calibrators): reported as ``<q>_se_scale`` when
 #: the calibration states none, never added to ``<q>_se``.
 ASSUMED_SENSITIVITY_SE_DB = 0.15
-#: Names of the front end's parameters, in the order of :class:`FrontEnd`'s arrays.
-FRONTEND_NAMES = ("temperature", "eta", "mach", "position")
+#: Names of the front end's parameters, in the order of :class:`FrontEnd`'s arrays (one
+#: definition, the linear propagation's).
+FRONTEND_NAMES = fp.FRONTEND_NAMES
 #: Ok windows the front end's sensitivity is measured on.
 FRONTEND_WINDOWS = 6
-#: Half-spacing of the kernel temperatures of the re-fit, degC.
-KERNEL_STEP_C = 0.25
+#: Half-spacing of the kernel temperatures of the re-fit, degC (the linear propagation's).
+KERNEL_STEP_C = fp.KERNEL_STEP_C
 
 
 @dataclass(frozen=True)
