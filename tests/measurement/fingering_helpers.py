@@ -74,8 +74,9 @@ def register_hole_take(folder: Path):
     """``(calibration, take)`` of the four-hole clarinet with a register hole at 0.15 m.
 
     The hole lies upstream of the microphones; the take plays a note of ``xxxx`` then one of
-    ``rxxxx`` (the hole open), 0.3 s each. The take is synth-take's engine (:func:`mpipe.cli.virtual_takes.synthesize`), its truth
-    p0, u0 at the reference plane and p, u at the mouthpiece.
+    ``rxxxx`` (the hole open), 0.3 s each, made by synth-take's engine
+    (:func:`mpipe.cli.virtual_takes.synthesize`): its truth p0, u0 at the reference plane and
+    p, u at the mouthpiece.
     """
     import yaml
 
