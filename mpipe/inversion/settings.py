@@ -11,10 +11,11 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Literal
 
-from mpipe.core.cluster import parse_scheduler
-from mpipe.core.config import Where, between, positive, spec
+from mpipe.core.config import Where, between, spec
 from mpipe.core.filters import LowPass, design_lowpass
 from mpipe.inversion.conditioning_settings import ConditioningConfig as ConditioningConfig
+from mpipe.inversion.run_settings import ExecutorConfig as ExecutorConfig
+from mpipe.inversion.run_settings import ResynthesisConfig as ResynthesisConfig
 from mpipe.measurement.translation import TranslationConfig
 
 #: Reed parameters that step 2 may optimise (physics.md I); y_c and alpha stay fixed.
@@ -321,6 +322,16 @@ class InversionConfig:
         between(0.0, 2.0),
         default=0.2,
     )
+    estimator: Literal["window", "take"] = spec(
+        "",
+        "take: the take's model fitted once, jointly: each window's p_m and y_m, each "
+        "note's reed constants (k, S, lam, m, g, k_c, y_c when searched) and the take's air "
+        "temperature (the front end's estimate as its prior), by one damped Gauss-Newton "
+        "with one sandwich covariance (mpipe.inversion.whole_take.estimator); window: "
+        "every window's eight parameters fitted on its own after a kernel-temperature fit "
+        "(the paper's method, the reference)",
+        default="window",
+    )
     pooling: Literal["window", "note"] = spec(
         "",
         "window: every window gets its own eight parameters (the paper's method, the "
@@ -444,57 +455,3 @@ class InversionConfig:
                 raise where.error(
                     name, f"start value {start:g} lies outside bounds.{name} [{lo:g}, {hi:g}]"
                 )
-
-
-@dataclass(frozen=True)
-class ExecutorConfig:
-    """Where the windows run."""
-
-    kind: Literal["local", "dask"] = spec(
-        "", "local: processes on this machine; dask: a Dask distributed cluster", default="local"
-    )
-    workers: int = spec(
-        "",
-        "number of local worker processes (0: one per CPU; 1: in this process)",
-        between(0, 4096),
-        default=0,
-    )
-    scheduler: str | None = spec(
-        "", "Dask scheduler address, e.g. tcp://10.0.0.5:8786 (kind: dask)", default=None
-    )
-    chunks: int = spec(
-        "",
-        "contiguous warm-start chains per worker (0: one chain per worker)",
-        between(0, 100000),
-        default=0,
-    )
-    connect_timeout_s: float = spec(
-        "s",
-        "time allowed to reach the Dask scheduler and to hear its greeting (kind: dask)",
-        between(0.1, 600.0),
-        default=5.0,
-    )
-
-    def _check(self, where: Where) -> None:
-        if self.kind == "dask" and not self.scheduler:
-            raise where.error("scheduler", "executor kind 'dask' needs a scheduler address")
-        if self.scheduler:
-            try:
-                parse_scheduler(self.scheduler)
-            except ValueError as exc:
-                raise where.error("scheduler", f"malformed scheduler address {exc}") from None
-
-
-@dataclass(frozen=True)
-class ResynthesisConfig:
-    """What the resynthesis stage shows."""
-
-    overlay_windows: int = spec(
-        "",
-        "windows drawn as target-versus-resynthesis overlays (paper Figs. 9, 11)",
-        between(1, 20),
-        default=3,
-    )
-    wav_full_scale_pa: float = spec(
-        "Pa", "pressure mapped to full scale in the resynthesis WAV", positive, default=1e4
-    )

@@ -11,7 +11,7 @@ import mpipe.inversion
 
 INVERSION = Path(mpipe.inversion.__file__).parent
 #: Modules below every room: every room may import them; they import no room.
-FLOOR = ("settings", "conditioning_settings")
+FLOOR = ("settings", "conditioning_settings", "run_settings")
 #: Rooms from the bottom up: a module imports the floor, its own room and the rooms before it.
 ROOMS = ("preparation", "trust", "table", "fit", "pooling", "whole_take", "output")
 

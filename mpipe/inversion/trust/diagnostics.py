@@ -139,7 +139,8 @@ def take_checks(
     list of str
     """
     reasons = [r for r in extra if r]
-    if config.temperature == "fit" and temperature_source != "fit":
+    # the take's joint fit (inversion.estimator: take) estimates the temperature itself
+    if config.temperature == "fit" and temperature_source not in ("fit", "take fit"):
         reasons.append(
             "the kernel temperature fit fell back to the "
             f"{temperature_source}'s temperature ({temperature_note or 'not fitted'}): the "

@@ -47,7 +47,9 @@ from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.trust.budget import combine
 from mpipe.inversion.trust.diagnostics import check_plausible, take_checks
 from mpipe.inversion.trust.discretisation import rate_errors
+from mpipe.inversion.whole_take.estimator import TakeData
 from mpipe.inversion.whole_take.shared_errors import FrontEnd, shared_components
+from mpipe.inversion.whole_take.take_estimate import estimate_take
 from mpipe.inversion.whole_take.temperature import (
     TemperatureFit,
     fit_temperature,
@@ -175,6 +177,10 @@ def invert_take(
         p, u = as_signal(p), as_signal(u)
         client = options.client if options is not None else None
         # the fit's cold start and its windows spread over the workers (the same answer)
+        if config.estimator == "take":
+            run = (executor, 1 if client is not None or executor.kind != "local" else workers)
+            data = TakeData(p, u, fs, calibration, plan, config, zero_mean)
+            return _invert_jointly(data, front, carried, front_end, extra_checks, run)
         with stage_workers((p, u), executor, workers, client):
             fit = fit_temperature(
                 p, u, fs, calibration, plan, config, zero_mean=zero_mean, front_end_c=front,
@@ -213,6 +219,35 @@ def invert_take(
         return TakeInversion(
             dataclasses.replace(result, table=table), fit, kernel, air, tuple(checks), shared
         )
+
+
+def _invert_jointly(data, front, carried, front_end, extra_checks, run) -> TakeInversion:
+    """The take's joint fit (``inversion.estimator: take``), then the take-wide budget."""
+    p, u, fs, calibration, plan = data.p, data.u, data.fs, data.calibration, data.windows
+    config, zero_mean = data.config, data.zero_mean
+    source = KernelSource(calibration, fs, plan.fingering_map())
+    se = None
+    if front_end is not None and len(front_end.level_se) and front_end.level_se[0] > 0:
+        se = float(front_end.level_se[0])
+    joint = estimate_take(data, front_c=front, front_se_c=se, carried=carried,
+                          executor=run[0], workers=run[1])  # fmt: skip
+    fit = joint.temperature
+    kernel, air = source.at(fit.temperature_c, plan.starts[0] if plan.starts else None)
+    table, shared = shared_components(
+        p, u, fs, joint.tracking.table, calibration, config, zero_mean=zero_mean,
+        kernel_c=fit.temperature_c, refit_kernel=False, front=front_end,
+    )  # fmt: skip
+    table = rate_errors(table, fs)
+    table = combine(table, config.determined_limit)
+    openings, _ = reed_openings(table, p, fs, whole=False)
+    table = pd.concat([table, openings], axis=1)
+    checks = take_checks(
+        table, config, temperature_source=fit.source, temperature_note=fit.note,
+        cold_starts_agreeing=fit.cold_starts_agreeing, notes=None, extra=extra_checks,
+    )  # fmt: skip
+    table["take_checks"] = "; ".join(checks)
+    tracking = dataclasses.replace(joint.tracking, table=table)
+    return TakeInversion(tracking, fit, kernel, air, tuple(checks), shared)
 
 
 def _track_fingerings(p, u, fs, source, fit, config, executor, plan, options) -> Tracking:

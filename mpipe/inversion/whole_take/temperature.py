@@ -144,6 +144,12 @@ class TemperatureFit:
 
     def line(self) -> str:
         """One console line."""
+        if self.source == "take fit":
+            return (
+                f"take temperature {self.temperature_c:.2f} +- {self.se_c:.2f} degC, fitted "
+                f"with the reed on {self.windows} windows (front end {self.front_end_c:.2f} degC)"
+                + (f"; {self.note}" if self.note else "")
+            )
         if self.source != "fit":
             why = self.note or "inversion.temperature: front-end"
             return (

@@ -1,0 +1,222 @@
+"""The take's joint fit from its windows: one cold start, warm chains, passes in T.
+
+The driver of :mod:`mpipe.inversion.whole_take.estimator` (which holds the fit's records,
+its pass and its stopping rule): the windows of a plan in time order and their notes, the
+take's one cold start, each window's controls warm along its chain, the shards that hold
+the windows (:mod:`mpipe.inversion.whole_take.take_shards`), the passes with the kernels
+rebuilt at the temperature between them, and the windows' figures at the solution.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import logging
+import time
+
+import numpy as np
+
+from mpipe.inversion.fit.execution import stage_workers
+from mpipe.inversion.fit.window import invert_window
+from mpipe.inversion.pooling.take_system import TierSizes
+from mpipe.inversion.preparation.kernel import KernelSource
+from mpipe.inversion.settings import ExecutorConfig
+from mpipe.inversion.whole_take.estimator import (
+    LOOSE_SE,
+    MAX_PASSES,
+    SE_TOLERANCE,
+    T_SETTLED_C,
+    FitState,
+    Layout,
+    TakeData,
+    TakeFit,
+    TakeProblem,
+    joint_pass,
+    layout_of,
+    problems_of,
+    search_boxes,
+)
+from mpipe.inversion.whole_take.take_shards import CHAIN, Shards, ShardSpec, shard_ranges
+from mpipe.reed.parameters import ReedParameters
+
+log = logging.getLogger(__name__)
+
+
+def fit_take(
+    data: TakeData, *, prior: tuple[float, float], t_range: tuple[float, float],
+    executor: ExecutorConfig | None = None, workers: int = 1,
+) -> tuple[TakeFit, ReedParameters, dict]:  # fmt: skip
+    """The take's joint fit (see :mod:`mpipe.inversion.whole_take.estimator`).
+
+    Parameters
+    ----------
+    data : TakeData
+        The take's signals, its windows and the settings.
+    prior : (float, float)
+        The temperature's prior, mean and standard error, degC.
+    t_range : (float, float)
+        Bounds of the temperature, degC.
+    executor : ExecutorConfig, optional
+        Where the cold start's searches run (local processes by default).
+    workers : int
+        Worker processes the windows are spread over (1: all here).
+
+    Returns
+    -------
+    (TakeFit, ReedParameters, dict)
+        The fit, the cold start's reed (the fixed parameters' values) and the cold start
+        window's record (its step-1 columns and the cold start's agreement).
+
+    Raises
+    ------
+    ValueError
+        When no window of the take can be cold-started or played.
+    """
+    p, u, fs, calibration, windows = data.p, data.u, data.fs, data.calibration, data.windows
+    config, zero_mean = data.config, data.zero_mean
+    layout = layout_of(config)
+    sizes = TierSizes(layout.n_fast, len(layout.names) - layout.n_fast, 1)
+    fingerings = windows.fingering_map()
+    source = KernelSource(calibration, fs, fingerings)
+    problems, steady = _problems(p, u, fs, source, windows, config, zero_mean, prior[0])
+    clock = time.perf_counter()
+    with stage_workers((p, u), executor or ExecutorConfig(), workers):
+        cold, cold_row, peak = _cold_start(p, u, fs, source, problems, steady, config, zero_mean,
+                                     prior[0])  # fmt: skip
+    spec = ShardSpec(tuple(problems), calibration, fs, fingerings, cold, config, layout,
+                     float(prior[0]))  # fmt: skip
+    slow0 = np.array([getattr(cold, n) for n in layout.names[layout.n_fast :]])
+    with contextlib.ExitStack() as stack:
+        ranges = shard_ranges(_chains(problems), workers)
+        shards = stack.enter_context(Shards(spec, ranges, processes=workers > 1))
+        log.debug("take fit: cold start after %.2f s", time.perf_counter() - clock)
+        fast, excluded = _warm(shards, problems, layout, cold, slow0, peak)
+        log.debug("take fit: warm chains after %.2f s", time.perf_counter() - clock)
+        if excluded:  # the windows left out, the shards made again without them
+            keep = [i for i, q in enumerate(problems) if q.start not in excluded]
+            problems, fast = _renumber([problems[i] for i in keep]), fast[keep]
+            spec = dataclasses.replace(spec, problems=tuple(problems))
+            ranges = shard_ranges(_chains(problems), workers)
+            stack.close()
+            shards = stack.enter_context(Shards(spec, ranges, processes=workers > 1))
+        n_notes = problems[-1].note + 1
+        state = FitState(fast, np.tile(slow0, (n_notes, 1)), float(prior[0]))
+        boxes = search_boxes(problems, layout.n_fast, n_notes, t_range)
+        take = TakeProblem(shards, problems, layout, sizes, prior, boxes)
+        state, blocks, weight, total, passes, converged, message = _passes(take, state)
+        log.debug("take fit: passes after %.2f s", time.perf_counter() - clock)
+        records = sum(shards.call("final", [(v, state.t, config.model_form_floor) for v in
+                      shards.split(state.values(layout, problems))]), [])  # fmt: skip
+        entries = shards.call("entries", [()] * len(ranges))
+        log.debug("take fit: windows' grams after %.2f s", time.perf_counter() - clock)
+    z0 = np.concatenate([e[0] for e in entries])
+    rho = np.concatenate([e[1] for e in entries])
+    fit = TakeFit(layout.names, sizes, tuple(problems), state.fast, state.slow, state.t, blocks,
+                  records, weight, prior, total, passes, converged, message, excluded, z0,
+                  rho)  # fmt: skip
+    return fit, cold, cold_row
+
+
+def _passes(take: TakeProblem, state: FitState):
+    """The passes of the joint fit, kernels rebuilt at T between them.
+
+    A pass first runs to :data:`LOOSE_SE` (where T is headed); when T has moved by more
+    than :data:`T_SETTLED_C` the kernels are rebuilt there and a new pass starts, else the
+    same pass goes on to :data:`SE_TOLERANCE`.
+    """
+    total, converged, t_built, start = 0, True, state.t, None
+    for passes in range(1, MAX_PASSES + 1):
+        last = passes == MAX_PASSES
+        tolerance = SE_TOLERANCE if last else LOOSE_SE
+        state, blocks, weight, steps, ok, message = joint_pass(take, state, tolerance, start)
+        total += steps
+        log.debug("take fit pass %d: T %.3f degC, %d steps (%s)", passes, state.t, steps, message)
+        if abs(state.t - t_built) < T_SETTLED_C or last:
+            if not last:  # on to the tolerance, on the same kernels
+                state, blocks, weight, steps, ok, message = joint_pass(
+                    take, state, SE_TOLERANCE, (blocks, weight)
+                )
+                total += steps
+            converged = ok
+            break
+        t_built = state.t
+        take.shards.call("rebuild", [(state.t,)] * len(take.shards.ranges))
+    if abs(state.t - t_built) >= T_SETTLED_C:
+        # the last pass ended far from its kernels: its blocks measured on their own
+        blocks = take.blocks(state, "measure")
+    return state, blocks, weight, total, passes, converged, message
+
+
+def _problems(p, u, fs, source, windows, config, zero_mean, t):
+    """The windows in time order, notes numbered 0.. by first appearance; their steadiness."""
+    order = np.argsort(np.asarray(windows.starts), kind="stable")
+    starts = [windows.starts[i] for i in order]
+    segments = [windows.segment_ids[i] for i in order]
+    names = [(windows.fingerings or ("",) * len(order))[i] for i in order]
+    steady = [(windows.steady or (True,) * len(order))[i] for i in order]
+    note_of = {g: k for k, g in enumerate(dict.fromkeys(segments))}
+    n_taps = max(source.named(t, name)[0].n_taps for name in set(names))
+    notes = [note_of[g] for g in segments]
+    return problems_of(p, u, fs, starts, notes, names, config, zero_mean, n_taps), steady
+
+
+def _cold_start(p, u, fs, source, problems, steady, config, zero_mean, t):
+    """The take's one cold start: the first steady window that gives an estimate."""
+    picks = [i for i, ok in enumerate(steady) if ok] + [i for i, ok in enumerate(steady) if not ok]
+    for i in picks[:4]:
+        q = problems[i]
+        kernel, air = source.named(t, q.fingering)
+        out = invert_window(p, u, fs, q.start, kernel, air.rho, config, zero_mean=zero_mean,
+                            errors=False)  # fmt: skip
+        if out.reed is not None:
+            log.info("take cold start on the window at %.3f s", q.start / fs)
+            return out.reed, dict(out.row), float(np.max(q.target.p))
+    raise ValueError("no window of the take could be cold-started (the model does not play it)")
+
+
+def _chains(problems) -> list[list[int]]:
+    """Runs of at most ``CHAIN`` consecutive windows of one note (take indices)."""
+    chains: list[list[int]] = []
+    for i, q in enumerate(problems):
+        if chains and problems[chains[-1][-1]].note == q.note and len(chains[-1]) < CHAIN:
+            chains[-1].append(i)
+        else:
+            chains.append([i])
+    return chains
+
+
+def _warm(shards: Shards, problems, layout: Layout, cold: ReedParameters, slow, peak: float):
+    """Every window's fast controls, warm along its chain, and the windows left out.
+
+    ``peak`` is the cold start window's peak pressure, Pa; a window none of its starts plays
+    is left out (first sample -> why).
+    """
+    f = layout.n_fast
+    cold_fast = np.array([getattr(cold, n) for n in layout.names[:f]])
+    peaks = np.array([float(np.max(q.target.p)) for q in problems])
+    chains = _chains(problems)
+    per_shard = []
+    for a, b in shards.ranges:
+        mine = [c for c in chains if a <= c[0] < b]
+        firsts = []
+        for c in mine:
+            scaled = cold_fast.copy()
+            if "p_m" in layout.names[:f]:  # p_m follows the window's loudness
+                scaled[layout.names.index("p_m")] *= peaks[c[0]] / peak
+            firsts.append([scaled, cold_fast])
+        per_shard.append(([[i - a for i in c] for c in mine], firsts, slow))
+    found = sum(shards.call("warm", per_shard), [])
+    excluded = {q.start: "the model does not play this window from the take's cold start"
+                for q, x in zip(problems, found, strict=True) if x is None}  # fmt: skip
+    if len(excluded) == len(problems):
+        raise ValueError("the model plays none of the take's windows from its cold start")
+    fast = np.array([x if x is not None else cold_fast for x in found])
+    return fast, excluded
+
+
+def _renumber(problems):
+    index = {n: k for k, n in enumerate(dict.fromkeys(q.note for q in problems))}
+    return [dataclasses.replace(q, note=index[q.note]) for q in problems]
+
+
+__all__ = ["fit_take"]

@@ -1,0 +1,452 @@
+"""The take's windows spread over workers: each shard holds its windows' objectives.
+
+The joint fit of :mod:`mpipe.inversion.whole_take.estimator` needs, per step, only each
+window's small blocks of the normal equations (:class:`Blocks`: ``J^T J``, ``J^T r`` and
+``r^T r`` over its own columns), never its residual or Jacobian themselves. A
+:class:`Shard` holds a contiguous run of windows with their compiled objectives on the
+bore at the current temperature and computes those blocks; :class:`Shards` spreads the
+take's windows over ``workers`` shards, each in a process of its own that keeps its
+objectives from one step to the next (only the parameter values travel), or runs one
+shard here. Every window's numbers depend only on its own data and the values it is
+given, and the parent sums them in window order: 1 or N workers give the same fit.
+
+**The temperature's terms.** A shard's objectives are built on the kernel at ``T_k``;
+each window's residual slope ``dr/dT`` and curvature ``d2r/dT2`` are measured once per pass
+(:meth:`Shard.measure`, on the kernels at ``T_k -+ DELTA_T_C``), and within the pass the
+residual is their quadratic in T. The curvature matters: T is so well determined (a few
+hundredths of a degree on the shipped instrument) that a linear model's error over the
+1 degC from the front end's estimate stopped each pass at 60-70 % of the way.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import logging
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from mpipe.core.statistics import integrated_autocorrelation
+from mpipe.core.workers import process_pool
+from mpipe.inversion.fit.objective import F2Objective
+from mpipe.inversion.fit.sensitivities import load_compiled
+from mpipe.inversion.fit.window import window_objective
+from mpipe.inversion.preparation.kernel import KernelSource
+from mpipe.inversion.trust.diagnostics import playing_difference
+from mpipe.inversion.trust.uncertainty import residual_grams
+
+log = logging.getLogger(__name__)
+
+#: Step of the temperature derivatives' central differences, degC.
+DELTA_T_C = 0.5
+#: Windows of a note warm-started one from the other in one chain (a chain's first window
+#: starts from the take's cold start): fixed, so that chains, and the answer, do not depend
+#: on the number of workers.
+CHAIN = 16
+
+
+@dataclass(frozen=True)
+class Blocks:
+    """Each window's blocks of the normal equations over its own columns (L = f + s + 1).
+
+    Attributes
+    ----------
+    grams : ndarray
+        ``J^T J``, (w, L, L), Pa^2 per (unit ln x or degC) squared.
+    grads : ndarray
+        ``J^T r``, (w, L).
+    rr : ndarray
+        ``r^T r``, (w,), Pa^2.
+    n : ndarray
+        Samples of each residual, (w,).
+    n_eff : ndarray
+        Effective samples ``n / tau`` of each residual (measured with the Taylor terms; NaN
+        otherwise), (w,).
+    """
+
+    grams: np.ndarray
+    grads: np.ndarray
+    rr: np.ndarray
+    n: np.ndarray
+    n_eff: np.ndarray
+
+    @staticmethod
+    def join(parts: Sequence[Blocks]) -> Blocks:
+        """The blocks of several shards, in order."""
+        return Blocks(*(np.concatenate([getattr(b, f) for b in parts]) for f in
+                        ("grams", "grads", "rr", "n", "n_eff")))  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Layout:
+    """The fit's parameter names and their places in the objectives' ``free`` order.
+
+    Attributes
+    ----------
+    names : tuple of str
+        The fit's reed parameters, fast then slow.
+    n_fast : int
+        How many are per window.
+    order : ndarray
+        For each of the objectives' free parameters, its index in ``names``.
+    """
+
+    names: tuple[str, ...]
+    n_fast: int
+    order: np.ndarray
+
+    def free_values(self, fast: np.ndarray, slow: np.ndarray) -> np.ndarray:
+        """Free-order values of one window from its fast and its note's slow values."""
+        return np.concatenate([fast, slow])[self.order]
+
+    def to_names(self, jac_free: np.ndarray, x_free: np.ndarray) -> np.ndarray:
+        """A Jacobian over the free parameters (per SI unit) as one over ln x, names order."""
+        jz = jac_free * x_free
+        out = np.empty_like(jz)
+        out[:, self.order] = jz
+        return out
+
+
+@dataclass(frozen=True)
+class ShardSpec:
+    """What a shard is built from (pickled once to its worker)."""
+
+    problems: tuple
+    calibration: object
+    fs: float
+    fingerings: dict
+    base: object
+    config: object
+    layout: Layout
+    t: float
+
+
+class Shard:
+    """A run of windows with their objectives on the bore at one temperature.
+
+    Each window keeps its accepted point (free values ``x``, residual ``r0`` on the kernel
+    at ``t``) and a Jacobian ``J0`` over the reed's ln parameters there: exact after
+    :meth:`measure` and :meth:`exact` (the model's forward sensitivities, ~9 model runs),
+    then updated by Broyden's secant rule at every trial (:meth:`trial`, one run). The
+    temperature's column is the pass's Taylor terms, exact in T.
+    """
+
+    def __init__(self, spec: ShardSpec):
+        self.spec = spec
+        self.source = KernelSource(spec.calibration, spec.fs, spec.fingerings)
+        self.problems = list(spec.problems)
+        self.rebuild(spec.t)
+
+    def rebuild(self, t: float) -> None:
+        """Objectives on the kernels at ``t`` degC (the Taylor terms and points forgotten)."""
+        self.t = float(t)
+        self.source.built.clear()  # the kernels of other temperatures are not used again
+        self.objectives = [self._objective(q, self.t) for q in self.problems]
+        self.taylor: list | None = None
+        self.accepted: list | None = None  # per window (x, r0, J0)
+        self.pending: list | None = None
+
+    def _objective(self, q, t: float) -> F2Objective:
+        kernel, _ = self.source.named(t, q.fingering)
+        return window_objective(kernel, q.target, self.spec.base, self.spec.config)
+
+    def entries(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each window's entry impedance (Pa s/m^3) and air density (kg/m^3) at ``t``."""
+        return (np.array([o.kernel.z0 for o in self.objectives]),
+                np.array([o.kernel.rho for o in self.objectives]))  # fmt: skip
+
+    def _in_t(self, i: int, r0: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The residual at ``t`` and its T column, from the pass's Taylor terms."""
+        if self.taylor is None:
+            return r0, np.zeros_like(r0)
+        slope, curvature = self.taylor[i]
+        dt = t - self.t
+        return r0 + dt * slope + 0.5 * dt**2 * curvature, slope + dt * curvature
+
+    def _block(self, i: int, r0: np.ndarray, j0: np.ndarray, t: float) -> tuple:
+        r, d_t = self._in_t(i, r0, t)
+        j = np.concatenate([j0, d_t[:, None]], axis=1)
+        return j.T @ j, j.T @ r, float(r @ r), r.size
+
+    @staticmethod
+    def _blocks(parts: list, n_eff=None) -> Blocks:
+        grams, grads, rr, n = (np.array(v) for v in zip(*parts, strict=True))
+        n_eff = np.full(len(n), np.nan) if n_eff is None else np.asarray(n_eff, float)
+        return Blocks(grams, grads, rr, n.astype(float), n_eff)
+
+    def _commit(self, accept: bool) -> None:
+        if accept and self.pending is not None:
+            self.accepted = self.pending
+        self.pending = None
+
+    def _exact(self, i: int, x: np.ndarray):
+        out = self.objectives[i].jacobian(x)
+        if out is None:
+            return None
+        r0, jac = out
+        j0 = self.spec.layout.to_names(jac, x)
+        if not (np.isfinite(j0).all() and np.isfinite(r0).all()):
+            return None
+        return r0, j0
+
+    def exact(self, values: np.ndarray, t: float, accept: bool = False) -> Blocks | None:
+        """Every window's blocks at ``values`` (w, p) and ``t``, its Jacobian exact.
+
+        The point becomes each window's accepted one; None if one window cannot be played.
+        """
+        self._commit(accept)
+        points, parts = [], []
+        for i, x in enumerate(values):
+            out = self._exact(i, x)
+            if out is None:
+                return None
+            points.append((np.array(x, float), *out))
+            parts.append(self._block(i, out[0], out[1], t))
+        self.accepted = points
+        return self._blocks(parts)
+
+    def trial(self, values: np.ndarray, t: float, accept: bool = False) -> Blocks | None:
+        """Every window's blocks at a trial point, its Jacobian a secant one.
+
+        The Jacobian is updated by Broyden's rule from the accepted point (one model run
+        per window); ``accept``: the previous trial was accepted (it becomes the point
+        updated from). None if one window cannot be played.
+        """
+        self._commit(accept)
+        pending, parts = [], []
+        for i, x in enumerate(values):
+            x0, r_acc, j_acc = self.accepted[i]
+            r0 = self.objectives[i].residuals(x)
+            if _penalised(self.objectives[i], r0):
+                return None
+            dz = np.log(x) - np.log(x0)
+            j0 = j_acc.copy()
+            names_dz = np.empty_like(dz)
+            names_dz[self.spec.layout.order] = dz
+            dd = float(names_dz @ names_dz)
+            if dd > 0:
+                j0 += np.outer((r0 - r_acc) - j_acc @ names_dz, names_dz / dd)
+            pending.append((np.array(x, float), r0, j0))
+            parts.append(self._block(i, r0, j0, t))
+        self.pending = pending
+        return self._blocks(parts)
+
+    def measure(self, values: np.ndarray) -> Blocks | None:
+        """The Taylor terms in T at ``values`` (w, p), then the exact blocks there (at ``t``)."""
+        self.taylor = None
+        terms, n_eff = [], []
+        for i, x in enumerate(values):
+            r = self.objectives[i].residuals(x)
+            if _penalised(self.objectives[i], r):
+                return None
+            sides = []
+            for sign in (-1.0, 1.0):
+                side = self._objective(self.problems[i], self.t + sign * DELTA_T_C)
+                r_side = side.residuals(x)
+                if _penalised(side, r_side):
+                    return None
+                sides.append(r_side)
+            terms.append(((sides[1] - sides[0]) / (2 * DELTA_T_C),
+                          (sides[1] - 2.0 * r + sides[0]) / DELTA_T_C**2))  # fmt: skip
+            n_eff.append(r.size / integrated_autocorrelation(r))
+        self.taylor = terms
+        out = self.exact(values, self.t)
+        if out is None:
+            return None
+        return Blocks(out.grams, out.grads, out.rr, out.n, np.array(n_eff))
+
+    def fast_fit(self, i: int, fast0: np.ndarray, slow: np.ndarray, steps: int = 12):
+        """Window i's fast controls with its note's constants held: ``(fast, r^T r)``.
+
+        A small damped Gauss-Newton from ``fast0`` on forward differences; None when the
+        model cannot play the start.
+        """
+        lay = self.spec.layout
+        f = lay.n_fast
+        obj = self.objectives[i]
+        bounds = self.problems[i].bounds
+        lo, hi = np.log(bounds[:f, 0]), np.log(bounds[:f, 1])
+
+        def residual(z):
+            r = obj.residuals(lay.free_values(np.exp(z), slow))
+            return None if _penalised(obj, r) else r
+
+        z = np.clip(np.log(np.asarray(fast0, float)), lo, hi)
+        r = residual(z)
+        if r is None:
+            return None
+        cost, mu = float(r @ r), 1e-3
+        for _ in range(steps):
+            jf = _difference(residual, z, r, hi)
+            if jf is None:
+                break
+            a, g = jf.T @ jf, jf.T @ r
+            d0 = np.linalg.lstsq(a, -g, rcond=None)[0]
+            if float(d0 @ a @ d0) <= 0.05**2 * cost / max(r.size - f, 1):  # within 0.05 SE
+                break
+            d = np.linalg.solve(a + mu * np.diag(np.maximum(np.diag(a), 1e-300)), -g)
+            z_new = np.clip(z + d, lo, hi)
+            trial = residual(z_new)
+            new = float(trial @ trial) if trial is not None else math.inf
+            if new < cost:
+                z, r, cost = z_new, trial, new
+                mu = max(mu / 3.0, 1e-9)
+            else:
+                mu *= 4.0
+                if mu > 1e8:
+                    break
+        return np.exp(z), cost
+
+    def warm(self, chains: Sequence[Sequence[int]], starts: Sequence[Sequence[np.ndarray]],
+             slow: np.ndarray) -> list:  # fmt: skip
+        """Each chain of windows (shard indices), warm one from the other.
+
+        Returns every window's fast values, or None when none of its starts plays.
+        ``starts[c]`` are the chain's first window's starts, tried in order; a later window
+        tries the one before it first.
+        """
+        out = [None] * len(self.problems)
+        for chain, first in zip(chains, starts, strict=True):
+            previous = None
+            for i in chain:
+                tries = ([previous] if previous is not None else []) + list(first)
+                for x0 in tries:
+                    found = self.fast_fit(i, x0, slow)
+                    if found is not None:
+                        out[i] = previous = found[0]
+                        break
+        return out
+
+    def final(self, values: np.ndarray, t: float, floor: float) -> list[dict]:
+        """Each window's residual figures and noise grams at its solution (exact Jacobian)."""
+        out = []
+        p_loc = len(self.spec.layout.names) + 1
+        for i, x in enumerate(values):
+            r0, j0 = self._exact(i, x)
+            r, d_t = self._in_t(i, r0, t)
+            j = np.concatenate([j0, d_t[:, None]], axis=1)
+            pw = self.problems[i].target.p
+            n_eff = r.size / integrated_autocorrelation(r)
+            gram, excess, n_eff, dof, extra = residual_grams(j, r, pw, self.spec.fs, floor,
+                                                             n_eff, n_eff - p_loc)  # fmt: skip
+            f2 = float(np.linalg.norm(r))
+            rel = f2 / (float(np.linalg.norm(pw)) + 1e-300)
+            played = playing_difference(pw, pw - r, self.spec.fs)
+            out.append(dict(gram=gram, excess=excess, n_eff=n_eff, dof=dof, tau=r.size / n_eff,
+                            sigma=f2 / math.sqrt(max(dof, 1.0)), f2=f2, relative_residual=rel,
+                            playing=played, **extra))  # fmt: skip
+        return out
+
+
+#: Step of the fast controls' forward differences, in ln x (0.01 %, as the window fit's).
+DIFF_STEP = 1e-4
+
+
+def _difference(residual, z: np.ndarray, r: np.ndarray, hi: np.ndarray):
+    """Forward-difference Jacobian of ``residual`` in ``z`` (backwards at an upper bound)."""
+    cols = []
+    for k in range(z.size):
+        h = DIFF_STEP if z[k] + DIFF_STEP <= hi[k] else -DIFF_STEP
+        zk = z.copy()
+        zk[k] += h
+        rk = residual(zk)
+        if rk is None:
+            return None
+        cols.append((rk - r) / h)
+    return np.column_stack(cols)
+
+
+def _penalised(obj: F2Objective, r: np.ndarray) -> bool:
+    """The residual is the objective's penalty vector (an infeasible candidate)."""
+    return bool(np.all(r == r[0])) and abs(r[0]) * math.sqrt(r.size) >= 0.999 * obj.penalty
+
+
+# The shard of a worker process (set once per worker by its pool's initializer).
+_WORKER_SHARD: list = []
+
+
+def _init_shard(spec: ShardSpec) -> None:
+    _WORKER_SHARD[:] = [Shard(spec)]
+
+
+def _shard_call(method: str, args: tuple):
+    # Top-level function: picklable for process pools.
+    return getattr(_WORKER_SHARD[0], method)(*args)
+
+
+class Shards(contextlib.AbstractContextManager):
+    """The take's windows in ``len(ranges)`` shards, here or one process each.
+
+    Parameters
+    ----------
+    spec : ShardSpec
+        Every window (its ``problems``) and what the shards are built from.
+    ranges : sequence of (int, int)
+        Each shard's windows, ``problems[a:b]``, contiguous and in order.
+    processes : bool
+        One worker process per shard (else every shard here, one after the other).
+    """
+
+    def __init__(self, spec: ShardSpec, ranges: Sequence[tuple[int, int]], processes: bool):
+        self.ranges = list(ranges)
+        self.spent: dict = {}  # method -> [calls, wall s]: where the fit's time went
+        self._stack = contextlib.ExitStack()
+        self._pools, self._local = [], []
+        specs = [_sub(spec, a, b) for a, b in self.ranges]
+        if processes and len(specs) > 1:
+            load_compiled()  # once here: the forked workers inherit it
+            for s in specs:
+                self._pools.append(self._stack.enter_context(
+                    process_pool(1, initializer=_init_shard, initargs=(s,))))  # fmt: skip
+        else:
+            self._local = [Shard(s) for s in specs]
+
+    def __exit__(self, *exc) -> None:
+        log.debug("take fit's shards: %s", ", ".join(f"{m} {n} x {t:.2f} s" for m, (n, t) in
+                                                      self.spent.items()))  # fmt: skip
+        self._stack.__exit__(*exc)
+
+    def call(self, method: str, per_shard: Sequence[tuple]) -> list:
+        """``method(*per_shard[k])`` of every shard k, results in shard order."""
+        t0 = time.perf_counter()
+        if self._local:
+            out = [getattr(s, method)(*a) for s, a in zip(self._local, per_shard, strict=True)]
+        else:
+            futures = [pool.submit(_shard_call, method, a)
+                       for pool, a in zip(self._pools, per_shard, strict=True)]  # fmt: skip
+            out = [f.result() for f in futures]
+        spent = self.spent.setdefault(method, [0, 0.0])
+        spent[0] += 1
+        spent[1] += time.perf_counter() - t0
+        return out
+
+    def split(self, rows: np.ndarray) -> list[np.ndarray]:
+        """Rows of a per-window array, shard by shard."""
+        return [rows[a:b] for a, b in self.ranges]
+
+
+def _sub(spec: ShardSpec, a: int, b: int) -> ShardSpec:
+    return dataclasses.replace(spec, problems=tuple(spec.problems[a:b]))
+
+
+def shard_ranges(chains: Sequence[Sequence[int]], shards: int) -> list[tuple[int, int]]:
+    """Contiguous window ranges, whole chains each, balanced over ``shards`` (>= 1)."""
+    total = sum(len(c) for c in chains)
+    shards = max(1, min(shards, len(chains)))
+    bounds, acc, k = [0], 0, 1
+    for chain in chains:
+        acc += len(chain)
+        if k < shards and acc >= total * k / shards:
+            bounds.append(acc)
+            k += 1
+    if bounds[-1] != total:
+        bounds.append(total)
+    return list(zip(bounds[:-1], bounds[1:], strict=True))
+
+
+__all__ = ["CHAIN", "DELTA_T_C", "Blocks", "Layout", "Shard", "ShardSpec", "Shards",
+           "shard_ranges"]  # fmt: skip
