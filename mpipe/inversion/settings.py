@@ -330,7 +330,7 @@ class InversionConfig:
         "with one sandwich covariance (mpipe.inversion.whole_take.estimator); window: "
         "every window's eight parameters fitted on its own after a kernel-temperature fit "
         "(the paper's method, the reference)",
-        default="window",
+        default="take",
     )
     pooling: Literal["window", "note"] = spec(
         "",

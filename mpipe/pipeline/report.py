@@ -266,6 +266,13 @@ def _temperature_words(val: dict, inv: dict) -> str:
     fit = inv.get("temperature") or {}
     front = f"{fmt(val['temperature_c'], 4)} °C from the wave separation"
     note = f" Note: {fit['note']}." if fit.get("note") else ""
+    if fit.get("source") == "take fit":
+        return (
+            f"{front}; the bore model's, fitted to the playing with the reed in one fit of the "
+            f"take, {fmt(fit['temperature_c'], 4)} ± {fmt(fit['temperature_se_c'], 2)} °C (used "
+            "by the inversion and the resynthesis; its share of every standard error is the "
+            f"budget's temperature component).{note}"
+        )
     if fit.get("source") == "fit":
         return (
             f"{front}; the bore model's, fitted to the playing, {fmt(fit['temperature_c'], 4)}"

@@ -108,40 +108,31 @@ def test_report_says_whether_the_temperature_drifts(finished):
 
 
 def test_interrupted_run_resumes_and_redoes_nothing_done(finished, take, pipeline, monkeypatch):
-    import mpipe.inversion.fit.execution as tracking  # where windows call invert_window
+    # the take's one fit (inversion.estimator: take) is one computation: a Ctrl-C during it
+    # leaves no inversion manifest, and the rerun redoes the inversion only, to the same
+    # table (the per-window estimator's checkpoints: tests/inversion/whole_take/test_tracking.py)
+    import mpipe.inversion.whole_take.take_estimate as joint  # where the take's fit is called
 
     out, run, _ = finished
     before = pd.read_csv(run.folder / "inversion" / "windows.csv", keep_default_na=False)
-    # a finished stage keeps no resumable state (issue 19: no inversion/partial/ left)
     partial = run.folder / "inversion" / "partial"
-    assert not partial.exists()
-    # redo the inversion and press Ctrl-C during its second window: no manifest, the
-    # windows finished before it are checkpointed
+    assert not partial.exists()  # a finished stage keeps no resumable state (issue 19)
     (run.folder / "inversion" / "manifest.json").unlink()
-    real = tracking.invert_window
+    real = joint.fit_take
     calls = []
 
     def interrupted(*a, **k):
-        if calls:
-            raise KeyboardInterrupt
-        calls.append(a[3])
-        return real(*a, **k)
+        raise KeyboardInterrupt
 
-    monkeypatch.setattr(tracking, "invert_window", interrupted)
+    monkeypatch.setattr(joint, "fit_take", interrupted)
     with pytest.raises(KeyboardInterrupt):
         run_take(pipeline, take.calibration, [take.audio], out, say=lambda s: None)
     assert not (run.folder / "inversion" / "manifest.json").exists()
-    checkpoints = sorted((partial / "windows").glob("w*.json"))
-    assert 1 <= len(checkpoints) < len(before)
-    calls = []
-    monkeypatch.setattr(
-        tracking, "invert_window", lambda *a, **k: calls.append(a[3]) or real(*a, **k)
-    )
+    monkeypatch.setattr(joint, "fit_take", lambda *a, **k: calls.append(1) or real(*a, **k))
     again = run_take(pipeline, take.calibration, [take.audio], out, say=lambda s: None)
     status = {k: r.status for k, r in again.records.items()}
     assert status["separation"] == status["translation"] == status["validation"] == "skipped"
-    assert status["inversion"] == "done"
-    assert len(calls) == len(before) - len(checkpoints)  # only the lost windows were redone
+    assert status["inversion"] == "done" and len(calls) == 1
     assert not partial.exists()
     after = pd.read_csv(run.folder / "inversion" / "windows.csv", keep_default_na=False)
     np.testing.assert_allclose(after["k"], before["k"], rtol=1e-9)
@@ -184,6 +175,7 @@ def test_every_door_gives_the_same_table(finished, take, pipeline, tmp_path):
     import mpipe
     from mpipe.inversion.preparation.conditioning import plan_inversion
     from mpipe.inversion.settings import PARAMETER_NAMES
+    from mpipe.inversion.whole_take.shared_errors import FrontEnd
     from mpipe.measurement.calibration import load_calibration
     from mpipe.measurement.separation.stage import separate
     from mpipe.measurement.takes import read_take
@@ -205,6 +197,11 @@ def test_every_door_gives_the_same_table(finished, take, pipeline, tmp_path):
     inv = pipeline.inversion
     plan = plan_inversion(tr.p, t.fs, pipeline.conditioning, inv.window_s, inv.hop_s)
     starts = plan.loc[plan["invert"], "start"].tolist()
+    # the front end's estimate with its SEs, as mpipe run passes it: its temperature's SE is
+    # the prior of the take's temperature (without it the prior is the weak default)
+    front = FrontEnd(tr.p0, tr.u0, tr.temperature_c, sep.track.level, sep.track.level_se,
+                     pipeline.separation.band_edge_hz + pipeline.separation.band_taper_hz,
+                     pipeline.translation)  # fmt: skip
     via_api = mpipe.invert_take(
         tr.p,
         tr.u,
@@ -214,6 +211,7 @@ def test_every_door_gives_the_same_table(finished, take, pipeline, tmp_path):
         pipeline.executor,
         windows=starts,
         temperature_c=tr.temperature_c,
+        front_end=front,
     ).tracking.table
 
     # issue 33: load_run reads the folders of mpipe invert and mpipe separate too, and no

@@ -26,6 +26,7 @@ from mpipe.inversion.table.tables import segment_lines, write_correlations, writ
 from mpipe.inversion.trust.notes import segment_summary
 from mpipe.inversion.trust.status import summary_line
 from mpipe.inversion.trust.status_words import reason_words
+from mpipe.inversion.whole_take.shared_errors import FrontEnd
 from mpipe.inversion.whole_take.take import RunOptions, WindowPlan, invert_take
 from mpipe.inversion.whole_take.tracking import ProgressBar
 from mpipe.measurement.calibration import load_calibration, per_note
@@ -213,6 +214,23 @@ def _at_inversion_rate(
     return fs, p, u
 
 
+def _front_end(args: argparse.Namespace, cfg, fs: float) -> FrontEnd | None:
+    """The front end's estimate `mpipe separate` wrote beside the signals, or None.
+
+    Passed as `mpipe run` passes it (its temperature's SE is the prior of the take's
+    temperature); None when the file has none (model output) or was written at another
+    rate than the one inverted.
+    """
+    with np.load(args.mouthpiece) as data:
+        if "theta_level_se" not in data.files or "p0" not in data.files:
+            return None
+        if abs(float(np.ravel(data["fs"])[0]) - fs) > 1e-6 * fs:
+            return None
+        arrays = {k: data[k] for k in ("p0", "u0", "temperature_c", "theta_level",
+                                       "theta_level_se")}  # fmt: skip
+    return FrontEnd.of(arrays, cfg.separation, cfg.translation)
+
+
 def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
     """The window plan and the take's inversion (kernel temperature, windows, kernel, air)."""
     inv = cfg.inversion
@@ -245,7 +263,7 @@ def _track(args: argparse.Namespace, cfg, cal, fs: float, p, u, temperature):
     bar = ProgressBar(len(starts))
     try:
         take = invert_take(p, u, fs, cal, inv, cfg.executor, windows=WindowPlan.of(chosen),
-                           temperature_c=temperature,
+                           temperature_c=temperature, front_end=_front_end(args, cfg, fs),
                            options=RunOptions(progress=bar, client=client))  # fmt: skip
     except ValueError as exc:
         raise UserError(f"{args.mouthpiece}: {exc}") from None

@@ -136,6 +136,32 @@ class TakeSystem:
         take = self.n_notes * s + np.arange(t)
         return np.concatenate([note * s + np.arange(s), take]).astype(int)
 
+    def frozen(self, fast: np.ndarray, slow: np.ndarray, take: np.ndarray) -> TakeSystem:
+        """The system with some unknowns held: their rows and columns cut from every gram.
+
+        ``fast`` (W, f), ``slow`` (N, s) and ``take`` (t,) are boolean masks of the unknowns
+        held (an estimate on a bound whose step points out of it). A held unknown keeps a
+        unit diagonal (split over the windows that share it) and a zero gradient, so its
+        step is exactly zero and it couples to nothing: the system of the others alone.
+        """
+        f, t = self.sizes.fast, self.sizes.take
+        held = np.concatenate([np.asarray(fast, bool), np.asarray(slow, bool)[self.notes],
+                               np.broadcast_to(np.asarray(take, bool), (len(self.notes), t))],
+                              axis=1)  # fmt: skip
+        if not held.any():
+            return self
+        share = np.ones(held.shape)
+        counts = np.bincount(self.notes, minlength=self.n_notes).astype(float)
+        share[:, f : f + self.sizes.slow] = 1.0 / counts[self.notes][:, None]
+        share[:, f + self.sizes.slow :] = 1.0 / len(self.notes)
+        keep = (~held).astype(float)
+        grams = self.grams * keep[:, :, None] * keep[:, None, :]
+        w, c = np.nonzero(held)
+        grams[w, c, c] = share[w, c]
+        info = self.prior_information * np.outer(~np.asarray(take, bool), ~np.asarray(take, bool))
+        grad = np.where(np.asarray(take, bool), 0.0, self.prior_gradient)
+        return TakeSystem(self.sizes, self.notes, grams, self.gradients * keep, info, grad)
+
     def _blocks(self, mu: float):
         """Per window: ``F_i^-1`` (damped), ``Q_i``, and the shared block of its gram."""
         f = self.sizes.fast

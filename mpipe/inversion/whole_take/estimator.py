@@ -68,12 +68,18 @@ from mpipe.reed.parameters import ReedParameters
 
 log = logging.getLogger(__name__)
 
-#: A pass ends within this many standard errors of its minimum (0.05 SE moves no estimate
+#: A pass ends within this many standard errors of its minimum (0.1 SE moves no estimate
 #: by anything its error bar can show).
-SE_TOLERANCE = 0.05
+SE_TOLERANCE = 0.1
 #: A pass after which the kernels may be rebuilt stops within this many SEs of its
 #: minimum: only the last pass needs :data:`SE_TOLERANCE`.
 LOOSE_SE = 1.0
+#: An estimate this close to a bound (in ln x; degC for T) is on it (the per-window fit's
+#: ``inversion.bound_tolerance`` default).
+BOUND_TOLERANCE = 1e-3
+#: Secant (Broyden) updates of the Jacobian before it is made exact again; a rejected step
+#: makes it exact at once (a secant Jacobian that mispredicts the fall has served).
+SECANT_STEPS = 6
 #: Most damped Gauss-Newton steps tried in one pass.
 MAX_STEPS = 40
 #: Most passes (kernels rebuilt at the new temperature).
@@ -176,6 +182,8 @@ class TakeFit:
     z0, rho : ndarray
         Each window's entry impedance (Pa s/m^3) and air density (kg/m^3) at the fit's
         temperature, on its fingering's bore.
+    history : ndarray
+        Each window's F2 (Pa) at every point the fit took, (points, W).
     """
 
     names: tuple[str, ...]
@@ -195,6 +203,7 @@ class TakeFit:
     excluded: dict
     z0: np.ndarray
     rho: np.ndarray
+    history: np.ndarray
 
     def system(self) -> TakeSystem:
         """The weighted normal equations at the solution, the prior included."""
@@ -280,6 +289,8 @@ class TakeProblem:
     def __init__(self, shards: Shards, problems, layout: Layout, sizes, prior, boxes):
         self.shards, self.problems, self.layout = shards, problems, layout
         self.sizes, self.prior, self.boxes = sizes, prior, boxes
+        self.history: list[np.ndarray] = []  # every window's F2 (Pa) at each point taken
+        self.n_data = math.nan  # the windows' effective samples at the last measurement
 
     def blocks(self, state: FitState, method: str = "trial", accept: bool = False):
         """Every window's blocks at ``state`` (None when a window cannot be played).
@@ -291,6 +302,36 @@ class TakeProblem:
         args = [(v,) if method == "measure" else (v, state.t, accept) for v in parts]
         out = self.shards.call(method, args)
         return None if any(b is None for b in out) else Blocks.join(out)
+
+    def free_system(self, system: TakeSystem, state: FitState):
+        """The system without the estimates on a bound that its step pushes out of it.
+
+        Returns the system (those unknowns held, :meth:`TakeSystem.frozen`) and its undamped
+        Gauss-Newton step. An estimate on a bound is then judged by the other unknowns'
+        step alone: the step out of the box would never shrink, and a note the model cannot
+        play within its bounds would hold the whole take's fit at its step limit.
+        """
+        (flo, fhi), (slo, shi), (tlo, thi) = self.boxes
+        zf, zs = np.log(state.fast), np.log(state.slow)
+        tol = BOUND_TOLERANCE
+        base, held = system, None
+        for _ in range(4):
+            d_fast, d_slow, d_t = system.step(0.0)
+            masks = (
+                ((zf <= flo + tol) & (d_fast < 0)) | ((zf >= fhi - tol) & (d_fast > 0)),
+                ((zs <= slo + tol) & (d_slow < 0)) | ((zs >= shi - tol) & (d_slow > 0)),
+                np.array([(state.t <= tlo + tol and d_t[0] < 0) or
+                          (state.t >= thi - tol and d_t[0] > 0)]),
+            )  # fmt: skip
+            if held is not None:
+                masks = tuple(m | h for m, h in zip(masks, held, strict=True))
+            if held is not None and all((m == h).all() for m, h in zip(masks, held, strict=True)):
+                break
+            if not any(m.any() for m in masks):
+                break
+            held = masks
+            system = base.frozen(*held)
+        return system, (d_fast, d_slow, d_t)
 
     def moved(self, state: FitState, d_fast, d_slow, d_t) -> FitState:
         """``state`` moved by a step (ln fast, ln slow, T), clipped into the bounds."""
@@ -315,23 +356,30 @@ def joint_pass(take: TakeProblem, state: FitState, tolerance: float = SE_TOLERAN
             raise ValueError("a window's model cannot play at the start of a pass of the "
                              "take's fit")  # fmt: skip
         weight = pooled_weight(blocks)
+        take.n_data = float(np.sum(blocks.n_eff))  # effective samples, measured with T's terms
     else:
         blocks, weight = start
     cost = _cost(blocks, weight, state.t, take.prior)
-    n_data = float(np.sum(blocks.n_eff))
+    take.history.append(np.sqrt(blocks.rr))
+    n_data = take.n_data
     n_par = state.fast.size + state.slow.size + 1
     mu, nu, message, converged, steps = 1e-3, 2.0, "step limit", False, 0
-    accepted, secant = False, False  # the last trial was taken; the Jacobian is a secant one
+    accepted, secant = False, 0  # the last trial was taken; secant updates since exact
     for steps in range(1, max_steps + 1):  # noqa: B007 - the count is reported
         system = _system(blocks, weight, take.problems, take.sizes, state.t, take.prior)
+        system, newton = take.free_system(system, state)
         sigma2 = cost / max(n_data - n_par, 1.0)
-        if system.predicted_fall(*system.step(0.0)) <= tolerance**2 * sigma2:
-            if not secant:
-                message, converged = f"within {tolerance:g} SE of the minimum", True
-                break
-            # converged on a secant Jacobian: checked again on the exact one
+        decrement = system.predicted_fall(*newton)
+        done = decrement <= tolerance**2 * sigma2
+        log.debug("step %d: cost %.6g, decrement %.3g SE^2, mu %.3g, secant %d", steps, cost,
+                  decrement / sigma2, mu, secant)  # fmt: skip
+        if done and not secant:
+            message, converged = f"within {tolerance:g} SE of the minimum", True
+            break
+        if done or secant >= SECANT_STEPS or (secant and not accepted):
+            # converged on a secant Jacobian, or it has served long or badly: made exact
             blocks = take.blocks(state, "exact", accepted)
-            accepted, secant = False, False
+            accepted, secant = False, 0
             continue
         new_state = take.moved(state, *system.step(mu))
         d = (
@@ -341,12 +389,13 @@ def joint_pass(take: TakeProblem, state: FitState, tolerance: float = SE_TOLERAN
         )
         predicted = system.predicted_fall(*d)
         trial = take.blocks(new_state, "trial", accepted)
-        secant = True
+        secant += 1
         new_cost = _cost(trial, weight, new_state.t, take.prior) if trial else math.inf
         gain = (cost - new_cost) / predicted if predicted > 0 else -1.0
         accepted = gain > 0
         if accepted:
             state, blocks, cost = new_state, trial, new_cost
+            take.history.append(np.sqrt(blocks.rr))
             mu *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
             nu = 2.0
         else:

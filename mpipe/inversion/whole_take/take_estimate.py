@@ -15,11 +15,13 @@ shipped instrument, so it only keeps the fit within the air of a room).
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
+from mpipe.inversion.trust.window_errors import CORRELATION_COLUMNS, correlation_records
 from mpipe.inversion.whole_take.estimator import TakeData
 from mpipe.inversion.whole_take.take_fit import fit_take
 from mpipe.inversion.whole_take.take_rows import window_rows
@@ -78,9 +80,12 @@ def estimate_take(
     fs, plan, config = data.fs, data.windows, data.config
     prior = temperature_prior(front_c, front_se_c if carried else None)
     reach = config.temperature_range_c
+    clock = time.perf_counter()
     fit, cold, cold_row = fit_take(data, prior=prior, t_range=(front_c - reach, front_c + reach),
                                    executor=executor, workers=workers)  # fmt: skip
-    table, t_se = window_rows(fit, cold, config, fs)
+    table, t_se, correlations = window_rows(fit, cold, config, fs)
+    # the fit is one computation: each window is charged its share of its wall time
+    table["wall_time_s"] = (time.perf_counter() - clock) / max(len(table), 1)
     table = _with_plan_columns(table, fit, plan, fs, config)
     table = _with_excluded(table, fit, plan, fs, config)
     if len(table) and "cold_starts_agreeing" in cold_row:
@@ -92,8 +97,13 @@ def estimate_take(
         note="" if fit.converged else f"the take's fit did not converge: {fit.message}",
         cold_starts_agreeing=None if agreeing is None or agreeing != agreeing else int(agreeing),
     )  # fmt: skip
-    tracking = Tracking(table=table, histories={}, zero_mean=data.zero_mean,
-                        correlations=pd.DataFrame())  # fmt: skip
+    # each window's F2 over the take's fit, by its number in the table
+    number = {float(t): int(w) for t, w in zip(table["t_start_s"], table["window"], strict=True)}
+    histories = {number[q.start / fs]: fit.history[:, i] for i, q in enumerate(fit.problems)}
+    records = [row for t, names, matrix in correlations
+               for row in correlation_records(number[t], t, names, matrix)]  # fmt: skip
+    frame = pd.DataFrame(records, columns=list(CORRELATION_COLUMNS))
+    tracking = Tracking(table, histories, data.zero_mean, frame)
     return JointResult(tracking, temperature)
 
 

@@ -113,7 +113,7 @@ def fit_take(
     rho = np.concatenate([e[1] for e in entries])
     fit = TakeFit(layout.names, sizes, tuple(problems), state.fast, state.slow, state.t, blocks,
                   records, weight, prior, total, passes, converged, message, excluded, z0,
-                  rho)  # fmt: skip
+                  rho, np.array(take.history))  # fmt: skip
     return fit, cold, cold_row
 
 

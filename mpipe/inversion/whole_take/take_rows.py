@@ -80,18 +80,24 @@ def window_rows(fit: TakeFit, base: ReedParameters, config: InversionConfig, fs:
 
     Returns
     -------
-    (pandas.DataFrame, float)
-        The table in time order, and the temperature's standard error, degC.
+    (pandas.DataFrame, float, list)
+        The table in time order, the temperature's standard error (degC), and each
+        window's correlation of its searched parameters (their ln, the joint covariance's,
+        T's share included) as ``(t_start_s, names, matrix)``.
     """
     cov, cov_model = take_covariances(fit)
     figures = fit.records
     p = len(fit.names)
     n = int(round(config.window_s * fs))
     closure = config.contact == "closure"
-    rows, t_se = [], math.nan
+    rows, t_se, correlations = [], math.nan, []
+    order = [fit.names.index(name) for name in config.search_parameters]
     for i, q in enumerate(fit.problems):
         reed = fit.reed(i, base, closure)
-        theta, share, v = _split(cov.window(i), p)
+        full = cov.window(i)
+        theta, share, v = _split(full, p)
+        correlations.append((q.start / fs, tuple(config.search_parameters),
+                             _correlation(full[np.ix_(order, order)])))  # fmt: skip
         t_se = math.sqrt(v) if v > 0 else math.nan
         model = None if cov_model is None else _split(cov_model.window(i), p)[0]
         row = blank_row(q.start, n, fs, config, cold=False)
@@ -115,7 +121,15 @@ def window_rows(fit: TakeFit, base: ReedParameters, config: InversionConfig, fs:
         row["status"], row["status_reason"] = window_status(row, required_quantities(config))
         rows.append(row)
     table = window_frame(rows)
-    return typed(classify(table, config, [q.note for q in fit.problems])), t_se
+    return typed(classify(table, config, [q.note for q in fit.problems])), t_se, correlations
+
+
+def _correlation(cov: np.ndarray) -> np.ndarray:
+    """Correlation matrix of a covariance (NaN where a variance is zero)."""
+    d = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c = cov / np.outer(d, d)
+    return np.where(np.outer(d, d) > 0, c, np.nan)
 
 
 def _fit_columns(fit: TakeFit, i: int, reed: ReedParameters, config, figures) -> dict:
@@ -134,6 +148,7 @@ def _fit_columns(fit: TakeFit, i: int, reed: ReedParameters, config, figures) ->
         optimiser_message=f"take fit of {len(fit.problems)} windows: {fit.message}",
         at_bound=";".join(hits),
         n_iterations=fit.n_steps,
+        n_evaluations=figures["runs"],
         error="",
     )
     out.update(figures["playing"])

@@ -139,6 +139,7 @@ class Shard:
         self.spec = spec
         self.source = KernelSource(spec.calibration, spec.fs, spec.fingerings)
         self.problems = list(spec.problems)
+        self.runs = [0] * len(self.problems)  # model runs of each window (one per candidate)
         self.rebuild(spec.t)
 
     def rebuild(self, t: float) -> None:
@@ -184,6 +185,7 @@ class Shard:
         self.pending = None
 
     def _exact(self, i: int, x: np.ndarray):
+        self.runs[i] += 1
         out = self.objectives[i].jacobian(x)
         if out is None:
             return None
@@ -220,6 +222,7 @@ class Shard:
         pending, parts = [], []
         for i, x in enumerate(values):
             x0, r_acc, j_acc = self.accepted[i]
+            self.runs[i] += 1
             r0 = self.objectives[i].residuals(x)
             if _penalised(self.objectives[i], r0):
                 return None
@@ -240,6 +243,7 @@ class Shard:
         self.taylor = None
         terms, n_eff = [], []
         for i, x in enumerate(values):
+            self.runs[i] += 3  # this run and the two at T -+ DELTA_T_C
             r = self.objectives[i].residuals(x)
             if _penalised(self.objectives[i], r):
                 return None
@@ -272,6 +276,7 @@ class Shard:
         lo, hi = np.log(bounds[:f, 0]), np.log(bounds[:f, 1])
 
         def residual(z):
+            self.runs[i] += 1
             r = obj.residuals(lay.free_values(np.exp(z), slow))
             return None if _penalised(obj, r) else r
 
@@ -337,6 +342,7 @@ class Shard:
             rel = f2 / (float(np.linalg.norm(pw)) + 1e-300)
             played = playing_difference(pw, pw - r, self.spec.fs)
             out.append(dict(gram=gram, excess=excess, n_eff=n_eff, dof=dof, tau=r.size / n_eff,
+                            runs=self.runs[i],
                             sigma=f2 / math.sqrt(max(dof, 1.0)), f2=f2, relative_residual=rel,
                             playing=played, **extra))  # fmt: skip
         return out

@@ -125,3 +125,24 @@ def test_pseudo_inverse_of_a_badly_scaled_matrix_is_its_inverse():
     assert null.shape[0] == 0
     # the scaled inverse, unscaled, is the inverse of the well-scaled matrix
     np.testing.assert_allclose(scale @ inv @ scale, np.linalg.inv(a), rtol=1e-9)
+
+
+def test_a_held_unknown_does_not_move_and_the_rest_solve_without_it():
+    # independent: the dense system with the held unknowns' rows and columns deleted
+    jacs, res, _, dense, _ = _problem(7)
+    notes = (0, 0, 1, 1, 1, 2)
+    prior = _prior()
+    system = TakeSystem.of(jacs, res, notes, SIZES, prior=prior)
+    fast = np.zeros((6, 2), bool)
+    fast[1, 0] = True
+    slow = np.zeros((3, 3), bool)
+    slow[1, 2] = True
+    take = np.array([True])
+    d_fast, d_slow, d_take = system.frozen(fast, slow, take).step(0.0)
+    assert d_fast[1, 0] == 0.0 and d_slow[1, 2] == 0.0 and d_take[0] == 0.0
+    a, g = _dense_normal(dense, res, prior)
+    held = np.concatenate([fast.ravel(), slow.ravel(), take])
+    free = ~held
+    expected = np.linalg.solve(a[np.ix_(free, free)], -g[free])
+    got = np.concatenate([d_fast.ravel(), d_slow.ravel(), d_take])[free]
+    np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-12)

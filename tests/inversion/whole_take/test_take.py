@@ -23,7 +23,9 @@ TABLE1 = ReedParameters(
     k=8.66e6, S=7.62e-5, y_m=4e-4, p_m=1800.0, lam=0.013, m=0.05, g=3000.0, k_c=8.23e10
 )
 STARTS = [26000, 30000, 34000]
-CONFIG = InversionConfig(temperature_windows=3)
+#: The per-window estimator (the paper's method) and its kernel-temperature fit: the
+#: take's joint fit is tests/inversion/whole_take/test_estimator.py
+CONFIG = InversionConfig(temperature_windows=3, estimator="window")
 
 
 @pytest.fixture(scope="module")
