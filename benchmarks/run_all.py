@@ -62,6 +62,7 @@ QUICK_ARGS = {
     "bench_session": ["--takes", "4"],
     "bench_estimator": ["--seeds", "0,1"],
     "bench_rate": ["--cases", "shipped", "--rates", "44100,100000", "--variants", "scheme"],
+    "bench_harmonics": ["--repeats", "3", "--windows", "8"],
 }
 
 #: Units where a smaller value is better (the ratio shown is then baseline / value).

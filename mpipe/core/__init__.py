@@ -18,4 +18,6 @@ cluster
     A Dask scheduler's address checked, and whether it answers as a scheduler.
 progress
     Progress bars (tqdm) for long stages.
+harmonic_fit
+    Least squares of a constant and harmonics on many frames at once.
 """

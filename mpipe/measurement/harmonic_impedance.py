@@ -39,6 +39,14 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from mpipe.core.harmonic_fit import (
+    amplitudes,
+    centred_gram,
+    centred_projection,
+    harmonic_dft,
+    harmonic_synthesis,
+)
+
 #: Periods of the note in one frame: a Hann frame of m >= 2 periods has zeros at every other
 #: harmonic (offsets of m bins) and, for even m, at the half-harmonics (the noise probes).
 FRAME_PERIODS = 4
@@ -71,6 +79,19 @@ def frame_lines(
 ) -> dict:
     """The note's lines on half-overlapping frames of :data:`FRAME_PERIODS` periods.
 
+    Parameters
+    ----------
+    p, u : ndarray
+        Pressure (Pa) and flow (m^3/s) of the note.
+    fs : float
+        Sample rate, Hz.
+    f0 : float
+        The note's playing frequency, Hz (each frame's is refined about it).
+    n_harmonics : int
+        Harmonics read (those up to ``fmax_hz`` and below ``0.45 fs``).
+    fmax_hz : float
+        Top of the harmonics read, Hz.
+
     Returns
     -------
     dict
@@ -79,46 +100,124 @@ def frame_lines(
         fit of every line at once, ``x = Re(a exp(j 2 pi h f t))``); ``U_half`` (H,
         n_frames) the rms flow at ``(h +- 1/2) f0``.
         Empty arrays when the note holds fewer than :data:`MIN_FRAMES` frames.
+
+    Notes
+    -----
+    Every frame is fitted at once (:func:`_batched_lines`: the closed-form Gram matrix and
+    the DFT at the harmonics of :mod:`mpipe.core.harmonic_fit`); a frame whose design is
+    degenerate sends the note to the plain reference, a least-squares solve per frame
+    (:func:`_reference_lines`), which the batched fit equals to rounding.
     """
-    p = np.asarray(p, dtype=float)
-    u = np.asarray(u, dtype=float)
+    h, frames, f_frames, fitted = _framed(p, u, fs, f0, n_harmonics, fmax_hz)
+    if frames is None:
+        empty = np.zeros((h.size, 0), complex)
+        return {"f0": np.zeros(0), "harmonics": h, "P": empty, "U": empty, "U_half": empty}
+    try:
+        lines = _batched_lines(frames, f_frames, fs, fitted, h.size)
+    except np.linalg.LinAlgError:  # a degenerate design: the rank-revealing solve per frame
+        lines = _reference_lines(frames, f_frames, fs, fitted, h.size)
+    return {"f0": f_frames, "harmonics": h, **lines}
+
+
+def _framed(p, u, fs, f0, n_harmonics, fmax_hz) -> tuple:
+    """The harmonics read, the frames (F, 2, n) without their means, each frame's f0, Hz.
+
+    Also the orders fitted: every line up to 2 fmax (or 0.45 fs) is fitted at once, so
+    none leaks into another (a weak even harmonic beside a loud odd one: a Hann
+    projection's leakage of 1e-3 was 10 % of it once the frame held not exactly four
+    periods). The frames are None when the note holds fewer than :data:`MIN_FRAMES`.
+    """
     h = np.arange(1, n_harmonics + 1)
     h = h[(h * f0 <= fmax_hz) & (h * f0 < 0.45 * fs)]
     n = int(round(FRAME_PERIODS * fs / f0))
     hop = max(n // 2, 1)
-    starts = np.arange(0, p.size - n + 1, hop) if p.size >= n else np.zeros(0, int)
-    empty = np.zeros((h.size, 0), complex)
+    size = np.size(p)
+    starts = np.arange(0, size - n + 1, hop) if size >= n else np.zeros(0, int)
     if starts.size < MIN_FRAMES or h.size == 0:
-        return {"f0": np.zeros(0), "harmonics": h, "P": empty, "U": empty, "U_half": empty}
-    w = np.hanning(n)
+        return h, None, None, None
+    signals = np.stack([np.asarray(p, dtype=float), np.asarray(u, dtype=float)])
+    frames = np.lib.stride_tricks.sliding_window_view(signals, n, axis=1)[:, starts]
+    frames = np.swapaxes(frames - frames.mean(axis=-1, keepdims=True), 0, 1)
     t = np.arange(n) / fs
-    raw_p = np.array([p[s : s + n] - p[s : s + n].mean() for s in starts])
-    raw_u = np.array([u[s : s + n] - u[s : s + n].mean() for s in starts])
-    f_frames = _refine(raw_p * w, t, f0, h, hop / fs)
-    # every line up to 2 fmax (or 0.45 fs) is fitted at once, so none leaks into another
-    # (a weak even harmonic beside a loud odd one: a Hann projection's leakage of 1e-3 was
-    # 10 % of it once the frame held not exactly four periods)
+    f_frames = _refine(frames[:, 0] * np.hanning(n), t, f0, h, hop / fs)
     fitted = np.arange(1, max(int(min(0.45 * fs, 2.0 * fmax_hz) / f0), int(h[-1])) + 1)
-    pa = np.empty((h.size, starts.size), complex)
-    ua = np.empty((h.size, starts.size), complex)
-    u_half = np.empty((h.size, starts.size))
+    return h, frames, f_frames, fitted
+
+
+def _batched_lines(
+    frames: np.ndarray, f_frames: np.ndarray, fs: float, fitted: np.ndarray, n_read: int
+) -> dict:
+    """Every frame's lines at once: ``P``, ``U`` and ``U_half`` of :func:`frame_lines`.
+
+    Parameters
+    ----------
+    frames : ndarray
+        Pressure and flow frames without their means, shape (F, 2, n): Pa, m^3/s.
+    f_frames : ndarray
+        Each frame's fundamental, Hz, shape (F,).
+    fs : float
+        Sample rate, Hz.
+    fitted : ndarray
+        Orders fitted, 1..K.
+    n_read : int
+        H, the first orders returned.
+
+    Raises ``numpy.linalg.LinAlgError`` when a frame's Gram matrix is not positive
+    definite.
+    """
+    n, k = frames.shape[-1], fitted.size
+    w = 2 * np.pi * f_frames / fs  # rad per sample
+    # the centred design's two blocks, each frame's Cholesky check (far from rank deficient:
+    # the normal equations hold) and solve, for p and u together
+    coef = []
+    blocks = zip(centred_gram(n, w, k), centred_projection(frames, w[:, None], k), strict=True)
+    for gram, rhs in blocks:
+        np.linalg.cholesky(gram)
+        coef.append(np.swapaxes(np.linalg.solve(gram, np.swapaxes(rhs, -1, -2)), -1, -2))
+    constant, amp = amplitudes(coef[0], coef[1], w[:, None], n)  # (F, 2), (F, 2, K)
+    # the flow between the lines: the residual's Hann projection at h +- 1/2, as an
+    # amplitude (a line of amplitude a projects to a sum(w) / 2)
+    fit_u = constant[:, 1:] + harmonic_synthesis(amp[:, 1], w, fitted, n)
+    window = np.hanning(n)
+    h = np.arange(1, n_read + 1)
+    sides = np.concatenate([2 * h + 1, 2 * h - 1])  # (h +- 1/2) w = (2 h +- 1) w / 2
+    probe = harmonic_dft((frames[:, 1] - fit_u) * window, w / 2, sides)
+    probe = 2 * np.abs(probe) / window.sum()
+    u_half = np.sqrt(0.5 * (probe[:, :n_read] ** 2 + probe[:, n_read:] ** 2))
+    # a line 80 dB under the frame's strongest is rounding, not a harmonic played
+    u_half = np.maximum(u_half, 1e-4 * np.abs(amp[:, 1]).max(axis=1, keepdims=True))
+    return {"P": amp[:, 0, :n_read].T, "U": amp[:, 1, :n_read].T, "U_half": u_half.T}
+
+
+def _reference_lines(
+    frames: np.ndarray, f_frames: np.ndarray, fs: float, fitted: np.ndarray, n_read: int
+) -> dict:
+    """:func:`_batched_lines` frame by frame on the explicit design (``numpy.linalg.lstsq``).
+
+    The plain reference (the loop :func:`frame_lines` ran before its frames were batched)
+    and the fallback of a degenerate design.
+    """
+    n_frames, n = frames.shape[0], frames.shape[-1]
+    t, window = np.arange(n) / fs, np.hanning(n)
+    pa = np.empty((n_read, n_frames), complex)
+    ua = np.empty((n_read, n_frames), complex)
+    u_half = np.empty((n_read, n_frames))
+    h = np.arange(1, n_read + 1)
     for j, f in enumerate(f_frames):
-        ps, us = raw_p[j], raw_u[j]
+        ps, us = frames[j]
         e = np.exp(2j * np.pi * np.outer(t, fitted * f))
         design = np.hstack([e.real, e.imag, np.ones((n, 1))])
         coef, *_ = np.linalg.lstsq(design, np.column_stack([ps, us]), rcond=None)
         k = fitted.size
-        amp = coef[:k] - 1j * coef[k : 2 * k]  # x = Re(amp exp(j w t))
-        pa[:, j], ua[:, j] = amp[: h.size, 0], amp[: h.size, 1]
-        # the flow between the lines: the residual's Hann projection at h +- 1/2, as an
-        # amplitude (a line of amplitude a projects to a sum(w) / 2)
-        rest = (us - design @ coef[:, 1]) * w
-        probe = np.exp(-2j * np.pi * np.outer(np.concatenate([h + 0.5, h - 0.5]) * f, t)) @ rest
-        probe = 2 * np.abs(probe) / w.sum()
-        u_half[:, j] = np.sqrt(0.5 * (probe[: h.size] ** 2 + probe[h.size :] ** 2))
-        # a line 80 dB under the frame's strongest is rounding, not a harmonic played
+        amp = coef[:k] - 1j * coef[k : 2 * k]
+        pa[:, j], ua[:, j] = amp[:n_read, 0], amp[:n_read, 1]
+        rest = (us - design @ coef[:, 1]) * window
+        sides = np.concatenate([h + 0.5, h - 0.5]) * f
+        probe = np.exp(-2j * np.pi * np.outer(sides, t)) @ rest
+        probe = 2 * np.abs(probe) / window.sum()
+        u_half[:, j] = np.sqrt(0.5 * (probe[:n_read] ** 2 + probe[n_read:] ** 2))
         u_half[:, j] = np.maximum(u_half[:, j], 1e-4 * np.abs(amp[:, 1]).max())
-    return {"f0": f_frames, "harmonics": h, "P": pa, "U": ua, "U_half": u_half}
+    return {"P": pa, "U": ua, "U_half": u_half}
 
 
 def _refine(frames: np.ndarray, t: np.ndarray, f0: float, h: np.ndarray, dt: float) -> np.ndarray:

@@ -40,6 +40,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import solve_triangular
 
+from mpipe.core.harmonic_fit import (
+    amplitudes,
+    bin_columns,
+    centred_gram,
+    centred_projection,
+    harmonic_synthesis,
+)
 from mpipe.inversion.preparation.conditioning import estimate_period
 
 #: Periodogram bins averaged into a spectrum (50 Hz apart on a 20 ms window: 250 Hz).
@@ -118,10 +125,13 @@ class HarmonicBasis:
     Columns ``[1, cos(w_k t), sin(w_k t)]``, ``w_k = 2 pi k f0 / fs``, k = 1..K. The Gram
     matrix ``H^T H`` has a closed form (sums of Dirichlet kernels at ``w_k +- w_l``) and
     ``H^T x`` is the DFT of x at the harmonics (powers of one complex exponential), so the
-    fit's power costs O(n K + K^3) instead of the O(n K^2) of a least-squares solve on H:
-    the f0 search of :func:`refine_f0` takes 15 of them per window. The values are those of
-    ``numpy.linalg.lstsq`` on the explicit design to rounding (the design is far from rank
-    deficient while every harmonic stays below Nyquist).
+    fit's power costs O(n K + K^3) instead of the O(n K^2) of a least-squares solve on H.
+    The values are those of ``numpy.linalg.lstsq`` on the explicit design to rounding (the
+    design is far from rank deficient while every harmonic stays below Nyquist).
+
+    One f0 at a time, on the window's own time: the plain reference of the batched fits
+    (:func:`_fit_powers`, :func:`_harmonic_parts`, on the centred design of
+    :mod:`mpipe.core.harmonic_fit`) and their fallback on a degenerate design.
 
     Raises ``numpy.linalg.LinAlgError`` when the Gram matrix is not positive definite.
     """
@@ -211,11 +221,22 @@ def refine_f0(p: np.ndarray, fs: float, f0: float, harmonics: int) -> float:
 
     Three passes, each a 5-point scan and a parabola through the best three, from
     +-:data:`F0_SEARCH` down to a sixteenth of it (the 30th harmonic needs f0 to 1e-4).
+    Each pass's five fits at once (:func:`_fit_powers`).
     """
+    return _search(p, fs, f0, harmonics, _fit_powers)
+
+
+def _refine_f0_reference(p: np.ndarray, fs: float, f0: float, harmonics: int) -> float:
+    """:func:`refine_f0` one fit at a time (the plain reference), Hz."""
+    return _search(p, fs, f0, harmonics, _scan_reference)
+
+
+def _search(p: np.ndarray, fs: float, f0: float, harmonics: int, scan) -> float:
+    """:func:`refine_f0` with the powers of a scan ``scan(p, fs, grid_hz, harmonics)``, Hz."""
     width = F0_SEARCH
     for _ in range(3):
         grid = f0 * (1 + np.linspace(-width, width, 5))
-        power = [_fit_power(p, fs, f, harmonics) for f in grid]
+        power = scan(p, fs, grid, harmonics)
         i = int(np.clip(np.argmax(power), 1, grid.size - 2))
         y0, y1, y2 = power[i - 1 : i + 2]
         den = y0 - 2 * y1 + y2
@@ -223,6 +244,78 @@ def refine_f0(p: np.ndarray, fs: float, f0: float, harmonics: int) -> float:
         f0 = float(grid[i] + np.clip(step, -1, 1) * (grid[1] - grid[0]))
         width /= 4
     return f0
+
+
+def _fit_powers(x: np.ndarray, fs: float, f0s: np.ndarray, harmonics: int) -> np.ndarray:
+    """:func:`_fit_power` at every candidate f0 (Hz, shape (G,)) at once, x's unit^2.
+
+    On the centred design (:mod:`mpipe.core.harmonic_fit`), block by block: the power is
+    ``||L^-1 b||^2`` (L the block's Cholesky factor, b its projection), read from the
+    factor of the Gram matrix bordered by b (:func:`_bordered_power`). A degenerate design
+    sends the scan to :func:`_scan_reference`.
+    """
+    w = 2 * np.pi * np.asarray(f0s, dtype=float) / fs
+    grams = centred_gram(x.size, w, harmonics)
+    projections = centred_projection(x, w, harmonics)
+    corner = 2.0 * float(x @ x) + 1.0  # above any fit's power: the bordered matrix stays PD
+    try:
+        return sum(_bordered_power(g, b, corner) for g, b in zip(grams, projections, strict=True))
+    except np.linalg.LinAlgError:
+        return _scan_reference(x, fs, f0s, harmonics)
+
+
+def _bordered_power(gram: np.ndarray, b: np.ndarray, corner: float) -> np.ndarray:
+    """``||L^-1 b||^2`` for each of a stack of Gram matrices ``G = L L^T`` (b's unit^2).
+
+    The Cholesky factor of ``[[G, b], [b^T, c]]`` is ``[[L, 0], [(L^-1 b)^T, d]]``: one
+    factorisation gives both (``c`` above ``b^T G^-1 b`` keeps it positive definite).
+    Raises ``numpy.linalg.LinAlgError`` when G is not positive definite.
+    """
+    m = gram.shape[-1]
+    bordered = np.empty((*gram.shape[:-2], m + 1, m + 1))
+    bordered[..., :m, :m] = gram
+    bordered[..., :m, m] = bordered[..., m, :m] = b
+    bordered[..., m, m] = corner
+    last = np.linalg.cholesky(bordered)[..., m, :m]
+    return np.sum(last**2, axis=-1)
+
+
+def _scan_reference(x: np.ndarray, fs: float, f0s: np.ndarray, harmonics: int) -> np.ndarray:
+    """:func:`_fit_powers` one candidate at a time (the plain reference), x's unit^2."""
+    return np.array([_fit_power(x, fs, f, harmonics) for f in f0s])
+
+
+def _harmonic_parts(r: np.ndarray, p: np.ndarray, fs: float, f0: float, harmonics: int):
+    """The harmonic fits of r and p (Pa) and the share of each DFT bin the fit takes.
+
+    The share is ``sum_j |DFT_f(q_j)|^2 / n`` over an orthonormal basis q of the span
+    (what a white noise's power at bin f leaves in the fit, dimensionless): with ``q = H
+    L^-T`` per block of the centred design, ``||L^-1 c_f||^2 / n``, ``c_f`` the design's
+    DFT at the bin (real up to a phase the blocks share, :func:`bin_columns`). No basis
+    is formed: :func:`_harmonic_parts_reference` forms it, and is the fallback of a
+    degenerate design.
+    """
+    n, w = r.size, 2 * np.pi * f0 / fs
+    try:
+        chols = [np.linalg.cholesky(g) for g in centred_gram(n, w, harmonics)]
+    except np.linalg.LinAlgError:
+        return _harmonic_parts_reference(r, p, fs, f0, harmonics)
+    # L^-1 of each block (a product with it is faster than a triangular solve of many)
+    inverse = [solve_triangular(c, np.eye(c.shape[0]), lower=True) for c in chols]
+    blocks = centred_projection(np.stack([r, p]), w, harmonics)  # (2, K + 1), (2, K)
+    coef = [(li.T @ (li @ b.T)).T for li, b in zip(inverse, blocks, strict=True)]  # G^-1 b
+    constant, lines = amplitudes(coef[0], coef[1], w, n)
+    fits = constant[:, None] + harmonic_synthesis(lines, w, np.arange(1, harmonics + 1), n)
+    columns = bin_columns(n, w, harmonics)
+    held = sum(np.sum((li @ c) ** 2, axis=0) for li, c in zip(inverse, columns, strict=True))
+    return fits[0], fits[1], held / n
+
+
+def _harmonic_parts_reference(r: np.ndarray, p: np.ndarray, fs: float, f0: float, harmonics: int):
+    """:func:`_harmonic_parts` through an orthonormal basis and its FFT (the plain reference)."""
+    basis = _orthonormal(r.size, fs, f0, harmonics)
+    held = periodogram(basis).sum(axis=1)
+    return basis @ (basis.T @ r), basis @ (basis.T @ p), held
 
 
 def _count(top: float, f0: float, fs: float) -> int:
@@ -290,6 +383,15 @@ def split_residual(
     ResidualSplit or None
         None when ``p`` has no period in 60-2000 Hz or the band holds no harmonic.
     """
+    return _split(r, p, j, fs, floor, refine_f0, _harmonic_parts)
+
+
+def _split(r, p, j, fs, floor, refine, parts) -> ResidualSplit | None:
+    """:func:`split_residual` with its f0 search ``refine`` and harmonic fit ``parts``.
+
+    ``(refine_f0, _harmonic_parts)`` batched, or ``(_refine_f0_reference,
+    _harmonic_parts_reference)``: the plain reference, one fit at a time.
+    """
     n = r.size
     period = estimate_period(p, fs)
     if not period > 0:
@@ -301,13 +403,12 @@ def split_residual(
     k = _count(top, f0, fs)
     if k < 1:
         return None
-    f0 = refine_f0(p - p.mean(), fs, f0, k)
+    f0 = refine(p - p.mean(), fs, f0, k)
     k = max(1, _count(top, f0, fs))
-    basis = _orthonormal(n, fs, f0, k)
-    h = basis @ (basis.T @ r)
-    # share of a white noise's power at each bin that the harmonic fit takes into h
-    # (exactly: sum over the basis of |DFT|^2 / n), so e = r - h keeps 1 - held of it
-    held = periodogram(basis).sum(axis=1)
+    # h: the residual's harmonic fit; held: the share of a white noise's power at each bin
+    # that the fit takes into h (exactly: sum over an orthonormal basis of |DFT|^2 / n), so
+    # e = r - h keeps 1 - held of it; ph: p's fit, the same projection
+    h, ph, held = parts(r, p, fs, f0, k)
     freqs = np.fft.rfftfreq(n, 1 / fs)
     inband = (freqs >= 0.5 * f0) & (freqs <= (k + 0.5) * f0)
     band_dof = 2.0 * float(np.count_nonzero(inband))
@@ -328,7 +429,6 @@ def split_residual(
     absorbed = (2 * k + 1) / max(2 * k + 1 - j.shape[1], 1)
     excess = visible * absorbed
     if floor > 0:
-        ph = basis @ (basis.T @ p)  # p's harmonic fit: the same projection
         excess = np.maximum(excess, floor**2 * smoothed_periodogram(ph - ph.mean()))
     norm_p2 = float(np.sum(p**2)) + 1e-300
     return ResidualSplit(
