@@ -47,7 +47,6 @@ QUICK_ARGS = {
     ],
     "bench_uncertainty": ["--paths", "adaptive"],
     "bench_playing": ["--seeds", "1", "--skip-long"],
-    "bench_pooling": ["--quick", "--cases", "crescendo"],
     "bench_openwind": ["--duration", "1"],
     "bench_foreign": ["--quick"],
     "bench_note_coverage": [],

@@ -26,8 +26,8 @@ fit/
     flow_fit, mouth_pressure, step1, history_start, objective, fastpath, sensitivities,
     rosenbrock, least_squares, coldstart, window, execution.
 pooling/
-    A note's pooled fit: slow parameters shared by its windows, fast ones per window. Modules:
-    arrow, note_fit, take_pooling.
+    The normal equations of a joint fit: windows, notes and the take, their elimination and
+    covariance. Modules: arrow, take_system.
 whole_take/
     A whole take: tracking, the kernel temperature, take-wide errors, invert_take. Modules:
     tracking, temperature, temperature_profile, shared_errors, take.

@@ -143,6 +143,11 @@ REMOVED_KEYS = {
     "step1_solver: lstsq did)",
     "step1_every_window": "step 1 runs on the cold-started windows only (as "
     "step1_every_window: false did)",
+    # issue 45: the take's one fit shares each note's reed over its windows
+    "pooling": "each note's reed constants are shared by its windows in the take's one fit "
+    "(inversion.estimator: take, the default; docs/estimator.md)",
+    "pooling_stretch_s": "it belonged to pooling, which is gone: the take's one fit "
+    "(inversion.estimator: take) shares each note's reed constants over the note",
 }
 #: Choices removed in the same clean-up, per key.
 REMOVED_CHOICES = {
@@ -331,22 +336,6 @@ class InversionConfig:
         "every window's eight parameters fitted on its own after a kernel-temperature fit "
         "(the paper's method, the reference)",
         default="take",
-    )
-    pooling: Literal["window", "note"] = spec(
-        "",
-        "window: every window gets its own eight parameters (the paper's method, the "
-        "reference); note: after the windows, each note is fitted again as one experiment, the "
-        "reed's slow parameters (k, S, lam, m, g, k_c, y_c) shared by its windows and the "
-        "player's fast ones (p_m, y_m) per window, with their SEs from the joint fit "
-        "(mpipe.inversion.pooling; docs/uncertainty.md, 'Pooling a note's windows')",
-        default="window",
-    )
-    pooling_stretch_s: float = spec(
-        "s",
-        "pooling: note shares the slow parameters over stretches of at most this length of a "
-        "note (a longer note is cut into equal stretches): the reed warms and wets over seconds",
-        between(0.04, 60.0),
-        default=2.0,
     )
     retry_cold: bool = spec(
         "",

@@ -43,6 +43,20 @@ import numpy as np
 
 from mpipe.inversion.pooling.arrow import EIG_RCOND
 
+#: The player's controls, fitted per window.
+FAST_PARAMETERS = ("p_m", "y_m")
+
+
+def split_names(free: Sequence[str]) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """The searched parameters ``free`` split into (fast, slow), each in ``free``'s order.
+
+    Fast: the player's controls (:data:`FAST_PARAMETERS`), one value per window; slow: the
+    reed's own (k, S, lam, m, g, k_c, y_c), one value per note.
+    """
+    fast = tuple(n for n in free if n in FAST_PARAMETERS)
+    slow = tuple(n for n in free if n not in FAST_PARAMETERS)
+    return fast, slow
+
 
 @dataclass(frozen=True)
 class TierSizes:
@@ -348,4 +362,11 @@ def _floored_diagonal(a: np.ndarray) -> np.ndarray:
     return np.maximum(diag, 1e-12 * np.maximum(top, 1e-300))
 
 
-__all__ = ["TakeCovariance", "TakeSystem", "TierSizes", "pseudo_inverse"]
+__all__ = [
+    "FAST_PARAMETERS",
+    "TakeCovariance",
+    "TakeSystem",
+    "TierSizes",
+    "pseudo_inverse",
+    "split_names",
+]

@@ -167,7 +167,8 @@ _INVERSION: tuple[Column, ...] = (
     _col(
         "pooled",
         TEXT,
-        "parameters shared with the other windows of its note (inversion.pooling: note), "
+        "parameters shared with the other windows of its note (the take's one fit, "
+        "inversion.estimator: take), "
         "separated by ;; empty: the window's own fit",
     ),
     _col("error", TEXT, "why the window has no estimate (empty: it has one)"),

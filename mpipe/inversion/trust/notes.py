@@ -28,10 +28,10 @@ squares of components that behave differently under averaging:
 - ``rate``, ``temperature``, ``frontend``, ``calibration`` (Type B, take-wide): one error
   shared by every window of the take, added once (the median of the windows' values).
 
-With ``inversion.pooling: note`` the windows of a note share its slow parameters (their
-``pooled`` column names them) and carry the joint fit's SE of them: the note's noise
-component of such a parameter is that SE, not divided by sqrt(n) again
-(:mod:`mpipe.inversion.pooling`).
+With the take's one fit (``inversion.estimator: take``) the windows of a note share its
+slow parameters (their ``pooled`` column names them) and carry the joint fit's SE of them:
+the note's noise component of such a parameter is that SE, not divided by sqrt(n) again
+(:mod:`mpipe.inversion.whole_take.estimator`).
 
 A component whose column is absent from the windows table is absent (NaN) in the note's
 budget. Before the per-window budget exists (no ``<q>_se_noise``), the windows' noise SE is
@@ -179,7 +179,7 @@ def _median(values: np.ndarray) -> float:
 
 
 def _shared(windows: pd.DataFrame, name: str) -> bool:
-    """Whether every window shares ``name`` with its note (``pooled``, inversion.pooling)."""
+    """Whether every window shares ``name`` with its note (``pooled``: the take's one fit)."""
     if "pooled" not in windows or not len(windows):
         return False
     return all(name in str(v).split(";") for v in windows["pooled"])

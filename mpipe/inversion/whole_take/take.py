@@ -40,7 +40,6 @@ from threadpoolctl import threadpool_limits
 from mpipe.acoustics.air import Air
 from mpipe.core.signals import DiskArray, as_signal
 from mpipe.inversion.fit.execution import stage_workers
-from mpipe.inversion.pooling.take_pooling import pool_notes
 from mpipe.inversion.preparation.kernel import KernelSource, take_temperature
 from mpipe.inversion.preparation.segments import reed_openings
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
@@ -189,14 +188,6 @@ def invert_take(
         source = KernelSource(calibration, fs, plan.fingering_map())
         kernel, air = source.at(fit.temperature_c, plan.starts[0] if plan.starts else None)
         result = _track_fingerings(p, u, fs, source, fit, config, executor, plan, options)
-        if config.pooling == "note":
-            # each note as one experiment, after its windows (serial, in time order), on its
-            # own fingering's bore
-            def kernel_of(name: str):
-                return source.named(fit.temperature_c, name)[0]
-
-            pooled = pool_notes(result.table, p, u, fs, kernel_of, config, zero_mean=zero_mean)
-            result = dataclasses.replace(result, table=pooled)
         # the budget: the take-wide components beside the windows' own, then one combination
         table = temperature_components(result.table, fit)
         table, shared = shared_components(

@@ -118,6 +118,7 @@ def window_rows(fit: TakeFit, base: ReedParameters, config: InversionConfig, fs:
         for name in QUANTITIES:
             row[component_column(name, "temperature")] = by_t[component_column(name, "noise")]
         row["kernel_temperature_c"], row["kernel_temperature_se_c"] = fit.temperature_c, t_se
+        row["pooled"] = ";".join(fit.names[fit.sizes.fast :])  # shared by the note's windows
         row["status"], row["status_reason"] = window_status(row, required_quantities(config))
         rows.append(row)
     table = window_frame(rows)

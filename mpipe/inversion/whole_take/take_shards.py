@@ -307,22 +307,24 @@ class Shard:
         return np.exp(z), cost
 
     def warm(self, chains: Sequence[Sequence[int]], starts: Sequence[Sequence[np.ndarray]],
-             slow: np.ndarray) -> list:  # fmt: skip
+             slows: Sequence[np.ndarray]) -> list:  # fmt: skip
         """Each chain of windows (shard indices), warm one from the other.
 
-        Returns every window's fast values, or None when none of its starts plays.
+        Returns every window's ``(fast values, r^T r)``, or None when none of its starts
+        plays.
         ``starts[c]`` are the chain's first window's starts, tried in order; a later window
-        tries the one before it first.
+        tries the one before it first; ``slows[c]`` the reed's constants the chain holds.
         """
         out = [None] * len(self.problems)
-        for chain, first in zip(chains, starts, strict=True):
+        for chain, first, slow in zip(chains, starts, slows, strict=True):
             previous = None
             for i in chain:
                 tries = ([previous] if previous is not None else []) + list(first)
                 for x0 in tries:
                     found = self.fast_fit(i, x0, slow)
                     if found is not None:
-                        out[i] = previous = found[0]
+                        out[i] = found
+                        previous = found[0]
                         break
         return out
 
