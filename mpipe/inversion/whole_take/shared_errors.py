@@ -276,12 +276,17 @@ def frontend_linear(
     *,
     kernel_c: float,
     refit_kernel: bool,
+    kernel_shifts: dict | None = None,
 ) -> dict[str, np.ndarray]:
     """``d ln q`` per SE of each front-end parameter, propagated linearly on the windows' spans.
 
     :mod:`mpipe.inversion.whole_take.frontend_propagation`: dp, du over each window's span,
     one Jacobian and one residual per perturbation per window, the kernel temperature
     re-fitted through its shared column. Reads p, u, p0, u0 around the windows only.
+
+    ``kernel_shifts``, when given, receives the kernel temperature's shift (degC) per SE of
+    each front-end parameter (``refit_kernel``): the front end's share of the take's
+    temperature.
 
     Returns
     -------
@@ -315,6 +320,8 @@ def frontend_linear(
         if not (math.isfinite(se) and se > 0) or not windows:
             continue
         dlnx, dt = fp.shifts(windows, name, len(config.search_parameters))
+        if kernel_shifts is not None and refit_kernel:
+            kernel_shifts[name] = float(dt)
         logs = [
             fp.log_changes(w, d, config.search_parameters, (z[0.0], _between(z, dt)), closure)
             for w, d, z in zip(windows, dlnx, airs, strict=True)
@@ -423,8 +430,11 @@ def shared_components(
     names = [str(r.get("fingering", "") or "") for r in rows]
     refit = _Refit(fs, calibration, config, zero_mean, starts, [_reed(r) for r in rows],
                    names=names)  # fmt: skip
+    kernel_shifts: dict = {}
     sens = frontend_linear(p, u, calibration, front, refit, kernel_c=kernel_c,
-                           refit_kernel=refit_kernel)  # fmt: skip
+                           refit_kernel=refit_kernel, kernel_shifts=kernel_shifts)  # fmt: skip
+    if kernel_shifts:
+        record["frontend_kernel_shift_c"] = kernel_shifts
     failed = failed_refits(sens)
     if failed:
         logger.warning("front-end component not measured: the propagation of %s failed (NaN)",
