@@ -225,10 +225,12 @@ class InversionConfig:
     )
     temperature: Literal["fit", "front-end"] = spec(
         "",
-        "air temperature of the bore model. fit: the one that makes the model play the take "
-        "best (the step-2 residual profiled over a few windows; its standard error widens "
-        "every <name>_se); front-end: the median of the temperature the mouthpiece signals "
-        "carry (the wave separation's estimate), or the calibration's when they carry none",
+        "estimator: window only (the take's fit always estimates it with the reed, the "
+        "front end's estimate as its prior). Air temperature of the bore model. fit: the one "
+        "that makes the model play the take best (the step-2 residual profiled over a few "
+        "windows; its standard error widens every <name>_se); front-end: the median of the "
+        "temperature the mouthpiece signals carry (the wave separation's estimate), or the "
+        "calibration's when they carry none",
         default="fit",
     )
     temperature_windows: int = spec(
