@@ -422,7 +422,7 @@ def joint_pass(take: TakeProblem, state: FitState, tolerance: float = SE_TOLERAN
                 message, converged = "no step lowers the sum of squares", True
                 break
     if accepted:  # the shards' last trial is where the pass ends
-        take.shards.call("_commit", [(True,)] * len(take.shards.ranges))
+        take.shards.call("commit", [(True,)] * len(take.shards.ranges))
     return state, blocks, weight, steps, converged, message
 
 

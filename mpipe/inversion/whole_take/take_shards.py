@@ -179,7 +179,8 @@ class Shard:
         n_eff = np.full(len(n), np.nan) if n_eff is None else np.asarray(n_eff, float)
         return Blocks(grams, grads, rr, n.astype(float), n_eff)
 
-    def _commit(self, accept: bool) -> None:
+    def commit(self, accept: bool) -> None:
+        """Make the last trial the accepted point (``accept``), or forget it."""
         if accept and self.pending is not None:
             self.accepted = self.pending
         self.pending = None
@@ -200,7 +201,7 @@ class Shard:
 
         The point becomes each window's accepted one; None if one window cannot be played.
         """
-        self._commit(accept)
+        self.commit(accept)
         points, parts = [], []
         for i, x in enumerate(values):
             out = self._exact(i, x)
@@ -218,7 +219,7 @@ class Shard:
         per window); ``accept``: the previous trial was accepted (it becomes the point
         updated from). None if one window cannot be played.
         """
-        self._commit(accept)
+        self.commit(accept)
         pending, parts = [], []
         for i, x in enumerate(values):
             x0, r_acc, j_acc = self.accepted[i]
