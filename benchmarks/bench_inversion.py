@@ -249,7 +249,7 @@ def basins(seeds: list[int], snrs: list[float]) -> None:
 
     pipe = load_pipeline(ROOT / "pipelines" / "simplified_clarinet.yaml")
     after = pipe.inversion
-    front_t = dataclasses.replace(after, temperature="front-end")
+    front_t = dataclasses.replace(after, estimator="window")  # at the front end's T
     ways = {
         "front-end T": (front_t, False),
         "after": (after, False),

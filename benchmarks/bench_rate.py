@@ -139,7 +139,7 @@ def as_measured(p, u, fine: float, fs: float, config: InversionConfig):
 def invert_at(case: str, p, u, fine: float, fs: float, variant: str) -> dict[str, float]:
     """Relative error of the window-median estimates of every quantity at model rate fs."""
     cal_name, fingering, _ = CASES[case]
-    config = InversionConfig(temperature_windows=len(WINDOWS_S))
+    config = InversionConfig()
     pf, uf = as_measured(p, u, fine, fs, config)
     starts = [int(round(t * fs)) for t in WINDOWS_S]
     with kernel_variant(variant):

@@ -11,8 +11,8 @@ Usage: ``.venv/bin/python benchmarks/bench_realtime.py [--duration S] [--run-dur
    20 s by default, 45 dB SNR) with 1 and 2 workers: wall time, real-time factor and every
    stage's wall time (from the stage manifests), in fresh processes as a user runs it.
 2. The inversion stage on the separated, translated take (``--cache DIR`` keeps the
-   mouthpiece signals), as ``mpipe.invert_take`` runs it: the temperature fit (its cold
-   start included) and the tracking of every planned window, timed apart, on 1 and 2
+   mouthpiece signals), as the per-window estimator runs it (no temperature fit since
+   issue 45): its cold start and the tracking of every planned window, timed apart, on 1 and 2
    local workers (the shipped configuration). Prints wall and CPU times, real-time
    factors, evaluations per warm window and the ratio 2 workers/1 worker beside what the
    machine offered. (The "before" run, the Jacobian by forward differences, went with the
@@ -58,7 +58,6 @@ from mpipe.inversion.output.resynthesis import reed_from_row
 from mpipe.inversion.preparation.conditioning import plan_inversion
 from mpipe.inversion.preparation.kernel import bore_kernel, take_temperature
 from mpipe.inversion.settings import ExecutorConfig
-from mpipe.inversion.whole_take.temperature import fit_temperature
 from mpipe.inversion.whole_take.tracking import track
 from mpipe.measurement.calibration import load_calibration
 from mpipe.measurement.separation.stage import separate
@@ -121,18 +120,18 @@ def invert_stage(data, cal, config, workers):
     starts = [int(s) for s in data["starts"]]
     front = take_temperature(data["temperature_c"], cal)
     executor = ExecutorConfig(workers=workers)
-    t0, c0 = time.perf_counter(), cpu_seconds()
+    c0 = cpu_seconds()
+    # the per-window estimator at the front end's temperature: its kernel-temperature fit is
+    # gone (issue 45: the take's one fit estimates the temperature), so t_fit is 0
+    t_fit = 0.0
+    kernel, air = bore_kernel(cal, fs, front)
     with stage_workers((p, u), executor, workers):
-        fit = fit_temperature(p, u, fs, cal, starts, config, zero_mean=True, front_end_c=front)
-        t_fit = time.perf_counter() - t0
-        kernel, air = bore_kernel(cal, fs, front)
         t1 = time.perf_counter()
         invert_window(p, u, fs, starts[0], kernel, air.rho, config, zero_mean=True)
         t_cold = time.perf_counter() - t1  # one cold start alone, for the figure
-    kernel, air = bore_kernel(cal, fs, fit.temperature_c)
     t2 = time.perf_counter()
-    result = track(p, u, fs, kernel, air.rho, config, executor, windows=starts, anchor=fit.anchor)
-    wall = t_fit + time.perf_counter() - t2
+    result = track(p, u, fs, kernel, air.rho, config, executor, windows=starts)
+    wall = time.perf_counter() - t2
     return wall, cpu_seconds() - c0, result.table, t_fit, t_cold
 
 

@@ -76,7 +76,7 @@ def make_session(folder: Path, n: int, duration_s: float) -> Path:
     data["calibration"] = str(PLAIN)
     data["conditioning"] = {"edge_s": 0.25}
     data["inversion"]["hop_s"] = 0.04
-    data["inversion"].update(design_points=16, local_starts=2, temperature="front-end")
+    data["inversion"].update(design_points=16, local_starts=2)
     (folder / "pipeline.yaml").write_text(yaml.safe_dump(data))
     path = folder / "session.yaml"
     path.write_text(yaml.safe_dump({"pipeline": "pipeline.yaml", "takes": entries}))

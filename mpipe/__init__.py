@@ -50,7 +50,6 @@ _API = {
     "WindowPlan": "mpipe.inversion.whole_take.tracking",
     "RunOptions": "mpipe.inversion.whole_take.tracking",
     "invert_take": "mpipe.inversion.whole_take.take",
-    "fit_temperature": "mpipe.inversion.whole_take.temperature",
     "resynthesise": "mpipe.inversion.output.resynthesis",
     "run_take": "mpipe.pipeline.orchestration",
     "load_run": "mpipe.pipeline.results",

@@ -17,7 +17,7 @@ preparation/
 trust/
     What a result is worth: uncertainty, its budget, statuses, take-level checks. Modules:
     harmonics, uncertainty, combinations, budget, window_errors, discretisation, notes, status,
-    status_words, diagnostics, note_temperature.
+    status_words, diagnostics.
 table/
     The windows table: the record, its schema, the files written, the coverage. Modules:
     records, tables, coverage.
@@ -29,8 +29,9 @@ pooling/
     The normal equations of a joint fit: windows, notes and the take, their elimination and
     covariance. Modules: arrow, take_system.
 whole_take/
-    A whole take: tracking, the kernel temperature, take-wide errors, invert_take. Modules:
-    tracking, temperature, temperature_profile, shared_errors, take.
+    A whole take: its one fit, the per-window tracking, take-wide errors, invert_take.
+    Modules: tracking, temperature, shared_errors, frontend_propagation, estimator, take_fit,
+    take_shards, take_rows, take_estimate, take.
 output/
     What a take's result shows: the resynthesis and the figures. Modules: resynthesis,
     tracks_plot, note_figures, resynthesis_stream.

@@ -148,6 +148,19 @@ REMOVED_KEYS = {
     "(inversion.estimator: take, the default; docs/estimator.md)",
     "pooling_stretch_s": "it belonged to pooling, which is gone: the take's one fit "
     "(inversion.estimator: take) shares each note's reed constants over the note",
+    # issue 45: one estimate of the temperature, the take's fit's
+    "temperature": "the take's one fit (inversion.estimator: take) estimates the bore's "
+    "temperature with the reed; estimator: window inverts at the front end's estimate",
+    **dict.fromkeys(
+        (
+            "temperature_windows",
+            "temperature_windows_per_s",
+            "temperature_windows_max",
+            "temperature_evaluations",
+        ),
+        "it belonged to the kernel-temperature fit, which is gone: the take's one fit "
+        "(inversion.estimator: take) estimates the temperature from every window",
+    ),  # fmt: skip
 }
 #: Choices removed in the same clean-up, per key.
 REMOVED_CHOICES = {
@@ -223,40 +236,11 @@ class InversionConfig:
         "rotating-coordinate search, the reference method)",
         default="trust-region",
     )
-    temperature: Literal["fit", "front-end"] = spec(
-        "",
-        "estimator: window only (the take's fit always estimates it with the reed, the "
-        "front end's estimate as its prior). Air temperature of the bore model. fit: the one "
-        "that makes the model play the take best (the step-2 residual profiled over a few "
-        "windows; its standard error widens every <name>_se); front-end: the median of the "
-        "temperature the mouthpiece signals carry (the wave separation's estimate), or the "
-        "calibration's when they carry none",
-        default="fit",
-    )
-    temperature_windows: int = spec(
-        "",
-        "fewest windows, spread over the take's notes, that the temperature is fitted on",
-        between(1, 64),
-        default=6,
-    )
-    temperature_windows_per_s: float = spec(
-        "1/s",
-        "windows the temperature is fitted on per second of inverted playing (a longer "
-        "take is fitted on more windows, up to temperature_windows_max)",
-        between(0.0, 50.0),
-        default=1.0,
-    )
-    temperature_windows_max: int = spec(
-        "", "most windows the temperature is fitted on", between(1, 256), default=24
-    )
     temperature_range_c: float = spec(
         "degC",
-        "the fit searches this far on either side of the front end's temperature",
+        "the take's fit keeps the temperature within this far of the front end's estimate",
         between(2.5, 30.0),
         default=8.0,
-    )
-    temperature_evaluations: int = spec(
-        "", "temperatures tried by the fit before its standard error", between(3, 50), default=8
     )
     design_points: int = spec(
         "", "points of the cold start's Sobol design (rounded up to a power of two)",
@@ -335,7 +319,7 @@ class InversionConfig:
         "note's reed constants (k, S, lam, m, g, k_c, y_c when searched) and the take's air "
         "temperature (the front end's estimate as its prior), by one damped Gauss-Newton "
         "with one sandwich covariance (mpipe.inversion.whole_take.estimator); window: "
-        "every window's eight parameters fitted on its own after a kernel-temperature fit "
+        "every window's eight parameters fitted on its own at the front end's temperature "
         "(the paper's method, the reference)",
         default="take",
     )

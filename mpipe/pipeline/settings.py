@@ -110,7 +110,7 @@ USER_SETTINGS: dict[str, tuple[str, ...]] = {
         "determined_limit",
         "free",
         "bounds",
-        "temperature",
+        "estimator",
         "window_s",
         "hop_s",
         "sample_rate",

@@ -111,7 +111,7 @@ def test_the_measured_bore_inverts_a_take_like_the_geometry(measured):
     rng = np.random.default_rng(3)  # 40 dB SNR on p and u, about what the front end gives
     p = sim.p + 1e-2 * np.std(sim.p) * rng.standard_normal(sim.p.size)
     u = sim.u + 1e-2 * np.std(sim.u) * rng.standard_normal(sim.u.size)
-    config = InversionConfig(temperature="front-end")
+    config = InversionConfig(estimator="window")  # at the calibration's temperature
     tables = [
         invert_take(
             p, u, FS, cal, config, ExecutorConfig(workers=1), windows=[26000, 30000]

@@ -50,7 +50,7 @@ def _pipeline(folder: Path, take, workers: int, scheduler: str | None = None) ->
     data["inversion"]["hop_s"] = 0.04  # three windows between 0.25 s and 0.37 s
     # light inversion: the executors are tested here, the estimator elsewhere (32 design
     # points: with 16, the soft player's cold start missed its basin on the DC-corrected kernel)
-    data["inversion"].update(design_points=32, local_starts=2, temperature="front-end")
+    data["inversion"].update(design_points=32, local_starts=2)
     path = folder / f"pipeline{workers}{'dask' if scheduler else ''}.yaml"
     path.write_text(yaml.safe_dump(data))
     return path

@@ -186,7 +186,7 @@ def fingered_run(tmp_path_factory):
     data["executor"] = {"kind": "local", "workers": 1}
     # a few windows per note; a smaller cold start and the front end's temperature: the
     # report is under test here, not the search (tests/inversion test those)
-    data["inversion"].update(hop_s=0.08, temperature="front-end", design_points=64,
+    data["inversion"].update(hop_s=0.08, design_points=64,
                              local_starts=3)  # fmt: skip
     pipe = folder / "pipeline.yaml"
     pipe.write_text(yaml.safe_dump(data))

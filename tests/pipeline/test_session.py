@@ -36,7 +36,7 @@ def _pipeline(folder: Path) -> Path:
     data["executor"] = {"kind": "local", "workers": 1}
     data["conditioning"] = {"edge_s": 0.25}
     data["inversion"]["hop_s"] = 0.04
-    data["inversion"].update(design_points=16, local_starts=2, temperature="front-end")
+    data["inversion"].update(design_points=16, local_starts=2)
     path = folder / "pipeline.yaml"
     path.write_text(yaml.safe_dump(data))
     return path

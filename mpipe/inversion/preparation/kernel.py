@@ -9,9 +9,9 @@ way, so the same take gives the same numbers whichever is used:
   value per sample);
 * signals that carry no such track (model output of ``mpipe simulate``) use the
   calibration's ``air.temperature_c``;
-* from there, ``inversion.temperature: fit`` fits the kernel temperature to the playing
-  (:mod:`mpipe.inversion.whole_take.temperature`); the table records it as ``kernel_temperature_c``
-  and the resynthesis reads it back (:func:`table_temperature`).
+* from there, the take's one fit (``inversion.estimator: take``) estimates the temperature
+  with the reed (:mod:`mpipe.inversion.whole_take.estimator`); the table records it as
+  ``kernel_temperature_c`` and the resynthesis reads it back (:func:`table_temperature`).
 
 The air model (``keefe`` or ``ernoult``) is the calibration's.
 """

@@ -262,51 +262,6 @@ def pick_windows(starts: Sequence[int], count: int) -> list[int]:
     return [starts[i] for i in idx]
 
 
-def window_count(n_windows: int, config) -> int:
-    """How many windows the fit uses: growing with the inverted playing time.
-
-    ``temperature_windows_per_s`` per second of the ``n_windows`` inverted windows (every
-    ``hop_s``), at least ``temperature_windows`` and at most ``temperature_windows_max``.
-    """
-    grown = int(round(config.temperature_windows_per_s * n_windows * config.hop_s))
-    return max(config.temperature_windows, min(grown, config.temperature_windows_max))
-
-
-def pick_by_segment(
-    starts: Sequence[int],
-    segments: Sequence[int],
-    count: int,
-    steady: Sequence[bool] | None = None,
-) -> tuple[list[int], list[int]]:
-    """Window starts for the fit, spread over every segment in proportion to its windows.
-
-    Each segment gets at least one window (its cold start is made in the fit), the rest
-    are shared out by the segments' numbers of windows. Within a segment the steady
-    windows are taken when it has enough (the fit's R(T) holds the reed fixed over each
-    window, and an attack's growing oscillation pulls the temperature), else its central
-    half.
-
-    Returns
-    -------
-    (starts, segments) of the chosen windows, in time order.
-    """
-    steady = [True] * len(starts) if steady is None else [bool(x) for x in steady]
-    groups: dict[int, list[tuple[int, bool]]] = {}
-    for s, g, st in zip(starts, segments, steady, strict=True):
-        groups.setdefault(int(g), []).append((int(s), st))
-    total = sum(len(v) for v in groups.values())
-    chosen = []
-    for g, members in groups.items():
-        quota = max(1, int(round(count * len(members) / max(total, 1))))
-        pool = [s for s, st in members if st]
-        if len(pool) < quota:
-            n = len(members)
-            pool = [s for s, _ in members[n // 4 : max(n - n // 4, n // 4 + 1)]]
-        chosen += [(s, g) for s in pick_windows(pool, quota)]
-    chosen.sort()
-    return [s for s, _ in chosen], [g for _, g in chosen]
-
-
 def note_label(row) -> str:
     """A note's label on the plots: its number in the take, name and f0 in Hz.
 
@@ -420,7 +375,6 @@ __all__ = [
     "assign_windows",
     "level_envelope",
     "note_segments",
-    "pick_by_segment",
     "pick_windows",
     "note_label",
     "note_numbers",
@@ -429,6 +383,5 @@ __all__ = [
     "reed_openings",
     "segment_take",
     "spl_db",
-    "window_count",
     "with_played",
 ]

@@ -6,11 +6,6 @@ one line. Every check is judged on every window inverted (not only the ``ok`` on
 window above ``residual_limit`` is never ``ok``, so a check on the ok windows alone could
 not fire):
 
-- the kernel temperature was to be fitted and the fit fell back to the temperature the
-  signals carry (then the reed parameters carry its error: S -21 % on the demo's take for
-  a kernel 1.1 degC off, and the SEs leave it out);
-- the notes' own kernel temperatures disagree, or a note was left out of the take's
-  (:mod:`mpipe.inversion.trust.note_temperature`);
 - the take's cold start found its minimum with fewer than :data:`MIN_AGREEING` of its
   short local searches (a narrow basin, possibly the wrong one);
 - the median relative residual exceeds ``inversion.residual_limit`` (a take whose every
@@ -45,7 +40,6 @@ import pandas as pd
 
 from mpipe.inversion.preparation.conditioning import estimate_period
 from mpipe.inversion.settings import InversionConfig
-from mpipe.inversion.trust.note_temperature import NoteTemperatures
 
 #: A cold start whose minimum fewer of its short local searches reached is flagged.
 MIN_AGREEING = 2
@@ -105,10 +99,7 @@ def take_checks(
     table: pd.DataFrame,
     config: InversionConfig,
     *,
-    temperature_source: str,
-    temperature_note: str = "",
     cold_starts_agreeing: int | None = None,
-    notes: NoteTemperatures | None = None,
     extra: Sequence[str] = (),
 ) -> list[str]:
     """Reasons, one line each, why a take's result should not pass (empty: none).
@@ -119,18 +110,11 @@ def take_checks(
         The take's windows (``status``, ``relative_residual``, ``model_f0_cents``,
         ``model_level_db``, ``segment``, ``t_start_s``).
     config : InversionConfig
-        ``temperature`` (was a fit asked for), ``residual_limit``, ``pitch_limit_cents``,
+        ``residual_limit``, ``pitch_limit_cents``,
         ``level_limit_db``.
-    temperature_source : str
-        Where the kernel temperature came from (``"fit"``, ``"front end"``,
-        ``"calibration"``).
-    temperature_note : str
-        Why the fit fell back.
     cold_starts_agreeing : int or None
         Short searches of the take's cold start that reached its minimum (None: no global
         cold start).
-    notes : NoteTemperatures or None
-        The notes' own kernel temperatures (:mod:`mpipe.inversion.trust.note_temperature`).
     extra : sequence of str
         Reasons found before the inversion, kept first.
 
@@ -139,15 +123,6 @@ def take_checks(
     list of str
     """
     reasons = [r for r in extra if r]
-    # the take's joint fit (inversion.estimator: take) estimates the temperature itself
-    if config.temperature == "fit" and temperature_source not in ("fit", "take fit"):
-        reasons.append(
-            "the kernel temperature fit fell back to the "
-            f"{temperature_source}'s temperature ({temperature_note or 'not fitted'}): the "
-            "reed parameters carry its error and the SEs leave it out"
-        )
-    if notes is not None and notes.reason():
-        reasons.append(notes.reason(note_numbers_of(table)))
     if cold_starts_agreeing is not None and cold_starts_agreeing < MIN_AGREEING:
         reasons.append(
             f"the cold start's minimum was reached by {cold_starts_agreeing} of its "

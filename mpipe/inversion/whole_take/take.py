@@ -1,4 +1,4 @@
-"""A whole take's inversion: the kernel temperature, every window, the widened error bars.
+"""A whole take's inversion: one door, two estimators, one budget.
 
 The one function every door into the inversion calls (``mpipe run``, ``mpipe invert`` and
 the Python API ``mpipe.invert_take``), so that the same mouthpiece signals give the same
@@ -6,23 +6,20 @@ table whichever is used:
 
 1. the temperature the signals carry (the wave separation's estimate, else the
    calibration's; :func:`mpipe.inversion.preparation.kernel.take_temperature`);
-2. the kernel temperature fitted to the playing from there, on windows spread over every
-   note, one cold start per take (later notes start from the note before)
-   (:func:`mpipe.inversion.whole_take.temperature.fit_temperature`; ``inversion.temperature``);
-3. every window started from its note's cold start on the kernel at the fitted
-   temperature (:func:`mpipe.inversion.whole_take.tracking.track`);
-4. the uncertainty budget: the temperature's component of every quantity
-   (:func:`mpipe.inversion.whole_take.temperature.temperature_components`) beside the windows' own
-   (noise, model form), the model's discretisation at fs
-   (:mod:`mpipe.inversion.trust.discretisation`) and the take-wide components of the front end and
-   the
-   microphones' calibration (:mod:`mpipe.inversion.whole_take.shared_errors`), combined into every
-   ``<q>_se``
-   (:func:`mpipe.inversion.trust.budget.combine`);
-5. the take-level checks (:func:`mpipe.inversion.trust.diagnostics.take_checks`, with the
-   notes' own temperatures and ``extra_checks``): each reason
-   in :attr:`TakeInversion.checks` and in the table's ``take_checks`` column;
-6. the fitted reed's opening in every window: ``h_mean``, ``h_min`` (m) and
+2. ``inversion.estimator: take`` (the default): the take's one fit of every window's
+   controls, each note's reed and the take's temperature, with one covariance
+   (:mod:`mpipe.inversion.whole_take.take_estimate`); ``window``: the paper's per-window
+   fit, every note from its own cold start, on the kernel at that temperature
+   (:func:`mpipe.inversion.whole_take.tracking.track`);
+3. the uncertainty budget: the windows' own components (noise, model form; the take's fit
+   adds the temperature's share), the model's discretisation at fs
+   (:mod:`mpipe.inversion.trust.discretisation`) and the take-wide components of the front
+   end and the microphones' calibration (:mod:`mpipe.inversion.whole_take.shared_errors`),
+   combined into every ``<q>_se`` (:func:`mpipe.inversion.trust.budget.combine`);
+4. the take-level checks (:func:`mpipe.inversion.trust.diagnostics.take_checks`, with
+   ``extra_checks``): each reason in :attr:`TakeInversion.checks` and in the table's
+   ``take_checks`` column;
+5. the fitted reed's opening in every window: ``h_mean``, ``h_min`` (m) and
    ``closed_fraction`` (:func:`mpipe.inversion.preparation.segments.reed_openings`).
 """
 
@@ -40,7 +37,6 @@ from threadpoolctl import threadpool_limits
 
 from mpipe.acoustics.air import Air
 from mpipe.core.signals import DiskArray, as_signal
-from mpipe.inversion.fit.execution import stage_workers
 from mpipe.inversion.preparation.kernel import KernelSource, take_temperature
 from mpipe.inversion.preparation.segments import reed_openings
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
@@ -50,11 +46,7 @@ from mpipe.inversion.trust.discretisation import rate_errors
 from mpipe.inversion.whole_take.estimator import TakeData
 from mpipe.inversion.whole_take.shared_errors import FrontEnd, shared_components
 from mpipe.inversion.whole_take.take_estimate import estimate_take
-from mpipe.inversion.whole_take.temperature import (
-    TemperatureFit,
-    fit_temperature,
-    temperature_components,
-)
+from mpipe.inversion.whole_take.temperature import TemperatureFit
 from mpipe.inversion.whole_take.tracking import (
     RunOptions,
     Tracking,
@@ -181,32 +173,24 @@ def invert_take(
             run = (executor, 1 if client is not None or executor.kind != "local" else workers)
             data = TakeData(p, u, fs, calibration, plan, config, zero_mean)
             return _invert_jointly(data, front, carried, front_end, extra_checks, run)
-        with stage_workers((p, u), executor, workers, client):
-            fit = fit_temperature(
-                p, u, fs, calibration, plan, config, zero_mean=zero_mean, front_end_c=front,
-                source="front end" if carried else "calibration",
-            )  # fmt: skip
+        # the paper's per-window fit (estimator: window) at the front end's temperature
+        fit = TemperatureFit(front, math.nan, "front end" if carried else "calibration", front)
         source = KernelSource(calibration, fs, plan.fingering_map())
         kernel, air = source.at(fit.temperature_c, plan.starts[0] if plan.starts else None)
         result = _track_fingerings(p, u, fs, source, fit, config, executor, plan, options)
         # the budget: the take-wide components beside the windows' own, then one combination
-        table = temperature_components(result.table, fit)
+        table = result.table.assign(kernel_temperature_c=fit.temperature_c,
+                                    kernel_temperature_se_c=math.nan)  # fmt: skip
         table, shared = shared_components(
             p, u, fs, table, calibration, config, zero_mean=zero_mean, kernel_c=fit.temperature_c,
-            refit_kernel=fit.source == "fit", front=front_end,
+            refit_kernel=False, front=front_end,
         )  # fmt: skip
         table = rate_errors(table, fs)  # the model's discretisation at fs
         table = combine(table, config.determined_limit)
         openings, _ = reed_openings(table, p, fs, whole=False)  # what the reed did: time shut
         table = pd.concat([table, openings], axis=1)
-        if fit.anchor is not None and len(table):
-            # the take's cold start was the fit's, on the first window: its agreement goes there
-            table.loc[table.index[0], "cold_starts_agreeing"] = fit.cold_starts_agreeing
-        agreeing = fit.cold_starts_agreeing if fit.anchor is not None else _first_agreeing(table)
-        checks = take_checks(
-            table, config, temperature_source=fit.source, temperature_note=fit.note,
-            cold_starts_agreeing=agreeing, notes=fit.notes, extra=extra_checks,
-        )  # fmt: skip
+        checks = take_checks(table, config, cold_starts_agreeing=_first_agreeing(table),
+                             extra=extra_checks)  # fmt: skip
         table["take_checks"] = "; ".join(checks)
         return TakeInversion(
             dataclasses.replace(result, table=table), fit, kernel, air, tuple(checks), shared
@@ -237,10 +221,8 @@ def _invert_jointly(data, front, carried, front_end, extra_checks, run) -> TakeI
     table = combine(table, config.determined_limit)
     openings, _ = reed_openings(table, p, fs, whole=False)
     table = pd.concat([table, openings], axis=1)
-    checks = take_checks(
-        table, config, temperature_source=fit.source, temperature_note=fit.note,
-        cold_starts_agreeing=fit.cold_starts_agreeing, notes=None, extra=extra_checks,
-    )  # fmt: skip
+    checks = take_checks(table, config, cold_starts_agreeing=fit.cold_starts_agreeing,
+                         extra=extra_checks)  # fmt: skip
     table["take_checks"] = "; ".join(checks)
     tracking = dataclasses.replace(joint.tracking, table=table)
     return TakeInversion(tracking, fit, kernel, air, tuple(checks), shared)
@@ -267,7 +249,7 @@ def _track_fingerings(p, u, fs, source, fit, config, executor, plan, options) ->
     the tables are merged by time (``window`` renumbered, histories re-keyed) and each row
     names its ``fingering``.
     """
-    anchors = dict(fit.anchors) or None
+    anchors = None  # every note gets its own cold start
     names = source.names if plan.fingerings is not None else [""]
     if len(names) == 1:
         kernel, air = source.at(fit.temperature_c, plan.starts[0])

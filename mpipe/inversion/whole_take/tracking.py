@@ -144,8 +144,8 @@ class WindowPlan:
         segment gets its own cold start and its windows start from it, never from another
         note's; None: the take is one segment.
     steady : tuple of bool or None
-        Which windows are steady (the plan's ``steady``): the temperature fit prefers them
-        (:func:`mpipe.inversion.preparation.segments.pick_by_segment`); None: all count as steady.
+        Which windows are steady (the plan's ``steady``): the take's fit is cold-started on
+        the first of them; None: all count as steady.
     fingerings : tuple of str or None
         The fingering of each window's note (the plan's ``fingering``; "" the calibration's
         own): each window is inverted on its fingering's bore; None: the calibration's.

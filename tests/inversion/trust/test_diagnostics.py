@@ -45,17 +45,13 @@ def _verdict(checks):
 
 
 def test_a_sound_take_passes():
-    checks = take_checks(_windows(), CFG, temperature_source="fit", cold_starts_agreeing=6)
+    checks = take_checks(_windows(), CFG, cold_starts_agreeing=6)
     assert checks == []
     assert _verdict(checks)[1] == "pass"
 
 
 def test_each_take_level_fault_gives_check_with_its_reason():
-    cases = {
-        "fell back": dict(temperature_source="front end",
-                          temperature_note="the fit ran to the edge of its range"),
-        "short searches": dict(temperature_source="fit", cold_starts_agreeing=1),
-    }  # fmt: skip
+    cases = {"short searches": dict(cold_starts_agreeing=1)}
     for words, kw in cases.items():
         checks = take_checks(_windows(), CFG, **kw)
         assert len(checks) == 1 and words in checks[0], checks
@@ -68,14 +64,9 @@ def test_each_take_level_fault_gives_check_with_its_reason():
         "relative residual": _windows(relative_residual=[0.2, 0.21, 0.22, 0.2, 0.25]),
     }
     for words, table in tables.items():
-        checks = take_checks(table, CFG, temperature_source="fit", cold_starts_agreeing=6)
+        checks = take_checks(table, CFG, cold_starts_agreeing=6)
         assert len(checks) == 1 and words in checks[0], checks
         assert _verdict(checks)[1] == "check"
-
-
-def test_a_front_end_temperature_asked_for_is_no_fallback():
-    config = InversionConfig(temperature="front-end")
-    assert take_checks(_windows(), config, temperature_source="front end") == []
 
 
 def test_windows_not_ok_count_in_the_medians_so_each_check_can_fire():
@@ -83,21 +74,21 @@ def test_windows_not_ok_count_in_the_medians_so_each_check_can_fire():
     # so a take all in a wrong basin (every window high-residual) passed
     table = _windows(relative_residual=0.2)
     table["status"] = "high-residual"
-    checks = take_checks(table, CFG, temperature_source="fit")
+    checks = take_checks(table, CFG)
     assert any("median relative residual 0.2 " in c for c in checks), checks
     level = _windows(model_level_db=[0.0, 0.0, 1.5, 1.5, 1.5])
     level.loc[2:, "status"] = "at-bound"
-    assert any("RMS level" in c for c in take_checks(level, CFG, temperature_source="fit"))
+    assert any("RMS level" in c for c in take_checks(level, CFG))
 
 
 def test_a_nan_median_does_not_pass():
     # the model silent (no level, no period) in every window: never a pass
     table = _windows(model_f0_cents=np.nan, model_level_db=np.nan)
-    checks = take_checks(table, CFG, temperature_source="fit")
+    checks = take_checks(table, CFG)
     assert any("playing frequency could be compared" in c for c in checks), checks
     assert any("RMS level could be compared" in c for c in checks), checks
     table = _windows(relative_residual=np.nan)
-    assert any("finite residual" in c for c in take_checks(table, CFG, temperature_source="fit"))
+    assert any("finite residual" in c for c in take_checks(table, CFG))
 
 
 def test_impedance_ratio_and_the_plausibility_of_the_flows_scale():
@@ -145,7 +136,7 @@ def _invert(p, u, cal, starts=STARTS, segments=None, **config):
     from mpipe.inversion.whole_take.take import invert_take
     from mpipe.inversion.whole_take.tracking import WindowPlan
 
-    config = InversionConfig(**{"temperature": "front-end", **config})
+    config = InversionConfig(**config)
     plan = WindowPlan(starts, segments)
     return invert_take(p, u, FS, cal, config, ExecutorConfig(workers=1), windows=plan)
 
@@ -184,17 +175,11 @@ def test_a_note_the_model_cannot_play_ends_check_and_leaves_the_temperature_alon
     p = np.concatenate([played["good"][0], played["wide"][0]])
     u = np.concatenate([played["good"][1], played["wide"][1]])
     starts = [30000, 34000, 36000] + [40000 + s for s in (30000, 34000, 36000)]
-    done = _invert(p, u, shipped_calibration, starts, [1, 1, 1, 2, 2, 2],
-                   temperature="fit", temperature_windows=4)  # fmt: skip
+    done = _invert(p, u, shipped_calibration, starts, [1, 1, 1, 2, 2, 2])
     # a plan without note numbers: the check names the segment
     assert any("cannot play segment 2" in c for c in done.checks), done.checks
+    # the take's one fit holds the note's width on its bound; the note still pulls the air
+    # (19.59 +- 0.09 degC for 20 when this was written), and the take is CHECK naming the
+    # note (above): flagged, not silently wrong
     fit = done.temperature
-    if fit.source == "take fit":
-        # the take's one fit holds the note's width on its bound; the note still pulls the
-        # air (19.59 +- 0.09 degC for 20 when this was written), and the take is CHECK naming
-        # the note (above): flagged, not silently wrong
-        assert abs(fit.temperature_c - 20.0) < 1.0, fit.line()
-    elif fit.source == "fit":  # the per-window fit leaves the note out of its temperature
-        assert abs(fit.temperature_c - 20.0) < 0.3, fit.line()
-    else:  # R(T) over both notes had no minimum: the fall back is a reason of its own
-        assert any("fit fell back" in c for c in done.checks), done.checks
+    assert fit.source == "take fit" and abs(fit.temperature_c - 20.0) < 1.0, fit.line()

@@ -116,7 +116,7 @@ def at_44k(shipped_calibration):
     rf = long_reflection(cal.bore, air, FINE)
     reed = ReedParameters(**TABLE1, y_c=2.4e-4, alpha=2.0)
     sim = simulate(reed, prepare_bore(rf, air), int(0.5 * FINE))
-    config = InversionConfig(temperature_windows=3)
+    config = InversionConfig()
     lp = config.lowpass.design(FS)
     p = apply_lowpass(resample(sim.p, FINE, FS), lp)
     u = apply_lowpass(resample(sim.u, FINE, FS), lp)
