@@ -27,7 +27,7 @@ fit/
     rosenbrock, least_squares, coldstart, window, execution.
 pooling/
     The normal equations of a joint fit: windows, notes and the take, their elimination and
-    covariance. Modules: arrow, take_system.
+    covariance. Modules: take_system.
 whole_take/
     A whole take: its one fit, the per-window tracking, take-wide errors, invert_take.
     Modules: tracking, temperature, shared_errors, frontend_propagation, estimator, take_fit,

@@ -7,8 +7,6 @@ matrix is sparse with nested borders; eliminating the windows' blocks, then the 
 (bundle adjustment's reduced system), makes a step and the sandwich covariance cost time
 linear in the number of windows.
 
-- ``arrow``: the bordered block-diagonal (block-arrow) system of windows sharing one set of
-  slow parameters, its Schur-complement step and sandwich covariance;
 - ``take_system``: the take's system (windows, notes, the take), its step, an unknown held
   (an estimate on a bound), and its one sandwich covariance.
 

@@ -41,7 +41,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mpipe.inversion.pooling.arrow import EIG_RCOND
+#: Eigenvalues of the (Jacobi-scaled) reduced system below this fraction of the largest mark
+#: a direction the take does not determine (the square of the per-window SVD's
+#: :data:`mpipe.inversion.trust.uncertainty.RCOND`: eigenvalues of J^T J are squared singular
+#: values).
+EIG_RCOND = 1e-6
 
 #: The player's controls, fitted per window.
 FAST_PARAMETERS = ("p_m", "y_m")
@@ -338,7 +342,7 @@ class TakeCovariance:
 def pseudo_inverse(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Pseudo-inverse of a symmetric matrix over its determined directions, and the rest.
 
-    Determined: an eigenvalue above :data:`mpipe.inversion.pooling.arrow.EIG_RCOND` times the
+    Determined: an eigenvalue above :data:`EIG_RCOND` times the
     largest. The matrix is first scaled by its diagonal (Jacobi), so that parameters of
     very different units (log parameters beside degrees Celsius) are judged alike.
     """
@@ -363,6 +367,7 @@ def _floored_diagonal(a: np.ndarray) -> np.ndarray:
 
 
 __all__ = [
+    "EIG_RCOND",
     "FAST_PARAMETERS",
     "TakeCovariance",
     "TakeSystem",
