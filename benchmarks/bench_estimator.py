@@ -7,9 +7,10 @@ Usage: ``.venv/bin/python benchmarks/bench_estimator.py [--seeds 0,1,2,3,4] [--s
 Each seed's take is a virtual one (the shipped instrument, the Table 1 reed, the score's
 player: by default the crescendo, p_m 1800 -> 2610 Pa), separated and translated as
 ``mpipe run`` does (cached in ``--folder``). Its sounding windows are then inverted twice by
-``mpipe.invert_take``: ``inversion.estimator: window`` (the paper's per-window fit after the
-kernel-temperature fit, the baseline) and ``take`` (one joint fit: each window's p_m, y_m,
-each note's reed constants and the take's temperature). Printed per estimator:
+``mpipe.invert_take``: ``inversion.estimator: window`` (the paper's per-window fit at the
+front end's temperature, the baseline; before 8f988aa it fitted a kernel temperature first)
+and ``take`` (one joint fit: each window's p_m, y_m, each note's reed constants and the
+take's temperature). Printed per estimator:
 
 - the inversion's wall time and real-time factor (seconds of take per second);
 - the share of the sounding windows with p_m within 3 % and p_M within 5 % of the truth,

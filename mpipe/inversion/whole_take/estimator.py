@@ -207,11 +207,6 @@ class TakeFit:
     rho: np.ndarray
     history: np.ndarray
 
-    @property
-    def sum_of_squares(self) -> float:
-        """The windows' summed F2^2 at the solution, Pa^2 (unweighted)."""
-        return float(np.sum(self.blocks.rr))
-
     def system(self) -> TakeSystem:
         """The weighted normal equations at the solution, the prior included."""
         return _system(self.blocks, self.weight, self.problems, self.sizes, self.temperature_c,

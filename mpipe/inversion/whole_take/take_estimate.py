@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from mpipe.inversion.table.tables import blank_row
 from mpipe.inversion.trust.window_errors import CORRELATION_COLUMNS, correlation_records
 from mpipe.inversion.whole_take.estimator import TakeData
 from mpipe.inversion.whole_take.take_fit import fit_take
@@ -123,8 +124,6 @@ def _with_excluded(table, fit, plan: WindowPlan, fs: float, config) -> pd.DataFr
     if not fit.excluded:
         out = table
     else:
-        from mpipe.inversion.table.tables import blank_row
-
         n = int(round(config.window_s * fs))
         by_start = {s: i for i, s in enumerate(plan.starts)}
         rows = []
@@ -134,7 +133,7 @@ def _with_excluded(table, fit, plan: WindowPlan, fs: float, config) -> pd.DataFr
             i = by_start[start]
             row.update(segment=plan.segment_ids[i], note_number=plan.note_ids[i],
                        fingering=(plan.fingerings or ("",) * len(plan.starts))[i])  # fmt: skip
-            rows.append(row.as_dict() if hasattr(row, "as_dict") else dict(row))
+            rows.append(row.as_dict())
         out = pd.concat([table, pd.DataFrame(rows)], ignore_index=True)
     out = out.sort_values("t_start_s", kind="stable").reset_index(drop=True)
     out["window"] = np.arange(len(out))

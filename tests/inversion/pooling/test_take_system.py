@@ -72,10 +72,10 @@ def test_the_predicted_fall_is_the_quadratic_model():
 def test_the_covariance_equals_the_dense_sandwich():
     jacs, res, grams, dense, index = _problem(3)
     notes = (0, 0, 1, 1, 1, 2)
-    info, grad = _prior()
-    system = TakeSystem.of(jacs, res, notes, SIZES, prior=(info, grad))
-    a = dense.T @ dense
-    a[-1, -1] += info[0, 0]
+    prior = _prior()
+    info = prior[0]
+    system = TakeSystem.of(jacs, res, notes, SIZES, prior=prior)
+    a, _ = _dense_normal(dense, res, prior)
     b = np.zeros_like(a)
     for cols, gram in zip(index, grams, strict=True):
         b[np.ix_(cols, cols)] += gram
@@ -92,10 +92,9 @@ def test_white_noise_sandwich_is_the_inverse_information():
     # B_i = J_i^T J_i (unit white noise) and the prior's own information: A^-1 B A^-1 = A^-1
     jacs, res, _, dense, index = _problem(4)
     notes = (0, 0, 1, 1, 1, 2)
-    info, grad = _prior()
-    system = TakeSystem.of(jacs, res, notes, SIZES, prior=(info, grad))
-    a = dense.T @ dense
-    a[-1, -1] += info[0, 0]
+    prior = _prior()
+    system = TakeSystem.of(jacs, res, notes, SIZES, prior=prior)
+    a, _ = _dense_normal(dense, res, prior)
     cov = system.covariance(system.grams)
     a_inv = np.linalg.inv(a)
     for i, cols in enumerate(index):

@@ -102,8 +102,7 @@ def test_the_errors_respect_the_standard_errors(shipped_calibration, seed):
     # 40 dB of white noise: the error of the take's temperature and of each note's k and
     # each window's p_m within 3 SEs of the fit (noise, model form and the temperature's
     # share: the model-rate component is left out, the take being the model's own at its
-    # own rate). Each seed must pass: a 3-SE miss has a probability of 0.3 % per quantity;
-    # on six seeds the RMS z of these was 0.6-1.2
+    # own rate). Each seed must pass: a 3-SE miss has a probability of 0.3 % per quantity
 
     p, u, cal = _take(shipped_calibration, [TABLE1], seed=seed, noise=1e-2)
     done = invert_take(p, u, FS, cal, CONFIG, ExecutorConfig(workers=1), windows=STARTS)
