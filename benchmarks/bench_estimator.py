@@ -149,8 +149,8 @@ def main(argv=None) -> int:
 
 
 def report(results: dict, args) -> None:
-    print(f"\n{len(results['take'])} takes ({Path(args.score).stem}, {args.snr:g} dB), "
-          f"{args.workers} workers")  # fmt: skip
+    takes = len(next(iter(results.values())))
+    print(f"\n{takes} takes ({Path(args.score).stem}, {args.snr:g} dB), {args.workers} workers")
     heads = "  ".join(f"{q + ' err%':>10s} {'rmsz':>5s} {'-rate':>5s}" for q in QUANTITIES)
     print(f"{'':8s} {'wall s':>7s} {'x real':>7s} {'3%/5%':>6s}  " + heads)
     summary = {}

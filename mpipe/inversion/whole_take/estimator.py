@@ -76,8 +76,11 @@ LOOSE_SE = 1.0
 #: An estimate this close to a bound (in ln x; degC for T) is on it (the per-window fit's
 #: ``inversion.bound_tolerance`` default).
 BOUND_TOLERANCE = 1e-3
-#: Secant (Broyden) updates of the Jacobian before it is made exact again; a rejected step
-#: makes it exact at once (a secant Jacobian that mispredicts the fall has served).
+#: Secant (Broyden) updates of the Jacobian before it is made exact again; a step rejected on
+#: a secant Jacobian makes it exact at once (it has mispredicted the fall). A step rejected
+#: on the exact one only raises the damping: making it exact again at the same point gave
+#: the same Jacobian (it cost a third of a pass's model runs on the crescendos of
+#: ``benchmarks/bench_estimator.py`` before 2026-12-02's second session).
 SECANT_STEPS = 6
 #: A pass whose sum of squares fell by less than its tolerance (in SE^2) over this many
 #: steps has converged (see :func:`joint_pass`).
@@ -186,6 +189,9 @@ class TakeFit:
         temperature, on its fingering's bore.
     history : ndarray
         Each window's F2 (Pa) at every point the fit took, (points, W).
+    rivals : tuple of float
+        The cost of the fit from each of the take's cold starts that began in a basin of
+        its own, this one's among them (``take_fit.rival_costs``; empty: one start).
     """
 
     names: tuple[str, ...]
@@ -206,6 +212,7 @@ class TakeFit:
     z0: np.ndarray
     rho: np.ndarray
     history: np.ndarray
+    rivals: tuple = ()
 
     def system(self) -> TakeSystem:
         """The weighted normal equations at the solution, the prior included."""
@@ -347,9 +354,10 @@ def joint_pass(take: TakeProblem, state: FitState, tolerance: float = SE_TOLERAN
                max_steps: int = MAX_STEPS):  # fmt: skip
     """One pass of the joint fit on the shards' kernels (see the module docstring).
 
-    ``tolerance`` is the stopping rule's, in SEs; ``start`` the ``(blocks, weight)`` a pass
-    on the same kernels ended with (None: the Taylor terms are measured at ``state``).
-    Returns ``(state, blocks, weight, steps, converged, message)``; raises ValueError when
+    ``tolerance`` is the stopping rule's, in SEs; ``start`` the ``(blocks, weight, exact)`` a
+    pass on the same kernels ended with (None: the Taylor terms are measured at ``state``;
+    ``exact``: its blocks' Jacobian is the exact one, not a secant update). Returns
+    ``(state, (blocks, weight, exact), steps, converged, message)``; raises ValueError when
     a window cannot be played at the pass's start.
     """
     if start is None:
@@ -357,16 +365,18 @@ def joint_pass(take: TakeProblem, state: FitState, tolerance: float = SE_TOLERAN
         if blocks is None:
             raise ValueError("a window's model cannot play at the start of a pass of the "
                              "take's fit")  # fmt: skip
-        weight = pooled_weight(blocks)
+        weight, exact = pooled_weight(blocks), True
         take.n_data = float(np.sum(blocks.n_eff))  # effective samples, measured with T's terms
     else:
-        blocks, weight = start
+        blocks, weight, exact = start
     cost = _cost(blocks, weight, state.t, take.prior)
     take.history.append(np.sqrt(blocks.rr))
     n_data = take.n_data
     n_par = state.fast.size + state.slow.size + 1
     mu, nu, message, converged, steps = 1e-3, 2.0, "step limit", False, 0
-    accepted, secant = False, 0  # the last trial was taken; secant updates since exact
+    # the last trial was taken; trials since the Jacobian was exact; the accepted point's
+    # Jacobian is the exact one (no secant update accepted since)
+    accepted, secant = False, 0
     recent: list[float] = []  # the cost at every step
     for steps in range(1, max_steps + 1):  # noqa: B007 - the count is reported
         system = _system(blocks, weight, take.problems, take.sizes, state.t, take.prior)
@@ -376,7 +386,7 @@ def joint_pass(take: TakeProblem, state: FitState, tolerance: float = SE_TOLERAN
         done = decrement <= tolerance**2 * sigma2
         log.debug("step %d: cost %.6g, decrement %.3g SE^2, mu %.3g, secant %d", steps, cost,
                   decrement / sigma2, mu, secant)  # fmt: skip
-        if done and not secant:
+        if done and exact:
             message, converged = f"within {tolerance:g} SE of the minimum", True
             break
         recent.append(cost)
@@ -388,10 +398,10 @@ def joint_pass(take: TakeProblem, state: FitState, tolerance: float = SE_TOLERAN
                        f"{STALL_STEPS} steps")  # fmt: skip
             converged = True
             break
-        if done or secant >= SECANT_STEPS or (secant and not accepted):
+        if not exact and (done or secant >= SECANT_STEPS or (secant and not accepted)):
             # converged on a secant Jacobian, or it has served long or badly: made exact
             blocks = take.blocks(state, "exact", accepted)
-            accepted, secant = False, 0
+            accepted, secant, exact = False, 0, True
             continue
         new_state = take.moved(state, *system.step(mu))
         d = (
@@ -406,7 +416,7 @@ def joint_pass(take: TakeProblem, state: FitState, tolerance: float = SE_TOLERAN
         gain = (cost - new_cost) / predicted if predicted > 0 else -1.0
         accepted = gain > 0
         if accepted:
-            state, blocks, cost = new_state, trial, new_cost
+            state, blocks, cost, exact = new_state, trial, new_cost, False
             take.history.append(np.sqrt(blocks.rr))
             mu *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
             nu = 2.0
@@ -418,7 +428,7 @@ def joint_pass(take: TakeProblem, state: FitState, tolerance: float = SE_TOLERAN
                 break
     if accepted:  # the shards' last trial is where the pass ends
         take.shards.call("commit", [(True,)] * len(take.shards.ranges))
-    return state, blocks, weight, steps, converged, message
+    return state, (blocks, weight, exact), steps, converged, message
 
 
 def search_boxes(problems, n_fast: int, n_notes: int, t_range):

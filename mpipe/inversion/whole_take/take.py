@@ -221,8 +221,9 @@ def _invert_jointly(data, front, carried, front_end, extra_checks, run) -> TakeI
     table = combine(table, config.determined_limit)
     openings, _ = reed_openings(table, p, fs, whole=False)
     table = pd.concat([table, openings], axis=1)
-    checks = take_checks(table, config, cold_starts_agreeing=fit.cold_starts_agreeing,
-                         extra=extra_checks)  # fmt: skip
+    # whether the take's minimum was found is the fit's own test (its runs from two cold
+    # starts, joint.checks), not the agreement of one window's short searches
+    checks = take_checks(table, config, extra=(*extra_checks, *joint.checks))
     table["take_checks"] = "; ".join(checks)
     tracking = dataclasses.replace(joint.tracking, table=table)
     return TakeInversion(tracking, fit, kernel, air, tuple(checks), shared)

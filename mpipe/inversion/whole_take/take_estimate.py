@@ -44,10 +44,32 @@ class JointResult:
         The windows table (no step-2 histories, no correlation table).
     temperature : TemperatureFit
         The take's one temperature and its SE.
+    checks : tuple of str
+        The fit's own reasons why the take should not pass (:func:`rival_checks`).
     """
 
     tracking: Tracking
     temperature: TemperatureFit
+    checks: tuple[str, ...] = ()
+
+
+#: Two runs of the take's fit from different cold starts whose costs (chi-square units:
+#: each effective sample counts one) differ by less than this end in minima the data do not
+#: tell apart: a likelihood ratio below e^2 (about 7), two standard errors' worth.
+RIVAL_MARGIN = 4.0
+
+
+def rival_checks(rivals) -> tuple[str, ...]:
+    """A reason when the take's fit found two minima its data barely tell apart.
+
+    ``rivals``: the cost of each run (:attr:`TakeFit.rivals`); the lowest is the estimate.
+    """
+    costs = np.sort(np.asarray(rivals, float))
+    if costs.size < 2 or not costs[1] - costs[0] < RIVAL_MARGIN:
+        return ()
+    return (f"the take's fit from its two cold starts ended in two minima whose costs differ "
+            f"by {costs[1] - costs[0]:.2g} (< {RIVAL_MARGIN:g}, chi-square units): the data "
+            "barely prefer the one reported",)  # fmt: skip
 
 
 def temperature_prior(front_c: float, front_se_c: float | None) -> tuple[float, float]:
@@ -105,7 +127,7 @@ def estimate_take(
                for row in correlation_records(number[t], t, names, matrix)]  # fmt: skip
     frame = pd.DataFrame(records, columns=list(CORRELATION_COLUMNS))
     tracking = Tracking(table, histories, data.zero_mean, frame)
-    return JointResult(tracking, temperature)
+    return JointResult(tracking, temperature, rival_checks(fit.rivals))
 
 
 def _with_plan_columns(table, fit, plan: WindowPlan, fs: float, config) -> pd.DataFrame:
@@ -140,4 +162,5 @@ def _with_excluded(table, fit, plan: WindowPlan, fs: float, config) -> pd.DataFr
     return out
 
 
-__all__ = ["JointResult", "PRIOR_SE_C", "estimate_take", "temperature_prior"]
+__all__ = ["JointResult", "PRIOR_SE_C", "RIVAL_MARGIN", "estimate_take", "rival_checks",
+           "temperature_prior"]  # fmt: skip
