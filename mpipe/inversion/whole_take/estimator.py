@@ -78,9 +78,8 @@ LOOSE_SE = 1.0
 BOUND_TOLERANCE = 1e-3
 #: Secant (Broyden) updates of the Jacobian before it is made exact again; a step rejected on
 #: a secant Jacobian makes it exact at once (it has mispredicted the fall). A step rejected
-#: on the exact one only raises the damping: making it exact again at the same point gave
-#: the same Jacobian (it cost a third of a pass's model runs on the crescendos of
-#: ``benchmarks/bench_estimator.py`` before 2026-12-02's second session).
+#: on the exact one only raises the damping: making it exact again at the same point gives
+#: the same Jacobian, for about five model runs per window.
 SECANT_STEPS = 6
 #: A pass whose sum of squares fell by less than its tolerance (in SE^2) over this many
 #: steps has converged (see :func:`joint_pass`).

@@ -99,7 +99,8 @@ def fit_take(
                                   stop))  # fmt: skip
         costs = rival_costs(runs)
         best = int(np.argmin(costs))
-        rivals = [k for k, r in enumerate(runs) if k != best and not r.message.startswith("left")]
+        rivals = [k for k, r in enumerate(runs) if k != best and not r.message.startswith("left")
+                  and not _same_minimum(r.state, runs[best].state)]  # fmt: skip
         if len(runs) > 1:
             log.info("take fit: %d cold starts in different basins, costs %s (%s); the lowest "
                      "kept", len(runs), ", ".join(f"{c:.6g}" for c in costs),
@@ -115,6 +116,13 @@ def fit_take(
 LEAVE_MARGIN = 40.0
 
 
+def _same_minimum(a: FitState, b: FitState) -> bool:
+    """Every note constant of two runs within :data:`AGREEMENT` (ln x) of the other's."""
+    return a.slow.shape == b.slow.shape and bool(
+        np.all(np.abs(np.log(a.slow / b.slow)) < AGREEMENT)
+    )
+
+
 def _leave(take: TakeProblem, state: FitState, blocks, weight: float, *, first: _Run) -> str:
     """Why a second run may end after a pass ("": it goes on).
 
@@ -122,9 +130,7 @@ def _leave(take: TakeProblem, state: FitState, blocks, weight: float, *, first: 
     its cost lies :data:`LEAVE_MARGIN` above the first run's final one (a worse basin).
     """
     del weight  # compared on the first run's weight
-    if state.slow.shape == first.state.slow.shape and np.all(
-        np.abs(np.log(state.slow / first.state.slow)) < AGREEMENT
-    ):
+    if _same_minimum(state, first.state):
         return "left: in the first cold start's basin"
     probe = _Run(take, state, blocks, first.weight, 0, 0, True, "", {})
     theirs, mine = rival_costs([first, probe])
