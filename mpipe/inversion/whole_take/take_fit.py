@@ -95,6 +95,7 @@ def fit_take(
                           workers)]  # fmt: skip
         for cold, _, peak in colds[1:]:
             stop = functools.partial(_leave, first=runs[0])
+            stop.near = functools.partial(_same_minimum, b=runs[0].state)
             runs.append(_run_from(stack, data, problems, cold, peak, prior, t_range, workers,
                                   stop))  # fmt: skip
         costs = rival_costs(runs)
@@ -251,16 +252,21 @@ def _passes(take: TakeProblem, state: FitState, stop=None):
     A pass first runs to :data:`LOOSE_SE` (where T is headed); when T has moved by more
     than :data:`T_SETTLED_C` the kernels are rebuilt there and a new pass starts, else the
     same pass goes on to :data:`SE_TOLERANCE`. ``stop(take, state, blocks, weight)``, if given,
-    is asked after each pass whether this run may end there (its message then says why).
+    is asked after each pass whether this run may end there (its message then says why);
+    its attribute ``near(state)``, at every accepted step whether the run has reached the
+    first run's minimum (:func:`_same_minimum`).
     """
     total, converged, t_built, start = 0, True, state.t, None
     for passes in range(1, MAX_PASSES + 1):
         last = passes == MAX_PASSES
         tolerance = SE_TOLERANCE if last else LOOSE_SE
-        state, ended, steps, ok, message = joint_pass(take, state, tolerance, start)
+        near = getattr(stop, "near", None)
+        state, ended, steps, ok, message = joint_pass(take, state, tolerance, start, near=near)
         blocks, weight, _ = ended
         total += steps
         log.debug("take fit pass %d: T %.3f degC, %d steps (%s)", passes, state.t, steps, message)
+        if message.startswith("left"):
+            return state, blocks, weight, total, passes, ok, message
         why = stop(take, state, blocks, weight) if stop is not None else ""
         if why:
             return state, blocks, weight, total, passes, ok, why
