@@ -191,15 +191,17 @@ class InversionConfig:
         default=2.4e-4,
     )
     alpha: float = spec("", "exponent of the contact force (fixed)", between(1.0, 4.0), default=2.0)
-    contact: Literal["fixed", "closure", "free"] = spec(
+    contact: Literal["fixed", "closure", "free", "auto"] = spec(
         "",
         "where reed-lay contact begins. fixed: at the configured y_c (the paper); closure: "
         "at y_m (y_c = y_m, the convention of several time-domain simulators); free: y_c is "
-        "searched (within bounds.y_c, at most y_m). With closure or free the model is scale "
+        "searched (within bounds.y_c, at most y_m); auto: fixed or closure, whichever fits "
+        "the take's first steady window better (the windows table's contact column and the "
+        "console say which). With closure or free the model is scale "
         "invariant (k, S, lam, m / a, y_m, y_c * a, k_c / a^2 give the same p and u), so lam "
         "is held at its configured value to fix the scale and only the combinations p_M, "
         "gamma, zeta, f_r, Q_r are determined",
-        default="fixed",
+        default="auto",
     )
     determined_limit: float = spec(
         "",
@@ -413,14 +415,25 @@ class InversionConfig:
     )
 
     @property
+    def law(self) -> str:
+        """The contact law a window is fitted with: ``contact``, with ``auto`` as ``fixed``.
+
+        ``auto`` is resolved by the take's data in
+        :func:`mpipe.inversion.whole_take.take.invert_take` (``contact_law``); a window fitted
+        on its own with ``auto`` follows the paper's law, the one kept when the data do not
+        choose.
+        """
+        return "fixed" if self.contact == "auto" else self.contact
+
+    @property
     def search_parameters(self) -> tuple[str, ...]:
         """The parameters step 2 searches, in order.
 
         ``free`` without lam when the contact point moves with y_m (lam then fixes the
         scale), and y_c last when ``contact`` is free.
         """
-        names = tuple(n for n in self.free if not (self.contact != "fixed" and n == "lam"))
-        return (*names, "y_c") if self.contact == "free" else names
+        names = tuple(n for n in self.free if not (self.law != "fixed" and n == "lam"))
+        return (*names, "y_c") if self.law == "free" else names
 
     def _check(self, where: Where) -> None:
         for name in PARAMETER_NAMES:

@@ -107,7 +107,7 @@ def start_point(
         if not math.isfinite(v):
             v = math.sqrt(lo * hi)
         values[name] = float(np.clip(v, lo, hi))
-    if config.contact == "closure":
+    if config.law == "closure":
         return ReedParameters(**values, y_c=values["y_m"], alpha=config.alpha)
     values["y_m"] = max(values["y_m"], 1.1 * config.y_c)
     return ReedParameters(**values, y_c=config.y_c, alpha=config.alpha)
@@ -294,7 +294,7 @@ def _step1(
         p_m=config.step1_p_m,
         zero_mean=zero_mean,
         # with contact from closure, step 1's shut-reed test already covers it
-        y_c=config.y_c if estimate and config.contact != "closure" else None,
+        y_c=config.y_c if estimate and config.law != "closure" else None,
         where=where,
     )
 
@@ -322,7 +322,7 @@ def window_objective(
         settings,
         base,
         config.search_parameters,
-        contact_at_closure=config.contact == "closure",
+        contact_at_closure=config.law == "closure",
     )
 
 
@@ -422,7 +422,7 @@ def _uncertainty(
         z_c=kernel.z0,
         rho=kernel.rho,
         limit=config.determined_limit,
-        scale_gauge=None if config.contact == "fixed" else "lam",
+        scale_gauge=None if config.law == "fixed" else "lam",
         invalid=invalid,
         alpha=config.alpha,
     )

@@ -177,6 +177,12 @@ _INVERSION: tuple[Column, ...] = (
 #: Columns the later stages add: the fitted reed's opening, what was played.
 _LATER: tuple[Column, ...] = (
     _col(
+        "contact",
+        TEXT,
+        "the reed-lay contact law the window was fitted with (inversion.contact; with auto, "
+        "the one the take's data chose: fixed or closure)",
+    ),
+    _col(
         "fingering",
         TEXT,
         "fingering of the window's note, whose bore it was inverted on (a name of the "

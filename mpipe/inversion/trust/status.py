@@ -132,7 +132,7 @@ def search_bounds(config: InversionConfig, max_p: float) -> np.ndarray:
     rows = []
     for name in config.search_parameters:
         lo, hi = config.bounds.absolute(name, max_p)
-        if name == "y_m" and config.contact == "fixed":
+        if name == "y_m" and config.law == "fixed":
             lo = max(lo, config.y_c * (1 + 1e-6))
         rows.append((lo, hi))
     return np.array(rows, dtype=float)
@@ -160,7 +160,7 @@ def on_bounds(values: dict, bounds: np.ndarray, config: InversionConfig) -> list
     hits = []
     for (name, value), (lo, hi) in zip(values.items(), bounds, strict=True):
         if math.log(value / lo) < tol:
-            at_yc = name == "y_m" and config.contact == "fixed" and lo <= config.y_c * (1 + 2e-6)
+            at_yc = name == "y_m" and config.law == "fixed" and lo <= config.y_c * (1 + 2e-6)
             hits.append(f"{name}={'y_c' if at_yc else 'lower'}")
         elif math.log(hi / value) < tol:
             hits.append(f"{name}=upper")

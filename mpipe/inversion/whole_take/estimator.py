@@ -111,6 +111,9 @@ class TakeData:
         Inversion settings.
     zero_mean : bool
         The flow is zero-mean (measured).
+    cold : dict
+        First sample -> a cold start already made there on these settings and at the
+        prior's temperature (its ``WindowOutcome``: the contact law's choice), reused.
     """
 
     p: object
@@ -120,6 +123,7 @@ class TakeData:
     windows: object
     config: InversionConfig
     zero_mean: bool
+    cold: dict = dataclasses.field(default_factory=dict)
 
 
 @dataclass(frozen=True)

@@ -314,7 +314,7 @@ def frontend_linear(
             windows.append(lin)
             airs.append({dt: (k.z0, air.rho) for dt, (k, air) in built.items()})
     out = {}
-    closure = config.contact == "closure"
+    closure = config.law == "closure"
     for j, name in enumerate(FRONTEND_NAMES):
         se = float(front.level_se[j])
         if not (math.isfinite(se) and se > 0) or not windows:

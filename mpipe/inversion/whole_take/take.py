@@ -43,6 +43,7 @@ from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.trust.budget import combine
 from mpipe.inversion.trust.diagnostics import check_plausible, take_checks
 from mpipe.inversion.trust.discretisation import rate_errors
+from mpipe.inversion.whole_take.contact_law import choose_contact
 from mpipe.inversion.whole_take.estimator import TakeData
 from mpipe.inversion.whole_take.shared_errors import FrontEnd, shared_components
 from mpipe.inversion.whole_take.take_estimate import estimate_take
@@ -164,37 +165,57 @@ def invert_take(
         check_plausible(p, u, fs, list(plan.starts), int(round(config.window_s * fs)), z_c)
         zero_mean = detect_zero_mean(u, config.signal, config.zero_mean_ratio)
         executor = executor or ExecutorConfig()
-        workers = executor.workers or os.cpu_count() or 1
         # a take on disk (DiskArray) stays there: every step below reads only its windows
         p, u = as_signal(p), as_signal(u)
-        client = options.client if options is not None else None
-        # the fit's cold start and its windows spread over the workers (the same answer)
-        if config.estimator == "take":
-            run = (executor, 1 if client is not None or executor.kind != "local" else workers)
-            data = TakeData(p, u, fs, calibration, plan, config, zero_mean)
-            return _invert_jointly(data, front, carried, front_end, extra_checks, run)
-        # the paper's per-window fit (estimator: window) at the front end's temperature
-        fit = TemperatureFit(front, math.nan, "front end" if carried else "calibration", front)
-        source = KernelSource(calibration, fs, plan.fingering_map())
-        kernel, air = source.at(fit.temperature_c, plan.starts[0] if plan.starts else None)
-        result = _track_fingerings(p, u, fs, source, fit, config, executor, plan, options)
-        # the budget: the take-wide components beside the windows' own, then one combination
-        table = result.table.assign(kernel_temperature_c=fit.temperature_c,
-                                    kernel_temperature_se_c=math.nan)  # fmt: skip
-        table, shared = shared_components(
-            p, u, fs, table, calibration, config, zero_mean=zero_mean, kernel_c=fit.temperature_c,
-            refit_kernel=False, front=front_end,
-        )  # fmt: skip
-        table = rate_errors(table, fs)  # the model's discretisation at fs
-        table = combine(table, config.determined_limit)
-        openings, _ = reed_openings(table, p, fs, whole=False)  # what the reed did: time shut
-        table = pd.concat([table, openings], axis=1)
-        checks = take_checks(table, config, cold_starts_agreeing=_first_agreeing(table),
-                             extra=extra_checks)  # fmt: skip
-        table["take_checks"] = "; ".join(checks)
-        return TakeInversion(
-            dataclasses.replace(result, table=table), fit, kernel, air, tuple(checks), shared
-        )
+        law, cold = config.contact, {}
+        if law == "auto":  # the data choose the contact law before anything is fitted
+            order = np.argsort(np.asarray(plan.starts), kind="stable")
+            steady = None if plan.steady is None else [plan.steady[i] for i in order]
+            names = plan.fingerings[order[0]] if plan.fingerings is not None and len(order) else ""
+            choice = choose_contact(p, u, fs, KernelSource(calibration, fs, plan.fingering_map()),
+                                    [plan.starts[i] for i in order], steady, config,
+                                    zero_mean=zero_mean, t_c=front, fingering=names)  # fmt: skip
+            config, law = dataclasses.replace(config, contact=choice.law), choice.law
+            cold = {choice.start: choice.outcome}  # the take's fit's first cold start
+        data = TakeData(p, u, fs, calibration, plan, config, zero_mean, cold)
+        done = _invert(data, executor, front, carried, front_end, extra_checks, options)
+        table = done.tracking.table.assign(contact=law)
+        return dataclasses.replace(done, tracking=dataclasses.replace(done.tracking, table=table))
+
+
+def _invert(data: TakeData, executor, front, carried, front_end, extra_checks, options
+            ) -> TakeInversion:  # fmt: skip
+    """:func:`invert_take` once its settings are concrete (the contact law chosen)."""
+    p, u, fs, calibration, plan = data.p, data.u, data.fs, data.calibration, data.windows
+    config, zero_mean = data.config, data.zero_mean
+    workers = executor.workers or os.cpu_count() or 1
+    client = options.client if options is not None else None
+    # the fit's cold start and its windows spread over the workers (the same answer)
+    if config.estimator == "take":
+        run = (executor, 1 if client is not None or executor.kind != "local" else workers)
+        return _invert_jointly(data, front, carried, front_end, extra_checks, run)
+    # the paper's per-window fit (estimator: window) at the front end's temperature
+    fit = TemperatureFit(front, math.nan, "front end" if carried else "calibration", front)
+    source = KernelSource(calibration, fs, plan.fingering_map())
+    kernel, air = source.at(fit.temperature_c, plan.starts[0] if plan.starts else None)
+    result = _track_fingerings(p, u, fs, source, fit, config, executor, plan, options)
+    # the budget: the take-wide components beside the windows' own, then one combination
+    table = result.table.assign(kernel_temperature_c=fit.temperature_c,
+                                kernel_temperature_se_c=math.nan)  # fmt: skip
+    table, shared = shared_components(
+        p, u, fs, table, calibration, config, zero_mean=zero_mean, kernel_c=fit.temperature_c,
+        refit_kernel=False, front=front_end,
+    )  # fmt: skip
+    table = rate_errors(table, fs)  # the model's discretisation at fs
+    table = combine(table, config.determined_limit)
+    openings, _ = reed_openings(table, p, fs, whole=False)  # what the reed did: time shut
+    table = pd.concat([table, openings], axis=1)
+    checks = take_checks(table, config, cold_starts_agreeing=_first_agreeing(table),
+                         extra=extra_checks)  # fmt: skip
+    table["take_checks"] = "; ".join(checks)
+    return TakeInversion(
+        dataclasses.replace(result, table=table), fit, kernel, air, tuple(checks), shared
+    )
 
 
 def _invert_jointly(data, front, carried, front_end, extra_checks, run) -> TakeInversion:

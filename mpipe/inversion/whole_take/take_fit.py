@@ -311,7 +311,7 @@ def _cold_start(data: TakeData, source, problems, steady, t, window: int):
     picks += [i for i, ok in enumerate(steady) if not ok and i != window]
     for i in picks[:4]:
         q = problems[i]
-        out = _window_fit(data, source, q, t, None)
+        out = data.cold.get(q.start) or _window_fit(data, source, q, t, None)
         if out.reed is not None:
             log.info("take cold start on the window at %.3f s", q.start / data.fs)
             return out.reed, dict(out.row), float(np.max(q.target.p))

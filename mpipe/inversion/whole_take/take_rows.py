@@ -89,7 +89,7 @@ def window_rows(fit: TakeFit, base: ReedParameters, config: InversionConfig, fs:
     figures = fit.records
     p = len(fit.names)
     n = int(round(config.window_s * fs))
-    closure = config.contact == "closure"
+    closure = config.law == "closure"
     rows, t_se, correlations = [], math.nan, []
     order = [fit.names.index(name) for name in config.search_parameters]
     for i, q in enumerate(fit.problems):
@@ -110,7 +110,7 @@ def window_rows(fit: TakeFit, base: ReedParameters, config: InversionConfig, fs:
         residuals = {k: figures[i].get(k, math.nan) for k in ("noise_residual", "model_residual")}
         values = {name: float(getattr(reed, name)) for name in SE_PARAMETERS}
         kw = dict(z_c=float(fit.z0[i]), rho=float(fit.rho[i]), limit=config.determined_limit,
-                  scale_gauge=None if config.contact == "fixed" else "lam", invalid=invalid,
+                  scale_gauge=None if config.law == "fixed" else "lam", invalid=invalid,
                   alpha=config.alpha)  # fmt: skip
         row.update(window_uncertainty(Covariance(cov=theta, cov_model=model, **common,
                                                  **residuals), values, **kw))  # fmt: skip

@@ -1,0 +1,138 @@
+"""The reed-lay contact law chosen by the take's data (``inversion.contact: auto``).
+
+The reed model's contact force starts either at a fixed displacement ``y_c`` before closure
+(the paper's law, ``contact: fixed``) or at closure (``contact: closure``: ``y_c = y_m``,
+the law of several time-domain simulators, OpenWInD's among them). Which one a reed
+follows is a property of the player's reed and lay, not of the pipeline, so with
+``contact: auto`` the data choose: the take's first steady window is fitted cold under
+each law (the global search of the per-window fit, its estimate and F2 only) and the law
+with the lower sum of squares is the take's.
+
+The two laws do not fit a window alike when the data follow one of them: measured on
+2026-12-02 (``benchmarks/bench_estimator.py`` takes and ``benchmarks/bench_openwind.py``'s),
+the whole take's sum of squares under the other law was 2.2 times as large on two virtual
+45 dB crescendos played with the paper's law, and 1.5 times as large under the paper's
+law on OpenWInD's 1 s crescendo (whose contact starts at closure). A window's noise moves
+its sum of squares by a few per cent. When the two fits of the window lie within
+:data:`ALIKE` of each other the paper's law is kept and the choice says so.
+
+The laws have different free parameters (with ``closure`` the model is scale invariant and
+lambda is held, see ``inversion.contact``); at a window's hundreds of effective samples one
+parameter more is worth a few units of chi-square, far below the differences above.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from dataclasses import dataclass
+
+from mpipe.inversion.fit.window import invert_window
+from mpipe.inversion.preparation.kernel import KernelSource
+from mpipe.inversion.settings import InversionConfig
+
+log = logging.getLogger(__name__)
+
+#: The laws compared, the paper's first (it is kept when the data do not choose).
+LAWS = ("fixed", "closure")
+#: Two laws whose window sums of squares differ by less than this (in ln) fit alike.
+ALIKE = 0.1
+
+
+@dataclass(frozen=True)
+class ContactChoice:
+    """Which contact law the take's data chose, and on what.
+
+    Attributes
+    ----------
+    law : str
+        ``fixed`` or ``closure``.
+    f2 : dict
+        Law -> F2 (Pa) of the window's own fit under it (NaN: the model did not play it).
+    window_s : float
+        Start of the window compared, s.
+    decided : bool
+        The laws' sums of squares differ by :data:`ALIKE` or more (else the paper's law
+        was kept).
+    start : int
+        The window's first sample.
+    outcome : WindowOutcome or None
+        Its fit under the chosen law (the take's cold start there, reused).
+    """
+
+    law: str
+    f2: dict
+    window_s: float
+    decided: bool
+    start: int = 0
+    outcome: object = None
+
+    @property
+    def note(self) -> str:
+        """One line for the console and the report."""
+        figures = ", ".join(f"{k} {v:.4g} Pa" for k, v in self.f2.items())
+        how = "chosen by the data" if self.decided else "kept: the laws fit alike"
+        return (f"contact law {self.law} ({how}; F2 of the window at {self.window_s:.3f} s "
+                f"under each: {figures})")  # fmt: skip
+
+
+def choose_contact(
+    p, u, fs: float, source: KernelSource, starts, steady, config: InversionConfig, *,
+    zero_mean: bool, t_c: float, fingering: str = "",
+) -> ContactChoice:  # fmt: skip
+    """The contact law of the take, from its first steady window fitted under each law.
+
+    Parameters
+    ----------
+    p, u : array-like
+        The take's mouthpiece pressure (Pa) and flow (m^3/s).
+    fs : float
+        Sample rate, Hz.
+    source : KernelSource
+        The take's bores.
+    starts : sequence of int
+        The windows' first samples, in time order.
+    steady : sequence of bool or None
+        Which windows are steady (None: all).
+    config : InversionConfig
+        The inversion's settings (its ``contact`` is replaced by each law).
+    zero_mean : bool
+        The flow is zero-mean (measured).
+    t_c : float
+        The bore's temperature, degC.
+    fingering : str
+        The window's fingering ("" : the calibration's bore).
+
+    Returns
+    -------
+    ContactChoice
+    """
+    ok = [i for i, s in enumerate(steady or [True] * len(starts)) if s] or list(range(len(starts)))
+    start = int(starts[ok[0]])
+    kernel, air = source.named(t_c, fingering)
+    f2, outcomes = {}, {}
+    for law in LAWS:
+        out = invert_window(p, u, fs, start, kernel, air.rho,
+                            dataclasses.replace(config, contact=law), zero_mean=zero_mean,
+                            errors=False)  # fmt: skip
+        value = float(out.row["f2"]) if out.reed is not None else math.nan
+        f2[law], outcomes[law] = (value if math.isfinite(value) else math.nan), out
+    a, b = (f2[law] for law in LAWS)
+    if not (math.isfinite(a) or math.isfinite(b)):
+        raise ValueError(f"the model plays the window at {start / fs:.3f} s under no contact "
+                         "law (inversion.contact: auto)")  # fmt: skip
+    if not math.isfinite(b):
+        law, decided = LAWS[0], True
+    elif not math.isfinite(a):
+        law, decided = LAWS[1], True
+    else:
+        gap = 2.0 * math.log(b / a)  # ln of the ratio of the sums of squares
+        decided = abs(gap) >= ALIKE
+        law = LAWS[1] if decided and gap < 0 else LAWS[0]
+    choice = ContactChoice(law, f2, start / fs, decided, start, outcomes[law])
+    log.info(choice.note)
+    return choice
+
+
+__all__ = ["ALIKE", "LAWS", "ContactChoice", "choose_contact"]
