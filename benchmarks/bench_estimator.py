@@ -15,8 +15,9 @@ take's temperature). Printed per estimator:
 - the share of the sounding windows with p_m within 3 % and p_M within 5 % of the truth,
   and each quantity's median error;
 - each quantity's RMS z (error over the combined SE), with every component and with the
-  model-rate component left out (issue 45 asks for [0.8, 1.25] without it), the note
-  constants (k, S, lambda) counted once per note, the controls once per window;
+  model-rate component left out (issue 45 asks for [0.8, 1.25] without it), over the
+  windows mpipe calls ok, the note constants (k, S, lambda) counted once per note, the
+  controls once per window;
 - with several scores or SNRs (``--scores crescendo,steady,diminuendo --snrs 45,60``;
   ``steady`` and ``diminuendo`` are in benchmarks/scores), the same per score and SNR;
 - the temperature (the truth is the take's air).
@@ -110,7 +111,10 @@ def scores(table, truth: dict) -> dict:
     """Per window: relative errors and z with and without the rate component."""
     times = table["t_start_s"].to_numpy() + 0.5 * (table["t_end_s"] - table["t_start_s"]).to_numpy()
     sounding = table["error"].astype(str).eq("").to_numpy()
-    out = {"sounding": int(sounding.sum()), "ok": int(table["status"].eq("ok").sum())}
+    # an error bar is judged where mpipe gives it: on the windows it calls ok (a window it
+    # flags, e.g. high-residual at an onset, says its estimate is not to be trusted)
+    ok = table["status"].eq("ok").to_numpy() & sounding
+    out = {"sounding": int(sounding.sum()), "ok": int(ok.sum())}
     for q in QUANTITIES:
         true = truth_at(truth, times, q)
         value = table[q].to_numpy(float)
@@ -118,17 +122,17 @@ def scores(table, truth: dict) -> dict:
         rate = table.get(f"{q}_se_rate")
         rate = np.zeros_like(se) if rate is None else np.nan_to_num(rate.to_numpy(float))
         se_norate = np.sqrt(np.maximum(se**2 - rate**2, 0.0))
-        out[q] = dict(
-            err=value / true - 1, z=(value - true) / se, z_norate=(value - true) / se_norate
-        )
+        z, z_norate = (value - true) / se, (value - true) / se_norate
+        out[q] = dict(err=value / true - 1, z=np.where(ok, z, np.nan),
+                      z_norate=np.where(ok, z_norate, np.nan))  # fmt: skip
     out["good"] = (np.abs(out["p_m"]["err"]) < 0.03) & (np.abs(out["p_M"]["err"]) < 0.05) & sounding
     # each note's constants once (the take's fit gives every window of a note the same
     # value and SE; the per-window fit's note median stands for the note)
     notes = table["segment"].to_numpy() if "segment" in table else np.zeros(len(table))
     for q in NOTE_CONSTANTS:
         z = []
-        for note in np.unique(notes[sounding]):
-            rows = sounding & (notes == note)
+        for note in np.unique(notes[ok]):
+            rows = ok & (notes == note)
             z.append(float(np.nanmedian(out[q]["z_norate"][rows])))
         out[q]["note_z_norate"] = np.array(z)
     return out
