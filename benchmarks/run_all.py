@@ -60,6 +60,7 @@ QUICK_ARGS = {
     "bench_dask": ["--runs", "2", "--batch", "2", "--duration", "1"],
     "bench_session": ["--takes", "4"],
     "bench_estimator": ["--seeds", "0,1"],
+    "bench_sandwich": ["--seeds", "4"],
     "bench_rate": ["--cases", "shipped", "--rates", "44100,100000", "--variants", "scheme"],
     "bench_harmonics": ["--repeats", "3", "--windows", "8"],
 }
