@@ -22,7 +22,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests" / "inversion" / "whole_take"))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from headline import record  # noqa: E402
 from test_estimator import CONFIG, FS, PLAYED_C, TABLE1, _take  # noqa: E402
 
 from mpipe.inversion.settings import ExecutorConfig  # noqa: E402
@@ -62,7 +64,10 @@ def main(argv=None) -> int:
     for q, values in zs.items():
         z = np.concatenate([np.atleast_1d(v) for v in values])
         z = z[np.isfinite(z)]
-        print(f"  {q:4s} {np.sqrt(np.mean(z**2)):5.2f}  (n {z.size})")
+        value = float(np.sqrt(np.mean(z**2)))
+        print(f"  {q:4s} {value:5.2f}  (n {z.size})")
+        record(f"RMS z of {q} (-rate), take fit without a front end", value, "",
+               target="[0.8, 1.25]")  # fmt: skip
     return 0
 
 
