@@ -196,7 +196,7 @@ class InversionConfig:
         "where reed-lay contact begins. fixed: at the configured y_c (the paper); closure: "
         "at y_m (y_c = y_m, the convention of several time-domain simulators); free: y_c is "
         "searched (within bounds.y_c, at most y_m); auto: fixed or closure, whichever fits "
-        "the take's first steady window better (the windows table's contact column and the "
+        "the take's loudest steady window better (the windows table's contact column and the "
         "console say which). With closure or free the model is scale "
         "invariant (k, S, lam, m / a, y_m, y_c * a, k_c / a^2 give the same p and u), so lam "
         "is held at its configured value to fix the scale and only the combinations p_M, "

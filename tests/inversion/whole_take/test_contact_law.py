@@ -2,7 +2,7 @@
 
 Model output played under each law (contact from the paper's y_c, or at closure) with a
 little white noise: the window fitted under both laws must choose the one it was played
-with, on every one of three seeds.
+with, on every one of three seeds, fitted on the louder of the take's windows.
 """
 
 import dataclasses
@@ -36,7 +36,9 @@ def test_the_data_choose_the_law_they_were_played_with(shipped_calibration, law,
     choice = choose_contact(p, u, FS, source, [24000, 26000], None, config, zero_mean=False,
                             t_c=20.0)  # fmt: skip
     assert choice.law == law and choice.decided, choice.note
-    assert choice.start == 24000 and choice.outcome.reed is not None
+    # the louder of the two windows (20 ms each), where the reed beats harder
+    louder = max((24000, 26000), key=lambda a: float(np.sqrt(np.mean(p[a : a + 2000] ** 2))))
+    assert choice.start == louder and choice.outcome.reed is not None
     # the other law fits the window worse by more than the margin
     other = next(k for k in choice.f2 if k != law)
     assert choice.f2[other] > choice.f2[law]
