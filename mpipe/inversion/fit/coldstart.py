@@ -111,9 +111,6 @@ class ColdStart:
     local_f : ndarray
         F2 at the end of each short local search, Pa, in the order they were run (seeds
         first).
-    local_x : ndarray
-        Shape ``(len(local_f), d)``: where each short local search ended, SI units (the
-        other basins the search saw).
     agreeing : int
         Local searches that ended within :data:`AGREEMENT` (log distance, every parameter)
         of the polished minimum.
@@ -125,7 +122,6 @@ class ColdStart:
     local_f: np.ndarray
     agreeing: int
     design_evaluations: int
-    local_x: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 0)))
 
 
 @dataclass(frozen=True)
@@ -259,8 +255,7 @@ def global_search(
     agreeing = sum(bool(np.max(np.abs(np.log(r.x / final.x))) < AGREEMENT) for r in local)
     total = int(values.size + sum(r.n_evaluations for r in local) + final.n_evaluations)
     search = dataclasses.replace(final, n_evaluations=total, history=np.asarray(trace))
-    local_x = np.array([r.x for r in local]) if local else np.zeros((0, lower.size))
-    return ColdStart(search, local_f, agreeing, int(values.size), local_x)
+    return ColdStart(search, local_f, agreeing, int(values.size))
 
 
 __all__ = [

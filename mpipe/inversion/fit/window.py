@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mpipe.inversion.fit.coldstart import ColdStart, ColdStartOptions, global_search
+from mpipe.inversion.fit.coldstart import ColdStartOptions, global_search
 from mpipe.inversion.fit.history_start import lead_in
 from mpipe.inversion.fit.least_squares import trust_region
 from mpipe.inversion.fit.objective import F2Objective, ObjectiveSettings, TargetWindow
@@ -58,16 +58,12 @@ class WindowOutcome:
         Step-2 search (None when it failed).
     reed : ReedParameters or None
         Step-2 estimate.
-    basins : tuple of (ReedParameters, float)
-        A cold window's other candidate minima: where each short local search of the
-        cold start ended and its F2 (Pa), lowest first (empty for a warm window).
     """
 
     row: WindowRecord
     step1: Step1Result | None
     search: SearchResult | None
     reed: ReedParameters | None
-    basins: tuple = ()
 
 
 def start_point(
@@ -214,7 +210,6 @@ def invert_window(
     cold = warm is None
     row = blank_row(start, n, fs, config, cold=cold)
     s1 = search = reed = None
-    basins: tuple = ()
     try:
         pw, uw = p[start : start + n], u[start : start + n]
         if pw.size < n:
@@ -228,12 +223,9 @@ def invert_window(
         target = TargetWindow(pw, uw, *history, fs, zero_mean)
         objective = window_objective(kernel, target, base, config)
         bounds = window_bounds(config, p, start, n, fs)
-        search, found = _search(objective, base, bounds, config, cold=cold)
-        if found is not None:
-            row["cold_starts_agreeing"] = found.agreeing
-            order = np.argsort(found.local_f, kind="stable")
-            basins = tuple((objective.reed(found.local_x[i]), float(found.local_f[i]))
-                           for i in order if found.local_f[i] < objective.penalty)  # fmt: skip
+        search, agreeing = _search(objective, base, bounds, config, cold=cold)
+        if agreeing is not None:
+            row["cold_starts_agreeing"] = agreeing
         if not search.f < objective.penalty:
             raise RuntimeError("no feasible parameter set found (model silent or unstable)")
         reed = objective.reed(search.x)
@@ -251,7 +243,7 @@ def invert_window(
     row["wall_time_s"] = time.perf_counter() - t0
     status = window_status(row, required_quantities(config))
     row.update(zip(("status", "status_reason"), status, strict=True))
-    return WindowOutcome(row=row, step1=s1, search=search, reed=reed, basins=basins)
+    return WindowOutcome(row=row, step1=s1, search=search, reed=reed)
 
 
 def window_bounds(
@@ -333,10 +325,10 @@ def _search(
     config: InversionConfig,
     *,
     cold: bool,
-) -> tuple[SearchResult, ColdStart | None]:
+) -> tuple[SearchResult, int | None]:
     """Step 2 from ``base``: the global cold start, or one local search.
 
-    Returns the search and, for the global cold start, the cold start's record.
+    Returns the search and, for the global cold start, how many of its starts agreed.
     """
     names = config.search_parameters
     x0 = np.clip([getattr(base, name) for name in names], bounds[:, 0], bounds[:, 1])
@@ -353,7 +345,7 @@ def _search(
         infeasible_at=objective.penalty,
         jacobian=_jacobian(objective),
     )
-    return found.search, found
+    return found.search, found.agreeing
 
 
 def _estimate_columns(

@@ -30,11 +30,10 @@ import logging
 import math
 from dataclasses import dataclass
 
-import numpy as np
-
 from mpipe.inversion.fit.window import invert_window
 from mpipe.inversion.preparation.kernel import KernelSource
 from mpipe.inversion.settings import InversionConfig
+from mpipe.inversion.whole_take.take_fit import loudest
 
 log = logging.getLogger(__name__)
 
@@ -54,36 +53,36 @@ class ContactChoice:
         ``fixed`` or ``closure``.
     f2 : dict
         Law -> F2 (Pa) of the window's own fit under it (NaN: the model did not play it).
-    window_s : float
-        Start of the window compared, s.
     decided : bool
         The laws' sums of squares differ by :data:`ALIKE` or more (else the paper's law
         was kept).
     start : int
         The window's first sample.
-    outcome : WindowOutcome or None
+    fs : float
+        Sample rate, Hz.
+    outcome : WindowOutcome
         Its fit under the chosen law (the take's cold start there, reused).
     """
 
     law: str
     f2: dict
-    window_s: float
     decided: bool
-    start: int = 0
-    outcome: object = None
+    start: int
+    fs: float
+    outcome: object
 
     @property
     def note(self) -> str:
         """One line for the console and the report."""
         figures = ", ".join(f"{k} {v:.4g} Pa" for k, v in self.f2.items())
         how = "chosen by the data" if self.decided else "kept: the laws fit alike"
-        return (f"contact law {self.law} ({how}; F2 of the window at {self.window_s:.3f} s "
-                f"under each: {figures})")  # fmt: skip
+        return (f"contact law {self.law} ({how}; F2 of the window at {self.start / self.fs:.3f} "
+                f"s under each: {figures})")  # fmt: skip
 
 
 def choose_contact(
     p, u, fs: float, source: KernelSource, starts, steady, config: InversionConfig, *,
-    zero_mean: bool, t_c: float, fingering: str = "",
+    zero_mean: bool, t_c: float,
 ) -> ContactChoice:  # fmt: skip
     """The contact law of the take, from its loudest steady window fitted under each law.
 
@@ -94,7 +93,7 @@ def choose_contact(
     fs : float
         Sample rate, Hz.
     source : KernelSource
-        The take's bores.
+        The take's bores (the window is fitted on its own note's fingering).
     starts : sequence of int
         The windows' first samples, in time order.
     steady : sequence of bool or None
@@ -105,21 +104,17 @@ def choose_contact(
         The flow is zero-mean (measured).
     t_c : float
         The bore's temperature, degC.
-    fingering : str
-        The window's fingering ("" : the calibration's bore).
 
     Returns
     -------
     ContactChoice
     """
-    ok = [i for i, s in enumerate(steady or [True] * len(starts)) if s] or list(range(len(starts)))
     n = int(round(config.window_s * fs))
     # the loudest steady window: where the reed beats hardest the laws differ most (a
-    # crescendo's first window may not reach the lay at all, and fits both laws alike)
-    loud = [float(np.sqrt(np.mean(np.square(np.asarray(p[starts[i] : starts[i] + n], float)))))
-            for i in ok]  # fmt: skip
-    start = int(starts[ok[int(np.argmax(loud))]])
-    kernel, air = source.named(t_c, fingering)
+    # crescendo's first window may not reach the lay at all, and fits both laws alike);
+    # the take fit's second cold start is made on the same window and reuses this fit
+    start = int(starts[loudest([p[s : s + n] for s in starts], steady)])
+    kernel, air = source.at(t_c, start)
     f2, outcomes = {}, {}
     for law in LAWS:
         out = invert_window(p, u, fs, start, kernel, air.rho,
@@ -139,7 +134,7 @@ def choose_contact(
         gap = 2.0 * math.log(b / a)  # ln of the ratio of the sums of squares
         decided = abs(gap) >= ALIKE
         law = LAWS[1] if decided and gap < 0 else LAWS[0]
-    choice = ContactChoice(law, f2, start / fs, decided, start, outcomes[law])
+    choice = ContactChoice(law, f2, decided, start, fs, outcomes[law])
     log.info(choice.note)
     return choice
 

@@ -359,9 +359,9 @@ def joint_pass(take: TakeProblem, state: FitState, tolerance: float = SE_TOLERAN
 
     ``tolerance`` is the stopping rule's, in SEs; ``start`` the ``(blocks, weight, exact)`` a
     pass on the same kernels ended with (None: the Taylor terms are measured at ``state``;
-    ``exact``: its blocks' Jacobian is the exact one, not a secant update). ``near(state)``,
-    when given, is asked at every accepted step whether the pass may end there (its message
-    then starts "left"). Returns
+    ``exact``: its blocks' Jacobian is the exact one, not a secant update). ``near(slow)``,
+    when given, is asked at every accepted step whether the pass may end there (the note
+    constants, (N, s)). Returns
     ``(state, (blocks, weight, exact), steps, converged, message)``; raises ValueError when
     a window cannot be played at the pass's start.
     """
@@ -425,7 +425,7 @@ def joint_pass(take: TakeProblem, state: FitState, tolerance: float = SE_TOLERAN
             take.history.append(np.sqrt(blocks.rr))
             mu *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
             nu = 2.0
-            if near is not None and near(state):
+            if near is not None and near(state.slow):
                 message, converged = "left: in the first cold start's basin", True
                 break
         else:

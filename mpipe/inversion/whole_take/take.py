@@ -171,12 +171,11 @@ def invert_take(
         if law == "auto":  # the data choose the contact law before anything is fitted
             order = np.argsort(np.asarray(plan.starts), kind="stable")
             steady = None if plan.steady is None else [plan.steady[i] for i in order]
-            names = plan.fingerings[order[0]] if plan.fingerings is not None and len(order) else ""
             choice = choose_contact(p, u, fs, KernelSource(calibration, fs, plan.fingering_map()),
                                     [plan.starts[i] for i in order], steady, config,
-                                    zero_mean=zero_mean, t_c=front, fingering=names)  # fmt: skip
+                                    zero_mean=zero_mean, t_c=front)  # fmt: skip
             config, law = dataclasses.replace(config, contact=choice.law), choice.law
-            cold = {choice.start: choice.outcome}  # the take's fit's first cold start
+            cold = {choice.start: choice.outcome}  # the take fit's cold start there, reused
         data = TakeData(p, u, fs, calibration, plan, config, zero_mean, cold)
         done = _invert(data, executor, front, carried, front_end, extra_checks, options)
         table = done.tracking.table.assign(contact=law)

@@ -17,7 +17,6 @@ import contextlib
 import dataclasses
 import functools
 import logging
-import math
 import time
 from dataclasses import dataclass
 
@@ -94,14 +93,14 @@ def fit_take(
         runs = [_run_from(stack, data, problems, colds[0][0], colds[0][2], prior, t_range,
                           workers)]  # fmt: skip
         for cold, _, peak in colds[1:]:
-            stop = functools.partial(_leave, first=runs[0])
-            stop.near = functools.partial(_same_minimum, b=runs[0].state)
+            ends = (functools.partial(_leave, first=runs[0]),
+                    functools.partial(_agree, b=runs[0].state.slow))  # fmt: skip
             runs.append(_run_from(stack, data, problems, cold, peak, prior, t_range, workers,
-                                  stop))  # fmt: skip
+                                  ends))  # fmt: skip
         costs = rival_costs(runs)
         best = int(np.argmin(costs))
-        rivals = [k for k, r in enumerate(runs) if k != best and not r.message.startswith("left")
-                  and not _same_minimum(r.state, runs[best].state)]  # fmt: skip
+        rivals = [k for k, r in enumerate(runs) if k != best and not r.left
+                  and not _agree(r.state.slow, runs[best].state.slow)]  # fmt: skip
         if len(runs) > 1:
             log.info("take fit: %d cold starts in different basins, costs %s (%s); the lowest "
                      "kept", len(runs), ", ".join(f"{c:.6g}" for c in costs),
@@ -117,11 +116,10 @@ def fit_take(
 LEAVE_MARGIN = 40.0
 
 
-def _same_minimum(a: FitState, b: FitState) -> bool:
-    """Every note constant of two runs within :data:`AGREEMENT` (ln x) of the other's."""
-    return a.slow.shape == b.slow.shape and bool(
-        np.all(np.abs(np.log(a.slow / b.slow)) < AGREEMENT)
-    )
+def _agree(a: np.ndarray, b: np.ndarray) -> bool:
+    """Every note constant of ``a`` within :data:`AGREEMENT` (ln x) of ``b``'s, (N, s) each."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return a.shape == b.shape and bool(np.all(np.abs(np.log(a / b)) < AGREEMENT))
 
 
 def _leave(take: TakeProblem, state: FitState, blocks, weight: float, *, first: _Run) -> str:
@@ -131,9 +129,9 @@ def _leave(take: TakeProblem, state: FitState, blocks, weight: float, *, first: 
     its cost lies :data:`LEAVE_MARGIN` above the first run's final one (a worse basin).
     """
     del weight  # compared on the first run's weight
-    if _same_minimum(state, first.state):
+    if _agree(state.slow, first.state.slow):
         return "left: in the first cold start's basin"
-    probe = _Run(take, state, blocks, first.weight, 0, 0, True, "", {})
+    probe = _Run(take, state, blocks, first.weight, 0, 0, True, "", {}, False)
     theirs, mine = rival_costs([first, probe])
     if mine > theirs + LEAVE_MARGIN:
         return f"left: its cost {mine:.6g} above the first start's {theirs:.6g}"
@@ -153,15 +151,27 @@ def cold_windows(problems, steady) -> list[int]:
     """
     ok = np.array(steady, bool) if any(steady) else np.ones(len(problems), bool)
     idx = np.flatnonzero(ok)
-    rms = np.array([float(np.sqrt(np.mean(np.square(problems[i].target.p)))) for i in idx])
-    return list(dict.fromkeys([int(idx[0]), int(idx[int(np.argmax(rms))])]))
+    return list(dict.fromkeys([int(idx[0]), loudest([q.target.p for q in problems], steady)]))
+
+
+def loudest(windows, steady) -> int:
+    """The index of the loudest (RMS pressure) steady window; every window when none is.
+
+    ``windows``: each window's pressure (Pa), in time order; ``steady``: a flag per window
+    or None. The take's second cold start and the contact law's choice are made on it
+    (:mod:`mpipe.inversion.whole_take.contact_law`), so that the one fit serves both.
+    """
+    flags = [True] * len(windows) if steady is None else list(steady)
+    idx = [i for i, ok in enumerate(flags) if ok] or list(range(len(windows)))
+    rms = [float(np.sqrt(np.mean(np.square(np.asarray(windows[i], float))))) for i in idx]
+    return int(idx[int(np.argmax(rms))])
 
 
 def _same_basin(a: ReedParameters, b: ReedParameters, config) -> bool:
     """Two cold starts' reeds agree within :data:`AGREEMENT` in every note constant."""
     layout = layout_of(config)
     names = layout.names[layout.n_fast :]
-    return all(abs(math.log(getattr(a, n) / getattr(b, n))) < AGREEMENT for n in names)
+    return _agree([getattr(a, n) for n in names], [getattr(b, n) for n in names])
 
 
 def rival_costs(runs) -> np.ndarray:
@@ -194,13 +204,14 @@ class _Run:
     converged: bool
     message: str
     excluded: dict
+    left: bool = False  # ended early in the first run's basin or above it (not a rival)
 
 
 def _run_from(stack: contextlib.ExitStack, data: TakeData, problems, cold, peak: float, prior,
-              t_range, workers, stop=None) -> _Run:  # fmt: skip
+              t_range, workers, ends=None) -> _Run:  # fmt: skip
     """The take's fit from one cold start: its warm chains and passes (shards in ``stack``).
 
-    ``stop``: asked after each pass whether the run may end there (:func:`_passes`).
+    ``ends``: ``(stop, near)`` of a second run, which may end early (:func:`_passes`).
     """
     fs, config = data.fs, data.config
     layout = layout_of(config)
@@ -226,9 +237,9 @@ def _run_from(stack: contextlib.ExitStack, data: TakeData, problems, cold, peak:
     state = FitState(fast, slow0, float(prior[0]))
     boxes = search_boxes(problems, layout.n_fast, n_notes, t_range)
     take = TakeProblem(shards, problems, layout, sizes, prior, boxes)
-    state, blocks, weight, total, passes, converged, message = _passes(take, state, stop)
+    state, blocks, weight, total, passes, converged, message, left = _passes(take, state, ends)
     log.debug("take fit: passes after %.2f s", time.perf_counter() - clock)
-    return _Run(take, state, blocks, weight, total, passes, converged, message, excluded)
+    return _Run(take, state, blocks, weight, total, passes, converged, message, excluded, left)
 
 
 def _finish(run: _Run, data: TakeData, rivals: tuple) -> TakeFit:
@@ -246,30 +257,28 @@ def _finish(run: _Run, data: TakeData, rivals: tuple) -> TakeFit:
                    rivals)  # fmt: skip
 
 
-def _passes(take: TakeProblem, state: FitState, stop=None):
+def _passes(take: TakeProblem, state: FitState, ends=None):
     """The passes of the joint fit, kernels rebuilt at T between them.
 
     A pass first runs to :data:`LOOSE_SE` (where T is headed); when T has moved by more
     than :data:`T_SETTLED_C` the kernels are rebuilt there and a new pass starts, else the
-    same pass goes on to :data:`SE_TOLERANCE`. ``stop(take, state, blocks, weight)``, if given,
-    is asked after each pass whether this run may end there (its message then says why);
-    its attribute ``near(state)``, at every accepted step whether the run has reached the
-    first run's minimum (:func:`_same_minimum`).
+    same pass goes on to :data:`SE_TOLERANCE`. ``ends = (stop, near)``, for a second run:
+    ``stop(take, state, blocks, weight)`` is asked after each pass whether the run may end
+    there (its reason, or ""), ``near(slow)`` at every accepted step whether it has reached
+    the first run's minimum (:func:`_agree`). The last value returned says it ended so.
     """
+    stop, near = ends if ends is not None else (None, None)
     total, converged, t_built, start = 0, True, state.t, None
     for passes in range(1, MAX_PASSES + 1):
         last = passes == MAX_PASSES
         tolerance = SE_TOLERANCE if last else LOOSE_SE
-        near = getattr(stop, "near", None)
         state, ended, steps, ok, message = joint_pass(take, state, tolerance, start, near=near)
         blocks, weight, _ = ended
         total += steps
         log.debug("take fit pass %d: T %.3f degC, %d steps (%s)", passes, state.t, steps, message)
-        if message.startswith("left"):
-            return state, blocks, weight, total, passes, ok, message
         why = stop(take, state, blocks, weight) if stop is not None else ""
         if why:
-            return state, blocks, weight, total, passes, ok, why
+            return state, blocks, weight, total, passes, ok, why, True
         if abs(state.t - t_built) < T_SETTLED_C or last:
             if not last:  # on to the tolerance, on the same kernels
                 state, ended, steps, ok, message = joint_pass(take, state, SE_TOLERANCE, ended)
@@ -282,7 +291,7 @@ def _passes(take: TakeProblem, state: FitState, stop=None):
     if abs(state.t - t_built) >= T_SETTLED_C:
         # the last pass ended far from its kernels: its blocks measured on their own
         blocks = take.blocks(state, "measure")
-    return state, blocks, weight, total, passes, converged, message
+    return state, blocks, weight, total, passes, converged, message, False
 
 
 def _problems(p, u, fs, source, windows, config, zero_mean, t):
