@@ -89,25 +89,76 @@ def fit_take(
             cold = _cold_start(data, source, problems, steady, prior[0], window)
             if not any(_same_basin(cold[0], c[0], config) for c in colds):
                 colds.append(cold)
+    origins = [Origin(reed, peak) for reed, _, peak in colds]
+    fit_ = functools.partial(_runs, data=data, prior=prior, t_range=t_range, workers=workers)
     with contextlib.ExitStack() as stack:
-        runs = [_run_from(stack, data, problems, colds[0][0], colds[0][2], prior, t_range,
-                          workers)]  # fmt: skip
-        for cold, _, peak in colds[1:]:
-            ends = (functools.partial(_leave, first=runs[0]),
-                    functools.partial(_agree, b=runs[0].state.slow))  # fmt: skip
-            runs.append(_run_from(stack, data, problems, cold, peak, prior, t_range, workers,
-                                  ends))  # fmt: skip
+        thin = thinned(problems)
+        if len(thin) < len(problems):  # the basins found on the thinned take, then the whole
+            with contextlib.ExitStack() as searched:
+                found = fit_(searched, [problems[i] for i in thin], origins)
+                costs = rival_costs(found)
+                order = [int(k) for k in np.argsort(costs)]
+                near = [k for k in order[1:] if not found[k].left
+                        and costs[k] - costs[order[0]] < LEAVE_MARGIN]  # fmt: skip
+                if len(found) > 1:
+                    log.info("take fit: %d cold starts on %d of %d windows, costs %s (%s)",
+                             len(found), len(thin), len(problems),
+                             ", ".join(f"{c:.6g}" for c in costs),
+                             "; ".join(r.message for r in found[1:]))  # fmt: skip
+                chosen = [order[0], *near]  # a rival the thinned take cannot tell apart
+                origins_full = [found[k].origin_here(origins[k]) for k in chosen]
+                colds = [colds[k] for k in chosen]
+        else:
+            origins_full = origins
+        runs = fit_(stack, problems, origins_full)
         costs = rival_costs(runs)
         best = int(np.argmin(costs))
         rivals = [k for k, r in enumerate(runs) if k != best and not r.left
                   and not _agree(r.state.slow, runs[best].state.slow)]  # fmt: skip
         if len(runs) > 1:
-            log.info("take fit: %d cold starts in different basins, costs %s (%s); the lowest "
+            log.info("take fit: %d starts in different basins, costs %s (%s); the lowest "
                      "kept", len(runs), ", ".join(f"{c:.6g}" for c in costs),
                      "; ".join(r.message for r in runs[1:]))  # fmt: skip
         kept = tuple(costs[[best, *rivals]]) if rivals else ()
         fit = _finish(runs[best], data, kept)
     return fit, colds[best][0], colds[best][1]
+
+
+#: The take's cold starts are followed on every ``THIN``-th window of each note (at least
+#: :data:`THIN_MIN` of a note's windows, all of a shorter note's): the basin each ends in
+#: and its cost on that thinned take (a quarter of the data: the crescendos' second
+#: minimum lies 280-300 chi-square units above the first on the whole take, 70-75 on a
+#: quarter), then the whole take from the lowest, its note constants and temperature
+#: already near the minimum (a few steps of the whole take instead of a pass from the
+#: cold start's constants).
+THIN = 4
+THIN_MIN = 4
+
+
+def thinned(problems) -> list[int]:
+    """The windows (take indices) of the thinned take: every ``THIN``-th of each note."""
+    notes = np.array([q.note for q in problems])
+    out: list[int] = []
+    for note in dict.fromkeys(notes.tolist()):
+        idx = np.flatnonzero(notes == note)
+        if idx.size <= THIN_MIN:
+            out += idx.tolist()
+            continue
+        every = idx[::THIN]
+        if every.size < THIN_MIN:  # spread evenly instead
+            every = idx[np.round(np.linspace(0, idx.size - 1, THIN_MIN)).astype(int)]
+        out += sorted(set(every.tolist()))
+    return sorted(out)
+
+
+def _runs(stack, problems, origins, *, data, prior, t_range, workers) -> list:
+    """The fit from each origin over ``problems``; a later one may end early (:func:`_leave`)."""
+    runs = [_run_from(stack, data, problems, origins[0], prior, t_range, workers)]
+    for origin in origins[1:]:
+        ends = (functools.partial(_leave, first=runs[0]),
+                functools.partial(_agree, b=runs[0].state.slow))  # fmt: skip
+        runs.append(_run_from(stack, data, problems, origin, prior, t_range, workers, ends))
+    return runs
 
 
 #: A second run whose cost after a pass lies this far above the first run's final cost
@@ -191,6 +242,29 @@ def rival_costs(runs) -> np.ndarray:
     return np.array(out)
 
 
+@dataclass(frozen=True)
+class Origin:
+    """Where a run of the take's fit starts.
+
+    Attributes
+    ----------
+    reed : ReedParameters
+        A cold start's reed (every note's constants and every chain's first controls).
+    peak : float
+        The cold start window's peak pressure, Pa (a chain's first p_m scales with its own).
+    slow : dict, optional
+        Note (its index in the take) -> its constants (s,), SI units, where a fit of the
+        thinned take found them (the others from ``reed``).
+    t : float, optional
+        The temperature to start from, degC (None: the prior's mean).
+    """
+
+    reed: ReedParameters
+    peak: float
+    slow: dict = dataclasses.field(default_factory=dict)
+    t: float | None = None
+
+
 @dataclass
 class _Run:
     """The take's fit from one cold start, its shards still open (for :func:`_finish`)."""
@@ -205,11 +279,17 @@ class _Run:
     message: str
     excluded: dict
     left: bool = False  # ended early in the first run's basin or above it (not a rival)
+    notes: tuple = ()  # the take's index of each note of ``state.slow``
+
+    def origin_here(self, origin: Origin) -> Origin:
+        """``origin`` moved to where this run ended (its notes' constants, its T)."""
+        slow = {n: self.state.slow[k] for k, n in enumerate(self.notes)}
+        return dataclasses.replace(origin, slow=slow, t=float(self.state.t))
 
 
-def _run_from(stack: contextlib.ExitStack, data: TakeData, problems, cold, peak: float, prior,
+def _run_from(stack: contextlib.ExitStack, data: TakeData, problems, origin: Origin, prior,
               t_range, workers, ends=None) -> _Run:  # fmt: skip
-    """The take's fit from one cold start: its warm chains and passes (shards in ``stack``).
+    """The take's fit from ``origin``: its warm chains and passes (shards in ``stack``).
 
     ``ends``: ``(stop, near)`` of a second run, which may end early (:func:`_passes`).
     """
@@ -217,29 +297,32 @@ def _run_from(stack: contextlib.ExitStack, data: TakeData, problems, cold, peak:
     layout = layout_of(config)
     sizes = TierSizes(layout.n_fast, len(layout.names) - layout.n_fast, 1)
     fingerings = data.windows.fingering_map()
-    spec = ShardSpec(tuple(problems), data.calibration, fs, fingerings, cold, config, layout,
-                     float(prior[0]))  # fmt: skip
+    t0 = float(prior[0]) if origin.t is None else float(origin.t)
+    spec = ShardSpec(tuple(problems), data.calibration, fs, fingerings, origin.reed, config,
+                     layout, t0)  # fmt: skip
     clock = time.perf_counter()
     own = stack.enter_context(contextlib.ExitStack())
     ranges = shard_ranges(_chains(problems), workers)
     shards = own.enter_context(Shards(spec, ranges, processes=workers > 1))
-    slow0, fast, excluded = _start(shards, problems, layout, cold, peak)
+    slow0, fast, excluded = _start(shards, problems, layout, origin)
     log.debug("take fit: warm chains after %.2f s", time.perf_counter() - clock)
     if excluded:  # the windows left out, the shards made again without them
         keep = [i for i, q in enumerate(problems) if q.start not in excluded]
         slow0 = slow0[list(dict.fromkeys(problems[i].note for i in keep))]
-        problems, fast = _renumber([problems[i] for i in keep]), fast[keep]
-        spec = dataclasses.replace(spec, problems=tuple(problems))
+        problems, fast = [problems[i] for i in keep], fast[keep]
+        spec = dataclasses.replace(spec, problems=tuple(_renumber(problems)))
         ranges = shard_ranges(_chains(problems), workers)
         own.close()
         shards = own.enter_context(Shards(spec, ranges, processes=workers > 1))
-    n_notes = problems[-1].note + 1
-    state = FitState(fast, slow0, float(prior[0]))
-    boxes = search_boxes(problems, layout.n_fast, n_notes, t_range)
+    notes = tuple(dict.fromkeys(q.note for q in problems))  # the take's, before renumbering
+    problems = _renumber(problems)
+    state = FitState(fast, slow0, t0)
+    boxes = search_boxes(problems, layout.n_fast, len(notes), t_range)
     take = TakeProblem(shards, problems, layout, sizes, prior, boxes)
     state, blocks, weight, total, passes, converged, message, left = _passes(take, state, ends)
     log.debug("take fit: passes after %.2f s", time.perf_counter() - clock)
-    return _Run(take, state, blocks, weight, total, passes, converged, message, excluded, left)
+    return _Run(take, state, blocks, weight, total, passes, converged, message, excluded, left,
+                notes)  # fmt: skip
 
 
 def _finish(run: _Run, data: TakeData, rivals: tuple) -> TakeFit:
@@ -338,20 +421,24 @@ def _chains(problems) -> list[list[int]]:
     return chains
 
 
-def _start(shards: Shards, problems, layout: Layout, cold: ReedParameters, peak: float):
+def _start(shards: Shards, problems, layout: Layout, origin: Origin):
     """The fit's start: each note's constants and each window's controls, and those left out.
 
-    Every note starts from the cold start's constants; each window's controls are fitted
-    along its chain with them held. Whether the fit then ends in the take's minimum depends
-    on the cold start's window (:func:`cold_windows`); tried and not kept
+    Every note starts from the constants a fit of the thinned take found for it
+    (``origin.slow``), else the cold start's; each window's controls are fitted along its
+    chain with them held. Whether the fit then ends in the take's minimum depends on the
+    cold start's window (:func:`cold_windows`); tried and not kept
     (benchmarks/bench_estimator.py): every note from the median of its chains' first
     windows' own fits; choosing between starts by the warm chains' sum of squares, which
     picked the worse basin on one take of five where the passes' final one did not.
     """
-    f = layout.n_fast
-    n_notes = max(q.note for q in problems) + 1
-    slow = np.tile(np.array([getattr(cold, n) for n in layout.names[f:]]), (n_notes, 1))
-    found = _warm(shards, problems, layout, cold, slow, peak)
+    f, cold = layout.n_fast, origin.reed
+    notes = list(dict.fromkeys(q.note for q in problems))
+    base = np.array([getattr(cold, n) for n in layout.names[f:]])
+    slow = np.array([origin.slow.get(n, base) for n in notes], float)
+    row = {n: k for k, n in enumerate(notes)}
+    found = _warm(shards, problems, layout, cold, slow[[row[q.note] for q in problems]],
+                  origin.peak)  # fmt: skip
     cold_fast = np.array([getattr(cold, n) for n in layout.names[:f]])
     excluded = {q.start: "the model does not play this window from the take's cold start"
                 for q, x in zip(problems, found, strict=True) if x is None}  # fmt: skip
@@ -364,8 +451,8 @@ def _start(shards: Shards, problems, layout: Layout, cold: ReedParameters, peak:
 def _warm(shards: Shards, problems, layout: Layout, cold: ReedParameters, slow, peak: float):
     """Every window's fast controls warm along its chain: ``(fast, r^T r)`` or None.
 
-    ``slow`` are each note's constants (N, s), held; ``peak`` the cold start window's peak
-    pressure, Pa. None: none of the window's starts plays.
+    ``slow`` are each window's note's constants (W, s), held; ``peak`` the cold start
+    window's peak pressure, Pa. None: none of the window's starts plays.
     """
     f = layout.n_fast
     cold_fast = np.array([getattr(cold, n) for n in layout.names[:f]])
@@ -380,7 +467,7 @@ def _warm(shards: Shards, problems, layout: Layout, cold: ReedParameters, slow, 
             if "p_m" in layout.names[:f]:  # p_m follows the window's loudness
                 scaled[layout.names.index("p_m")] *= peaks[chains[k][0]] / peak
             firsts.append([scaled, cold_fast])
-        slows = [slow[problems[chains[k][0]].note] for k in mine]
+        slows = [slow[chains[k][0]] for k in mine]
         per_shard.append(([[i - a for i in chains[k]] for k in mine], firsts, slows))
     return sum(shards.call("warm", per_shard), [])
 

@@ -150,6 +150,7 @@ class Shard:
         self.taylor: list | None = None
         self.accepted: list | None = None  # per window (x, r0, J0)
         self.pending: list | None = None
+        self.exact_accepted = False  # the accepted points' J0 are exact (no secant since)
 
     def _objective(self, q, t: float) -> F2Objective:
         kernel, _ = self.source.named(t, q.fingering)
@@ -182,7 +183,7 @@ class Shard:
     def commit(self, accept: bool) -> None:
         """Make the last trial the accepted point (``accept``), or forget it."""
         if accept and self.pending is not None:
-            self.accepted = self.pending
+            self.accepted, self.exact_accepted = self.pending, False
         self.pending = None
 
     def _exact(self, i: int, x: np.ndarray):
@@ -195,6 +196,14 @@ class Shard:
         if not (np.isfinite(j0).all() and np.isfinite(r0).all()):
             return None
         return r0, j0
+
+    def _at(self, i: int, x: np.ndarray):
+        """Window i's residual and exact Jacobian at ``x``, the accepted ones if they are."""
+        if self.exact_accepted and self.accepted is not None:
+            x0, r0, j0 = self.accepted[i]
+            if np.array_equal(x0, x):
+                return r0, j0
+        return self._exact(i, x)
 
     def exact(self, values: np.ndarray, t: float, accept: bool = False) -> Blocks | None:
         """Every window's blocks at ``values`` (w, p) and ``t``, its Jacobian exact.
@@ -209,7 +218,7 @@ class Shard:
                 return None
             points.append((np.array(x, float), *out))
             parts.append(self._block(i, out[0], out[1], t))
-        self.accepted = points
+        self.accepted, self.exact_accepted = points, True
         return self._blocks(parts)
 
     def trial(self, values: np.ndarray, t: float, accept: bool = False) -> Blocks | None:
@@ -330,11 +339,15 @@ class Shard:
         return out
 
     def final(self, values: np.ndarray, t: float, floor: float) -> list[dict]:
-        """Each window's residual figures and noise grams at its solution (exact Jacobian)."""
+        """Each window's residual figures and noise grams at its solution (exact Jacobian).
+
+        The accepted point's exact Jacobian is used where ``values`` are that point (the
+        pass ended on it), else it is computed.
+        """
         out = []
         p_loc = len(self.spec.layout.names) + 1
         for i, x in enumerate(values):
-            r0, j0 = self._exact(i, x)
+            r0, j0 = self._at(i, np.asarray(x, float))
             r, d_t = self._in_t(i, r0, t)
             j = np.concatenate([j0, d_t[:, None]], axis=1)
             pw = self.problems[i].target.p

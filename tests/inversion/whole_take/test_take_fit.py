@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from mpipe.inversion.whole_take.take_fit import cold_windows, rival_costs
+from mpipe.inversion.whole_take.take_fit import THIN, THIN_MIN, cold_windows, rival_costs, thinned
 
 
 def _problem(start: int, amplitude: float):
@@ -36,3 +36,15 @@ def test_rival_costs_compare_on_the_first_runs_weight_and_the_windows_both_kept(
     # windows 0 and 20 only, at the first run's weight, plus the prior's term
     assert costs == pytest.approx([2.0 * (4.0 + 1.0) + 1.0, 2.0 * (2.0 + 1.0) + 0.0])
     assert int(np.argmin(costs)) == 1
+
+
+def test_the_thinned_take_keeps_every_note_and_every_thin_th_window_of_a_long_one():
+    notes = [0] * 40 + [1] * 3 + [2] * 9
+    problems = [SimpleNamespace(note=n) for n in notes]
+    kept = thinned(problems)
+    by_note = {n: [i for i in kept if notes[i] == n] for n in (0, 1, 2)}
+    assert by_note[0] == list(range(0, 40, THIN))  # a long note: every THIN-th window
+    assert by_note[1] == [40, 41, 42]  # a note shorter than THIN_MIN: all of it
+    # a note too short for THIN_MIN windows at every THIN-th: THIN_MIN spread over it
+    assert len(by_note[2]) == THIN_MIN and by_note[2][0] == 43 and by_note[2][-1] == 51
+    assert kept == sorted(kept) and len(set(kept)) == len(kept)
