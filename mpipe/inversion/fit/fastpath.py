@@ -155,6 +155,20 @@ def history_term(h: np.ndarray, history: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
+def _ones_term(kernel: BoreKernel, n_history: int, n_run: int) -> np.ndarray:
+    """:func:`history_term` of a history of ones (the missing mean flow's share), Pa per Pa.
+
+    The same for every window on one kernel: made once per (history, run length) and kept
+    on the kernel, as :func:`run_kernel` keeps its lean kernels; the evaluators only read
+    it (a read-only flag would give the compiled kernels another type to compile for).
+    """
+    cache = kernel.__dict__.setdefault("_ones_terms", {})
+    key = (int(n_history), int(n_run))
+    if key not in cache:
+        cache[key] = history_term(kernel.h, np.ones(n_history), n_run)
+    return cache[key]
+
+
 def run_kernel(kernel: BoreKernel, n_run: int):
     """The lean kernel of a run of ``n_run`` samples from a zero history (r_f cut to it).
 
@@ -370,7 +384,7 @@ class WindowEvaluator:
             filt,
             p_ctx,
             history_term(kernel.h, 0.5 * (ph + kernel.z0 * uh), n_run),
-            history_term(kernel.h, np.ones(ph.size), n_run),
+            _ones_term(kernel, ph.size, n_run),
             self.fs,
         )
         self.lean = run_kernel(kernel, n_run)

@@ -407,6 +407,10 @@ class F2Objective:
         """F2 of an infeasible candidate, Pa: far above any feasible mismatch."""
         return 1e3 * (float(np.linalg.norm(self.target.p)) + 1.0)
 
+    def infeasible(self, r: np.ndarray) -> bool:
+        """``r`` (from :meth:`residuals`) is the penalty vector of an infeasible candidate."""
+        return bool(np.all(r == r[0])) and abs(r[0]) * math.sqrt(r.size) >= 0.999 * self.penalty
+
     def reed(self, x: np.ndarray) -> ReedParameters:
         """Reed parameters for free-parameter values ``x`` (may raise InvalidReedError)."""
         values = {name: float(v) for name, v in zip(self.free, np.ravel(x), strict=True)}

@@ -74,7 +74,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from mpipe.core.statistics import integrated_autocorrelation
-from mpipe.inversion.trust.harmonics import SPECTRUM_BINS, spectral_gram, split_residual
+from mpipe.inversion.trust.harmonics import (
+    SPECTRUM_BINS,
+    column_spectra,
+    spectral_gram,
+    split_residual,
+)
 
 #: Step of the forward-difference Jacobian in log parameters (0.01 % of each parameter):
 #: the covariance's and the search's (:mod:`mpipe.inversion.fit.least_squares`).
@@ -369,17 +374,18 @@ def residual_grams(
     of freedom (the band's with the split), and the split's residual levels
     (``noise_residual``, ``model_residual``; empty without it).
     """
-    split = None
+    split, jf = None, None
     if pressure is not None and fs is not None and np.size(pressure) == r.size:
-        split = split_residual(r, np.asarray(pressure, dtype=float), j, fs, floor=floor)
+        jf = column_spectra(j)  # one transform for the band's top and both grams
+        split = split_residual(r, np.asarray(pressure, dtype=float), j, fs, floor=floor, jf=jf)
     if split is None:
         # Below one degree of freedom the noise is not measured: one is used so the result
         # stays finite (and large), and the status says the SEs are rough.
         return noise_weighted_gram(j, r) * (n_eff / max(dof, 1.0)), None, n_eff, dof, {}
     extra = dict(noise_residual=split.noise_residual, model_residual=split.model_residual)
     return (
-        spectral_gram(j, split.noise),
-        spectral_gram(j, split.excess),
+        spectral_gram(j, split.noise, jf),
+        spectral_gram(j, split.excess, jf),
         split.band_dof,
         split.noise_dof,
         extra,

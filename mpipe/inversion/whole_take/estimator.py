@@ -114,6 +114,11 @@ class TakeData:
     cold : dict
         First sample -> a cold start already made there on these settings and at the
         prior's temperature (its ``WindowOutcome``: the contact law's choice), reused.
+    front : FrontEnd, optional
+        The front end's estimate with its SEs
+        (:class:`mpipe.inversion.whole_take.shared_errors.FrontEnd`): its share of every
+        estimate is propagated through the fit
+        (:mod:`mpipe.inversion.whole_take.frontend_joint`); None: not measured.
     """
 
     p: object
@@ -124,6 +129,7 @@ class TakeData:
     config: InversionConfig
     zero_mean: bool
     cold: dict = dataclasses.field(default_factory=dict)
+    front: object = None
 
 
 @dataclass(frozen=True)
@@ -195,6 +201,9 @@ class TakeFit:
     rivals : tuple of float
         The cost of the fit from each of the take's cold starts that began in a basin of
         its own, this one's among them (``take_fit.rival_costs``; empty: one start).
+    frontend : FrontendShares, optional
+        The solution moved by one SE of each front-end parameter
+        (:mod:`mpipe.inversion.whole_take.frontend_joint`); None: not measured.
     """
 
     names: tuple[str, ...]
@@ -216,6 +225,7 @@ class TakeFit:
     rho: np.ndarray
     history: np.ndarray
     rivals: tuple = ()
+    frontend: object = None
 
     def system(self) -> TakeSystem:
         """The weighted normal equations at the solution, the prior included."""

@@ -150,6 +150,22 @@ def span_changes(
     return out
 
 
+def long_span_changes(
+    front, calibration: Calibration, fs: float, spans: Spans, a: int, b: int
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """:func:`span_changes` over a span of any length, one translation block at a time.
+
+    A span is translated in one FFT block (:meth:`TranslationPlan.block`), so one longer
+    than a block's hop (with the low-pass's taps each side) is cut into pieces that fit,
+    each read with its own margin: the same samples, to the translation's truncated tails.
+    """
+    piece = spans.base.nfft - 2 * spans.base.context - 2 * spans.base.lowpass.taps.size
+    parts = [span_changes(front, calibration, fs, spans, lo, min(lo + piece, b))
+             for lo in range(a, b, max(piece, 1))]  # fmt: skip
+    return {name: tuple(np.concatenate([part[name][k] for part in parts]) for k in (0, 1))
+            for name in parts[0]} if parts else {}  # fmt: skip
+
+
 #: Step in ln x of the Hessian's differences.
 HESSIAN_STEP = 1e-4
 
@@ -305,6 +321,7 @@ def log_changes(
 
 
 __all__ = [
+    "long_span_changes",
     "FRONTEND_NAMES",
     "KERNEL_STEP_C",
     "HESSIAN_STEP",

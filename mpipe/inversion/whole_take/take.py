@@ -225,17 +225,18 @@ def _invert_jointly(data, front, carried, front_end, extra_checks, run) -> TakeI
     se = None
     if front_end is not None and len(front_end.level_se) and front_end.level_se[0] > 0:
         se = float(front_end.level_se[0])
+    if front_end is not None:  # its share through the fit's own system (frontend_joint)
+        data = dataclasses.replace(data, front=front_end)
     joint = estimate_take(data, front_c=front, front_se_c=se, carried=carried,
                           executor=run[0], workers=run[1])  # fmt: skip
     fit = joint.temperature
     kernel, air = source.at(fit.temperature_c, plan.starts[0] if plan.starts else None)
-    # the front end's errors with the take's temperature moving with them (it is fitted):
-    # their share of every reed quantity, and of the temperature itself
+    # the calibration's share; the front end's came with the fit (its rows' frontend columns)
     table, shared = shared_components(
         p, u, fs, joint.tracking.table, calibration, config, zero_mean=zero_mean,
-        kernel_c=fit.temperature_c, refit_kernel=True, front=front_end,
+        kernel_c=fit.temperature_c, refit_kernel=True, front=None,
     )  # fmt: skip
-    fit = _with_frontend_share(fit, shared.get("frontend_kernel_shift_c", {}))
+    shared.update(joint.shared)
     table["kernel_temperature_se_c"] = fit.se_c
     table = rate_errors(table, fs)
     table = combine(table, config.determined_limit)
@@ -247,19 +248,6 @@ def _invert_jointly(data, front, carried, front_end, extra_checks, run) -> TakeI
     table["take_checks"] = "; ".join(checks)
     tracking = dataclasses.replace(joint.tracking, table=table)
     return TakeInversion(tracking, fit, kernel, air, tuple(checks), shared)
-
-
-def _with_frontend_share(fit, shifts: dict):
-    """The take's temperature with the front end's share in its standard error, degC.
-
-    ``shifts``: the temperature's shift per SE of each front-end parameter
-    (:func:`mpipe.inversion.whole_take.shared_errors.frontend_linear`), taken as
-    independent: ``se^2 = se_fit^2 + sum(shift^2)``.
-    """
-    if not shifts:
-        return fit
-    share = math.sqrt(sum(d * d for d in shifts.values()))
-    return dataclasses.replace(fit, se_c=math.hypot(fit.se_c, share))
 
 
 def _track_fingerings(p, u, fs, source, fit, config, executor, plan, options) -> Tracking:

@@ -14,6 +14,8 @@ shipped instrument, so it only keeps the fit within the air of a room).
 
 from __future__ import annotations
 
+import dataclasses
+import logging
 import math
 import time
 from dataclasses import dataclass
@@ -24,10 +26,13 @@ import pandas as pd
 from mpipe.inversion.table.tables import blank_row
 from mpipe.inversion.trust.window_errors import CORRELATION_COLUMNS, correlation_records
 from mpipe.inversion.whole_take.estimator import TakeData
+from mpipe.inversion.whole_take.frontend_joint import record as frontend_record
 from mpipe.inversion.whole_take.take_fit import fit_take
 from mpipe.inversion.whole_take.take_rows import window_rows
 from mpipe.inversion.whole_take.temperature import TemperatureFit
 from mpipe.inversion.whole_take.tracking import Tracking, WindowPlan
+
+log = logging.getLogger(__name__)
 
 #: Standard uncertainty of the temperature's prior when the front end measured none, degC
 #: (a room's air: not stated by any calibration; wide enough never to decide the fit).
@@ -46,11 +51,15 @@ class JointResult:
         The take's one temperature and its SE.
     checks : tuple of str
         The fit's own reasons why the take should not pass (:func:`rival_checks`).
+    shared : dict
+        The front end's share for the run's record (``frontend``: per parameter its SE and
+        the solution's median shift; ``frontend_failed``), empty without a front end.
     """
 
     tracking: Tracking
     temperature: TemperatureFit
     checks: tuple[str, ...] = ()
+    shared: dict = dataclasses.field(default_factory=dict)
 
 
 #: Two runs of the take's fit from different cold starts whose costs (chi-square units:
@@ -127,7 +136,14 @@ def estimate_take(
                for row in correlation_records(number[t], t, names, matrix)]  # fmt: skip
     frame = pd.DataFrame(records, columns=list(CORRELATION_COLUMNS))
     tracking = Tracking(table, histories, data.zero_mean, frame)
-    return JointResult(tracking, temperature, rival_checks(fit.rivals))
+    shared = {}
+    if fit.frontend is not None:
+        shared["frontend"] = frontend_record(fit.frontend, fit.names)
+        if fit.frontend.failed:
+            log.warning("front-end component not measured: the model cannot play the take "
+                        "with %s moved by one SE", ", ".join(fit.frontend.failed))  # fmt: skip
+            shared["frontend_failed"] = list(fit.frontend.failed)
+    return JointResult(tracking, temperature, rival_checks(fit.rivals), shared)
 
 
 def _with_plan_columns(table, fit, plan: WindowPlan, fs: float, config) -> pd.DataFrame:

@@ -43,6 +43,7 @@ from mpipe.inversion.whole_take.estimator import (
     problems_of,
     search_boxes,
 )
+from mpipe.inversion.whole_take.frontend_joint import frontend_shares
 from mpipe.inversion.whole_take.take_shards import CHAIN, Shards, ShardSpec, shard_ranges
 from mpipe.reed.parameters import ReedParameters
 
@@ -257,12 +258,16 @@ class Origin:
         thinned take found them (the others from ``reed``).
     t : float, optional
         The temperature to start from, degC (None: the prior's mean).
+    fast : dict, optional
+        First sample -> a window's controls (f,), SI units, fitted with ``slow``: a chain's
+        first window starts from the nearest of them (before the cold start's).
     """
 
     reed: ReedParameters
     peak: float
     slow: dict = dataclasses.field(default_factory=dict)
     t: float | None = None
+    fast: dict = dataclasses.field(default_factory=dict)
 
 
 @dataclass
@@ -284,7 +289,8 @@ class _Run:
     def origin_here(self, origin: Origin) -> Origin:
         """``origin`` moved to where this run ended (its notes' constants, its T)."""
         slow = {n: self.state.slow[k] for k, n in enumerate(self.notes)}
-        return dataclasses.replace(origin, slow=slow, t=float(self.state.t))
+        fast = {q.start: self.state.fast[i] for i, q in enumerate(self.take.problems)}
+        return dataclasses.replace(origin, slow=slow, t=float(self.state.t), fast=fast)
 
 
 def _run_from(stack: contextlib.ExitStack, data: TakeData, problems, origin: Origin, prior,
@@ -334,10 +340,14 @@ def _finish(run: _Run, data: TakeData, rivals: tuple) -> TakeFit:
     entries = shards.call("entries", [()] * len(shards.ranges))
     z0 = np.concatenate([e[0] for e in entries])
     rho = np.concatenate([e[1] for e in entries])
+    front = None
+    if data.front is not None:  # its share, on the Jacobians the fit ended with
+        front = frontend_shares(take, state, run.blocks, run.weight, data.front,
+                                data.calibration)  # fmt: skip
     return TakeFit(layout.names, take.sizes, tuple(problems), state.fast, state.slow, state.t,
                    run.blocks, records, run.weight, take.prior, run.steps, run.passes,
                    run.converged, run.message, run.excluded, z0, rho, np.array(take.history),
-                   rivals)  # fmt: skip
+                   rivals, front)  # fmt: skip
 
 
 def _passes(take: TakeProblem, state: FitState, ends=None):
@@ -437,8 +447,7 @@ def _start(shards: Shards, problems, layout: Layout, origin: Origin):
     base = np.array([getattr(cold, n) for n in layout.names[f:]])
     slow = np.array([origin.slow.get(n, base) for n in notes], float)
     row = {n: k for k, n in enumerate(notes)}
-    found = _warm(shards, problems, layout, cold, slow[[row[q.note] for q in problems]],
-                  origin.peak)  # fmt: skip
+    found = _warm(shards, problems, layout, origin, slow[[row[q.note] for q in problems]])
     cold_fast = np.array([getattr(cold, n) for n in layout.names[:f]])
     excluded = {q.start: "the model does not play this window from the take's cold start"
                 for q, x in zip(problems, found, strict=True) if x is None}  # fmt: skip
@@ -448,25 +457,34 @@ def _start(shards: Shards, problems, layout: Layout, origin: Origin):
     return slow, fast, excluded
 
 
-def _warm(shards: Shards, problems, layout: Layout, cold: ReedParameters, slow, peak: float):
+def _warm(shards: Shards, problems, layout: Layout, origin: Origin, slow):
     """Every window's fast controls warm along its chain: ``(fast, r^T r)`` or None.
 
-    ``slow`` are each window's note's constants (W, s), held; ``peak`` the cold start
-    window's peak pressure, Pa. None: none of the window's starts plays.
+    ``slow`` are each window's note's constants (W, s), held. A chain's first window
+    starts from the nearest window's controls in ``origin.fast`` (fitted with those
+    constants on the thinned take), else from the cold start's (p_m scaled by the window's
+    peak pressure against the cold start window's, ``origin.peak``). None: none of the
+    window's starts plays.
     """
     f = layout.n_fast
-    cold_fast = np.array([getattr(cold, n) for n in layout.names[:f]])
+    cold_fast = np.array([getattr(origin.reed, n) for n in layout.names[:f]])
     peaks = np.array([float(np.max(q.target.p)) for q in problems])
+    known = np.array(sorted(origin.fast), dtype=float)
     chains = _chains(problems)
     per_shard = []
     for a, b in shards.ranges:
         mine = [k for k, c in enumerate(chains) if a <= c[0] < b]
         firsts = []
         for k in mine:
+            first = problems[chains[k][0]]
             scaled = cold_fast.copy()
             if "p_m" in layout.names[:f]:  # p_m follows the window's loudness
-                scaled[layout.names.index("p_m")] *= peaks[chains[k][0]] / peak
-            firsts.append([scaled, cold_fast])
+                scaled[layout.names.index("p_m")] *= peaks[chains[k][0]] / origin.peak
+            tries = [scaled, cold_fast]
+            if known.size:  # the nearest window of the thinned take's fit
+                near = int(known[np.argmin(np.abs(known - first.start))])
+                tries.insert(0, np.asarray(origin.fast[near], float))
+            firsts.append(tries)
         slows = [slow[chains[k][0]] for k in mine]
         per_shard.append(([[i - a for i in chains[k]] for k in mine], firsts, slows))
     return sum(shards.call("warm", per_shard), [])

@@ -48,10 +48,13 @@ def take_covariances(fit: TakeFit):
     """
     w2 = fit.weight**2
     system = fit.system()
-    cov = system.covariance(np.array([w2 * r["gram"] for r in fit.records]))
+    zero = np.zeros_like(system.prior_information)
+    # the prior is the front end's temperature: its variance is the front end's share
+    moved = fit.frontend is not None and fit.frontend.prior_moved
+    cov = system.covariance(np.array([w2 * r["gram"] for r in fit.records]),
+                            prior_information=zero if moved else None)  # fmt: skip
     if any(r["excess"] is None for r in fit.records):
         return cov, None
-    zero = np.zeros_like(system.prior_information)
     model = system.covariance(np.array([w2 * r["excess"] for r in fit.records]),
                               prior_information=zero)  # fmt: skip
     return cov, model
@@ -91,6 +94,7 @@ def window_rows(fit: TakeFit, base: ReedParameters, config: InversionConfig, fs:
     n = int(round(config.window_s * fs))
     closure = config.law == "closure"
     rows, t_se, correlations = [], math.nan, []
+    front_t = fit.frontend.temperature_se() if fit.frontend is not None else 0.0
     order = [fit.names.index(name) for name in config.search_parameters]
     for i, q in enumerate(fit.problems):
         reed = fit.reed(i, base, closure)
@@ -98,7 +102,7 @@ def window_rows(fit: TakeFit, base: ReedParameters, config: InversionConfig, fs:
         theta, share, v = _split(full, p)
         correlations.append((q.start / fs, tuple(config.search_parameters),
                              _correlation(full[np.ix_(order, order)])))  # fmt: skip
-        t_se = math.sqrt(v) if v > 0 else math.nan
+        t_se = math.sqrt(v + front_t**2) if v > 0 else math.nan
         model = None if cov_model is None else _split(cov_model.window(i), p)[0]
         row = blank_row(q.start, n, fs, config, cold=False)
         row.update(_fit_columns(fit, i, reed, config, figures[i]))
@@ -117,6 +121,11 @@ def window_rows(fit: TakeFit, base: ReedParameters, config: InversionConfig, fs:
         by_t = window_uncertainty(Covariance(cov=share, **common), values, **kw)
         for name in QUANTITIES:
             row[component_column(name, "temperature")] = by_t[component_column(name, "noise")]
+        if fit.frontend is not None:  # the front end's share (its shifts' outer products)
+            by_f = window_uncertainty(Covariance(cov=fit.frontend.window(i)[:p, :p], **common),
+                                      values, **kw)  # fmt: skip
+            for name in QUANTITIES:
+                row[component_column(name, "frontend")] = by_f[component_column(name, "noise")]
         row["kernel_temperature_c"], row["kernel_temperature_se_c"] = fit.temperature_c, t_se
         row["pooled"] = ";".join(fit.names[fit.sizes.fast :])  # shared by the note's windows
         row["status"], row["status_reason"] = window_status(row, required_quantities(config))

@@ -38,6 +38,7 @@ from mpipe.inversion.fit.window import window_objective
 from mpipe.inversion.preparation.kernel import KernelSource
 from mpipe.inversion.trust.diagnostics import playing_difference
 from mpipe.inversion.trust.uncertainty import residual_grams
+from mpipe.inversion.whole_take.frontend_joint import shard_gradients
 
 log = logging.getLogger(__name__)
 
@@ -161,7 +162,7 @@ class Shard:
         return (np.array([o.kernel.z0 for o in self.objectives]),
                 np.array([o.kernel.rho for o in self.objectives]))  # fmt: skip
 
-    def _in_t(self, i: int, r0: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+    def in_t(self, i: int, r0: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
         """The residual at ``t`` and its T column, from the pass's Taylor terms."""
         if self.taylor is None:
             return r0, np.zeros_like(r0)
@@ -170,7 +171,7 @@ class Shard:
         return r0 + dt * slope + 0.5 * dt**2 * curvature, slope + dt * curvature
 
     def _block(self, i: int, r0: np.ndarray, j0: np.ndarray, t: float) -> tuple:
-        r, d_t = self._in_t(i, r0, t)
+        r, d_t = self.in_t(i, r0, t)
         j = np.concatenate([j0, d_t[:, None]], axis=1)
         return j.T @ j, j.T @ r, float(r @ r), r.size
 
@@ -197,7 +198,7 @@ class Shard:
             return None
         return r0, j0
 
-    def _at(self, i: int, x: np.ndarray):
+    def at(self, i: int, x: np.ndarray):
         """Window i's residual and exact Jacobian at ``x``, the accepted ones if they are."""
         if self.exact_accepted and self.accepted is not None:
             x0, r0, j0 = self.accepted[i]
@@ -234,7 +235,7 @@ class Shard:
             x0, r_acc, j_acc = self.accepted[i]
             self.runs[i] += 1
             r0 = self.objectives[i].residuals(x)
-            if _penalised(self.objectives[i], r0):
+            if self.objectives[i].infeasible(r0):
                 return None
             dz = np.log(x) - np.log(x0)
             j0 = j_acc.copy()
@@ -255,13 +256,13 @@ class Shard:
         for i, x in enumerate(values):
             self.runs[i] += 3  # this run and the two at T -+ DELTA_T_C
             r = self.objectives[i].residuals(x)
-            if _penalised(self.objectives[i], r):
+            if self.objectives[i].infeasible(r):
                 return None
             sides = []
             for sign in (-1.0, 1.0):
                 side = self._objective(self.problems[i], self.t + sign * DELTA_T_C)
                 r_side = side.residuals(x)
-                if _penalised(side, r_side):
+                if side.infeasible(r_side):
                     return None
                 sides.append(r_side)
             terms.append(((sides[1] - sides[0]) / (2 * DELTA_T_C),
@@ -288,7 +289,7 @@ class Shard:
         def residual(z):
             self.runs[i] += 1
             r = obj.residuals(lay.free_values(np.exp(z), slow))
-            return None if _penalised(obj, r) else r
+            return None if obj.infeasible(r) else r
 
         z = np.clip(np.log(np.asarray(fast0, float)), lo, hi)
         r = residual(z)
@@ -338,6 +339,10 @@ class Shard:
                         break
         return out
 
+    def frontend(self, values: np.ndarray, t: float, a: int, changes: dict) -> dict:
+        """Each window's gradient change for each moved front end (:func:`shard_gradients`)."""
+        return shard_gradients(self, values, t, a, changes)
+
     def final(self, values: np.ndarray, t: float, floor: float) -> list[dict]:
         """Each window's residual figures and noise grams at its solution (exact Jacobian).
 
@@ -347,8 +352,8 @@ class Shard:
         out = []
         p_loc = len(self.spec.layout.names) + 1
         for i, x in enumerate(values):
-            r0, j0 = self._at(i, np.asarray(x, float))
-            r, d_t = self._in_t(i, r0, t)
+            r0, j0 = self.at(i, np.asarray(x, float))
+            r, d_t = self.in_t(i, r0, t)
             j = np.concatenate([j0, d_t[:, None]], axis=1)
             pw = self.problems[i].target.p
             n_eff = r.size / integrated_autocorrelation(r)
@@ -380,11 +385,6 @@ def _difference(residual, z: np.ndarray, r: np.ndarray, hi: np.ndarray):
             return None
         cols.append((rk - r) / h)
     return np.column_stack(cols)
-
-
-def _penalised(obj: F2Objective, r: np.ndarray) -> bool:
-    """The residual is the objective's penalty vector (an infeasible candidate)."""
-    return bool(np.all(r == r[0])) and abs(r[0]) * math.sqrt(r.size) >= 0.999 * obj.penalty
 
 
 # The shard of a worker process (set once per worker by its pool's initializer).

@@ -6,9 +6,6 @@ import math
 import numpy as np
 import pytest
 
-from mpipe.cli.examples import EXAMPLE_CALIBRATION, EXAMPLE_REED
-from mpipe.cli.virtual_takes import SynthOptions, make_take
-from mpipe.core.config import Where
 from mpipe.inversion.fit.window import invert_window
 from mpipe.inversion.preparation.kernel import bore_kernel
 from mpipe.inversion.settings import InversionConfig
@@ -21,13 +18,8 @@ from mpipe.inversion.whole_take.shared_errors import (
     frontend_linear,
     frontend_refit,
 )
-from mpipe.measurement.calibration import load_calibration
 from mpipe.measurement.separation.perturbation import reseparate
-from mpipe.measurement.separation.settings import SeparationConfig
-from mpipe.measurement.separation.stage import separate
-from mpipe.measurement.takes import read_take
-from mpipe.measurement.translation import TranslationConfig, translate
-from mpipe.reed.parameters import reed_from_mapping
+from mpipe.measurement.translation import TranslationConfig
 
 LEVEL = np.array([20.0, 0.85, 0.004, 1e-5])
 LEVEL_SE = np.array([1.4, 0.16, 0.002, 1e-5])
@@ -62,24 +54,6 @@ def test_span_changes_equal_the_whole_takes_reseparation_on_the_span(shipped_cal
             scale = float(np.sqrt(np.mean(whole**2)))
             assert scale > 0
             assert np.max(np.abs(got - whole)) < 0.02 * scale, name
-
-
-@pytest.fixture(scope="module")
-def short_take(tmp_path_factory):
-    """A 0.6 s take of the example reed through synth-take, separation and translation."""
-    folder = tmp_path_factory.mktemp("frontend")
-    files = make_take(EXAMPLE_CALIBRATION, EXAMPLE_REED, folder / "take.flac",
-                      SynthOptions(duration_s=0.6, snr_db=45, seed=1))  # fmt: skip
-    cal = load_calibration(files.calibration)
-    sep_cfg = SeparationConfig()
-    take = read_take(files.audio, cal, fs=44100.0)
-    sep = separate(take.pressures, take.fs, cal, sep_cfg, take.band_limit_hz)
-    tr = translate(sep.p0, sep.u0, take.fs, cal, TranslationConfig(), sep.temperature_track())
-    front = FrontEnd(tr.p0, tr.u0, tr.temperature_c, sep.track.level, sep.track.level_se,
-                     sep_cfg.band_edge_hz + sep_cfg.band_taper_hz, TranslationConfig())  # fmt: skip
-    with np.load(files.truth) as d:
-        truth = {k[5:]: float(d[k]) for k in d.files if k.startswith("reed_") and d[k].ndim == 0}
-    return cal, take.fs, tr, front, reed_from_mapping(truth, Where("truth"))
 
 
 def test_linear_propagation_agrees_with_the_refits_of_the_reseparated_take(short_take):

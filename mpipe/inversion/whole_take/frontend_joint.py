@@ -1,0 +1,190 @@
+"""The front end's share of the take's fit, through the fit's own normal equations.
+
+The separation's take-level theta (temperature, losses, Mach number, position of the middle
+microphone; :class:`mpipe.inversion.whole_take.shared_errors.FrontEnd`) has standard
+errors. Moving one of them by its SE changes the mouthpiece p and u the take's fit reads
+(re-separated and translated over each shard's span,
+:func:`mpipe.inversion.whole_take.frontend_propagation.span_changes`), and so every
+window's residual at the solution by ``dr_i``. The take's minimum then moves, to first
+order (the implicit function theorem on the Gauss-Newton system the fit solved and its
+sandwich covariance uses), by
+
+    dx = -A^-1 w sum_i J_i^T dr_i,
+
+``A`` the take's weighted normal matrix (every window's p_m, y_m, each note's constants, T;
+the prior's information), one block-arrow solve per parameter
+(:class:`mpipe.inversion.pooling.take_system.TakeSystem`). The temperature's prior is the
+front end's own temperature, so moving that parameter moves the prior's mean too (its
+gradient by ``-se / se_prior^2``), and its variance then belongs here, not in the noise
+sandwich (:func:`mpipe.inversion.whole_take.take_rows.take_covariances` leaves it out).
+
+Each window's front-end covariance over (its reed parameters, T) is the sum over theta of
+the outer products of its shifts (the parameters taken as independent, as the front end
+reports them): its quantities' ``<q>_se_frontend`` and the temperature's share follow from
+it as every other component's do. No window is re-fitted: one residual per window per
+parameter, on the Jacobians the fit ended with.
+
+Replaces, for ``estimator: take``, the six sampled windows' own propagation
+(:func:`mpipe.inversion.whole_take.shared_errors.frontend_linear`, kept for ``estimator:
+window``), whose median shift moved the take's p_m SE by a factor of 2.4 between two
+solutions of one take 0.01 SE apart (its windows' local fits each start from the table).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from mpipe.inversion.fit.window import window_objective
+from mpipe.inversion.pooling.take_system import TakeSystem
+from mpipe.inversion.whole_take import frontend_propagation as fp
+
+
+@dataclass(frozen=True)
+class FrontendShares:
+    """The take's minimum moved by one SE of each front-end parameter.
+
+    Attributes
+    ----------
+    names : tuple of str
+        The parameters propagated (those with a positive, finite SE), in
+        :data:`~mpipe.inversion.whole_take.frontend_propagation.FRONTEND_NAMES` order.
+    se : ndarray
+        Their standard errors (the front end's units), (J,).
+    shifts : ndarray
+        Each window's shift per SE over (the fit's names in ln x, T in degC), (J, W, L).
+    prior_moved : bool
+        The temperature's prior is the front end's temperature, moved with it: its
+        variance is counted here.
+    failed : tuple of str
+        Parameters whose moved take a window's model could not play (their shifts NaN).
+    """
+
+    names: tuple[str, ...]
+    se: np.ndarray
+    shifts: np.ndarray
+    prior_moved: bool
+    failed: tuple[str, ...] = ()
+
+    def window(self, i: int) -> np.ndarray:
+        """Window i's front-end covariance over (names, T), (L, L)."""
+        d = self.shifts[:, i, :]
+        return d.T @ d
+
+    def temperature_se(self) -> float:
+        """The front end's share of the take's temperature, degC."""
+        return float(math.sqrt(np.sum(self.shifts[:, 0, -1] ** 2))) if self.names else 0.0
+
+
+def frontend_shares(take, state, blocks, weight: float, front, calibration) -> FrontendShares:
+    """The shares (see the module docstring) at the fit's solution.
+
+    Parameters
+    ----------
+    take : TakeProblem
+        The fit's windows and shards (their Jacobians at ``state``).
+    state : FitState
+        The solution.
+    blocks : Blocks
+        The windows' blocks there.
+    weight : float
+        The windows' weight, 1/Pa^2.
+    front : FrontEnd
+        The front end's estimate and SEs.
+    calibration : Calibration
+        The instrument (the re-separation's geometry).
+    """
+    fs = take.problems[0].target.fs
+    spans = fp.Spans.of(front, calibration, fs)
+    values = take.shards.split(state.values(take.layout, take.problems))
+    args = []
+    for (lo, hi), v in zip(take.shards.ranges, values, strict=True):
+        mine = take.problems[lo:hi]
+        a = min(q.start - q.target.p_history.size for q in mine)
+        b = max(q.start + q.target.p.size for q in mine)
+        args.append((v, state.t, a, fp.long_span_changes(front, calibration, fs, spans, a, b)))
+    parts = take.shards.call("frontend", args)
+    names = tuple(n for n in fp.FRONTEND_NAMES if n in parts[0])
+    n_windows, width = len(take.problems), len(take.layout.names) + 1
+    if not names:
+        return FrontendShares((), np.zeros(0), np.zeros((0, n_windows, width)), False)
+    mean, se_prior = take.prior
+    se_t = float(front.level_se[0])
+    moved_prior = "temperature" in names and math.isclose(se_prior, se_t, rel_tol=1e-9)
+    info = np.array([[1.0 / se_prior**2]])
+    notes = np.array([q.note for q in take.problems], dtype=int)
+    shifts, failed = [], []
+    for name in names:
+        grads = np.concatenate([p[name] for p in parts])
+        if not np.isfinite(grads).all():
+            failed.append(name)
+            shifts.append(np.full((n_windows, width), np.nan))
+            continue
+        d_prior = np.array([-se_t / se_prior**2 if (name == "temperature" and moved_prior)
+                            else 0.0])  # fmt: skip
+        system = TakeSystem(take.sizes, notes, weight * blocks.grams, weight * grads, info,
+                            d_prior)  # fmt: skip
+        d_fast, d_slow, d_t = system.step(0.0)
+        d_t = np.broadcast_to(d_t, (n_windows, 1))
+        shifts.append(np.concatenate([d_fast, d_slow[notes], d_t], axis=1))
+    se = np.array([float(front.level_se[fp.FRONTEND_NAMES.index(n)]) for n in names])
+    return FrontendShares(names, se, np.array(shifts), moved_prior, tuple(failed))
+
+
+def shard_gradients(shard, values: np.ndarray, t: float, a: int, changes: dict) -> dict:
+    """Each of a shard's windows' gradient change ``J^T dr`` per moved front end, (w, L).
+
+    ``shard``: a :class:`mpipe.inversion.whole_take.take_shards.Shard` at the fit's
+    solution (its exact Jacobians there). ``changes``: name -> ``(dp, du)``, the change of
+    the take's p (Pa) and u (m^3/s) from sample ``a`` on (over every sample the shard's
+    windows and their histories read) when that front-end parameter moves by one SE.
+    ``dr`` is the window's residual on its target so moved less the residual on its own,
+    both at ``values`` on the kernel at the shard's temperature (the Taylor terms in T
+    cancel in the difference); ``J`` the exact Jacobian there with T's column. NaN rows:
+    the model cannot play the moved window.
+    """
+    out: dict = {name: [] for name in changes}
+    for i, x in enumerate(values):
+        x = np.asarray(x, float)
+        r0, j0 = shard.at(i, x)
+        _, d_t = shard.in_t(i, r0, t)
+        j = np.concatenate([j0, d_t[:, None]], axis=1)
+        for name, (dp, du) in changes.items():
+            moved = moved_target(shard.problems[i].target, shard.problems[i].start, a, dp, du)
+            obj = window_objective(shard.objectives[i].kernel, moved, shard.spec.base,
+                                   shard.spec.config)  # fmt: skip
+            r = obj.residuals(x)
+            bad = obj.infeasible(r)
+            out[name].append(np.full(j.shape[1], np.nan) if bad else j.T @ (r - r0))
+    return {name: np.array(rows) for name, rows in out.items()}
+
+
+def moved_target(target, start: int, a: int, dp: np.ndarray, du: np.ndarray):
+    """``target`` (its window at ``start``) with ``dp, du`` (from sample ``a`` on) added."""
+    n, h = target.p.size, target.p_history.size
+    w, hist = slice(start - a, start - a + n), slice(start - h - a, start - a)
+    return dataclasses.replace(target, p=target.p + dp[w], u=target.u + du[w],
+                               p_history=target.p_history + dp[hist],
+                               u_history=target.u_history + du[hist])  # fmt: skip
+
+
+def record(shares: FrontendShares, names) -> dict:
+    """The shares for the run's record: per parameter its SE and median shift per SE.
+
+    ``dln_<q>`` for the fit's parameters (median over the windows of ``d ln q``; a note
+    constant's shift is its note's), ``dT_c`` the temperature's, degC.
+    """
+    out = {}
+    for j, name in enumerate(shares.names):
+        d = shares.shifts[j]
+        entry = {"se": float(shares.se[j])}
+        entry.update({f"dln_{n}": float(np.nanmedian(d[:, k])) for k, n in enumerate(names)})
+        entry["dT_c"] = float(d[0, -1])
+        out[name] = entry
+    return out
+
+
+__all__ = ["FrontendShares", "frontend_shares", "moved_target", "record", "shard_gradients"]
