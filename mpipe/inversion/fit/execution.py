@@ -118,14 +118,17 @@ def _one_window(job: Job, s: int, previous: dict | None, warm) -> tuple[dict, np
         row, hist = saved
     else:
         start = warm.get(s) if isinstance(warm, Mapping) else warm  # per segment, or one
-        o = invert_window(
-            job.p, job.u, job.fs, s, job.kernel, job.rho, job.config,
-            zero_mean=job.zero_mean, warm=start,
-        )  # fmt: skip
+        o = _fit(job, s, start)
         row, hist = o.row, None if o.search is None else o.search.history
     if job.checkpoint is not None and (saved is None or previous is not None):
         save_checkpoint(job.checkpoint, s, row, hist)
     return row, hist
+
+
+def _fit(job: Job, s: int, warm):
+    """The window at sample ``s`` fitted from ``warm`` (None: its own cold start)."""
+    return invert_window(job.p, job.u, job.fs, s, job.kernel, job.rho, job.config,
+                         zero_mean=job.zero_mean, warm=warm)  # fmt: skip
 
 
 def _retry_from(job: Job, s: int, previous: dict, starts) -> tuple[dict, np.ndarray | None]:
@@ -135,10 +138,7 @@ def _retry_from(job: Job, s: int, previous: dict, starts) -> tuple[dict, np.ndar
     """
     row, hist = previous, None
     for reed in starts:
-        o = invert_window(
-            job.p, job.u, job.fs, s, job.kernel, job.rho, job.config,
-            zero_mean=job.zero_mean, warm=reed,
-        )  # fmt: skip
+        o = _fit(job, s, reed)
         if not o.row["error"] and o.row["f2"] < row["f2"]:
             row, hist = o.row, None if o.search is None else o.search.history
     return row, hist
@@ -146,10 +146,7 @@ def _retry_from(job: Job, s: int, previous: dict, starts) -> tuple[dict, np.ndar
 
 def _retry_cold(job: Job, s: int, previous: dict) -> tuple[dict, np.ndarray | None]:
     """A cold start of the window's own; kept when it reaches a lower F2 than ``previous``."""
-    o = invert_window(
-        job.p, job.u, job.fs, s, job.kernel, job.rho, job.config,
-        zero_mean=job.zero_mean, warm=None,
-    )  # fmt: skip
+    o = _fit(job, s, None)
     row, hist = previous, None
     if not o.row["error"] and o.row["f2"] < previous["f2"]:
         row, hist = o.row, None if o.search is None else o.search.history

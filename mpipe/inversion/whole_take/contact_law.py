@@ -30,10 +30,9 @@ import logging
 import math
 from dataclasses import dataclass
 
-from mpipe.inversion.fit.window import invert_window
 from mpipe.inversion.preparation.kernel import KernelSource
 from mpipe.inversion.settings import InversionConfig
-from mpipe.inversion.whole_take.take_fit import loudest
+from mpipe.inversion.whole_take.cold_starts import cold_fit, loudest
 
 log = logging.getLogger(__name__)
 
@@ -114,12 +113,11 @@ def choose_contact(
     # crescendo's first window may not reach the lay at all, and fits both laws alike);
     # the take fit's second cold start is made on the same window and reuses this fit
     start = int(starts[loudest([p[s : s + n] for s in starts], steady)])
-    kernel, air = source.at(t_c, start)
+    fingering = source.fingerings.get(int(start), "")
     f2, outcomes = {}, {}
     for law in LAWS:
-        out = invert_window(p, u, fs, start, kernel, air.rho,
-                            dataclasses.replace(config, contact=law), zero_mean=zero_mean,
-                            errors=False)  # fmt: skip
+        out = cold_fit(p, u, fs, source, start, fingering, t_c,
+                       dataclasses.replace(config, contact=law), zero_mean)  # fmt: skip
         value = float(out.row["f2"]) if out.reed is not None else math.nan
         f2[law], outcomes[law] = (value if math.isfinite(value) else math.nan), out
     a, b = (f2[law] for law in LAWS)

@@ -22,12 +22,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mpipe.inversion.fit.coldstart import AGREEMENT
 from mpipe.inversion.fit.execution import stage_workers
-from mpipe.inversion.fit.window import invert_window
 from mpipe.inversion.pooling.take_system import TierSizes
 from mpipe.inversion.preparation.kernel import KernelSource
 from mpipe.inversion.settings import ExecutorConfig
+from mpipe.inversion.whole_take.cold_starts import agree, cold_start, cold_windows, same_basin
 from mpipe.inversion.whole_take.estimator import (
     LOOSE_SE,
     MAX_PASSES,
@@ -87,8 +86,8 @@ def fit_take(
     colds = []
     with stage_workers((p, u), executor or ExecutorConfig(), workers):
         for window in cold_windows(problems, steady):
-            cold = _cold_start(data, source, problems, steady, prior[0], window)
-            if not any(_same_basin(cold[0], c[0], config) for c in colds):
+            cold = cold_start(data, source, problems, steady, prior[0], window)
+            if not any(same_basin(cold[0], c[0], config) for c in colds):
                 colds.append(cold)
     origins = [Origin(reed, peak) for reed, _, peak in colds]
     fit_ = functools.partial(_runs, data=data, prior=prior, t_range=t_range, workers=workers)
@@ -115,7 +114,7 @@ def fit_take(
         costs = rival_costs(runs)
         best = int(np.argmin(costs))
         rivals = [k for k, r in enumerate(runs) if k != best and not r.left
-                  and not _agree(r.state.slow, runs[best].state.slow)]  # fmt: skip
+                  and not agree(r.state.slow, runs[best].state.slow)]  # fmt: skip
         if len(runs) > 1:
             log.info("take fit: %d starts in different basins, costs %s (%s); the lowest "
                      "kept", len(runs), ", ".join(f"{c:.6g}" for c in costs),
@@ -157,7 +156,7 @@ def _runs(stack, problems, origins, *, data, prior, t_range, workers) -> list:
     runs = [_run_from(stack, data, problems, origins[0], prior, t_range, workers)]
     for origin in origins[1:]:
         ends = (functools.partial(_leave, first=runs[0]),
-                functools.partial(_agree, b=runs[0].state.slow))  # fmt: skip
+                functools.partial(agree, b=runs[0].state.slow))  # fmt: skip
         runs.append(_run_from(stack, data, problems, origin, prior, t_range, workers, ends))
     return runs
 
@@ -168,12 +167,6 @@ def _runs(stack, problems, origins, *, data, prior, t_range, workers) -> list:
 LEAVE_MARGIN = 40.0
 
 
-def _agree(a: np.ndarray, b: np.ndarray) -> bool:
-    """Every note constant of ``a`` within :data:`AGREEMENT` (ln x) of ``b``'s, (N, s) each."""
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    return a.shape == b.shape and bool(np.all(np.abs(np.log(a / b)) < AGREEMENT))
-
-
 def _leave(take: TakeProblem, state: FitState, blocks, weight: float, *, first: _Run) -> str:
     """Why a second run may end after a pass ("": it goes on).
 
@@ -181,49 +174,13 @@ def _leave(take: TakeProblem, state: FitState, blocks, weight: float, *, first: 
     its cost lies :data:`LEAVE_MARGIN` above the first run's final one (a worse basin).
     """
     del weight  # compared on the first run's weight
-    if _agree(state.slow, first.state.slow):
+    if agree(state.slow, first.state.slow):
         return "left: in the first cold start's basin"
     probe = _Run(take, state, blocks, first.weight, 0, 0, True, "", {}, False)
     theirs, mine = rival_costs([first, probe])
     if mine > theirs + LEAVE_MARGIN:
         return f"left: its cost {mine:.6g} above the first start's {theirs:.6g}"
     return ""
-
-
-def cold_windows(problems, steady) -> list[int]:
-    """The windows the take's cold starts are made on: its first and its loudest steady one.
-
-    One window's own minimum need not be the take's: on a 45 dB crescendo (seed 3 of
-    ``benchmarks/bench_estimator.py``) the first steady window's global search ends in a
-    second minimum of the model (lambda 13 % low, k_c 30 % low), which 10 of the take's
-    107 windows prefer and the take as a whole does not (its sum of squares 12 % above the
-    other's); the loudest window, where the reed beats hardest on the lay, ends in the
-    take's. On seeds 0 and 2 it is the other way round. Both are started and the lower sum
-    of squares of the whole take is kept (:func:`rival_costs`).
-    """
-    ok = np.array(steady, bool) if any(steady) else np.ones(len(problems), bool)
-    idx = np.flatnonzero(ok)
-    return list(dict.fromkeys([int(idx[0]), loudest([q.target.p for q in problems], steady)]))
-
-
-def loudest(windows, steady) -> int:
-    """The index of the loudest (RMS pressure) steady window; every window when none is.
-
-    ``windows``: each window's pressure (Pa), in time order; ``steady``: a flag per window
-    or None. The take's second cold start and the contact law's choice are made on it
-    (:mod:`mpipe.inversion.whole_take.contact_law`), so that the one fit serves both.
-    """
-    flags = [True] * len(windows) if steady is None else list(steady)
-    idx = [i for i, ok in enumerate(flags) if ok] or list(range(len(windows)))
-    rms = [float(np.sqrt(np.mean(np.square(np.asarray(windows[i], float))))) for i in idx]
-    return int(idx[int(np.argmax(rms))])
-
-
-def _same_basin(a: ReedParameters, b: ReedParameters, config) -> bool:
-    """Two cold starts' reeds agree within :data:`AGREEMENT` in every note constant."""
-    layout = layout_of(config)
-    names = layout.names[layout.n_fast :]
-    return _agree([getattr(a, n) for n in names], [getattr(b, n) for n in names])
 
 
 def rival_costs(runs) -> np.ndarray:
@@ -358,7 +315,8 @@ def _passes(take: TakeProblem, state: FitState, ends=None):
     same pass goes on to :data:`SE_TOLERANCE`. ``ends = (stop, near)``, for a second run:
     ``stop(take, state, blocks, weight)`` is asked after each pass whether the run may end
     there (its reason, or ""), ``near(slow)`` at every accepted step whether it has reached
-    the first run's minimum (:func:`_agree`). The last value returned says it ended so.
+    the first run's minimum (:func:`~mpipe.inversion.whole_take.cold_starts.agree`). The
+    last value returned says it ended so.
     """
     stop, near = ends if ends is not None else (None, None)
     total, converged, t_built, start = 0, True, state.t, None
@@ -398,26 +356,6 @@ def _problems(p, u, fs, source, windows, config, zero_mean, t):
     n_taps = max(source.named(t, name)[0].n_taps for name in set(names))
     notes = [note_of[g] for g in segments]
     return problems_of(p, u, fs, starts, notes, names, config, zero_mean, n_taps), steady
-
-
-def _window_fit(data: TakeData, source, q, t: float, warm: ReedParameters | None):
-    """One window's own fit of every searched parameter (cold: the global search)."""
-    kernel, air = source.named(t, q.fingering)
-    return invert_window(data.p, data.u, data.fs, q.start, kernel, air.rho, data.config,
-                         zero_mean=data.zero_mean, warm=warm, errors=False)  # fmt: skip
-
-
-def _cold_start(data: TakeData, source, problems, steady, t, window: int):
-    """A cold start on ``window``, else on the next steady windows that give an estimate."""
-    picks = [window] + [i for i, ok in enumerate(steady) if ok and i != window]
-    picks += [i for i, ok in enumerate(steady) if not ok and i != window]
-    for i in picks[:4]:
-        q = problems[i]
-        out = data.cold.get(q.start) or _window_fit(data, source, q, t, None)
-        if out.reed is not None:
-            log.info("take cold start on the window at %.3f s", q.start / data.fs)
-            return out.reed, dict(out.row), float(np.max(q.target.p))
-    raise ValueError("no window of the take could be cold-started (the model does not play it)")
 
 
 def _chains(problems) -> list[list[int]]:
@@ -495,4 +433,4 @@ def _renumber(problems):
     return [dataclasses.replace(q, note=index[q.note]) for q in problems]
 
 
-__all__ = ["fit_take"]
+__all__ = ["fit_take", "rival_costs", "thinned"]

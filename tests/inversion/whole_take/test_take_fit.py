@@ -5,7 +5,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from mpipe.inversion.whole_take.take_fit import THIN, THIN_MIN, cold_windows, rival_costs, thinned
+from mpipe.inversion.whole_take.cold_starts import cold_windows
+from mpipe.inversion.whole_take.take_fit import THIN, THIN_MIN, rival_costs, thinned
 
 
 def _problem(start: int, amplitude: float):
