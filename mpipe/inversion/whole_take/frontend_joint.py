@@ -105,7 +105,8 @@ def frontend_shares(take, state, blocks, weight: float, front, calibration) -> F
         mine = take.problems[lo:hi]
         a = min(q.start - q.target.p_history.size for q in mine)
         b = max(q.start + q.target.p.size for q in mine)
-        args.append((v, state.t, a, fp.long_span_changes(front, calibration, fs, spans, a, b)))
+        # each shard re-separates its own span: p0, u0 over it and its margin travel
+        args.append((v, state.t, (a, b), front_slice(front, a, b, spans.margin), spans))
     parts = take.shards.call("frontend", args)
     names = tuple(n for n in fp.FRONTEND_NAMES if n in parts[0])
     n_windows, width = len(take.problems), len(take.layout.names) + 1
@@ -132,6 +133,31 @@ def frontend_shares(take, state, blocks, weight: float, front, calibration) -> F
         shifts.append(np.concatenate([d_fast, d_slow[notes], d_t], axis=1))
     se = np.array([float(front.level_se[fp.FRONTEND_NAMES.index(n)]) for n in names])
     return FrontendShares(names, se, np.array(shifts), moved_prior, tuple(failed))
+
+
+def front_slice(front, a: int, b: int, margin: int):
+    """``front`` over samples ``a..b`` and ``margin`` each side: ``(offset, FrontEnd)``.
+
+    What :func:`~mpipe.inversion.whole_take.frontend_propagation.span_changes` reads for a
+    span ``a..b`` (its margin), so the span's changes computed from the slice are those of
+    the whole take.
+    """
+    lo, hi = max(a - margin, 0), min(b + margin, len(front.p0))
+    temps = front.temperature_c
+    if np.ndim(temps):
+        temps = np.asarray(temps[lo:hi], dtype=float)
+    part = dataclasses.replace(front, p0=np.asarray(front.p0[lo:hi], dtype=float),
+                               u0=np.asarray(front.u0[lo:hi], dtype=float),
+                               temperature_c=temps)  # fmt: skip
+    return lo, part
+
+
+def shard_changes(shard, values, t: float, span, sliced, spans) -> dict:
+    """:func:`shard_gradients` for the span ``(a, b)``, its changes from ``front_slice``."""
+    (a, b), (lo, front) = span, sliced
+    changes = fp.long_span_changes(front, shard.spec.calibration, shard.spec.fs, spans,
+                                   a - lo, b - lo)  # fmt: skip
+    return shard_gradients(shard, values, t, a, changes)
 
 
 def shard_gradients(shard, values: np.ndarray, t: float, a: int, changes: dict) -> dict:
@@ -187,4 +213,12 @@ def record(shares: FrontendShares, names) -> dict:
     return out
 
 
-__all__ = ["FrontendShares", "frontend_shares", "moved_target", "record", "shard_gradients"]
+__all__ = [
+    "FrontendShares",
+    "front_slice",
+    "frontend_shares",
+    "moved_target",
+    "record",
+    "shard_changes",
+    "shard_gradients",
+]

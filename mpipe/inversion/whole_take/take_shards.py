@@ -38,7 +38,7 @@ from mpipe.inversion.fit.window import window_objective
 from mpipe.inversion.preparation.kernel import KernelSource
 from mpipe.inversion.trust.diagnostics import playing_difference
 from mpipe.inversion.trust.uncertainty import residual_grams
-from mpipe.inversion.whole_take.frontend_joint import shard_gradients
+from mpipe.inversion.whole_take.frontend_joint import shard_changes
 
 log = logging.getLogger(__name__)
 
@@ -339,9 +339,9 @@ class Shard:
                         break
         return out
 
-    def frontend(self, values: np.ndarray, t: float, a: int, changes: dict) -> dict:
-        """Each window's gradient change for each moved front end (:func:`shard_gradients`)."""
-        return shard_gradients(self, values, t, a, changes)
+    def frontend(self, values: np.ndarray, t: float, span, sliced, spans) -> dict:
+        """Each window's gradient change for each moved front end (:func:`shard_changes`)."""
+        return shard_changes(self, values, t, span, sliced, spans)
 
     def final(self, values: np.ndarray, t: float, floor: float) -> list[dict]:
         """Each window's residual figures and noise grams at its solution (exact Jacobian).
