@@ -301,13 +301,18 @@ def _step1_columns(s1: Step1Result) -> dict:
 
 
 def window_objective(
-    kernel: BoreKernel, target: TargetWindow, base: ReedParameters, config: InversionConfig
-) -> F2Objective:
-    """F2 of the window over the configured search parameters, the others held at ``base``."""
-    settings = ObjectiveSettings(
-        lead_s=config.lead_s,
-        lowpass=config.lowpass.design(target.fs) if target.zero_mean else None,
-    )
+    kernel: BoreKernel, target: TargetWindow, base: ReedParameters, config: InversionConfig,
+    lowpass=None,
+) -> F2Objective:  # fmt: skip
+    """F2 of the window over the configured search parameters, the others held at ``base``.
+
+    ``lowpass``: ``config.lowpass.design(target.fs)`` when the caller already has it (one
+    design for the many windows of a take; made here otherwise).
+    """
+    if target.zero_mean and lowpass is None:
+        lowpass = config.lowpass.design(target.fs)
+    settings = ObjectiveSettings(lead_s=config.lead_s,
+                                 lowpass=lowpass if target.zero_mean else None)  # fmt: skip
     return F2Objective(
         kernel,
         target,

@@ -181,7 +181,7 @@ def shard_gradients(shard, values: np.ndarray, t: float, a: int, changes: dict) 
         for name, (dp, du) in changes.items():
             moved = moved_target(shard.problems[i].target, shard.problems[i].start, a, dp, du)
             obj = window_objective(shard.objectives[i].kernel, moved, shard.spec.base,
-                                   shard.spec.config)  # fmt: skip
+                                   shard.spec.config, shard.lowpass)  # fmt: skip
             r = obj.residuals(x)
             bad = obj.infeasible(r)
             out[name].append(np.full(j.shape[1], np.nan) if bad else j.T @ (r - r0))

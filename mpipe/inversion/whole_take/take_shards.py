@@ -141,6 +141,7 @@ class Shard:
         self.source = KernelSource(spec.calibration, spec.fs, spec.fingerings)
         self.problems = list(spec.problems)
         self.runs = [0] * len(self.problems)  # model runs of each window (one per candidate)
+        self.lowpass = spec.config.lowpass.design(spec.fs)  # one design for every window
         self.rebuild(spec.t)
 
     def rebuild(self, t: float) -> None:
@@ -155,7 +156,8 @@ class Shard:
 
     def _objective(self, q, t: float) -> F2Objective:
         kernel, _ = self.source.named(t, q.fingering)
-        return window_objective(kernel, q.target, self.spec.base, self.spec.config)
+        return window_objective(kernel, q.target, self.spec.base, self.spec.config,
+                                self.lowpass)  # fmt: skip
 
     def entries(self) -> tuple[np.ndarray, np.ndarray]:
         """Each window's entry impedance (Pa s/m^3) and air density (kg/m^3) at ``t``."""
