@@ -109,10 +109,13 @@ class KernelSource:
     built: dict = field(default_factory=dict)  # (T degC, fingering) -> (kernel, air)
     build: Callable | None = None  # (calibration, fs, T) -> (kernel, air); None: bore_kernel
 
+    def fingering(self, start: int | None) -> str:
+        """The fingering of the window starting at ``start`` ("" the calibration's)."""
+        return self.fingerings.get(int(start), "") if start is not None else ""
+
     def at(self, t: float, start: int | None = None) -> tuple[BoreKernel, Air]:
         """The kernel and air of the window starting at ``start`` at ``t`` degC."""
-        name = self.fingerings.get(int(start), "") if start is not None else ""
-        return self.named(t, name)
+        return self.named(t, self.fingering(start))
 
     def named(self, t: float, name: str = "") -> tuple[BoreKernel, Air]:
         """The kernel and air of fingering ``name`` ("" the calibration's) at ``t`` degC."""

@@ -113,7 +113,7 @@ def choose_contact(
     # crescendo's first window may not reach the lay at all, and fits both laws alike);
     # the take fit's second cold start is made on the same window and reuses this fit
     start = int(starts[loudest([p[s : s + n] for s in starts], steady)])
-    fingering = source.fingerings.get(int(start), "")
+    fingering = source.fingering(start)
     f2, outcomes = {}, {}
     for law in LAWS:
         out = cold_fit(p, u, fs, source, start, fingering, t_c,

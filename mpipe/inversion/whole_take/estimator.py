@@ -9,14 +9,17 @@ with its parameters in three tiers (:mod:`mpipe.inversion.pooling.take_system`):
 - the take's air temperature T (degC), which sets the bore's reflection function, with
   the front end's estimate and its standard error as a Gaussian prior.
 
-**How it runs.** One cold start per take (:func:`mpipe.inversion.fit.window.invert_window`
-on the first steady window, the global search of :mod:`mpipe.inversion.fit.coldstart`), at
-the prior's temperature. Every window then starts warm from the window before it in its
-chain (:data:`mpipe.inversion.whole_take.take_shards.CHAIN` windows of one note): its fast
-controls fitted with the reed's constants held, so a crescendo or a new note is followed
-without a search. The joint fit is a damped Gauss-Newton (Levenberg-Marquardt) on the whole
-take's normal equations, each window's block eliminated; the windows' residual blocks come
-from the one compiled recursion with forward sensitivities, computed where the windows are
+**How it runs.** Two cold starts per take, on its first and its loudest steady window
+(:mod:`mpipe.inversion.whole_take.cold_starts`: the global search of
+:mod:`mpipe.inversion.fit.coldstart`), at the prior's temperature, each followed on the
+thinned take (every 4th window of a note) and the whole take fitted from the lower one's
+minimum (:mod:`mpipe.inversion.whole_take.take_fit`). Every window starts warm from the
+window before it in its chain (:data:`mpipe.inversion.whole_take.take_shards.CHAIN`
+windows of one note): its fast controls fitted with the reed's constants held, so a
+crescendo or a new note is followed without a search. The joint fit is a damped
+Gauss-Newton (Levenberg-Marquardt) on the whole take's normal equations, each window's
+block eliminated; the windows' residual blocks come from the one compiled recursion with
+forward sensitivities, computed where the windows are
 (:mod:`mpipe.inversion.whole_take.take_shards`).
 
 **Passes.** The bore's kernel is built at the current temperature ``T_k`` and the

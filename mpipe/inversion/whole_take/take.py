@@ -234,7 +234,7 @@ def _invert_jointly(data, front, carried, front_end, extra_checks, run) -> TakeI
     # the calibration's share; the front end's came with the fit (its rows' frontend columns)
     table, shared = shared_components(
         p, u, fs, joint.tracking.table, calibration, config, zero_mean=zero_mean,
-        kernel_c=fit.temperature_c, refit_kernel=True, front=None,
+        kernel_c=fit.temperature_c, refit_kernel=False, front=None,
     )  # fmt: skip
     shared.update(joint.shared)
     table["kernel_temperature_se_c"] = fit.se_c

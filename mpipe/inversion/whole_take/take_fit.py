@@ -2,13 +2,15 @@
 
 The driver of :mod:`mpipe.inversion.whole_take.estimator` (which holds the fit's records,
 its pass and its stopping rule): the windows of a plan in time order and their notes, the
-take's cold starts (its first and its loudest steady window, :func:`cold_windows`), from
-each start that lies in a basin of its own each window's controls warm along its chain and
-the passes with the kernels rebuilt at the temperature between them (the shards that hold
-the windows: :mod:`mpipe.inversion.whole_take.take_shards`), the run whose cost is lowest
-(:func:`rival_costs`), and its windows' figures at the solution. The runs minimise one
-objective from different starts; which one ends lowest is the estimate (a multi-start
-search, not two estimates reconciled).
+take's cold starts (its first and its loudest steady window,
+:mod:`mpipe.inversion.whole_take.cold_starts`), from each start that lies in a basin of
+its own a run on the thinned take (:func:`thinned`), the whole take from the lowest
+(:func:`rival_costs`) at its note constants, temperature and controls: each window's
+controls warm along its chain, the passes with the kernels rebuilt at the temperature
+between them (the shards that hold the windows:
+:mod:`mpipe.inversion.whole_take.take_shards`), and its windows' figures at the solution.
+The runs minimise one objective from different starts; which one ends lowest is the
+estimate (a multi-start search, not two estimates reconciled).
 """
 
 from __future__ import annotations

@@ -349,12 +349,15 @@ class Shard:
         """Each window's residual figures and noise grams at its solution (exact Jacobian).
 
         The accepted point's exact Jacobian is used where ``values`` are that point (the
-        pass ended on it), else it is computed.
+        pass ended on it), else it is computed; either way it becomes the accepted one, for
+        the front end's share after it (:meth:`frontend`).
         """
-        out = []
+        out, points = [], []
         p_loc = len(self.spec.layout.names) + 1
         for i, x in enumerate(values):
-            r0, j0 = self.at(i, np.asarray(x, float))
+            x = np.asarray(x, float)
+            r0, j0 = self.at(i, x)
+            points.append((x, r0, j0))
             r, d_t = self.in_t(i, r0, t)
             j = np.concatenate([j0, d_t[:, None]], axis=1)
             pw = self.problems[i].target.p
@@ -368,6 +371,7 @@ class Shard:
                             runs=self.runs[i],
                             sigma=f2 / math.sqrt(max(dof, 1.0)), f2=f2, relative_residual=rel,
                             playing=played, **extra))  # fmt: skip
+        self.accepted, self.exact_accepted, self.pending = points, True, None
         return out
 
 

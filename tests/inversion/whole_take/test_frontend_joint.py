@@ -15,6 +15,7 @@ from mpipe.inversion.whole_take import frontend_propagation as fp
 from mpipe.inversion.whole_take.estimator import TakeData
 from mpipe.inversion.whole_take.shared_errors import _translated
 from mpipe.inversion.whole_take.take_fit import fit_take
+from mpipe.inversion.whole_take.take_rows import window_rows
 from mpipe.inversion.whole_take.tracking import WindowPlan
 from mpipe.measurement.separation.perturbation import reseparate
 
@@ -30,13 +31,14 @@ def fitted(short_take):
 
     def fit(p, u, with_front, mean):
         data = TakeData(p, u, fs, cal, plan, config, True, front=front if with_front else None)
-        return fit_take(data, prior=(mean, se_t), t_range=(t0 - 5, t0 + 5))[0]
+        return fit_take(data, prior=(mean, se_t), t_range=(t0 - 5, t0 + 5))
 
-    return cal, fs, front, fit, fit(tr.p, tr.u, True, t0), t0
+    base, cold, _ = fit(tr.p, tr.u, True, t0)
+    return cal, fs, front, lambda *a: fit(*a)[0], base, t0, cold, config
 
 
 def test_the_linear_shift_is_the_refitted_takes_change(fitted):
-    cal, fs, front, fit, base, t0 = fitted
+    cal, fs, front, fit, base, t0, *_ = fitted
     shares = base.frontend
     assert shares is not None and shares.prior_moved and not shares.failed
     assert set(shares.names) == set(fp.FRONTEND_NAMES)
@@ -64,12 +66,18 @@ def test_the_linear_shift_is_the_refitted_takes_change(fitted):
     assert line[0, -1] == pytest.approx(change[2][0], rel=0.15)
 
 
-def test_each_windows_covariance_is_its_shifts_outer_products(fitted):
-    *_, base, _ = fitted
+def test_the_tables_frontend_columns_are_the_shifts_of_each_window(fitted):
+    # window_rows turns each window's shifts into <q>_se_frontend through the budget's
+    # propagation (window_uncertainty); for a fitted parameter that must be |q| times the
+    # root sum of squares of its own ln shifts, and the temperature's SE must hold the
+    # front end's share beside the fit's own
+    *_, base, _, cold, config = fitted
+    table, t_se, _ = window_rows(base, cold, config, base.problems[0].target.fs)
     shares = base.frontend
-    for i in (0, len(base.problems) - 1):
-        c = shares.window(i)
-        d = shares.shifts[:, i, :]
-        assert np.allclose(c, sum(np.outer(x, x) for x in d))
-        assert np.all(np.linalg.eigvalsh(c) > -1e-12 * np.abs(c).max())
-    assert shares.temperature_se() == pytest.approx(float(np.sqrt(np.sum(d[:, -1] ** 2))))
+    for name in ("p_m", "k", "S"):
+        j = base.names.index(name)
+        direct = table[name].to_numpy() * np.sqrt(np.sum(shares.shifts[:, :, j] ** 2, axis=0))
+        assert direct.min() > 0
+        assert table[f"{name}_se_frontend"].to_numpy() == pytest.approx(direct, rel=1e-6)
+    t_share = float(np.sqrt(np.sum(shares.shifts[:, 0, -1] ** 2)))
+    assert t_share > 0 and t_se > t_share
