@@ -36,7 +36,7 @@ from mpipe.core.errors import UserError
 from mpipe.core.io import write_csv
 from mpipe.inversion.preparation.conditioning import bore_resonances
 from mpipe.inversion.preparation.kernel import take_temperature
-from mpipe.inversion.preparation.segments import segment_take
+from mpipe.inversion.preparation.segments import save_segmentation, segment_take
 from mpipe.measurement.calibration import AUTO, Calibration, note_fingerings, per_note
 from mpipe.measurement.fingerings import NO_FIT_BELOW, FingeringChoice, harmonic_lines, identify
 from mpipe.measurement.harmonic_impedance import FRAME_PERIODS, MIN_FRAMES
@@ -138,6 +138,7 @@ def validate_notes(
     config: ValidationConfig,
     conditioning,
     temperature_c: float,
+    segments: pd.DataFrame | None = None,
 ) -> NotesValidation:
     """Validate each note of a take against its own fingering.
 
@@ -155,6 +156,9 @@ def validate_notes(
         The segmentation's settings.
     temperature_c : float
         Air temperature of the theory, degC.
+    segments : pandas.DataFrame, optional
+        The take's segments (:func:`segment_take` with the bore's resonances), when the
+        caller already has them; made here otherwise.
 
     Returns
     -------
@@ -165,7 +169,8 @@ def validate_notes(
     UserError
         When a list of fingerings does not give one per note (naming both counts).
     """
-    segments, _ = segment_take(p, fs, conditioning, bore_resonances(calibration))
+    if segments is None:
+        segments, _ = segment_take(p, fs, conditioning, bore_resonances(calibration))
     notes = segments[segments["label"] == "note"].reset_index(drop=True)
     given = note_fingerings(calibration.fingering)
     if given is not None and len(given) != len(notes):
@@ -239,11 +244,14 @@ def stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg, draw
         fs = float(mp["fs"])
         # Z = P / U passes with every channel inverted; the reed's shut phase does not
         check_polarity(mp["u"], mp["p"], fs, str(mouthpiece))
+        # the take is segmented once, here: the conditioning reads this file
+        segments, tracks = segment_take(mp["p"], fs, cfg.conditioning, bore_resonances(cal))
+        save_segmentation(folder / "segmentation.npz", segments, tracks)
         notes = None
-        if per_note(cal.fingering) or _notes(mp["p"], fs, cfg) != 1:
+        if per_note(cal.fingering) or int((segments["label"] == "note").sum()) != 1:
             # a phrase, or a fingering per note: each note against its own fingering
             notes = validate_notes(mp["p"], mp["u"], fs, cal, cfg.validation,
-                                   cfg.conditioning, t_eff)  # fmt: skip
+                                   cfg.conditioning, t_eff, segments)  # fmt: skip
         val = notes.shown() if notes is not None else None
         if val is None:
             val = validate(mp["p"], mp["u"], fs, _one_fingering(cal), cfg.validation, t_eff)
@@ -273,7 +281,8 @@ def stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg, draw
             "fingering_checks": [] if notes is None else note_fingering_checks(notes.notes),
         }
         outputs = {"impedance": "impedance.csv", "resonances": "validation.csv",
-                   "harmonics": "harmonics.csv", "plot": "impedance.png"}  # fmt: skip
+                   "harmonics": "harmonics.csv", "plot": "impedance.png",
+                   "segmentation": "segmentation.npz"}  # fmt: skip
         if notes is not None:
             outputs["notes"] = "notes.csv"
         return outputs, summary
@@ -285,12 +294,6 @@ def _measured_resonance(val: ValidationResult) -> bool:
     """Whether a validation measured at least one resonance (broadband excitation)."""
     errors = val.resonances["error_cents"] if len(val.resonances) else []
     return bool(np.isfinite(np.asarray(errors, dtype=float)).any())
-
-
-def _notes(p: np.ndarray, fs: float, cfg) -> int:
-    """How many notes the conditioning finds in a take."""
-    segments, _ = segment_take(p, fs, cfg.conditioning)
-    return int((segments["label"] == "note").sum())
 
 
 def _one_fingering(cal: Calibration) -> Calibration:

@@ -25,7 +25,7 @@ from mpipe.core.progress import ProgressBar, stage_timer
 from mpipe.core.signals import open_npz, signal_median
 from mpipe.inversion.preparation.conditioning import bore_resonances, plan_take
 from mpipe.inversion.preparation.kernel import KernelSource, table_temperature
-from mpipe.inversion.preparation.segments import plot_segments, with_played
+from mpipe.inversion.preparation.segments import load_segmentation, plot_segments, with_played
 from mpipe.inversion.settings import PARAMETER_NAMES
 from mpipe.inversion.table.records import read_windows
 from mpipe.inversion.table.tables import (
@@ -173,7 +173,7 @@ def _stage_translation(folder_sep: Path, cal: Calibration, cfg: PipelineConfig):
 
 
 def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig, notes=None,
-                        draw=draw_now):  # fmt: skip
+                        draw=draw_now, segmentation: Path | None = None):  # fmt: skip
 
     inv = cfg.inversion
 
@@ -181,9 +181,12 @@ def _stage_conditioning(mouthpiece: Path, cal: Calibration, cfg: PipelineConfig,
         mp = open_npz(mouthpiece)  # p, u on disk: read in blocks, frames and windows
         fs = float(mp["fs"])
         tracks: dict = {}
+        # the validation stage's segmentation of the take (the same settings), read
+        made = load_segmentation(segmentation) if segmentation and segmentation.exists() else None
         table, segments = plan_take(
             mp["p"], fs, cfg.conditioning, inv.window_s, inv.hop_s,
-            resonances_hz=bore_resonances(cal), tracks_out=tracks,
+            resonances_hz=bore_resonances(cal) if made is None else (), tracks_out=tracks,
+            segmentation=made,
         )  # fmt: skip
         segments, table = with_fingerings(segments, table, notes, cal)
         write_csv(folder / "plan.csv", table)
@@ -455,9 +458,11 @@ def _run_stages(cfg, cal_path, take_paths, out, force, client, say, accept_faile
             )
         say(f"[{name}]     inverting despite the FAILED validation (--accept-failed-validation)")
     notes = d["validation"] / "notes.csv"  # a phrase's fingerings, when validated per note
+    segmentation = d["validation"] / "segmentation.npz"  # the take's, made once
     cond = stage(4, "conditioning", {"mouthpiece": mouthpiece, **cal_inputs,
-                 **present(notes=notes)}, conditioning_config(cfg),
-                 _stage_conditioning(mouthpiece, cal, cfg, notes, figures.draw))  # fmt: skip
+                 **present(notes=notes, segmentation=segmentation)}, conditioning_config(cfg),
+                 _stage_conditioning(mouthpiece, cal, cfg, notes, figures.draw,
+                                     segmentation))  # fmt: skip
     say(f"[{name}]     {cond.summary['to_invert']} of {cond.summary['windows']} windows to invert")
     plan = d["conditioning"] / "plan.csv"
     inv_inputs = {"mouthpiece": mouthpiece, "plan": plan, "blocks": blocks, **cal_inputs}

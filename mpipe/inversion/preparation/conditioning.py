@@ -352,6 +352,7 @@ def plan_take(
     end_s: float | None = None,
     resonances_hz: Sequence[float] = (),
     tracks_out: dict | None = None,
+    segmentation: tuple[pd.DataFrame, dict] | None = None,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """The take's segments, its windows and which of them are inverted: one rule everywhere.
 
@@ -385,6 +386,10 @@ def plan_take(
     tracks_out : dict, optional
         Filled with the level and f0 tracks of the segmentation (for
         :func:`mpipe.inversion.preparation.segments.plot_segments`).
+    segmentation : (segments, tracks), optional
+        The take's :func:`~mpipe.inversion.preparation.segments.segment_take` with the same
+        settings and ``resonances_hz``, made earlier (``mpipe run`` segments a take once,
+        in its validation stage); made here otherwise.
 
     Returns
     -------
@@ -409,7 +414,7 @@ def plan_take(
     table = steady_windows(
         p, fs, starts, window_n, c.steady_tolerance, c.f0_min_hz, c.f0_max_hz, c.min_rms_pa
     )
-    segments, tracks = segment_take(p, fs, c, resonances_hz)
+    segments, tracks = segmentation or segment_take(p, fs, c, resonances_hz)
     if tracks_out is not None:
         tracks_out.update(tracks)
     if len(table):

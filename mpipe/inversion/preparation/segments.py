@@ -17,11 +17,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from mpipe.core.io import write_atomic
+from mpipe.core.io import write_atomic, write_npz_atomic
 from mpipe.core.signals import as_signal, pairwise_sum
 from mpipe.inversion.preparation.boundaries import (
     level_envelope,
@@ -121,6 +122,35 @@ def segment_take(
     tracks = {"t_level_s": t_lev, "level_pa": level, "t_f0_s": centres, "f0_hz": f0,
               "threshold_pa": threshold, "frame_s": frame}  # fmt: skip
     return table, tracks
+
+
+#: The segmentation file's key prefixes: a segments column, a track.
+_COLUMN, _TRACK = "segments/", "tracks/"
+
+
+def save_segmentation(path: str | Path, segments: pd.DataFrame, tracks: dict) -> Path:
+    """Write :func:`segment_take`'s ``(segments, tracks)`` to one npz, atomically.
+
+    The take is segmented once (the validation stage, which needs its notes first) and
+    read by the stages after it (:func:`load_segmentation`): the same table, exactly.
+    Text columns are stored as fixed-width unicode, numbers with their dtype.
+    """
+    arrays = {_COLUMN + c: np.asarray(segments[c].to_numpy(), dtype=str)
+              if segments[c].dtype.kind not in "biuf" else segments[c].to_numpy()
+              for c in segments.columns}  # fmt: skip
+    arrays.update({_TRACK + k: np.asarray(v) for k, v in tracks.items()})
+    return write_npz_atomic(path, **arrays)
+
+
+def load_segmentation(path: str | Path) -> tuple[pd.DataFrame, dict]:
+    """The ``(segments, tracks)`` of :func:`save_segmentation`'s file."""
+    with np.load(path, allow_pickle=False) as d:
+        columns = {k[len(_COLUMN) :]: d[k] for k in d.files if k.startswith(_COLUMN)}
+        tracks = {k[len(_TRACK) :]: d[k] for k in d.files if k.startswith(_TRACK)}
+    segments = pd.DataFrame({c: (v.astype(object) if v.dtype.kind == "U" else v)
+                             for c, v in columns.items()})  # fmt: skip
+    tracks = {k: (float(v) if v.ndim == 0 else v) for k, v in tracks.items()}
+    return segments, tracks
 
 
 def _rms(p, a: int, b: int) -> float:
@@ -381,6 +411,8 @@ __all__ = [
     "plot_segments",
     "segments_figure",
     "reed_openings",
+    "load_segmentation",
+    "save_segmentation",
     "segment_take",
     "spl_db",
     "with_played",

@@ -88,6 +88,26 @@ def test_plan_inverts_no_window_in_a_silence_and_waits_for_the_onset():
     assert (first.loc[first["phase"] == "release", "t_end_s"] > 0.5 - 0.03 - 0.015).all()
 
 
+def test_a_saved_segmentation_plans_the_windows_as_a_fresh_one(tmp_path):
+    # mpipe run segments a take once (validation) and plans from the file (conditioning):
+    # the file gives back the table and tracks exactly, and the plan made from it is the
+    # plan segment_take itself gives
+    from mpipe.inversion.preparation.segments import load_segmentation, save_segmentation
+
+    x, _ = phrase(1)
+    resonances = [170.0, 510.0, 850.0, 1190.0]
+    segs, tracks = segment_take(x, FS, COND, resonances)
+    back_segs, back_tracks = load_segmentation(save_segmentation(tmp_path / "s.npz", segs, tracks))
+    pd.testing.assert_frame_equal(back_segs, segs)
+    assert set(back_tracks) == set(tracks)
+    for k, v in tracks.items():
+        np.testing.assert_array_equal(back_tracks[k], v)
+    fresh = plan_take(x, FS, COND, 0.02, 0.02, resonances_hz=resonances)
+    read = plan_take(x, FS, COND, 0.02, 0.02, segmentation=(back_segs, back_tracks))
+    pd.testing.assert_frame_equal(read[0], fresh[0])
+    pd.testing.assert_frame_equal(read[1], fresh[1])
+
+
 def test_the_segments_figure_is_drawn(tmp_path):
     from mpipe.inversion.preparation.segments import plot_segments
 
