@@ -10,6 +10,7 @@ stages together: the physics lives in the stage modules.
 from __future__ import annotations
 
 import logging
+import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -108,7 +109,8 @@ def _stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig, draw=dr
         found: dict = {}
 
         def write(tmp: Path) -> None:  # read, separated and written block by block
-            found.update(separate_take(tmp, paths, cal, cfg.separation, fs))
+            found.update(separate_take(tmp, paths, cal, cfg.separation, fs,
+                                      cfg.executor.workers or os.cpu_count() or 1))  # fmt: skip
 
         write_atomic(folder / "reference.npz", write)
         sep, take = found["separation"], found["take"]

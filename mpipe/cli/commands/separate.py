@@ -132,7 +132,7 @@ def _run(args: argparse.Namespace) -> int:
     cal = load_calibration(cal_path, _fingering(args))
     log.info("%s", bore_description(cal))
     log.info("reading take %s", ", ".join(takes))
-    sep_cfg, tr_cfg, val_cfg, rate = _settings(args)
+    sep_cfg, tr_cfg, val_cfg, rate, workers = _settings(args)
     if args.fixed_mach is not None:
         if not -0.05 <= args.fixed_mach <= 0.1:
             raise UserError(
@@ -146,7 +146,7 @@ def _run(args: argparse.Namespace) -> int:
         try:
             log.info("stage 1/3: wave separation")
             found = separate_take(reference, takes if len(takes) > 1 else takes[0], cal,
-                                  sep_cfg, rate)  # fmt: skip
+                                  sep_cfg, rate, workers)  # fmt: skip
             sep, fs = found["separation"], found["take"].fs
             log.info("stage 2/3: translation to the mouthpiece entry")
             ref = open_npz(reference)
@@ -212,18 +212,23 @@ def _inputs(args: argparse.Namespace) -> tuple[list[str], str, Path, list[Path]]
 
 
 def _settings(args: argparse.Namespace):
-    """Separation, translation and validation settings, and the sample rate (Hz)."""
+    """Separation, translation and validation settings, the sample rate (Hz), the workers.
+
+    The workers (processes of the blocks' estimates) are the pipeline's
+    ``executor.workers``, one per CPU by default: the same numbers with any number.
+    """
+    workers = 0
     if args.pipeline:
         pipe = load_pipeline(args.pipeline, check_calibration=False)
         sep_cfg, tr_cfg, val_cfg = pipe.separation, pipe.translation, pipe.validation
-        rate = pipe.inversion.sample_rate
+        rate, workers = pipe.inversion.sample_rate, pipe.executor.workers
     else:
         sep_cfg, tr_cfg, val_cfg = SeparationConfig(), TranslationConfig(), ValidationConfig()
         rate = DEFAULT_RATE
     rate = args.sample_rate if args.sample_rate is not None else rate
     if not 1000.0 <= rate <= 1e6:
         raise UserError(f"--sample-rate: expected a rate in Hz (1e3-1e6), got {rate:g}")
-    return sep_cfg, tr_cfg, val_cfg, rate
+    return sep_cfg, tr_cfg, val_cfg, rate, workers or os.cpu_count() or 1
 
 
 def _write_outputs(out: Path, fs: float, sep, mouthpiece: Path, val) -> None:

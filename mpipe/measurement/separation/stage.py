@@ -35,7 +35,12 @@ from mpipe.measurement.separation.propagation import Prior, fixed_mach, fixed_ma
 from mpipe.measurement.separation.reconstruction import overlap_add
 from mpipe.measurement.separation.result import SeparationResult, block_table
 from mpipe.measurement.separation.settings import SeparationConfig
-from mpipe.measurement.separation.tracking import BlockFits, estimate_blocks, smooth_blocks
+from mpipe.measurement.separation.tracking import (
+    BlockFits,
+    estimate_blocks,
+    hold_blocks,
+    smooth_blocks,
+)
 from mpipe.measurement.separation.waves import Geometry
 
 log = logging.getLogger(__name__)
@@ -308,6 +313,7 @@ def separate(
     calibration: Calibration,
     config: SeparationConfig,
     band_limit_hz: float | None = None,
+    workers: int = 1,
 ) -> SeparationResult:
     """Separate the waves of a take of N >= 2 microphones and rebuild p0, u0 at the reference plane.
 
@@ -328,6 +334,8 @@ def separate(
     band_limit_hz : float, optional
         Highest frequency the recording holds (the file's Nyquist frequency when the take
         was resampled to ``fs``), Hz; the sensor noise is measured below it.
+    workers : int
+        Processes the blocks' estimates are spread over (the same numbers with any number).
 
     Returns
     -------
@@ -344,7 +352,7 @@ def separate(
     physics.md E.1-E.5; Jang & Ih 1998; Chatziioannou & van Walstijn 2012, section 4.
     """
     x = checked_pressures(pressures, calibration)
-    est = estimate(x, fs, calibration, config, band_limit_hz)
+    est = estimate(x, fs, calibration, config, band_limit_hz, workers)
     # 2. Separate every windowed block with its smoothed theta, overlap-add.
     plan = est.plan
     p0, u0 = overlap_add(x, fs, plan.starts, plan.length, est.smooth, est.c_track,
@@ -389,12 +397,14 @@ class Estimate:
 
 
 def estimate(
-    x, fs: float, calibration: Calibration, config: SeparationConfig, band_limit_hz=None
-) -> Estimate:
+    x, fs: float, calibration: Calibration, config: SeparationConfig, band_limit_hz=None,
+    workers: int = 1,
+) -> Estimate:  # fmt: skip
     """The first pass of :func:`separate`: theta per block, smoothed over the take.
 
     ``x`` (Pa, shape ``(n, N)``, checked) is only sliced: a take on disk is read block by
-    block, each block's spectra computed when the estimate reaches it.
+    block, each block's spectra computed when the estimate reaches it. ``workers``: the
+    processes the blocks' fits are spread over (the same numbers with any number).
     """
     n_mics = x.shape[1]
     plan = _plan(x, fs, calibration, config)
@@ -402,11 +412,13 @@ def estimate(
     noise_raw = noise_levels(x, fs, config, band_limit_hz)
     log.info("%s", noise_line(2 * noise_raw))
     spectra_list, noise, uses, fitted = _prepare_blocks(x, fs, plan, noise_raw, config)
-    fits = estimate_blocks(
-        spectra_list, uses, fitted, noise, plan.geometry, plan.start, plan.prior, config,
-        plan.can_estimate, plan.c_start,
-    )  # fmt: skip
     adaptive = plan.can_estimate and int(np.sum(plan.prior.free)) > 0
+    if adaptive:
+        fits = estimate_blocks(spectra_list, uses, fitted, noise, plan.geometry, plan.start,
+                               plan.prior, config, workers=workers)  # fmt: skip
+    else:
+        fits = hold_blocks(spectra_list, uses, fitted, noise, plan.geometry, plan.start,
+                           plan.prior, plan.c_start)  # fmt: skip
     trust, median_j = _trusted_blocks(fitted, fits.residual, adaptive, config)
     centres = (plan.starts + plan.hop) / fs
     smooth, smooth_se, c_track, track = _smoothed_track(

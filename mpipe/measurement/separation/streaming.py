@@ -33,12 +33,14 @@ def separate_take(
     calibration: Calibration,
     config: SeparationConfig,
     fs: float | None = None,
+    workers: int = 1,
 ) -> dict:
     """Read a take, put its pressures on disk, and separate it into ``path`` block by block.
 
     The take is read (:func:`mpipe.measurement.takes.read_take`, at the pipeline's rate
     ``fs`` in Hz), its pressures written to a scratch file beside ``path`` and dropped
-    from memory, and :func:`write_reference` reads them back block by block.
+    from memory, and :func:`write_reference` reads them back block by block (its blocks'
+    estimates on ``workers`` processes).
 
     Returns
     -------
@@ -55,7 +57,8 @@ def separate_take(
         # the Take keeps its metadata; its samples are on disk from here on
         take = dataclasses.replace(take, pressures=np.zeros((0, n_mics)))
         x = open_npz(pressures)["x"]
-        sep = write_reference(path, x, take.fs, calibration, config, take.band_limit_hz)
+        sep = write_reference(path, x, take.fs, calibration, config, take.band_limit_hz,
+                              workers)  # fmt: skip
     return {"separation": sep, "take": take, "n_samples": x.shape[0]}
 
 
@@ -66,6 +69,7 @@ def write_reference(
     calibration: Calibration,
     config: SeparationConfig,
     band_limit_hz: float | None = None,
+    workers: int = 1,
 ) -> SeparationResult:
     """Separate a take into ``path``: ``fs``, ``p0``, ``u0``, ``temperature_c`` and theta.
 
@@ -83,6 +87,8 @@ def write_reference(
         Settings.
     band_limit_hz : float, optional
         Highest frequency the recording holds, Hz.
+    workers : int
+        Processes the blocks' estimates are spread over (the same numbers with any number).
 
     Returns
     -------
@@ -93,7 +99,7 @@ def write_reference(
         estimated, ``theta_level`` and ``theta_level_se``.
     """
     x = checked_pressures(pressures, calibration)
-    est = estimate(x, fs, calibration, config, band_limit_hz)
+    est = estimate(x, fs, calibration, config, band_limit_hz, workers)
     plan, n = est.plan, x.shape[0]
     table = est.table
     times, temps = table["time_s"].to_numpy(), table["temperature_c"].to_numpy()
