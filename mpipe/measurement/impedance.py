@@ -155,7 +155,9 @@ def plot_impedance(curve: ImpedanceCurve, path: str | Path, title: str = "") -> 
         )
     ax_m.set_ylabel("|Z_in| / Z_c  [dB]")
     ax_m.grid(alpha=0.3)
-    ax_m.set_title(title or f"Input impedance ({curve.radiation} end, {curve.temperature_c:g} °C)")
+    ax_m.set_title(
+        title or f"Input impedance ({curve.radiation} end, {curve.temperature_c:g} °C)", y=1.0
+    )
     ax_p.plot(curve.freqs_hz, np.degrees(np.angle(curve.z)), lw=1.0, color="C0")
     ax_p.set_ylabel("phase [deg]")
     ax_p.set_xlabel("frequency [Hz]")

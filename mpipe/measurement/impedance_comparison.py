@@ -168,7 +168,7 @@ def plot_comparison(path: str | Path, curves: list[tuple[str, np.ndarray, np.nda
     ax1.legend()
     for ax in (ax1, ax2):
         ax.grid(alpha=0.3)
-    ax1.set_title("Input impedance: measured against theory")
+    ax1.set_title("Input impedance: measured against theory", y=1.0)
     fig.tight_layout()
     fig.savefig(path, dpi=110, format="png")
     plt.close(fig)

@@ -204,6 +204,7 @@ def plot_impedance(result: ValidationResult, path: str | Path, fmax_hz: float | 
         f"Input impedance of {what or 'the take: '}{result.verdict.upper()}, "
         f"T = {result.temperature_c:.2f} degC",
         fontsize=10,
+        y=1.0,
     )
     ax1.legend(loc="upper right")
     ax1.grid(alpha=0.3)

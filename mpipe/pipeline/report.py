@@ -458,7 +458,7 @@ def plot_blocks(blocks: pd.DataFrame, path: Path, sentence: str = "") -> None:
     axes[-1].set_xlabel("time [s]")
     axes[0].legend(loc="best", fontsize=8)
     title = sentence or "Propagation parameters tracked by the wave separation"
-    axes[0].set_title(textwrap.fill(title, 110), fontsize=8)
+    axes[0].set_title(textwrap.fill(title, 110), fontsize=8, y=1.0)
     fig.tight_layout()
     fig.savefig(path, dpi=110, format="png")
     plt.close(fig)

@@ -216,7 +216,7 @@ def plot_signals(
     a2.set_xlabel("time [s]")
     if title:
         color = "k" if status == "ok" else "tab:red"
-        a1.set_title(textwrap.fill(title, 110), fontsize=9, color=color)
+        a1.set_title(textwrap.fill(title, 110), fontsize=9, color=color, y=1.0)
     return save_figure(fig, path)
 
 
@@ -281,7 +281,7 @@ def plot_flow_pressure(
     ax.set_ylabel("flow u [m³/s]")
     ax.legend(fontsize=7)
     if title:
-        ax.set_title(title, fontsize=9)
+        ax.set_title(title, fontsize=9, y=1.0)
     return save_figure(fig, path)
 
 
@@ -306,7 +306,7 @@ def plot_history(history: np.ndarray, path: str | Path, f1: float | None = None)
     ax.set_xlabel("evaluations")
     ax.set_ylabel("F2 [Pa]")
     if f1 is not None:
-        ax.set_title(f"step 1 F1 = {f1:.3g} (m³/s)²")
+        ax.set_title(f"step 1 F1 = {f1:.3g} (m³/s)²", y=1.0)
     return save_figure(fig, path)
 
 

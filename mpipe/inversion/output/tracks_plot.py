@@ -222,7 +222,7 @@ def _panel(ax, table, name, t, ok, brk) -> None:
     inside = ~ok & (shown == x)
     ax.plot(t[inside], x[inside], ".", color="0.7", ms=4)
     title += _plain_ticks(ax, limits)
-    ax.set_title(title, fontsize=9, color="tab:red" if "UNDET" in title else "k")
+    ax.set_title(title, fontsize=9, color="tab:red" if "UNDET" in title else "k", y=1.0)
     ax.tick_params(labelsize=7)
 
 
@@ -234,7 +234,7 @@ def _held_fixed(ax, x: np.ndarray, ok: np.ndarray, title: str) -> bool:
     what = f"held fixed at {values[0]:.4g}" if values.size else "held fixed (not estimated)"
     ax.text(0.5, 0.5, what, transform=ax.transAxes, ha="center", va="center", fontsize=9)
     ax.set_yticks([])
-    ax.set_title(title + " fixed", fontsize=9)
+    ax.set_title(title + " fixed", fontsize=9, y=1.0)
     ax.tick_params(labelsize=7)
     return True
 
@@ -245,24 +245,39 @@ def _plain_ticks(ax, limits) -> str:
     Values beyond 1e4 or below 1e-2 are labelled in units of a power of ten, given in the
     title (``" ×1e6"``); the labels carry the digits that tell neighbouring ticks apart.
     """
-    from matplotlib.ticker import FuncFormatter
-
     if limits is None:
         ax.ticklabel_format(axis="y", useOffset=False, style="plain")
         return ""
     big = max(abs(limits[0]), abs(limits[1]))
     power = int(np.floor(np.log10(big))) if big > 0 else 0
     power = 0 if -2 <= power <= 4 else power
-    scale = 10.0**power
-
-    def label(v, _pos):
-        ticks = ax.yaxis.get_majorticklocs()
-        step = np.min(np.diff(ticks)) / scale if len(ticks) > 1 else abs(v / scale) or 1.0
-        places = min(max(0, -int(np.floor(np.log10(step)))), 12) if step > 0 else 0
-        return f"{v / scale:.{places}f}"
-
-    ax.yaxis.set_major_formatter(FuncFormatter(label))
+    ax.yaxis.set_major_formatter(_plain_formatter(10.0**power))
     return f" ×1e{power}" if power else ""
+
+
+def _plain_formatter(scale: float):
+    """Tick labels ``v / scale`` with the decimals that tell the ticks apart.
+
+    The places are found once per set of ticks (matplotlib hands the formatter its
+    ticks before labelling them), not once per label.
+    """
+    from matplotlib.ticker import Formatter
+
+    class Plain(Formatter):
+        places = 0
+
+        def set_locs(self, locs):
+            super().set_locs(locs)
+            ticks = np.asarray(locs, float)
+            step = np.min(np.diff(ticks)) / scale if ticks.size > 1 else 0.0
+            if ticks.size == 1:
+                step = abs(ticks[0] / scale) or 1.0
+            self.places = min(max(0, -int(np.floor(np.log10(step)))), 12) if step > 0 else 0
+
+        def __call__(self, v, pos=None):
+            return f"{v / scale:.{self.places}f}"
+
+    return Plain()
 
 
 def _shade_notes(ax, notes: pd.DataFrame) -> None:
