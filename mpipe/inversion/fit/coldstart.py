@@ -63,6 +63,11 @@ def spread_over(mapper: Callable | None) -> Iterator[None]:
         _MAPPER.reset(token)
 
 
+def spreading() -> bool:
+    """Whether :func:`map_tasks` spreads its tasks over workers here (a pool is open)."""
+    return _MAPPER.get() is not None
+
+
 def run_tasks_here() -> None:
     """From now on in this context, :func:`map_tasks` runs its tasks here, one by one."""
     _MAPPER.set(None)
@@ -267,4 +272,5 @@ __all__ = [
     "run_tasks_here",
     "sobol_design",
     "spread_over",
+    "spreading",
 ]

@@ -26,7 +26,7 @@ from mpipe.core.cluster import check_scheduler, require_dask
 from mpipe.core.errors import UserError
 from mpipe.core.workers import manager as worker_manager
 from mpipe.core.workers import process_pool
-from mpipe.inversion.fit.coldstart import run_tasks_here, spread_over
+from mpipe.inversion.fit.coldstart import run_tasks_here, spread_over, spreading
 from mpipe.inversion.fit.sensitivities import load_compiled
 from mpipe.inversion.fit.window import invert_window
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
@@ -450,7 +450,11 @@ def stage_workers(shared, executor: ExecutorConfig, workers: int, client=None) -
     once per worker). Results come in the order of the tasks, each task depends only on
     its own inputs: the same answer as one worker. With one worker, or a Dask executor
     (whose windows already spread over the cluster), the tasks run here, one by one.
+    Inside an open pool (an outer ``stage_workers`` of the same take) that pool is used.
     """
+    if spreading():
+        yield
+        return
     if executor.kind != "local" or client is not None or workers < 2:
         with spread_over(None):
             yield

@@ -25,6 +25,7 @@ table whichever is used:
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
@@ -37,6 +38,7 @@ from threadpoolctl import threadpool_limits
 
 from mpipe.acoustics.air import Air
 from mpipe.core.signals import DiskArray, as_signal
+from mpipe.inversion.fit.execution import stage_workers
 from mpipe.inversion.preparation.kernel import KernelSource, take_temperature
 from mpipe.inversion.preparation.segments import reed_openings
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
@@ -168,18 +170,30 @@ def invert_take(
         # a take on disk (DiskArray) stays there: every step below reads only its windows
         p, u = as_signal(p), as_signal(u)
         law, cold = config.contact, {}
-        if law == "auto":  # the data choose the contact law before anything is fitted
-            order = np.argsort(np.asarray(plan.starts), kind="stable")
-            steady = None if plan.steady is None else [plan.steady[i] for i in order]
-            choice = choose_contact(p, u, fs, KernelSource(calibration, fs, plan.fingering_map()),
-                                    [plan.starts[i] for i in order], steady, config,
-                                    zero_mean=zero_mean, t_c=front)  # fmt: skip
-            config, law = dataclasses.replace(config, contact=choice.law), choice.law
-            cold = {choice.start: choice.outcome}  # the take fit's cold start there, reused
-        data = TakeData(p, u, fs, calibration, plan, config, zero_mean, cold)
-        done = _invert(data, executor, front, carried, front_end, extra_checks, options)
+        # one pool of workers for the contact law's searches and the take's fit (the
+        # window estimator spreads its windows over pools of its own)
+        pool = (stage_workers((p, u), executor, _stage_count(executor, options))
+                if config.estimator == "take" else contextlib.nullcontext())  # fmt: skip
+        with pool:
+            if law == "auto":  # the data choose the contact law before anything is fitted
+                order = np.argsort(np.asarray(plan.starts), kind="stable")
+                steady = None if plan.steady is None else [plan.steady[i] for i in order]
+                source = KernelSource(calibration, fs, plan.fingering_map())
+                choice = choose_contact(p, u, fs, source, [plan.starts[i] for i in order],
+                                        steady, config, zero_mean=zero_mean, t_c=front)  # fmt: skip
+                config, law = dataclasses.replace(config, contact=choice.law), choice.law
+                cold = {choice.start: choice.outcome}  # the take fit's cold start, reused
+            data = TakeData(p, u, fs, calibration, plan, config, zero_mean, cold)
+            done = _invert(data, executor, front, carried, front_end, extra_checks, options)
         table = done.tracking.table.assign(contact=law)
         return dataclasses.replace(done, tracking=dataclasses.replace(done.tracking, table=table))
+
+
+def _stage_count(executor: ExecutorConfig, options: RunOptions | None) -> int:
+    """The local workers of the take's fit: 1 on Dask (its tasks run here, one by one)."""
+    if (options is not None and options.client is not None) or executor.kind != "local":
+        return 1
+    return executor.workers or os.cpu_count() or 1
 
 
 def _invert(data: TakeData, executor, front, carried, front_end, extra_checks, options
@@ -187,11 +201,9 @@ def _invert(data: TakeData, executor, front, carried, front_end, extra_checks, o
     """:func:`invert_take` once its settings are concrete (the contact law chosen)."""
     p, u, fs, calibration, plan = data.p, data.u, data.fs, data.calibration, data.windows
     config, zero_mean = data.config, data.zero_mean
-    workers = executor.workers or os.cpu_count() or 1
-    client = options.client if options is not None else None
     # the fit's cold start and its windows spread over the workers (the same answer)
     if config.estimator == "take":
-        run = (executor, 1 if client is not None or executor.kind != "local" else workers)
+        run = (executor, _stage_count(executor, options))
         return _invert_jointly(data, front, carried, front_end, extra_checks, run)
     # the paper's per-window fit (estimator: window) at the front end's temperature
     fit = TemperatureFit(front, math.nan, "front end" if carried else "calibration", front)

@@ -32,6 +32,7 @@ import numpy as np
 
 from mpipe.core.statistics import integrated_autocorrelation
 from mpipe.core.workers import process_pool
+from mpipe.inversion.fit.coldstart import run_tasks_here
 from mpipe.inversion.fit.objective import F2Objective
 from mpipe.inversion.fit.sensitivities import load_compiled
 from mpipe.inversion.fit.window import window_objective
@@ -398,6 +399,8 @@ _WORKER_SHARD: list = []
 
 
 def _init_shard(spec: ShardSpec) -> None:
+    # forked while a stage pool may be open: its tasks would run on no thread here
+    run_tasks_here()
     _WORKER_SHARD[:] = [Shard(spec)]
 
 
