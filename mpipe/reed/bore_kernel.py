@@ -241,6 +241,19 @@ class Partition:
         line2 = (self.level2, f2_re, f2_im, np.zeros((5, self.block2 + 1)))
         return self.head, np.empty(n + self.head.size), line1, line2
 
+    def quiet_conv(self, n: int) -> tuple:
+        """:meth:`conv` on a zero history: its spectra are zero, no FFT is taken.
+
+        The same record as ``conv(np.zeros(...), n)`` (the spectra of zeros are zeros),
+        for a run that starts from rest, or whose evaluator zeroes the spectra itself.
+        """
+        lines = []
+        for level, block in ((self.level1, self.block1), (self.level2, self.block2)):
+            rows = max(level[0].shape[0], 1)
+            lines.append((level, np.zeros((rows, block + 1)), np.zeros((rows, block + 1)),
+                          np.zeros((5, block + 1))))  # fmt: skip
+        return self.head, np.empty(n + self.head.size), lines[0], lines[1]
+
 
 #: Block sizes of the lean kernel's two levels, chosen by measurement on the shipped
 #: instrument (7200 taps at 100 kHz), interleaved runs against today's kernel, thread CPU

@@ -42,3 +42,20 @@ def test_lean_levels_cover_every_lag_once(setup):
     assert lean.level1[0].shape == ((b2 - b1) // b1, b1 + 1)
     assert lean.level2[0].shape == (-(-(kernel.n_taps - b2) // b2), b2 + 1)
     assert lean.n0 >= kernel.n_taps - 1
+
+
+def test_a_quiet_conv_record_is_the_conv_record_of_a_zero_history(setup):
+    # the evaluators start every run on a zero history: its delay-line spectra, which
+    # quiet_conv gives without an FFT, are those conv computes from zeros, bit for bit
+    _, _, _, _, kernel = setup
+    lean = kernel.lean
+    n = 3000
+    quiet = lean.quiet_conv(n)
+    made = lean.conv(np.zeros(lean.n0 + n), n)
+    np.testing.assert_array_equal(quiet[0], made[0])
+    assert quiet[1].shape == made[1].shape
+    for a, b in zip(quiet[2:], made[2:], strict=True):
+        assert a[0] is b[0]  # the level's spectra, shared
+        for x, y in zip(a[1:], b[1:], strict=True):
+            assert x.shape == y.shape and x.dtype == y.dtype
+            np.testing.assert_array_equal(x, y)

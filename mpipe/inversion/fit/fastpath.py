@@ -33,6 +33,7 @@ import math
 
 import numpy as np
 from numba import njit
+from scipy import fft as sfft
 
 from mpipe.inversion.fit.history_start import pad_history
 from mpipe.inversion.fit.objective import ObjectiveSettings, TargetWindow
@@ -139,18 +140,28 @@ def _history_share(q_ext, win, shift, lines):
         line[2].fill(0.0)
 
 
-def history_term(h: np.ndarray, history: np.ndarray, n: int) -> np.ndarray:
+def history_term(kernel: BoreKernel, history: np.ndarray, n: int) -> np.ndarray:
     """The history's share of the bore's history term over the next ``n`` samples, Pa.
 
     ``q(i) = sum_{j > i} h_j x(i - j)`` for i = 0..n-1, with ``x(-1)`` the last sample of
-    ``history`` (p+, Pa): the part of ``q = sum_{j>=1} h_j p+(i - j)`` that a run started
-    at sample 0 does not compute itself (FFT convolution, float64).
-    """
-    from scipy.signal import fftconvolve
+    ``history`` (p+, Pa) and ``h`` the kernel's taps: the part of ``q = sum_{j>=1} h_j
+    p+(i - j)`` that a run started at sample 0 does not compute itself (float64).
 
-    full = fftconvolve(np.asarray(history, dtype=float), np.asarray(h, dtype=float))
+    One circular convolution of length ``L >= max(len(history) + n, len(h))``: the linear
+    convolution's samples ``len(history) .. len(history) + n - 1`` are then free of wrap
+    (nothing wraps below ``len(history) + n``, and what wraps from above ``L`` lands
+    below ``len(h) - 1 - (L - len(history)) <= len(history)``). The taps' spectrum at ``L``
+    is kept on the kernel (the same for every window on it), so a window costs one FFT of
+    its history and one inverse.
+    """
+    x = np.asarray(history, dtype=float)
+    size = sfft.next_fast_len(max(x.size + n, kernel.n_taps), real=True)
+    cache = kernel.__dict__.setdefault("_taps_spectra", {})
+    if size not in cache:
+        cache[size] = sfft.rfft(np.asarray(kernel.h, dtype=float), size)
+    full = sfft.irfft(sfft.rfft(x, size) * cache[size], size)
     out = np.zeros(n)
-    tail = full[history.size : history.size + n]
+    tail = full[x.size : x.size + min(n, max(kernel.n_taps - 1, 0))]
     out[: tail.size] = tail
     return out
 
@@ -165,7 +176,7 @@ def _ones_term(kernel: BoreKernel, n_history: int, n_run: int) -> np.ndarray:
     cache = kernel.__dict__.setdefault("_ones_terms", {})
     key = (int(n_history), int(n_run))
     if key not in cache:
-        cache[key] = history_term(kernel.h, np.ones(n_history), n_run)
+        cache[key] = history_term(kernel, np.ones(n_history), n_run)
     return cache[key]
 
 
@@ -383,7 +394,7 @@ class WindowEvaluator:
             np.ascontiguousarray(u_hist[-n_lead:]),
             filt,
             p_ctx,
-            history_term(kernel.h, 0.5 * (ph + kernel.z0 * uh), n_run),
+            history_term(kernel, 0.5 * (ph + kernel.z0 * uh), n_run),
             _ones_term(kernel, ph.size, n_run),
             self.fs,
         )
@@ -391,7 +402,7 @@ class WindowEvaluator:
         x = np.zeros(self.lean.n0 + n_run)
         width = max(n_lead, n + 2 * n_pad + 2)
         self.buffers = (
-            x, self.lean.n0, self.lean.conv(x, n_run), np.empty(n_run), np.empty(n_run),
+            x, self.lean.n0, self.lean.quiet_conv(n_run), np.empty(n_run), np.empty(n_run),
             np.empty(n_run), np.zeros((2, width)),
         )  # fmt: skip
         self.lp = _lowpass_record(lp, n, n_pad)

@@ -137,3 +137,20 @@ def test_numbers_do_not_depend_on_the_numba_cache(tmp_path):
     assert any((tmp_path / "numba").rglob("*.nbc"))  # the second run had a cache to load
     fresh, cached = runs
     assert [k for k in fresh.files if not np.array_equal(fresh[k], cached[k])] == []
+
+
+def test_the_history_term_is_the_sum_that_defines_it(setup):
+    # q(i) = sum_{j > i} h_j x(i - j): the circular convolution of history_term against
+    # the sum written out, for a run shorter and one longer than the kernel
+    from mpipe.inversion.fit.fastpath import history_term
+
+    kernel, _ = setup
+    h = np.asarray(kernel.h, float)
+    x = np.random.default_rng(3).standard_normal(kernel.n_taps - 1)  # x(-len) .. x(-1)
+    for n in (700, kernel.n_taps + 50):
+        q = history_term(kernel, x, n)
+        want = np.zeros(n)
+        for i in range(min(n, h.size - 1)):
+            j = np.arange(i + 1, min(h.size, i + 1 + x.size))
+            want[i] = np.sum(h[j] * x[x.size + i - j])
+        np.testing.assert_allclose(q, want, rtol=0, atol=1e-12 * np.sum(np.abs(h)) * 4)
