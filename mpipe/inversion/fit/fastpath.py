@@ -456,8 +456,13 @@ def _lowpass_record(lp, n: int, n_pad: int) -> tuple:
     taps = np.asarray(lp.taps, dtype=float)
     # segments of 2M samples give M outputs each once the L taps fit: L - 1 <= M
     m = max(256, 1 << int(math.ceil(math.log2(max(taps.size - 1, 1)))))
-    spec = np.fft.rfft(taps, 2 * m)
-    fir = (spec.real.copy(), spec.imag.copy(), fft_tables(m, real_nyquist=True))
+    # the taps' spectrum and the FFT tables are the same for every window the filter
+    # serves (0.2 ms of tables each): made once and kept on the filter, only read
+    cache = lp.__dict__.setdefault("_segment_spectra", {})
+    if m not in cache:
+        spec = np.fft.rfft(taps, 2 * m)
+        cache[m] = (spec.real.copy(), spec.imag.copy(), fft_tables(m, real_nyquist=True))
+    fir = cache[m]
     # zero prefix of M, the input, and enough zeros for the last segment
     n_blocks = -(-n // m)
     buf = np.zeros(max((n_blocks - 1) * m + taps.size + 2 * m, m + n + 2 * n_pad))
