@@ -24,9 +24,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mpipe.inversion.fit.coldstart import map_tasks
 from mpipe.inversion.fit.execution import stage_workers
 from mpipe.inversion.pooling.take_system import TierSizes
-from mpipe.inversion.preparation.kernel import KernelSource
+from mpipe.inversion.preparation.kernel import KernelSource, bore_kernel, fingered
 from mpipe.inversion.settings import ExecutorConfig
 from mpipe.inversion.whole_take.cold_starts import agree, cold_start, cold_windows, same_basin
 from mpipe.inversion.whole_take.estimator import (
@@ -45,7 +46,13 @@ from mpipe.inversion.whole_take.estimator import (
     search_boxes,
 )
 from mpipe.inversion.whole_take.frontend_joint import frontend_shares
-from mpipe.inversion.whole_take.take_shards import CHAIN, Shards, ShardSpec, shard_ranges
+from mpipe.inversion.whole_take.take_shards import (
+    CHAIN,
+    DELTA_T_C,
+    Shards,
+    ShardSpec,
+    shard_ranges,
+)
 from mpipe.reed.parameters import ReedParameters
 
 log = logging.getLogger(__name__)
@@ -92,7 +99,8 @@ def fit_take(
             if not any(same_basin(cold[0], c[0], config) for c in colds):
                 colds.append(cold)
     origins = [Origin(reed, peak) for reed, _, peak in colds]
-    fit_ = functools.partial(_runs, data=data, prior=prior, t_range=t_range, workers=workers)
+    fit_ = functools.partial(_runs, data=data, prior=prior, t_range=t_range, workers=workers,
+                             source=source)  # fmt: skip
     with contextlib.ExitStack() as stack:
         thin = thinned(problems)
         if len(thin) < len(problems):  # the basins found on the thinned take, then the whole
@@ -153,14 +161,43 @@ def thinned(problems) -> list[int]:
     return sorted(out)
 
 
-def _runs(stack, problems, origins, *, data, prior, t_range, workers) -> list:
-    """The fit from each origin over ``problems``; a later one may end early (:func:`_leave`)."""
-    runs = [_run_from(stack, data, problems, origins[0], prior, t_range, workers)]
+def _runs(stack, problems, origins, *, data, prior, t_range, workers, source) -> list:
+    """The fit from each origin over ``problems``; a later one may end early (:func:`_leave`).
+
+    ``source``: the take's kernels, built here once per temperature for every run
+    (:func:`pass_kernels`).
+    """
+    fit = functools.partial(_run_from, stack, data, problems, prior=prior, t_range=t_range,
+                            workers=workers, source=source)  # fmt: skip
+    runs = [fit(origins[0])]
     for origin in origins[1:]:
         ends = (functools.partial(_leave, first=runs[0]),
                 functools.partial(agree, b=runs[0].state.slow))  # fmt: skip
-        runs.append(_run_from(stack, data, problems, origin, prior, t_range, workers, ends))
+        runs.append(fit(origin, ends=ends))
     return runs
+
+
+def pass_kernels(source: KernelSource, t: float, names) -> dict:
+    """The kernels of a pass at ``t`` degC: fingerings ``names`` at T and T -+ DELTA_T_C.
+
+    Built here once (those missing, spread over the stage's workers: the same kernels) and
+    kept in ``source``, so that the shards of every run and pass build none: the passes of
+    the thinned take's runs and the whole take's first one start at temperatures met
+    before (the prior's, the thinned run's last), and each shard built all three itself.
+    Returns ``(T, fingering) -> (kernel, air)``, keyed as :meth:`KernelSource.named` keys.
+    """
+    keys = [(round(float(x), 6), name) for x in (t - DELTA_T_C, t, t + DELTA_T_C)
+            for name in names]  # fmt: skip
+    missing = [k for k in keys if k not in source.built]
+    if source.build is None:
+        made = map_tasks(_kernel_task, [(source.calibration, source.fs, *k) for k in missing])
+        source.built.update(zip(missing, made, strict=True))
+    return {k: source.named(*k) for k in keys}
+
+
+def _kernel_task(_shared, item):
+    calibration, fs, t, name = item
+    return bore_kernel(fingered(calibration, name), fs, t)
 
 
 #: A second run whose cost after a pass lies this far above the first run's final cost
@@ -252,19 +289,21 @@ class _Run:
         return dataclasses.replace(origin, slow=slow, t=float(self.state.t), fast=fast)
 
 
-def _run_from(stack: contextlib.ExitStack, data: TakeData, problems, origin: Origin, prior,
-              t_range, workers, ends=None) -> _Run:  # fmt: skip
+def _run_from(stack: contextlib.ExitStack, data: TakeData, problems, origin: Origin, *, prior,
+              t_range, workers, source, ends=None) -> _Run:  # fmt: skip
     """The take's fit from ``origin``: its warm chains and passes (shards in ``stack``).
 
-    ``ends``: ``(stop, near)`` of a second run, which may end early (:func:`_passes`).
+    ``source``: the take's kernels (:func:`pass_kernels`); ``ends``: ``(stop, near)`` of a
+    second run, which may end early (:func:`_passes`).
     """
     fs, config = data.fs, data.config
     layout = layout_of(config)
     sizes = TierSizes(layout.n_fast, len(layout.names) - layout.n_fast, 1)
     fingerings = data.windows.fingering_map()
     t0 = float(prior[0]) if origin.t is None else float(origin.t)
+    names = sorted({q.fingering for q in problems})
     spec = ShardSpec(tuple(problems), data.calibration, fs, fingerings, origin.reed, config,
-                     layout, t0)  # fmt: skip
+                     layout, t0, pass_kernels(source, t0, names))  # fmt: skip
     clock = time.perf_counter()
     own = stack.enter_context(contextlib.ExitStack())
     ranges = shard_ranges(_chains(problems), workers)
@@ -275,7 +314,7 @@ def _run_from(stack: contextlib.ExitStack, data: TakeData, problems, origin: Ori
         keep = [i for i, q in enumerate(problems) if q.start not in excluded]
         slow0 = slow0[list(dict.fromkeys(problems[i].note for i in keep))]
         problems, fast = [problems[i] for i in keep], fast[keep]
-        spec = dataclasses.replace(spec, problems=tuple(_renumber(problems)))
+        spec = dataclasses.replace(spec, problems=tuple(_renumber(problems)))  # same kernels
         ranges = shard_ranges(_chains(problems), workers)
         own.close()
         shards = own.enter_context(Shards(spec, ranges, processes=workers > 1))
@@ -284,7 +323,9 @@ def _run_from(stack: contextlib.ExitStack, data: TakeData, problems, origin: Ori
     state = FitState(fast, slow0, t0)
     boxes = search_boxes(problems, layout.n_fast, len(notes), t_range)
     take = TakeProblem(shards, problems, layout, sizes, prior, boxes)
-    state, blocks, weight, total, passes, converged, message, left = _passes(take, state, ends)
+    kernels = functools.partial(pass_kernels, source, names=names)
+    state, blocks, weight, total, passes, converged, message, left = _passes(take, state, kernels,
+                                                                             ends)  # fmt: skip
     log.debug("take fit: passes after %.2f s", time.perf_counter() - clock)
     return _Run(take, state, blocks, weight, total, passes, converged, message, excluded, left,
                 notes)  # fmt: skip
@@ -309,8 +350,8 @@ def _finish(run: _Run, data: TakeData, rivals: tuple) -> TakeFit:
                    rivals, front)  # fmt: skip
 
 
-def _passes(take: TakeProblem, state: FitState, ends=None):
-    """The passes of the joint fit, kernels rebuilt at T between them.
+def _passes(take: TakeProblem, state: FitState, kernels, ends=None):
+    """The passes of the joint fit, kernels rebuilt at T between them (``kernels(T)``).
 
     A pass first runs to :data:`LOOSE_SE` (where T is headed); when T has moved by more
     than :data:`T_SETTLED_C` the kernels are rebuilt there and a new pass starts, else the
@@ -340,7 +381,8 @@ def _passes(take: TakeProblem, state: FitState, ends=None):
             converged = ok
             break
         t_built = state.t
-        take.shards.call("rebuild", [(state.t,)] * len(take.shards.ranges))
+        made = kernels(state.t)
+        take.shards.call("rebuild", [(state.t, made)] * len(take.shards.ranges))
     if abs(state.t - t_built) >= T_SETTLED_C:
         # the last pass ended far from its kernels: its blocks measured on their own
         blocks = take.blocks(state, "measure")

@@ -125,6 +125,7 @@ class ShardSpec:
     config: object
     layout: Layout
     t: float
+    kernels: dict = dataclasses.field(default_factory=dict)  # (T, fingering) -> kernel, air
 
 
 class Shard:
@@ -143,12 +144,17 @@ class Shard:
         self.problems = list(spec.problems)
         self.runs = [0] * len(self.problems)  # model runs of each window (one per candidate)
         self.lowpass = spec.config.lowpass.design(spec.fs)  # one design for every window
-        self.rebuild(spec.t)
+        self.rebuild(spec.t, spec.kernels)
 
-    def rebuild(self, t: float) -> None:
-        """Objectives on the kernels at ``t`` degC (the Taylor terms and points forgotten)."""
+    def rebuild(self, t: float, kernels: dict | None = None) -> None:
+        """Objectives on the kernels at ``t`` degC (the Taylor terms and points forgotten).
+
+        ``kernels``: ``(T, fingering) -> (kernel, air)`` made by the caller for this pass (at
+        ``t`` and ``t -+ DELTA_T_C``); the others are built here when asked for.
+        """
         self.t = float(t)
         self.source.built.clear()  # the kernels of other temperatures are not used again
+        self.source.built.update(kernels or {})
         self.objectives = [self._objective(q, self.t) for q in self.problems]
         self.taylor: list | None = None
         self.accepted: list | None = None  # per window (x, r0, J0)
