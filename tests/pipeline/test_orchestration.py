@@ -364,7 +364,7 @@ def test_failed_validation_stops_the_run_and_separate_exits_non_zero(
         reached.append(True)
         raise ValueError("probe: inversion reached")
 
-    monkeypatch.setattr(orch, "_stage_inversion", probe)
+    monkeypatch.setattr(orch, "stage_inversion", probe)
     code = main(["run", str(pipe), str(audio), "-o", str(tmp_path / "r"),
                  "--accept-failed-validation"])  # fmt: skip
     assert reached and "inverting despite the FAILED validation" in capsys.readouterr().out

@@ -67,5 +67,6 @@ def test_the_warmup_compiles_what_the_pipeline_runs_and_releases_its_lock(lock):
 def test_the_run_and_the_demo_start_it_and_the_inversion_waits_for_it():
     root = Path(warmup.__file__).resolve().parents[1]
     run = (root / "pipeline" / "orchestration.py").read_text()
-    assert "start_warmup()" in run and "wait_for_warmup()" in run
+    stages = (root / "pipeline" / "stage_work.py").read_text()  # the inversion stage's work
+    assert "start_warmup()" in run and "wait_for_warmup()" in stages
     assert "start_warmup()" in (root / "cli" / "demo.py").read_text()

@@ -35,13 +35,13 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from mpipe.inversion.fit.window import invert_window
-from mpipe.inversion.preparation.kernel import bore_kernel, fingered
+from mpipe.inversion.preparation.kernel import KernelSource, bore_kernel, fingered
 from mpipe.inversion.preparation.segments import pick_windows
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
 from mpipe.inversion.trust.combinations import COMBINATION_NAMES, combination_values
 from mpipe.inversion.trust.uncertainty import SE_PARAMETERS
 from mpipe.inversion.whole_take import frontend_propagation as fp
+from mpipe.inversion.whole_take.cold_starts import cold_fit
 from mpipe.measurement.calibration import Calibration
 from mpipe.measurement.separation.perturbation import reseparate
 from mpipe.measurement.separation.settings import SeparationConfig
@@ -175,11 +175,12 @@ def _logs(refit: _Refit, p, u, t: float) -> tuple[float, np.ndarray]:
     """``R`` (Pa^2) and ``ln q`` (windows x quantities) of the windows re-fitted at ``t`` degC."""
     total, logs = 0.0, []
     names = list(refit.names) or [""] * len(refit.starts)
+    source = KernelSource(refit.calibration, refit.fs, built=refit.kernels)  # the same kernels
     for start, warm, name in zip(refit.starts, refit.warm, names, strict=True):
-        kernel, air = refit.kernel(t, name)
-        # the re-fit's estimate and F2 only: its standard errors are not used
-        out = invert_window(p, u, refit.fs, start, kernel, air.rho, refit.config,
-                            zero_mean=refit.zero_mean, warm=warm, errors=False)  # fmt: skip
+        kernel, air = source.named(t, name)
+        # the re-fit's estimate and F2 only (no standard errors)
+        out = cold_fit(p, u, refit.fs, source, start, name, t, refit.config, refit.zero_mean,
+                       warm)  # fmt: skip
         if out.reed is None or not math.isfinite(out.row["f2"]):
             # this window's re-fit failed: its row is NaN (left out of the median over
             # windows, never a zero change) and the summed residual has no minimum
