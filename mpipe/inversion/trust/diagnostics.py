@@ -205,16 +205,6 @@ def _which(rows: pd.DataFrame, segment) -> str:
     return f"note {int(number.iloc[0])}" if len(number) else f"segment {segment}"
 
 
-def note_numbers_of(table: pd.DataFrame) -> dict[int, int]:
-    """Segment id -> note number of a window table's windows (those in a note)."""
-    if "segment" not in table or "note_number" not in table:
-        return {}
-    seg = pd.to_numeric(table["segment"], errors="coerce")
-    number = pd.to_numeric(table["note_number"], errors="coerce")
-    keep = seg.notna() & number.notna() & (number > 0)
-    return dict(zip(seg[keep].astype(int), number[keep].astype(int), strict=True))
-
-
 def _outlier_windows(table: pd.DataFrame) -> list[str]:
     """Windows inside their notes whose residual is many times the take's lower quartile.
 
