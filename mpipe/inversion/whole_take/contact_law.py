@@ -16,7 +16,12 @@ the whole take's sum of squares under the other law was 2.2 times as large on tw
 45 dB crescendos played with the paper's law, and 1.5 times as large under the paper's
 law on OpenWInD's 1 s crescendo (whose contact starts at closure). A window's noise moves
 its sum of squares by a few per cent. When the two fits of the window lie within
-:data:`ALIKE` of each other the paper's law is kept and the choice says so.
+:data:`ALIKE` of each other, a fit that ended on a search bound is not its law's minimum
+and the other law is chosen (:func:`decide`: on three of OpenWInD's conical bore's takes,
+whose contact starts at closure, the paper's law fitted the loudest window within 1-6 %
+of closure's sum of squares only with y_m at y_c or lambda at its bound, and the take fit
+under it then ended on that bound in every window); else the paper's law is kept and the
+choice says so.
 
 The laws have different free parameters (with ``closure`` the model is scale invariant and
 lambda is held, see ``inversion.contact``); at a window's hundreds of effective samples one
@@ -61,6 +66,8 @@ class ContactChoice:
         Sample rate, Hz.
     outcome : WindowOutcome
         Its fit under the chosen law (the take's cold start there, reused).
+    why : str
+        What chose it (:func:`decide`).
     """
 
     law: str
@@ -69,14 +76,51 @@ class ContactChoice:
     start: int
     fs: float
     outcome: object
+    why: str = ""
 
     @property
     def note(self) -> str:
         """One line for the console and the report."""
         figures = ", ".join(f"{k} {v:.4g} Pa" for k, v in self.f2.items())
-        how = "chosen by the data" if self.decided else "kept: the laws fit alike"
+        how = f"chosen by the data: {self.why}" if self.decided else "kept: the laws fit alike"
         return (f"contact law {self.law} ({how}; F2 of the window at {self.start / self.fs:.3f} "
                 f"s under each: {figures})")  # fmt: skip
+
+
+def decide(f2: dict, bounds: dict) -> tuple[str, bool, str]:
+    """The law of two window fits: ``(law, decided, why)``.
+
+    ``f2``: law -> F2 (Pa, NaN where the model did not play); ``bounds``: law -> the fit's
+    parameters on a search bound (``at_bound``, "" for none). A fit of the paper's law whose
+    rest opening ended at ``y_c`` has its contact at closure: it is a reed of the closure
+    law (scaled), so closure is chosen. Else the lower sum of squares decides when the two
+    differ by :data:`ALIKE` or more. When they fit alike, a fit that
+    ended on a bound is not its law's own minimum (the paper's law with its rest opening
+    at ``y_c``, contact at closure, or lambda at its bound fits as well as closure only at
+    the edge of its parameters), so the other law, interior, is chosen. Otherwise the
+    paper's law is kept.
+    """
+    a, b = (f2[law] for law in LAWS)
+    if not math.isfinite(b):
+        return LAWS[0], True, "the other law does not play it"
+    if not math.isfinite(a):
+        return LAWS[1], True, "the other law does not play it"
+    if "y_m=y_c" in bounds.get(LAWS[0], "").split(";"):
+        # the paper's law with its contact at closure is a reed of the closure law (up to
+        # the scale it leaves free): the data put the contact at closure, whichever of the
+        # two searches ended lower
+        return LAWS[1], True, "the paper's law put the contact at closure (y_m=y_c)"
+    gap = 2.0 * math.log(b / a)  # ln of the ratio of the sums of squares
+    if abs(gap) >= ALIKE:
+        return (LAWS[1] if gap < 0 else LAWS[0]), True, "the lower sum of squares"
+    edge = {law: bool(bounds.get(law)) for law in LAWS}
+    if edge[LAWS[0]] and not edge[LAWS[1]]:
+        return LAWS[1], True, (f"the laws fit alike, the paper's law only on a bound "
+                               f"({bounds[LAWS[0]]})")  # fmt: skip
+    if edge[LAWS[1]] and not edge[LAWS[0]]:
+        return LAWS[0], True, (f"the laws fit alike, {LAWS[1]} only on a bound "
+                               f"({bounds[LAWS[1]]})")  # fmt: skip
+    return LAWS[0], False, "kept: the laws fit alike"
 
 
 def choose_contact(
@@ -114,27 +158,20 @@ def choose_contact(
     # the take fit's second cold start is made on the same window and reuses this fit
     start = int(starts[loudest([p[s : s + n] for s in starts], steady)])
     fingering = source.fingering(start)
-    f2, outcomes = {}, {}
+    f2, outcomes, bounds = {}, {}, {}
     for law in LAWS:
         out = cold_fit(p, u, fs, source, start, fingering, t_c,
                        dataclasses.replace(config, contact=law), zero_mean)  # fmt: skip
         value = float(out.row["f2"]) if out.reed is not None else math.nan
         f2[law], outcomes[law] = (value if math.isfinite(value) else math.nan), out
-    a, b = (f2[law] for law in LAWS)
-    if not (math.isfinite(a) or math.isfinite(b)):
+        bounds[law] = str(out.row["at_bound"] or "") if out.reed is not None else ""
+    if not any(math.isfinite(v) for v in f2.values()):
         raise ValueError(f"the model plays the window at {start / fs:.3f} s under no contact "
                          "law (inversion.contact: auto)")  # fmt: skip
-    if not math.isfinite(b):
-        law, decided = LAWS[0], True
-    elif not math.isfinite(a):
-        law, decided = LAWS[1], True
-    else:
-        gap = 2.0 * math.log(b / a)  # ln of the ratio of the sums of squares
-        decided = abs(gap) >= ALIKE
-        law = LAWS[1] if decided and gap < 0 else LAWS[0]
-    choice = ContactChoice(law, f2, decided, start, fs, outcomes[law])
+    law, decided, why = decide(f2, bounds)
+    choice = ContactChoice(law, f2, decided, start, fs, outcomes[law], why)
     log.info(choice.note)
     return choice
 
 
-__all__ = ["ALIKE", "LAWS", "ContactChoice", "choose_contact"]
+__all__ = ["ALIKE", "LAWS", "ContactChoice", "choose_contact", "decide"]

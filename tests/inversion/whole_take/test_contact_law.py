@@ -6,6 +6,7 @@ with, on every one of three seeds, fitted on the louder of the take's windows.
 """
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -42,3 +43,27 @@ def test_the_data_choose_the_law_they_were_played_with(shipped_calibration, law,
     # the other law fits the window worse by more than the margin
     other = next(k for k in choice.f2 if k != law)
     assert choice.f2[other] > choice.f2[law]
+
+
+def test_laws_that_fit_alike_go_to_the_one_whose_fit_is_not_on_a_bound():
+    # the sums of squares decide when they differ (ALIKE: 2 ln of the F2 ratio); alike,
+    # a fit on a search bound is not its law's minimum and the other law is chosen;
+    # alike with both interior (or both on a bound), the paper's law is kept, undecided
+    from mpipe.inversion.whole_take.contact_law import ALIKE, decide
+
+    apart = math.exp(ALIKE)  # F2 ratio whose 2 ln is 2 ALIKE: decided
+    assert decide({"fixed": 100.0, "closure": 100.0 * apart}, {"fixed": "lam=upper"})[:2] == (
+        "fixed", True)  # fmt: skip
+    assert decide({"fixed": 100.0 * apart, "closure": 100.0}, {})[:2] == ("closure", True)
+    alike = {"fixed": 1421.0, "closure": 1403.0}  # OpenWInD's conical vibrato, 45 dB
+    law, decided, why = decide(alike, {"fixed": "y_m=y_c", "closure": ""})
+    assert (law, decided) == ("closure", True) and "y_m=y_c" in why
+    assert decide(alike, {"fixed": "", "closure": "k=lower"})[:2] == ("fixed", True)
+    # the paper's law with y_m at y_c is a closure-law reed: closure, even when it is lower
+    # (OpenWInD's conical tongued notes: 730 against 780 Pa, closure's own search on g=lower)
+    law, decided, why = decide({"fixed": 730.0, "closure": 780.0},
+                               {"fixed": "y_m=y_c;lam=upper", "closure": "g=lower"})  # fmt: skip
+    assert (law, decided) == ("closure", True) and "closure" in why
+    assert decide(alike, {"fixed": "", "closure": ""})[:2] == ("fixed", False)
+    assert decide(alike, {"fixed": "lam=upper", "closure": "k=lower"})[:2] == ("fixed", False)
+    assert decide({"fixed": math.nan, "closure": 5.0}, {})[:2] == ("closure", True)
