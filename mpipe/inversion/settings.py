@@ -198,10 +198,10 @@ class InversionConfig:
         "searched (within bounds.y_c, at most y_m); auto: fixed or closure, whichever fits "
         "the take's loudest steady window better (a fixed fit with y_m at y_c is a closure "
         "reed; laws that fit alike go to the one whose fit is off the search bounds; the "
-        "windows table's contact column and the console say which). With closure or free the model is scale "
-        "invariant (k, S, lam, m / a, y_m, y_c * a, k_c / a^2 give the same p and u), so lam "
-        "is held at its configured value to fix the scale and only the combinations p_M, "
-        "gamma, zeta, f_r, Q_r are determined",
+        "windows table's contact column and the console say which). With closure or free "
+        "the model is scale invariant (k, S, lam, m / a, y_m, y_c * a, k_c / a^2 give the "
+        "same p and u), so lam is held at its configured value to fix the scale and only "
+        "the combinations p_M, gamma, zeta, f_r, Q_r are determined",
         default="auto",
     )
     determined_limit: float = spec(

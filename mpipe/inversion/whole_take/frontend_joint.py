@@ -105,6 +105,10 @@ def frontend_shares(take, state, blocks, weight: float, front, calibration) -> F
         mine = take.problems[lo:hi]
         a = min(q.start - q.target.p_history.size for q in mine)
         b = max(q.start + q.target.p.size for q in mine)
+        # on whole pieces of the take's grid (fp.long_span_changes): the same changes for
+        # any sharding of the windows, so 1 and N workers give one answer
+        piece = fp.piece_length(spans)
+        a, b = (a // piece) * piece, min(-(-b // piece) * piece, len(front.p0))
         # each shard re-separates its own span: p0, u0 over it and its margin travel
         args.append((v, state.t, (a, b), front_slice(front, a, b, spans.margin), spans))
     parts = take.shards.call("frontend", args)
@@ -156,7 +160,7 @@ def shard_changes(shard, values, t: float, span, sliced, spans) -> dict:
     """:func:`shard_gradients` for the span ``(a, b)``, its changes from ``front_slice``."""
     (a, b), (lo, front) = span, sliced
     changes = fp.long_span_changes(front, shard.spec.calibration, shard.spec.fs, spans,
-                                   a - lo, b - lo)  # fmt: skip
+                                   a - lo, b - lo, origin=lo)  # fmt: skip
     return shard_gradients(shard, values, t, a, changes)
 
 

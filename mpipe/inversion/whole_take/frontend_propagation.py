@@ -150,18 +150,29 @@ def span_changes(
     return out
 
 
+def piece_length(spans: Spans) -> int:
+    """Samples of a piece of :func:`long_span_changes`: a block's hop less the taps."""
+    return max(spans.base.nfft - 2 * spans.base.context - 2 * spans.base.lowpass.taps.size, 1)
+
+
 def long_span_changes(
-    front, calibration: Calibration, fs: float, spans: Spans, a: int, b: int
+    front, calibration: Calibration, fs: float, spans: Spans, a: int, b: int, origin: int = 0
 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """:func:`span_changes` over a span of any length, one translation block at a time.
 
     A span is translated in one FFT block (:meth:`TranslationPlan.block`), so one longer
     than a block's hop (with the low-pass's taps each side) is cut into pieces that fit,
     each read with its own margin: the same samples, to the translation's truncated tails.
+    The cuts lie on a grid of the take's samples (``origin``: the take's sample at index 0
+    of ``front``), not of the span: a span's changes are then the same wherever it starts,
+    so the take's shards give the numbers of one (the tails of pieces cut at the shards'
+    own starts moved the front end's share by 1 % between 1 and 2 workers).
     """
-    piece = spans.base.nfft - 2 * spans.base.context - 2 * spans.base.lowpass.taps.size
-    parts = [span_changes(front, calibration, fs, spans, lo, min(lo + piece, b))
-             for lo in range(a, b, max(piece, 1))]  # fmt: skip
+    piece = piece_length(spans)
+    first = (a + origin) // piece + 1  # the first grid cut after a
+    cuts = [a, *range(first * piece - origin, b, piece), b]
+    parts = [span_changes(front, calibration, fs, spans, lo, hi)
+             for lo, hi in zip(cuts[:-1], cuts[1:], strict=True) if hi > lo]  # fmt: skip
     return {name: tuple(np.concatenate([part[name][k] for part in parts]) for k in (0, 1))
             for name in parts[0]} if parts else {}  # fmt: skip
 
