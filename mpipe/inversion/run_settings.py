@@ -7,6 +7,7 @@ and meaning, which ``mpipe config`` prints.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from typing import Literal
 
@@ -42,6 +43,11 @@ class ExecutorConfig:
         between(0.1, 600.0),
         default=5.0,
     )
+
+    @property
+    def processes(self) -> int:
+        """The local worker processes: ``workers``, or one per CPU when it is 0."""
+        return self.workers or os.cpu_count() or 1
 
     def _check(self, where: Where) -> None:
         if self.kind == "dask" and not self.scheduler:

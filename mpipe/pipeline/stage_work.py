@@ -9,7 +9,6 @@ The physics lives in the modules they call.
 from __future__ import annotations
 
 import logging
-import os
 from pathlib import Path
 
 import numpy as np
@@ -61,7 +60,7 @@ def stage_separation(take_paths, cal: Calibration, cfg: PipelineConfig, draw=dra
 
         def write(tmp: Path) -> None:  # read, separated and written block by block
             found.update(separate_take(tmp, paths, cal, cfg.separation, fs,
-                                      cfg.executor.workers or os.cpu_count() or 1))  # fmt: skip
+                                      cfg.executor.processes))  # fmt: skip
 
         write_atomic(folder / "reference.npz", write)
         sep, take = found["separation"], found["take"]

@@ -44,7 +44,7 @@ from mpipe.core.io import check_writable, folder_lock, write_atomic, write_csv
 from mpipe.core.signals import open_npz
 from mpipe.inversion.conditioning_settings import ConditioningConfig
 from mpipe.inversion.preparation.kernel import take_temperature
-from mpipe.inversion.settings import InversionConfig
+from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.measurement.calibration import load_calibration, per_note
 from mpipe.measurement.measured_instrument import bore_description
 from mpipe.measurement.separation.settings import SeparationConfig
@@ -217,18 +217,18 @@ def _settings(args: argparse.Namespace):
     The workers (processes of the blocks' estimates) are the pipeline's
     ``executor.workers``, one per CPU by default: the same numbers with any number.
     """
-    workers = 0
+    executor = ExecutorConfig()
     if args.pipeline:
         pipe = load_pipeline(args.pipeline, check_calibration=False)
         sep_cfg, tr_cfg, val_cfg = pipe.separation, pipe.translation, pipe.validation
-        rate, workers = pipe.inversion.sample_rate, pipe.executor.workers
+        rate, executor = pipe.inversion.sample_rate, pipe.executor
     else:
         sep_cfg, tr_cfg, val_cfg = SeparationConfig(), TranslationConfig(), ValidationConfig()
         rate = DEFAULT_RATE
     rate = args.sample_rate if args.sample_rate is not None else rate
     if not 1000.0 <= rate <= 1e6:
         raise UserError(f"--sample-rate: expected a rate in Hz (1e3-1e6), got {rate:g}")
-    return sep_cfg, tr_cfg, val_cfg, rate, workers or os.cpu_count() or 1
+    return sep_cfg, tr_cfg, val_cfg, rate, executor.processes
 
 
 def _write_outputs(out: Path, fs: float, sep, mouthpiece: Path, val) -> None:

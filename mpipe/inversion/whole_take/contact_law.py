@@ -17,11 +17,12 @@ the whole take's sum of squares under the other law was 2.2 times as large on tw
 law on OpenWInD's 1 s crescendo (whose contact starts at closure). A window's noise moves
 its sum of squares by a few per cent. When the two fits of the window lie within
 :data:`ALIKE` of each other, a fit that ended on a search bound is not its law's minimum
-and the other law is chosen (:func:`decide`: on three of OpenWInD's conical bore's takes,
-whose contact starts at closure, the paper's law fitted the loudest window within 1-6 %
-of closure's sum of squares only with y_m at y_c or lambda at its bound, and the take fit
-under it then ended on that bound in every window); else the paper's law is kept and the
-choice says so.
+and the other law is chosen; else the paper's law is kept and the choice says so. A fit of
+the paper's law whose rest opening ended at ``y_c`` is a reed of the closure law and
+chooses closure whatever the sums of squares (:func:`decide`). On three of OpenWInD's
+conical bore's takes at 45 dB (contact at closure) the paper's law fitted the loudest
+window within 1 % of closure's sum of squares or 6 % below it, with y_m at y_c, and was
+kept; the take fit under it then ended on a bound in every window (FAIL).
 
 The laws have different free parameters (with ``closure`` the model is scale invariant and
 lambda is held, see ``inversion.contact``); at a window's hundreds of effective samples one
@@ -94,10 +95,8 @@ def decide(f2: dict, bounds: dict) -> tuple[str, bool, str]:
     parameters on a search bound (``at_bound``, "" for none). A fit of the paper's law whose
     rest opening ended at ``y_c`` has its contact at closure: it is a reed of the closure
     law (scaled), so closure is chosen. Else the lower sum of squares decides when the two
-    differ by :data:`ALIKE` or more. When they fit alike, a fit that
-    ended on a bound is not its law's own minimum (the paper's law with its rest opening
-    at ``y_c``, contact at closure, or lambda at its bound fits as well as closure only at
-    the edge of its parameters), so the other law, interior, is chosen. Otherwise the
+    differ by :data:`ALIKE` or more. When they fit alike, a fit that ended on a bound is
+    not its law's own minimum, so the other law, interior, is chosen. Otherwise the
     paper's law is kept.
     """
     a, b = (f2[law] for law in LAWS)

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from mpipe.inversion.preparation.kernel import KernelSource, bore_kernel, fingered
+from mpipe.inversion.preparation.kernel import KernelSource
 from mpipe.inversion.preparation.segments import pick_windows
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
 from mpipe.inversion.trust.combinations import COMBINATION_NAMES, combination_values
@@ -165,10 +165,7 @@ class _Refit:
 
     def kernel(self, t: float, name: str = ""):
         """The bore kernel and air at ``t`` degC of a fingering, built once each."""
-        key = (round(float(t), 6), name)
-        if key not in self.kernels:
-            self.kernels[key] = bore_kernel(fingered(self.calibration, name), self.fs, key[0])
-        return self.kernels[key]
+        return KernelSource(self.calibration, self.fs, built=self.kernels).named(t, name)
 
 
 def _logs(refit: _Refit, p, u, t: float) -> tuple[float, np.ndarray]:
@@ -177,7 +174,7 @@ def _logs(refit: _Refit, p, u, t: float) -> tuple[float, np.ndarray]:
     names = list(refit.names) or [""] * len(refit.starts)
     source = KernelSource(refit.calibration, refit.fs, built=refit.kernels)  # the same kernels
     for start, warm, name in zip(refit.starts, refit.warm, names, strict=True):
-        kernel, air = source.named(t, name)
+        kernel, air = refit.kernel(t, name)
         # the re-fit's estimate and F2 only (no standard errors)
         out = cold_fit(p, u, refit.fs, source, start, name, t, refit.config, refit.zero_mean,
                        warm)  # fmt: skip

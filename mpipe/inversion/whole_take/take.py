@@ -28,7 +28,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import math
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -193,7 +192,7 @@ def _stage_count(executor: ExecutorConfig, options: RunOptions | None) -> int:
     """The local workers of the take's fit: 1 on Dask (its tasks run here, one by one)."""
     if (options is not None and options.client is not None) or executor.kind != "local":
         return 1
-    return executor.workers or os.cpu_count() or 1
+    return executor.processes
 
 
 def _invert(data: TakeData, executor, front, carried, front_end, extra_checks, options

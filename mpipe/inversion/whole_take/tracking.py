@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -340,7 +339,7 @@ def track(
         if reused:  # a resumed run says what it did not redo
             log.info("resuming: %d of %d windows reused from %s", reused, len(starts), checkpoint)
     job = Job(p, u, fs, kernel, rho, config, zero_mean, checkpoint)
-    workers = executor.workers or os.cpu_count() or 1
+    workers = executor.processes
     update = options.progress.update if options.progress is not None else None
     log.info(
         "%d windows (%s executor, %d workers), %s flow",
