@@ -74,6 +74,15 @@ class TranslationConfig:
         default=0.25,
     )
 
+    @property
+    def stopband_hz(self) -> float:
+        """Where the low-pass's stop band begins, Hz.
+
+        Above it the mouthpiece signals carry nothing of the take (attenuated by
+        ``stopband_db``).
+        """
+        return self.lowpass_hz + 0.5 * self.transition_hz
+
 
 @dataclass(frozen=True)
 class TranslationResult:

@@ -258,7 +258,7 @@ def stage_validation(mouthpiece: Path, blocks: Path, cal: Calibration, cfg, draw
             if notes is not None and val.verdict != "pass" and not _measured_resonance(val):
                 # nothing played and no broadband excitation showing a resonance
                 val = dataclasses.replace(val, failures=(), suspects=(), checks=0)
-        write_csv(folder / "impedance.csv", val.table())
+        write_csv(folder / "impedance.csv", val.table(cfg.translation.stopband_hz))
         write_csv(folder / "validation.csv", val.resonances)
         write_csv(folder / "harmonics.csv", val.harmonics)
         # at once, or by ``draw(fn, *args)`` (a background process: mpipe.pipeline.figures)

@@ -152,7 +152,8 @@ def run_take_unlocked(
         When the validation FAILs and ``accept_failed_validation`` is not set: the run
         stops before the inversion.
     """
-    with FigureQueue(background=cfg.executor.workers != 1) as figures:
+    local = cfg.executor.processes
+    with FigureQueue(background=cfg.executor.workers != 1, processes=local) as figures:
         return _run_stages(
             cfg, cal_path, take_paths, out, force, client, say, accept_failed_validation, name,
             figures,

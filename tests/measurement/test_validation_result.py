@@ -55,5 +55,10 @@ def test_table_and_plot(tmp_path):
                                        "z_measured_db"]  # fmt: skip
     np.testing.assert_allclose(table.z_theory_db, db(_result().z_theory))
     assert db(np.array([0.0]))[0] == -6000.0
+    # to a frequency: the same rows up to it, none after
+    edge = float(np.median(_result().freqs))
+    cut = _result().table(edge)
+    assert cut["frequency_hz"].max() <= edge < table["frequency_hz"].max()
+    np.testing.assert_array_equal(cut.to_numpy(), table.to_numpy()[: len(cut)])
     plot_impedance(_result(), tmp_path / "z.png")
     assert (tmp_path / "z.png").stat().st_size > 1000
