@@ -1,7 +1,8 @@
 """The take's joint estimator against the per-window one, on the same takes in one run.
 
 Usage: ``.venv/bin/python benchmarks/bench_estimator.py [--seeds 0,1,2,3,4] [--snrs 45]
-[--scores crescendo] [--workers 2] [--estimators window,take] [--folder DIR] [--warmup 1]``
+[--scores crescendo] [--workers 2] [--estimators window,take] [--folder DIR] [--tables DIR]
+[--warmup 1]``
 
 Each seed's take is a virtual one (the shipped instrument, the Table 1 reed, the score's
 player: by default the crescendo, p_m 1800 -> 2610 Pa), separated and translated as
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import time
 from pathlib import Path
 
@@ -37,7 +39,7 @@ from mpipe.cli.examples import EXAMPLE_CALIBRATION, EXAMPLE_REED
 from mpipe.cli.virtual_takes import SynthOptions, make_take
 from mpipe.inversion.preparation.conditioning import plan_inversion
 from mpipe.inversion.settings import ExecutorConfig
-from mpipe.inversion.whole_take.shared_errors import FrontEnd
+from mpipe.inversion.whole_take.front_end import FrontEnd
 from mpipe.inversion.whole_take.take import invert_take
 from mpipe.measurement.calibration import load_calibration
 from mpipe.measurement.separation.stage import separate
@@ -58,17 +60,24 @@ def front_end(seed: int, snr: float, score: Path, folder: Path):
     stem = folder / f"{score.stem}_{snr:g}dB_seed{seed}"
     cache = stem.with_suffix(".front.npz")
     pipe = load_pipeline(PIPELINE)
-    if not cache.exists():
-        options = SynthOptions(duration_s=None, snr_db=snr, seed=seed, score=str(score))
-        files = make_take(EXAMPLE_CALIBRATION, EXAMPLE_REED, stem.with_suffix(".flac"), options,
-                          force=True)  # fmt: skip
-        cal = load_calibration(files.calibration)
-        take = read_take(files.audio, cal, fs=pipe.inversion.sample_rate)
+    stale = True
+    if cache.exists():
+        with np.load(cache) as d:
+            stale = "theta_level_cov" not in d.files  # cached before the covariance was kept
+    if stale:
+        audio, calib = stem.with_suffix(".flac"), stem.with_suffix(".calibration.yaml")
+        if not all(f.exists() for f in (audio, calib, stem.with_suffix(".truth.npz"))):
+            options = SynthOptions(duration_s=None, snr_db=snr, seed=seed, score=str(score))
+            files = make_take(EXAMPLE_CALIBRATION, EXAMPLE_REED, audio, options, force=True)
+            audio, calib = files.audio, files.calibration
+        cal = load_calibration(calib)
+        take = read_take(audio, cal, fs=pipe.inversion.sample_rate)
         sep = separate(take.pressures, take.fs, cal, pipe.separation, take.band_limit_hz)
         tr = translate(sep.p0, sep.u0, take.fs, cal, pipe.translation, sep.temperature_track())
         np.savez(cache, p=tr.p, u=tr.u, p0=tr.p0, u0=tr.u0, fs=take.fs,
                  temperature_c=tr.temperature_c, theta_level=sep.track.level,
-                 theta_level_se=sep.track.level_se)  # fmt: skip
+                 theta_level_se=sep.track.level_se,
+                 theta_level_cov=sep.track.level_cov)  # fmt: skip
     with np.load(cache) as d:
         signals = {k: d[k] for k in d.files}
     with np.load(stem.with_suffix(".truth.npz")) as d:
@@ -138,6 +147,14 @@ def scores(table, truth: dict) -> dict:
     return out
 
 
+def _save(folder: Path, name: str, done, s: dict) -> None:
+    """One take's windows table and its temperature figures, for a later look."""
+    folder.mkdir(parents=True, exist_ok=True)
+    done.tracking.table.to_parquet(folder / f"{name}.parquet")
+    keep = {k: s[k] for k in ("wall", "seconds", "t", "t_se", "t_true", "group")}
+    (folder / f"{name}.json").write_text(json.dumps(keep | {"checks": list(s["checks"])}))
+
+
 def rms(x: np.ndarray) -> float:
     x = x[np.isfinite(x)]
     return float(np.sqrt(np.mean(x**2))) if x.size else float("nan")
@@ -155,6 +172,11 @@ def main(argv=None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--estimators", default="window,take", help="window, take or both")
     parser.add_argument("--folder", default=str(ROOT / "benchmarks" / ".cache" / "estimator"))
+    parser.add_argument(
+        "--tables",
+        metavar="DIR",
+        help="save each take's windows table (parquet) and figures (json) here",
+    )
     parser.add_argument(
         "--warmup",
         type=int,
@@ -183,6 +205,9 @@ def main(argv=None) -> int:
                          t_se=done.temperature.se_c, t_true=t_true, checks=done.checks,
                          group=f"{score.stem} {snr:g} dB")  # fmt: skip
                 results[estimator].append(s)
+                if args.tables:
+                    _save(Path(args.tables), f"{score.stem}_{snr:g}dB_seed{seed}_{estimator}",
+                          done, s)  # fmt: skip
                 print(f"{score.stem} {snr:g} dB seed {seed} {estimator:6s}: {wall:6.2f} s for "
                       f"{seconds:.2f} s of take, T {s['t']:.2f} +- {s['t_se']:.2f} degC "
                       f"(true {t_true:.2f}), {s['ok']}/{s['sounding']} ok, "

@@ -37,9 +37,9 @@ from mpipe.cli.virtual_takes import SynthOptions, make_take
 from mpipe.inversion.preparation.conditioning import plan_inversion
 from mpipe.inversion.preparation.segments import pick_windows
 from mpipe.inversion.settings import ExecutorConfig
+from mpipe.inversion.whole_take.front_end import FrontEnd
 from mpipe.inversion.whole_take.shared_errors import (
     QUANTITIES,
-    FrontEnd,
     _reed,
     _Refit,
     frontend_linear,

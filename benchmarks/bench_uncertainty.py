@@ -163,7 +163,7 @@ def coverage_take(seed: int, snr: float, kind: str, duration: float, folder: Pat
     from mpipe.cli.virtual_takes import SynthOptions, make_take
     from mpipe.inversion.preparation.conditioning import plan_inversion
     from mpipe.inversion.settings import ExecutorConfig
-    from mpipe.inversion.whole_take.shared_errors import FrontEnd
+    from mpipe.inversion.whole_take.front_end import FrontEnd
     from mpipe.inversion.whole_take.take import invert_take
     from mpipe.measurement.separation.stage import separate
     from mpipe.measurement.takes import read_take

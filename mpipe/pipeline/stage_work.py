@@ -31,7 +31,7 @@ from mpipe.inversion.table.tables import (
 from mpipe.inversion.trust.notes import segment_summary
 from mpipe.inversion.trust.status import count as count_status
 from mpipe.inversion.trust.status import summary_line
-from mpipe.inversion.whole_take.shared_errors import FrontEnd
+from mpipe.inversion.whole_take.front_end import LEVEL_KEYS, FrontEnd
 from mpipe.inversion.whole_take.take import RunOptions, WindowPlan, invert_take
 from mpipe.inversion.whole_take.tracking import detect_zero_mean
 from mpipe.measurement.calibration import Calibration
@@ -107,7 +107,7 @@ def stage_translation(folder_sep: Path, cal: Calibration, cfg: PipelineConfig):
         noise = mouthpiece_noise(
             fs, cal, ref["mic_noise_psd"], theta, t_median, cfg.separation, cfg.translation
         )
-        extra = {**noise, **{k: ref[k] for k in ("theta_level", "theta_level_se") if k in ref}}
+        extra = {**noise, **{k: ref[k] for k in LEVEL_KEYS if k in ref}}
         summary: dict = {}
 
         def write(tmp: Path) -> None:

@@ -14,7 +14,7 @@ import pytest
 from mpipe.cli.virtual_takes import SynthOptions, make_take
 from mpipe.inversion.preparation.conditioning import plan_inversion
 from mpipe.inversion.settings import ExecutorConfig
-from mpipe.inversion.whole_take.shared_errors import FrontEnd
+from mpipe.inversion.whole_take.front_end import FrontEnd
 from mpipe.inversion.whole_take.take import invert_take
 from mpipe.measurement.calibration import load_calibration
 from mpipe.measurement.separation.stage import separate

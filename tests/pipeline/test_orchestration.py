@@ -175,7 +175,7 @@ def test_every_door_gives_the_same_table(finished, take, pipeline, tmp_path):
     import mpipe
     from mpipe.inversion.preparation.conditioning import plan_inversion
     from mpipe.inversion.settings import PARAMETER_NAMES
-    from mpipe.inversion.whole_take.shared_errors import FrontEnd
+    from mpipe.inversion.whole_take.front_end import FrontEnd
     from mpipe.measurement.calibration import load_calibration
     from mpipe.measurement.separation.stage import separate
     from mpipe.measurement.takes import read_take

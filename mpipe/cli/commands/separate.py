@@ -7,10 +7,11 @@ Outputs in ``DIR``:
     ``p0`` (Pa) and ``u0`` (m^3/s) at the reference plane, ``temperature_c`` (degC per
     sample), all after the 7.25 kHz low-pass; the noise propagated from the microphones:
     ``u_noise_freq_hz`` (Hz), ``u_noise_psd`` ((m^3/s)^2/Hz) and ``p_noise_psd`` (Pa^2/Hz),
-    one-sided power spectral densities at the mouthpiece entry; ``theta_level`` and
-    ``theta_level_se``, the separation's take-level theta and its standard errors (as
-    ``mpipe run`` writes them). Written block by block (the block path of ``mpipe run``:
-    the take's pressures, then the reference-plane signals, go to disk as they are made).
+    one-sided power spectral densities at the mouthpiece entry; ``theta_level``,
+    ``theta_level_se`` and ``theta_level_cov``, the separation's take-level theta, its
+    standard errors and covariance (as ``mpipe run`` writes them). Written block by block
+    (the block path of ``mpipe run``: the take's pressures, then the reference-plane
+    signals, go to disk as they are made).
 
 The take is resampled to ``--sample-rate`` (the pipeline's ``inversion.sample_rate``,
 100 kHz by default) when it was recorded at another rate. The exit status is 1 when the
@@ -45,6 +46,7 @@ from mpipe.core.signals import open_npz
 from mpipe.inversion.conditioning_settings import ConditioningConfig
 from mpipe.inversion.preparation.kernel import take_temperature
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
+from mpipe.inversion.whole_take.front_end import LEVEL_KEYS
 from mpipe.measurement.calibration import load_calibration, per_note
 from mpipe.measurement.measured_instrument import bore_description
 from mpipe.measurement.separation.settings import SeparationConfig
@@ -152,7 +154,7 @@ def _run(args: argparse.Namespace) -> int:
             ref = open_npz(reference)
             t_eff = take_temperature(ref["temperature_c"], cal)
             noise = mouthpiece_noise(fs, cal, sep.noise_psd, sep.median_theta(), t_eff, sep_cfg)
-            levels = {k: ref[k] for k in ("theta_level", "theta_level_se") if k in ref}
+            levels = {k: ref[k] for k in LEVEL_KEYS if k in ref}
             translate_to_npz(mouthpiece, ref["p0"], ref["u0"], ref["temperature_c"], fs, cal,
                              tr_cfg, {**noise, **levels})  # fmt: skip
             log.info("stage 3/3: impedance validation")
@@ -162,7 +164,7 @@ def _run(args: argparse.Namespace) -> int:
             del signals
         except ValueError as exc:
             raise UserError(f"{takes[0]}: {exc}") from None
-        _write_outputs(out, fs, sep, mouthpiece, val)
+        _write_outputs(out, fs, sep, mouthpiece, val, tr_cfg.stopband_hz)
     return _print_summary(sep, val, paths)
 
 
@@ -231,10 +233,11 @@ def _settings(args: argparse.Namespace):
     return sep_cfg, tr_cfg, val_cfg, rate, executor.processes
 
 
-def _write_outputs(out: Path, fs: float, sep, mouthpiece: Path, val) -> None:
+def _write_outputs(out: Path, fs: float, sep, mouthpiece: Path, val, max_hz: float) -> None:
     """Mouthpiece signals (npz, WAV), block and impedance tables and the impedance plot.
 
-    ``mouthpiece``: the ``mouthpiece.npz`` written beside ``out`` (moved into it).
+    ``mouthpiece``: the ``mouthpiece.npz`` written beside ``out`` (moved into it);
+    ``max_hz``: the impedance table's last frequency (the low-pass's stop band, Hz).
     """
     mp = open_npz(mouthpiece)
 
@@ -250,7 +253,7 @@ def _write_outputs(out: Path, fs: float, sep, mouthpiece: Path, val) -> None:
         ),
         (out / "mouthpiece.npz", move),
         (out / "blocks.csv", lambda path: write_csv(path, sep.blocks)),
-        (out / "impedance.csv", lambda path: write_csv(path, val.table())),
+        (out / "impedance.csv", lambda path: write_csv(path, val.table(max_hz))),
         (out / "validation.csv", lambda path: write_csv(path, val.resonances)),
         (out / "harmonics.csv", lambda path: write_csv(path, val.harmonics)),
         (out / "impedance.png", lambda path: write_atomic(path, lambda t: _plot(val, t))),

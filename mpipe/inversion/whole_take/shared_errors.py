@@ -29,7 +29,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,10 +42,10 @@ from mpipe.inversion.trust.combinations import COMBINATION_NAMES, combination_va
 from mpipe.inversion.trust.uncertainty import SE_PARAMETERS
 from mpipe.inversion.whole_take import frontend_propagation as fp
 from mpipe.inversion.whole_take.cold_starts import cold_fit
+from mpipe.inversion.whole_take.front_end import FrontEnd
 from mpipe.measurement.calibration import Calibration
 from mpipe.measurement.separation.perturbation import reseparate
-from mpipe.measurement.separation.settings import SeparationConfig
-from mpipe.measurement.translation import TranslationConfig, translate
+from mpipe.measurement.translation import translate
 from mpipe.reed.parameters import ReedParameters
 
 logger = logging.getLogger(__name__)
@@ -67,50 +67,6 @@ FRONTEND_NAMES = fp.FRONTEND_NAMES
 FRONTEND_WINDOWS = 6
 #: Half-spacing of the kernel temperatures of the re-fit, degC (the linear propagation's).
 KERNEL_STEP_C = fp.KERNEL_STEP_C
-
-
-@dataclass(frozen=True)
-class FrontEnd:
-    """What the front end estimated, to propagate its errors.
-
-    Attributes
-    ----------
-    p0, u0 : ndarray
-        Pressure (Pa) and flow (m^3/s) at the reference plane, as translated.
-    temperature_c : ndarray or float
-        The temperature the translation used, degC (per sample or one value).
-    level : ndarray
-        Shape ``(4,)``: the take-level theta (degC, eta, Mach, position correction m).
-    level_se : ndarray
-        Shape ``(4,)``: its standard errors (0: held, not estimated).
-    band_hz : float
-        Highest frequency the separation passes, Hz.
-    translation : TranslationConfig
-        The translation's settings.
-    """
-
-    p0: np.ndarray
-    u0: np.ndarray
-    temperature_c: np.ndarray | float
-    level: np.ndarray
-    level_se: np.ndarray
-    band_hz: float
-    translation: TranslationConfig
-
-    @classmethod
-    def of(
-        cls, mouthpiece: Mapping, separation: SeparationConfig, translation: TranslationConfig
-    ) -> FrontEnd | None:
-        """The front end of a mouthpiece file's arrays; None without theta's SEs.
-
-        ``mouthpiece`` holds ``p0, u0, temperature_c, theta_level, theta_level_se``.
-        """
-        if "theta_level_se" not in mouthpiece:
-            return None
-        m = mouthpiece
-        return cls(m["p0"], m["u0"], m["temperature_c"], np.asarray(m["theta_level"], float),
-                   np.asarray(m["theta_level_se"], float),
-                   separation.band_edge_hz + separation.band_taper_hz, translation)  # fmt: skip
 
 
 def sensitivity_se_db(calibration: Calibration) -> tuple[float, str]:
@@ -344,8 +300,13 @@ def _translated(p0, u0, fs, calibration, front: FrontEnd, dt: float):
     return tr.p, tr.u
 
 
-def frontend_columns(table: pd.DataFrame, sensitivity: dict[str, np.ndarray]) -> pd.DataFrame:
-    """``<q>_se_frontend`` = ``|q| sqrt(sum over theta of (d ln q per SE)^2)`` per window.
+def frontend_columns(
+    table: pd.DataFrame, sensitivity: dict[str, np.ndarray], correlation: np.ndarray | None = None
+) -> pd.DataFrame:
+    """``<q>_se_frontend`` = ``|q| sqrt(d^T R d)`` per window, d the ``d ln q`` per SE of theta.
+
+    ``correlation``: R over the parameters of ``sensitivity`` in its order
+    (:meth:`FrontEnd.correlation`; None: the identity, a root sum of squares).
 
     A sensitivity that is not finite (every re-fit of that parameter failed) makes the
     component NaN, not measured, for that quantity: mpipe <= 0.5 left it out of the sum,
@@ -357,7 +318,8 @@ def frontend_columns(table: pd.DataFrame, sensitivity: dict[str, np.ndarray]) ->
         if name not in out:
             continue
         d = np.array([s[i] for s in sensitivity.values()], dtype=float)
-        rel = float(np.sqrt(np.sum(d**2))) if np.all(np.isfinite(d)) else math.nan
+        r = np.eye(d.size) if correlation is None else correlation
+        rel = float(np.sqrt(max(d @ r @ d, 0.0))) if np.all(np.isfinite(d)) else math.nan
         x = pd.to_numeric(out[name], errors="coerce").to_numpy(dtype=float)
         out[f"{name}_se_frontend"] = np.abs(x) * rel
     return out
@@ -445,14 +407,13 @@ def shared_components(
         }
         for name, d in sens.items()
     }
-    return frontend_columns(out, sens), record
+    return frontend_columns(out, sens, front.correlation(list(sens))), record
 
 
 __all__ = [
     "ASSUMED_SENSITIVITY_SE_DB",
     "FRONTEND_NAMES",
     "FRONTEND_WINDOWS",
-    "FrontEnd",
     "KERNEL_STEP_C",
     "QUANTITIES",
     "SCALE_EXPONENTS",

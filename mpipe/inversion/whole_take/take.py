@@ -46,7 +46,8 @@ from mpipe.inversion.trust.diagnostics import check_plausible, take_checks
 from mpipe.inversion.trust.discretisation import rate_errors
 from mpipe.inversion.whole_take.contact_law import choose_contact
 from mpipe.inversion.whole_take.estimator import TakeData
-from mpipe.inversion.whole_take.shared_errors import FrontEnd, shared_components
+from mpipe.inversion.whole_take.front_end import FrontEnd
+from mpipe.inversion.whole_take.shared_errors import shared_components
 from mpipe.inversion.whole_take.take_estimate import estimate_take
 from mpipe.inversion.whole_take.temperature import TemperatureFit
 from mpipe.inversion.whole_take.tracking import (

@@ -56,6 +56,12 @@ class TrackChoice:
         Time between the first and the last trusted block, s.
     drift_level : float
         The test level the choice was made at (``separation.drift_level``; NaN: unknown).
+    level_cov : ndarray or None
+        Shape ``(4, 4)``: the covariance of ``level`` (its diagonal ``level_se**2``, zero
+        rows for held parameters; None: not known). The parameters' errors correlate: the
+        temperature and the losses both set the waves' propagation between microphones, and
+        on the 45 dB crescendos of ``benchmarks/bench_estimator.py`` their take-level errors
+        correlate by +0.6.
     """
 
     model: str
@@ -69,6 +75,7 @@ class TrackChoice:
     p_curve: float
     span_s: float
     drift_level: float = float("nan")
+    level_cov: np.ndarray | None = None
 
     def sentence(self, deg: str = "degC", pm: str = "+-") -> str:
         """Whether the data show a drift of the temperature, in words (``deg``: its unit)."""
@@ -300,8 +307,21 @@ def choose_track(
     use_b, use_c = (b0, c0) if model == "constant" else (b1, c1)
     lev[idx] = use_b[:p]
     lev_se[idx] = np.sqrt(np.maximum(np.diag(use_c)[:p], 0.0))
+    lev_cov = np.zeros((zeros.size, zeros.size))
+    lev_cov[np.ix_(idx, idx)] = 0.5 * (use_c[:p, :p] + use_c[:p, :p].T)
     change[idx] = b1[p:] * span
     change_se[idx] = np.sqrt(np.maximum(np.diag(c1)[p:], 0.0)) * span
     return TrackChoice(
-        model, values, se, lev, lev_se, change, change_se, p_drift, p_curve, span, level
+        model,
+        values,
+        se,
+        lev,
+        lev_se,
+        change,
+        change_se,
+        p_drift,
+        p_curve,
+        span,
+        level,
+        lev_cov,
     )

@@ -96,7 +96,7 @@ def write_reference(
         Its ``p0`` and ``u0`` are the file's members, on disk. Besides them the file holds
         ``temperature_c`` (degC per sample, :meth:`SeparationResult.temperature_track`),
         ``mic_noise_psd``, ``theta_median`` (c m/s, eta, Mach) and, when theta was
-        estimated, ``theta_level`` and ``theta_level_se``.
+        estimated, ``theta_level``, ``theta_level_se`` and ``theta_level_cov``.
     """
     x = checked_pressures(pressures, calibration)
     est = estimate(x, fs, calibration, config, band_limit_hz, workers)
@@ -130,5 +130,7 @@ def write_reference(
             if probe.track is not None:
                 out.add("theta_level", probe.track.level)
                 out.add("theta_level_se", probe.track.level_se)
+                if probe.track.level_cov is not None:
+                    out.add("theta_level_cov", probe.track.level_cov)
     done = open_npz(path)
     return est.result(done["p0"], done["u0"], log_outcome=False)

@@ -10,9 +10,9 @@ from mpipe.inversion.fit.window import invert_window
 from mpipe.inversion.preparation.kernel import bore_kernel
 from mpipe.inversion.settings import InversionConfig
 from mpipe.inversion.whole_take import frontend_propagation as fp
+from mpipe.inversion.whole_take.front_end import FrontEnd
 from mpipe.inversion.whole_take.shared_errors import (
     QUANTITIES,
-    FrontEnd,
     _Refit,
     _translated,
     frontend_linear,
@@ -85,7 +85,8 @@ def test_linear_propagation_agrees_with_the_refits_of_the_reseparated_take(short
 
 def test_the_budget_gets_its_frontend_columns_from_the_linear_propagation(short_take):
     # shared_components on a table of two ok windows (the truth as their estimate): the
-    # columns are |q| times the linear method's quadrature over theta
+    # columns are |q| times sqrt(d^T R d) of the linear method's shifts d over theta, R the
+    # front end's error correlation
     import pandas as pd
 
     from mpipe.inversion.whole_take.shared_errors import shared_components
@@ -102,6 +103,7 @@ def test_the_budget_gets_its_frontend_columns_from_the_linear_propagation(short_
     refit = _Refit(fs, cal, config, True, [int(round(t * fs)) for t in (0.3, 0.4)], [truth] * 2)
     sens = frontend_linear(tr.p, tr.u, cal, front, refit, kernel_c=kc, refit_kernel=True)
     i = QUANTITIES.index("p_m")
-    rel = math.sqrt(sum(d[i] ** 2 for d in sens.values()))
+    d = np.array([v[i] for v in sens.values()])
+    rel = math.sqrt(d @ front.correlation(list(sens)) @ d)
     assert out["p_m_se_frontend"].tolist() == pytest.approx([truth.p_m * rel] * 2)
     assert 0 < rel < 0.2

@@ -15,6 +15,7 @@ from mpipe.inversion.trust.combinations import combination_values
 from mpipe.inversion.whole_take.shared_errors import (
     QUANTITIES,
     SCALE_EXPONENTS,
+    FrontEnd,
     calibration_columns,
     failed_refits,
     frontend_columns,
@@ -106,3 +107,30 @@ def test_a_failed_front_end_refit_is_not_counted_as_no_effect():
     assert failed_refits({"temperature": good, "eta": nan}) == ["eta"]
     both = frontend_columns(table, {"temperature": good, "eta": 2 * good})
     assert both["p_m_se_frontend"].iloc[0] == pytest.approx(1800 * math.hypot(0.01, 0.02))
+
+
+def test_correlated_front_end_errors_combine_through_their_correlation():
+    # two parameters whose errors correlate fully and whose effects are opposite cancel;
+    # uncorrelated they add in quadrature (limit cases of d^T R d)
+    se = np.array([0.75, 0.12, 1e-3, 6e-6])
+    corr = np.eye(4)
+    corr[0, 1] = corr[1, 0] = 1.0
+    front = FrontEnd(np.zeros(4), np.zeros(4), 20.0, np.array([20.0, 1.0, 0.0, 0.0]), se, 5e3,
+                     None, corr * np.outer(se, se))  # fmt: skip
+    r = front.correlation(["temperature", "eta"])
+    assert r == pytest.approx(np.ones((2, 2)))
+    table = pd.DataFrame({"p_m": [1800.0], "p_M": [3000.0]})
+    d = np.full(len(QUANTITIES), 0.01)
+    sens = {"temperature": d, "eta": -d}
+    cancelled = frontend_columns(table, sens, r)
+    assert cancelled["p_m_se_frontend"].iloc[0] == pytest.approx(0.0, abs=1e-9)
+    assert frontend_columns(table, sens)["p_m_se_frontend"].iloc[0] == pytest.approx(
+        1800 * math.hypot(0.01, 0.01)
+    )
+    # no covariance, or one that does not match the SEs: independent
+    assert dataclasses.replace(front, level_cov=None).correlation(["temperature", "eta"]) == (
+        pytest.approx(np.eye(2))
+    )
+    assert dataclasses.replace(front, level_se=2 * se).correlation(["eta", "mach"]) == (
+        pytest.approx(np.eye(2))
+    )

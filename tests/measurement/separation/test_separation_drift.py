@@ -61,6 +61,31 @@ def test_steady_blocks_give_the_pooled_mean_and_its_standard_error():
     assert 0.02 * 300 <= drifts <= 0.09 * 300
 
 
+def test_the_take_levels_covariance_is_the_inverse_of_the_blocks_information():
+    # Two free parameters (T, eta) whose block errors correlate by -0.8 (their information
+    # matrix I): with no prior and independent blocks the constant model's covariance is
+    # (sum of I)^-1 = I^-1 / n, correlation and all (weighted least squares in closed form);
+    # its diagonal is level_se^2, the held parameters' rows are zero.
+    rng = np.random.default_rng(11)
+    prior = Prior(PRIOR.mean, PRIOR.width, PRIOR.lower, PRIOR.upper,
+                  np.array([True, True, False, False]))  # fmt: skip
+    se, rho = np.array([0.5, 0.05]), -0.8
+    cov = np.outer(se, se) * np.array([[1.0, rho], [rho, 1.0]])
+    info = np.linalg.inv(cov)
+    chol = np.linalg.cholesky(cov)
+    est = []
+    for _ in range(30):
+        x = np.array([20.0, 1.0]) + chol @ rng.standard_normal(2)
+        est.append(BlockEstimate(np.array([*x, 0.0, 0.0]), cov, info, 1.0, 1.0, (), 1))
+    times = np.arange(30) * 0.04
+    ch = choose_track(times, est, prior, smooth_blocks(times, est, prior, 1.0, dof=True), 0.0,
+                      1e-12)  # fmt: skip
+    assert ch.model == "constant"
+    np.testing.assert_allclose(ch.level_cov[:2, :2], cov / 30, rtol=1e-9)
+    np.testing.assert_allclose(np.sqrt(np.diag(ch.level_cov)), ch.level_se, rtol=1e-12)
+    assert not ch.level_cov[2:].any() and not ch.level_cov[:, 2:].any()
+
+
 def test_a_drift_is_a_line_and_a_bend_is_smoothed():
     # 3 degC over the blocks at SE 0.2: the line, with the change within 3 SE; a
     # V-shaped change (up 3, down 3) is not a line: the smoother.
