@@ -39,12 +39,12 @@ from mpipe.cli.examples import EXAMPLE_CALIBRATION, EXAMPLE_REED
 from mpipe.cli.virtual_takes import SynthOptions, make_take
 from mpipe.inversion.preparation.conditioning import plan_inversion
 from mpipe.inversion.settings import ExecutorConfig
-from mpipe.inversion.whole_take.front_end import FrontEnd
+from mpipe.inversion.whole_take.front_end import NOISE_KEYS, FrontEnd
 from mpipe.inversion.whole_take.take import invert_take
 from mpipe.measurement.calibration import load_calibration
 from mpipe.measurement.separation.stage import separate
 from mpipe.measurement.takes import read_take
-from mpipe.measurement.translation import translate
+from mpipe.measurement.translation import mouthpiece_noise, translate
 from mpipe.pipeline.settings import load_pipeline
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -63,7 +63,8 @@ def front_end(seed: int, snr: float, score: Path, folder: Path):
     stale = True
     if cache.exists():
         with np.load(cache) as d:
-            stale = "theta_level_cov" not in d.files  # cached before the covariance was kept
+            # cached before the front end's covariance and noise spectra were kept
+            stale = not all(k in d.files for k in ("theta_level_cov", *NOISE_KEYS))
     if stale:
         audio, calib = stem.with_suffix(".flac"), stem.with_suffix(".calibration.yaml")
         if not all(f.exists() for f in (audio, calib, stem.with_suffix(".truth.npz"))):
@@ -74,7 +75,11 @@ def front_end(seed: int, snr: float, score: Path, folder: Path):
         take = read_take(audio, cal, fs=pipe.inversion.sample_rate)
         sep = separate(take.pressures, take.fs, cal, pipe.separation, take.band_limit_hz)
         tr = translate(sep.p0, sep.u0, take.fs, cal, pipe.translation, sep.temperature_track())
-        np.savez(cache, p=tr.p, u=tr.u, p0=tr.p0, u0=tr.u0, fs=take.fs,
+        # as mpipe run's translation stage: the microphones' noise at the mouthpiece
+        noise = mouthpiece_noise(take.fs, cal, sep.noise_psd, sep.median_theta(),
+                                 float(np.median(tr.temperature_c)), pipe.separation,
+                                 pipe.translation)  # fmt: skip
+        np.savez(cache, p=tr.p, u=tr.u, p0=tr.p0, u0=tr.u0, fs=take.fs, **noise,
                  temperature_c=tr.temperature_c, theta_level=sep.track.level,
                  theta_level_se=sep.track.level_se,
                  theta_level_cov=sep.track.level_cov)  # fmt: skip

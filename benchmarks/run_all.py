@@ -61,6 +61,7 @@ QUICK_ARGS = {
     "bench_session": ["--takes", "4"],
     "bench_estimator": ["--seeds", "0,1"],
     "bench_sandwich": ["--seeds", "4"],
+    "bench_noise_scores": ["--seeds", "0,1"],
     "bench_frontend_joint": [],
     "bench_rate": ["--cases", "shipped", "--rates", "44100,100000", "--variants", "scheme"],
     "bench_harmonics": ["--repeats", "3", "--windows", "8"],

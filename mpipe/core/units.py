@@ -64,6 +64,7 @@ UNITS = {
     "p_noise_psd": "Pa²/Hz",
     "mic_noise_psd": "Pa²/Hz",
     "u_noise_psd": "(m³/s)²/Hz",
+    "pu_noise_csd": "Pa·m³/s/Hz",
     # a budget table's combined standard uncertainty: each row in its own quantity's unit
     # (the table's unit column), so its header carries none (not "_c": degC)
     "u_c": "",

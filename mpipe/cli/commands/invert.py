@@ -26,7 +26,7 @@ from mpipe.inversion.table.tables import segment_lines, write_correlations, writ
 from mpipe.inversion.trust.notes import segment_summary
 from mpipe.inversion.trust.status import summary_line
 from mpipe.inversion.trust.status_words import reason_words
-from mpipe.inversion.whole_take.front_end import LEVEL_KEYS, FrontEnd
+from mpipe.inversion.whole_take.front_end import LEVEL_KEYS, NOISE_KEYS, FrontEnd
 from mpipe.inversion.whole_take.take import RunOptions, WindowPlan, invert_take
 from mpipe.inversion.whole_take.tracking import ProgressBar
 from mpipe.measurement.calibration import load_calibration, per_note
@@ -226,7 +226,7 @@ def _front_end(args: argparse.Namespace, cfg, fs: float) -> FrontEnd | None:
             return None
         if abs(float(np.ravel(data["fs"])[0]) - fs) > 1e-6 * fs:
             return None
-        keys = ("p0", "u0", "temperature_c", *LEVEL_KEYS)
+        keys = ("p0", "u0", "temperature_c", *LEVEL_KEYS, *NOISE_KEYS)
         arrays = {k: data[k] for k in keys if k in data.files}
     return FrontEnd.of(arrays, cfg.separation, cfg.translation)
 

@@ -302,8 +302,9 @@ def _run_from(stack: contextlib.ExitStack, data: TakeData, problems, origin: Ori
     fingerings = data.windows.fingering_map()
     t0 = float(prior[0]) if origin.t is None else float(origin.t)
     names = sorted({q.fingering for q in problems})
+    noise = None if data.front is None else data.front.noise
     spec = ShardSpec(tuple(problems), data.calibration, fs, fingerings, origin.reed, config,
-                     layout, t0, pass_kernels(source, t0, names))  # fmt: skip
+                     layout, t0, pass_kernels(source, t0, names), noise)  # fmt: skip
     clock = time.perf_counter()
     own = stack.enter_context(contextlib.ExitStack())
     ranges = shard_ranges(_chains(problems), workers)

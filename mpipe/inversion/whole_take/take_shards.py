@@ -40,6 +40,7 @@ from mpipe.inversion.preparation.kernel import KernelSource
 from mpipe.inversion.trust.diagnostics import playing_difference
 from mpipe.inversion.trust.uncertainty import residual_grams
 from mpipe.inversion.whole_take.frontend_joint import shard_changes
+from mpipe.inversion.whole_take.history_noise import drawn_gram
 
 log = logging.getLogger(__name__)
 
@@ -126,6 +127,7 @@ class ShardSpec:
     layout: Layout
     t: float
     kernels: dict = dataclasses.field(default_factory=dict)  # (T, fingering) -> kernel, air
+    noise: object = None  # MouthpieceNoise: the noise gram by realisations (history_noise)
 
 
 class Shard:
@@ -371,6 +373,9 @@ class Shard:
             n_eff = r.size / integrated_autocorrelation(r)
             gram, excess, n_eff, dof, extra = residual_grams(j, r, pw, self.spec.fs, floor,
                                                              n_eff, n_eff - p_loc)  # fmt: skip
+            drawn = None if self.spec.noise is None else drawn_gram(self, i, x, r0, j,
+                                                                     self.spec.noise)  # fmt: skip
+            gram = gram if drawn is None else drawn
             f2 = float(np.linalg.norm(r))
             rel = f2 / (float(np.linalg.norm(pw)) + 1e-300)
             played = playing_difference(pw, pw - r, self.spec.fs)

@@ -5,12 +5,9 @@ and fitted again from scratch; the linear shift must be the refit's change (the 
 function theorem the module applies), to within the refit's own convergence.
 """
 
-import dataclasses
-
 import numpy as np
 import pytest
 
-from mpipe.inversion.settings import InversionConfig
 from mpipe.inversion.whole_take import frontend_propagation as fp
 from mpipe.inversion.whole_take.estimator import TakeData
 from mpipe.inversion.whole_take.shared_errors import _translated
@@ -21,18 +18,10 @@ from mpipe.measurement.separation.perturbation import reseparate
 
 
 @pytest.fixture(scope="module")
-def fitted(short_take):
+def fitted(short_take, short_fit):
     """The short take's fit with its front end, and a fit of the same windows on any p, u."""
     cal, fs, tr, front, _ = short_take
-    config = dataclasses.replace(InversionConfig(), sample_rate=fs, contact="fixed")
-    n = int(round(config.window_s * fs))
-    plan = WindowPlan.of(list(range(int(0.15 * fs), len(tr.p) - int(0.05 * fs) - n, n)))
-    t0, se_t = float(np.median(tr.temperature_c)), float(front.level_se[0])
-
-    def fit(p, u, with_front, mean):
-        data = TakeData(p, u, fs, cal, plan, config, True, front=front if with_front else None)
-        return fit_take(data, prior=(mean, se_t), t_range=(t0 - 5, t0 + 5))
-
+    config, t0, fit = short_fit
     base, cold, _ = fit(tr.p, tr.u, True, t0)
     return cal, fs, front, lambda *a: fit(*a)[0], base, t0, cold, config
 
