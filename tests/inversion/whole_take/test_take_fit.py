@@ -49,3 +49,26 @@ def test_the_thinned_take_keeps_every_note_and_every_thin_th_window_of_a_long_on
     # a note too short for THIN_MIN windows at every THIN-th: THIN_MIN spread over it
     assert len(by_note[2]) == THIN_MIN and by_note[2][0] == 43 and by_note[2][-1] == 51
     assert kept == sorted(kept) and len(set(kept)) == len(kept)
+
+
+def test_a_chains_first_window_keeps_the_lower_of_its_two_minima():
+    # window 0 (a note's onset) has two basins: x = 1 (sum of squares 1.0), where its only
+    # start leads, and x = 3 (0.1), where its successor's controls lead; the later windows
+    # have one basin each. Warmed forward alone, window 0 stays at 1; fitted again from
+    # window 1's controls it takes 3. A second chain whose first window's own minimum is
+    # the lower (0.2 against 0.5 from its successor's controls) keeps it.
+    from mpipe.inversion.whole_take.take_shards import Shard
+
+    def fast_fit(i, x0, slow):
+        x0 = float(np.ravel(x0)[0])
+        if i == 0:
+            return (np.array([1.0]), 1.0) if x0 < 2 else (np.array([3.0]), 0.1)
+        if i == 2:
+            return (np.array([4.5]), 0.5) if x0 > 3.5 else (np.array([3.5]), 0.2)
+        return np.array([3.0 + 1.5 * (i == 3)]), 0.2
+
+    shard = SimpleNamespace(problems=[None] * 4, fast_fit=fast_fit)
+    out = Shard.warm(shard, [[0, 1], [2, 3]], [[np.array([1.0])], [np.array([3.0])]],
+                     [None, None])  # fmt: skip
+    assert [float(x[0][0]) for x in out] == [3.0, 3.0, 3.5, 4.5]
+    assert [x[1] for x in out] == [0.1, 0.2, 0.2, 0.2]
