@@ -61,11 +61,8 @@ from mpipe.inversion.fit.objective import TargetWindow
 from mpipe.inversion.fit.window import window_bounds
 from mpipe.inversion.pooling.take_system import TakeSystem, TierSizes, split_names
 from mpipe.inversion.settings import InversionConfig
-from mpipe.inversion.whole_take.take_shards import (
-    Blocks,
-    Layout,
-    Shards,
-)
+from mpipe.inversion.whole_take.shard_workers import Shards
+from mpipe.inversion.whole_take.take_shards import Blocks, Layout
 from mpipe.reed.parameters import ReedParameters
 
 log = logging.getLogger(__name__)

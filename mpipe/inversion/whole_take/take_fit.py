@@ -46,13 +46,8 @@ from mpipe.inversion.whole_take.estimator import (
     search_boxes,
 )
 from mpipe.inversion.whole_take.frontend_joint import frontend_shares
-from mpipe.inversion.whole_take.take_shards import (
-    CHAIN,
-    DELTA_T_C,
-    Shards,
-    ShardSpec,
-    shard_ranges,
-)
+from mpipe.inversion.whole_take.shard_workers import Shards, shard_ranges
+from mpipe.inversion.whole_take.take_shards import CHAIN, DELTA_T_C, ShardSpec
 from mpipe.reed.parameters import ReedParameters
 
 log = logging.getLogger(__name__)
