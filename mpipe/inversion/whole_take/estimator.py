@@ -148,11 +148,6 @@ class WindowProblem:
         The measured window and the history the model reads.
     bounds : ndarray
         Search bounds of the free parameters in the fit's order (fast then slow), (p, 2).
-    informs : bool
-        The window informs its note's constants and the temperature. A window the
-        conditioning calls not steady (an attack, a release: p_m changes within it, which
-        the model holds) does not, when its note has a steady one: it is fitted given them
-        (:func:`informing`).
     """
 
     start: int
@@ -160,21 +155,6 @@ class WindowProblem:
     fingering: str
     target: TargetWindow
     bounds: np.ndarray
-    informs: bool = True
-
-
-def informing(problems, steady) -> list:
-    """``problems`` with ``informs`` set: steady, or of a note without a steady window.
-
-    On the steady tone's own noise-free signals (``benchmarks/bench_estimator.py``) the
-    take fit of all 107 windows ended at T -0.051 degC, S -1.02 %, lambda -0.78 % from the
-    truth, pulled by the 6 windows of the attack and the release that the model (p_m held
-    over a window) cannot fit; of the 101 steady ones, at the truth (within 0.001 %).
-    """
-    steady = [bool(s) for s in steady]
-    has = {q.note for q, s in zip(problems, steady, strict=True) if s}
-    return [dataclasses.replace(q, informs=s or q.note not in has)
-            for q, s in zip(problems, steady, strict=True)]  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -480,7 +460,6 @@ def search_boxes(problems, n_fast: int, n_notes: int, t_range):
 
 
 __all__ = [
-    "informing",
     "MAX_PASSES",
     "MAX_STEPS",
     "SE_TOLERANCE",

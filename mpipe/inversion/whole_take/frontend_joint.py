@@ -197,7 +197,7 @@ def shard_gradients(shard, values: np.ndarray, t: float, a: int, changes: dict) 
         x = np.asarray(x, float)
         r0, j0 = shard.at(i, x)
         _, d_t = shard.in_t(i, r0, t)
-        j = shard.columns(i, j0, d_t)
+        j = np.concatenate([j0, d_t[:, None]], axis=1)
         for name, (dp, du) in changes.items():
             moved = moved_target(shard.problems[i].target, shard.problems[i].start, a, dp, du)
             obj = window_objective(shard.objectives[i].kernel, moved, shard.spec.base,

@@ -40,7 +40,6 @@ from mpipe.inversion.whole_take.estimator import (
     TakeData,
     TakeFit,
     TakeProblem,
-    informing,
     joint_pass,
     layout_of,
     problems_of,
@@ -88,7 +87,6 @@ def fit_take(
     config, zero_mean = data.config, data.zero_mean
     source = KernelSource(calibration, fs, windows.fingering_map())
     problems, steady = _problems(p, u, fs, source, windows, config, zero_mean, prior[0])
-    problems = informing(problems, steady)  # an attack's, a release's window: fitted given
     colds = []
     with stage_workers((p, u), executor or ExecutorConfig(), workers):
         for window in cold_windows(problems, steady):
@@ -294,8 +292,6 @@ def _run_from(stack: contextlib.ExitStack, data: TakeData, problems, origin: Ori
     second run, which may end early (:func:`_passes`).
     """
     fs, config = data.fs, data.config
-    # a note of this run without an informing window: every one of its windows informs
-    problems = informing(problems, [q.informs for q in problems])
     layout = layout_of(config)
     sizes = TierSizes(layout.n_fast, len(layout.names) - layout.n_fast, 1)
     fingerings = data.windows.fingering_map()

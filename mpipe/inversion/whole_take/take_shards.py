@@ -177,20 +177,9 @@ class Shard:
         dt = t - self.t
         return r0 + dt * slope + 0.5 * dt**2 * curvature, slope + dt * curvature
 
-    def columns(self, i: int, j0: np.ndarray, d_t: np.ndarray) -> np.ndarray:
-        """Window i's Jacobian with T's column, (n, L).
-
-        A window that does not inform its note's constants and T (``informs``) has their
-        columns zero: it is fitted given them.
-        """
-        j = np.concatenate([j0, d_t[:, None]], axis=1)
-        if not self.problems[i].informs:
-            j[:, self.spec.layout.n_fast :] = 0.0
-        return j
-
     def _block(self, i: int, r0: np.ndarray, j0: np.ndarray, t: float) -> tuple:
         r, d_t = self.in_t(i, r0, t)
-        j = self.columns(i, j0, d_t)
+        j = np.concatenate([j0, d_t[:, None]], axis=1)
         return j.T @ j, j.T @ r, float(r @ r), r.size
 
     @staticmethod
@@ -387,7 +376,7 @@ class Shard:
             r0, j0 = self.at(i, x)
             points.append((x, r0, j0))
             r, d_t = self.in_t(i, r0, t)
-            j = self.columns(i, j0, d_t)
+            j = np.concatenate([j0, d_t[:, None]], axis=1)
             pw = self.problems[i].target.p
             n_eff = r.size / integrated_autocorrelation(r)
             gram, excess, n_eff, dof, extra = residual_grams(j, r, pw, self.spec.fs, floor,
