@@ -407,17 +407,19 @@ def mouthpiece_noise(
     s_pp0, s_uu0, s_pu0 = reference_noise(freqs, theta, geo, mic_noise_psd, sep_cfg)
     t = reference_to_mouthpiece(np.maximum(freqs, 1e-3), calibration, temperature_c)
 
-    def out(a, b):
-        return np.abs(a) ** 2 * s_pp0 + np.abs(b) ** 2 * s_uu0 + 2 * np.real(a * np.conj(b) * s_pu0)
+    def cross(x, y):
+        """E[X conj(Y)] of X = x0 P0 + x1 U0, Y = y0 P0 + y1 U0 (rows of the matrices)."""
+        x0, x1, y0, y1 = x[:, 0], x[:, 1], y[:, 0], y[:, 1]
+        return (x0 * np.conj(y0) * s_pp0 + x1 * np.conj(y1) * s_uu0
+                + x0 * np.conj(y1) * s_pu0 + x1 * np.conj(y0) * np.conj(s_pu0))  # fmt: skip
 
     lp = design_lowpass(fs, cfg.lowpass_hz, cfg.transition_hz, cfg.stopband_db)
     w = np.exp(-2j * np.pi * np.outer(freqs / fs, np.arange(lp.taps.size)))
     h2 = np.abs(w @ lp.taps) ** 2
-    s_pp = h2 * out(t[:, 0, 0], t[:, 0, 1])
-    s_uu = h2 * out(t[:, 1, 0], t[:, 1, 1])
-    a, b, c, d = t[:, 0, 0], t[:, 0, 1], t[:, 1, 0], t[:, 1, 1]
-    s_pu = h2 * (a * np.conj(c) * s_pp0 + b * np.conj(d) * s_uu0 + a * np.conj(d) * s_pu0
-                 + b * np.conj(c) * np.conj(s_pu0))  # fmt: skip
+    p_row, u_row = t[:, 0, :], t[:, 1, :]
+    s_pp = h2 * np.real(cross(p_row, p_row))
+    s_uu = h2 * np.real(cross(u_row, u_row))
+    s_pu = h2 * cross(p_row, u_row)
     return {
         "u_noise_freq_hz": freqs,
         "u_noise_psd": np.maximum(s_uu, 0.0),
