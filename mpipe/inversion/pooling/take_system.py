@@ -26,6 +26,13 @@ information. The same elimination gives every block of it without forming ``A^-1
 the take), and window i's fast ones by ``L_i u_i - K_i x_n(i)`` (``L_i = F_i^-1 [I, 0]``,
 ``K_i = F_i^-1 Q_i``).
 
+**Windows fitted given the shared unknowns.** A window may be ``given`` its note's
+constants and the take's: it does not inform them (no share of ``R`` or of its right-hand
+side, no score in ``x``), and its fast unknowns are its own least squares at them, so they
+still follow ``x`` by ``-K_i x``. Its fast covariance is then ``L_i B_i L_i^T + K_i cov(x)
+K_i^T`` (its score is not in ``x``: no cross term), the second term the error the shared
+unknowns carry into it: the two-stage estimator's covariance.
+
 References
 ----------
 B. Triggs, P. McLauchlan, R. Hartley, A. Fitzgibbon, "Bundle adjustment - a modern
@@ -109,6 +116,9 @@ class TakeSystem:
         The prior's information on the take's parameters, (t, t).
     prior_gradient : ndarray
         The prior's gradient ``P (t - t_prior)``, (t,).
+    given : ndarray, optional
+        Each window is fitted given the shared unknowns (see the module docstring), bool
+        (W,); None: none is.
     """
 
     sizes: TierSizes
@@ -117,6 +127,13 @@ class TakeSystem:
     gradients: np.ndarray
     prior_information: np.ndarray
     prior_gradient: np.ndarray
+    given: np.ndarray | None = None
+
+    def _informing(self) -> np.ndarray:
+        """1.0 for each window that informs the shared unknowns, else 0.0, (W,)."""
+        if self.given is None:
+            return np.ones(len(self.notes))
+        return (~np.asarray(self.given, bool)).astype(float)
 
     @classmethod
     def of(
@@ -178,7 +195,8 @@ class TakeSystem:
         grams[w, c, c] = share[w, c]
         info = self.prior_information * np.outer(~np.asarray(take, bool), ~np.asarray(take, bool))
         grad = np.where(np.asarray(take, bool), 0.0, self.prior_gradient)
-        return TakeSystem(self.sizes, self.notes, grams, self.gradients * keep, info, grad)
+        return TakeSystem(self.sizes, self.notes, grams, self.gradients * keep, info, grad,
+                          self.given)  # fmt: skip
 
     def _blocks(self, mu: float):
         """Per window: ``F_i^-1`` (damped), ``Q_i``, and the shared block of its gram."""
@@ -194,9 +212,11 @@ class TakeSystem:
         f_inv, q, shared = self._blocks(mu)
         f = self.sizes.fast
         kq = f_inv @ q  # K_i = F_i^-1 Q_i
-        r_win = shared - np.einsum("wfa,wfb->wab", q, kq)
+        informs = self._informing()[:, None]
+        r_win = (shared - np.einsum("wfa,wfb->wab", q, kq)) * informs[:, :, None]
         g_f, g_x = self.gradients[:, :f], self.gradients[:, f:]
-        rhs_win = -g_x + np.einsum("wfa,wf->wa", kq, g_f)
+        rhs_win = (-g_x + np.einsum("wfa,wf->wa", kq, g_f)) * informs
+        shared = shared * informs[:, :, None]
         big = np.zeros((self.n_reduced, self.n_reduced))
         rhs = np.zeros(self.n_reduced)
         diag = np.zeros(self.n_reduced)
@@ -237,8 +257,13 @@ class TakeSystem:
         return d_fast, x[: n * s].reshape(n, s), x[n * s : n * s + t]
 
     def predicted_fall(self, d_fast, d_slow, d_take) -> float:
-        """Fall of the sum of squares (prior included) the linear model predicts, Pa^2."""
+        """Fall of the sum of squares (prior included) the linear model predicts, Pa^2.
+
+        A window given the shared unknowns counts by its fast step alone (the shared ones
+        are not its to move).
+        """
         d = self.local_steps(d_fast, d_slow, d_take)
+        d[:, self.sizes.fast :] *= self._informing()[:, None]
         lin = float(np.sum(self.gradients * d)) + float(self.prior_gradient @ d_take)
         quad = float(np.einsum("wa,wab,wb->", d, self.grams, d))
         quad += float(d_take @ self.prior_information @ d_take)
@@ -269,7 +294,7 @@ class TakeSystem:
         shared = self.sizes.shared
         eye = np.broadcast_to(np.eye(shared), (len(kq), shared, shared))
         m = np.concatenate([-np.transpose(kq, (0, 2, 1)), eye], axis=2)
-        mb = m @ grams  # (W, s+t, loc)
+        mb = (m @ grams) * self._informing()[:, None, None]  # (W, s+t, loc); 0: given
         omega = np.zeros_like(big)
         for i, note in enumerate(self.notes):
             idx = self.reduced_index(int(note))
@@ -285,7 +310,9 @@ class TakeSystem:
             idx = self.reduced_index(int(note))
             cxu = r_inv[:, idx] @ mb[i]  # cov(x, u_i), (N s + t, loc)
             lb = lmat[i] @ grams[i]
-            cross = lb @ (r_inv[np.ix_(idx, idx)] @ m[i]).T  # cov(L u_i, x_n)
+            cross = lb @ (r_inv[np.ix_(idx, idx)] @ m[i]).T  # cov(L u_i, x_n); 0: given
+            if self.given is not None and self.given[i]:
+                cross = np.zeros_like(cross)
             k = kq[i]
             cov_f = lb @ lmat[i].T - cross @ k.T - k @ cross.T + k @ cov_x[np.ix_(idx, idx)] @ k.T
             fast.append(0.5 * (cov_f + cov_f.T))

@@ -145,8 +145,9 @@ def frontend_shares(take, state, blocks, weight: float, front, calibration) -> F
             continue
         d_prior = np.array([-se_t / se_prior**2 if (name == "temperature" and moved_prior)
                             else 0.0])  # fmt: skip
+        # a window fitted given the shared unknowns moves only with them (TakeSystem.given)
         system = TakeSystem(take.sizes, notes, weight * blocks.grams, weight * grads, info,
-                            d_prior)  # fmt: skip
+                            d_prior, take.given())  # fmt: skip
         d_fast, d_slow, d_t = system.step(0.0)
         d_t = np.broadcast_to(d_t, (n_windows, 1))
         shifts.append(np.concatenate([d_fast, d_slow[notes], d_t], axis=1))

@@ -31,23 +31,26 @@ from mpipe.inversion.preparation.kernel import KernelSource, bore_kernel, finger
 from mpipe.inversion.settings import ExecutorConfig
 from mpipe.inversion.whole_take.cold_starts import agree, cold_start, cold_windows, same_basin
 from mpipe.inversion.whole_take.estimator import (
-    LOOSE_SE,
     MAX_PASSES,
-    SE_TOLERANCE,
     T_SETTLED_C,
-    FitState,
-    Layout,
     TakeData,
     TakeFit,
-    TakeProblem,
-    joint_pass,
+    informing,
     layout_of,
     problems_of,
     search_boxes,
 )
 from mpipe.inversion.whole_take.frontend_joint import frontend_shares
+from mpipe.inversion.whole_take.gauss_newton import (
+    LOOSE_SE,
+    SE_TOLERANCE,
+    FitState,
+    TakeProblem,
+    joint_pass,
+)
 from mpipe.inversion.whole_take.shard_workers import Shards, shard_ranges
-from mpipe.inversion.whole_take.take_shards import CHAIN, DELTA_T_C, ShardSpec
+from mpipe.inversion.whole_take.take_shards import DELTA_T_C, ShardSpec
+from mpipe.inversion.whole_take.warm_starts import Origin, chains, renumber, run_start
 from mpipe.reed.parameters import ReedParameters
 
 log = logging.getLogger(__name__)
@@ -87,6 +90,7 @@ def fit_take(
     config, zero_mean = data.config, data.zero_mean
     source = KernelSource(calibration, fs, windows.fingering_map())
     problems, steady = _problems(p, u, fs, source, windows, config, zero_mean, prior[0])
+    problems = informing(problems, steady)  # an attack's, a release's window: fitted given
     colds = []
     with stage_workers((p, u), executor or ExecutorConfig(), workers):
         for window in cold_windows(problems, steady):
@@ -220,10 +224,12 @@ def _leave(take: TakeProblem, state: FitState, blocks, weight: float, *, first: 
 def rival_costs(runs) -> np.ndarray:
     """Each run's cost on one scale: the first run's weight, the windows all runs kept.
 
-    ``weight * sum(F2^2) + ((T - T_prior) / se)^2`` over the windows every run kept (first
-    samples in common), so runs that left out different windows compare on the same data.
+    ``weight * sum(F2^2) + ((T - T_prior) / se)^2`` over the informing windows every run
+    kept (first samples in common), so runs that left out different windows compare on the
+    same data (the cost each minimised).
     """
-    common = set.intersection(*({q.start for q in r.take.problems} for r in runs))
+    common = set.intersection(*({q.start for q in r.take.problems if q.informs}
+                                for r in runs))  # fmt: skip
     weight = runs[0].weight
     mean, se = runs[0].take.prior
     out = []
@@ -232,33 +238,6 @@ def rival_costs(runs) -> np.ndarray:
         ss = float(np.sum(r.blocks.rr[keep]))
         out.append(weight * ss + ((r.state.t - mean) / se) ** 2)
     return np.array(out)
-
-
-@dataclass(frozen=True)
-class Origin:
-    """Where a run of the take's fit starts.
-
-    Attributes
-    ----------
-    reed : ReedParameters
-        A cold start's reed (every note's constants and every chain's first controls).
-    peak : float
-        The cold start window's peak pressure, Pa (a chain's first p_m scales with its own).
-    slow : dict, optional
-        Note (its index in the take) -> its constants (s,), SI units, where a fit of the
-        thinned take found them (the others from ``reed``).
-    t : float, optional
-        The temperature to start from, degC (None: the prior's mean).
-    fast : dict, optional
-        First sample -> a window's controls (f,), SI units, fitted with ``slow``: a chain's
-        first window starts from the nearest of them (before the cold start's).
-    """
-
-    reed: ReedParameters
-    peak: float
-    slow: dict = dataclasses.field(default_factory=dict)
-    t: float | None = None
-    fast: dict = dataclasses.field(default_factory=dict)
 
 
 @dataclass
@@ -276,6 +255,7 @@ class _Run:
     excluded: dict
     left: bool = False  # ended early in the first run's basin or above it (not a rival)
     notes: tuple = ()  # the take's index of each note of ``state.slow``
+    exact: bool = True  # ``blocks`` hold the exact Jacobian (not a secant update)
 
     def origin_here(self, origin: Origin) -> Origin:
         """``origin`` moved to where this run ended (its notes' constants, its T)."""
@@ -292,6 +272,8 @@ def _run_from(stack: contextlib.ExitStack, data: TakeData, problems, origin: Ori
     second run, which may end early (:func:`_passes`).
     """
     fs, config = data.fs, data.config
+    # a note of this run without an informing window: every one of its windows informs
+    problems = informing(problems, [q.informs for q in problems])
     layout = layout_of(config)
     sizes = TierSizes(layout.n_fast, len(layout.names) - layout.n_fast, 1)
     fingerings = data.windows.fingering_map()
@@ -302,33 +284,35 @@ def _run_from(stack: contextlib.ExitStack, data: TakeData, problems, origin: Ori
                      layout, t0, pass_kernels(source, t0, names), noise)  # fmt: skip
     clock = time.perf_counter()
     own = stack.enter_context(contextlib.ExitStack())
-    ranges = shard_ranges(_chains(problems), workers)
+    ranges = shard_ranges(chains(problems), workers)
     shards = own.enter_context(Shards(spec, ranges, processes=workers > 1))
-    slow0, fast, excluded = _start(shards, problems, layout, origin)
+    slow0, fast, excluded = run_start(shards, problems, layout, origin)
     log.debug("take fit: warm chains after %.2f s", time.perf_counter() - clock)
     if excluded:  # the windows left out, the shards made again without them
         keep = [i for i, q in enumerate(problems) if q.start not in excluded]
         slow0 = slow0[list(dict.fromkeys(problems[i].note for i in keep))]
         problems, fast = [problems[i] for i in keep], fast[keep]
-        spec = dataclasses.replace(spec, problems=tuple(_renumber(problems)))  # same kernels
-        ranges = shard_ranges(_chains(problems), workers)
+        problems = informing(problems, [q.informs for q in problems])
+        spec = dataclasses.replace(spec, problems=tuple(renumber(problems)))  # same kernels
+        ranges = shard_ranges(chains(problems), workers)
         own.close()
         shards = own.enter_context(Shards(spec, ranges, processes=workers > 1))
     notes = tuple(dict.fromkeys(q.note for q in problems))  # the take's, before renumbering
-    problems = _renumber(problems)
+    problems = renumber(problems)
     state = FitState(fast, slow0, t0)
     boxes = search_boxes(problems, layout.n_fast, len(notes), t_range)
     take = TakeProblem(shards, problems, layout, sizes, prior, boxes)
     kernels = functools.partial(pass_kernels, source, names=names)
-    state, blocks, weight, total, passes, converged, message, left = _passes(take, state, kernels,
-                                                                             ends)  # fmt: skip
+    state, ended, total, passes, converged, message, left = _passes(take, state, kernels, ends)
     log.debug("take fit: passes after %.2f s", time.perf_counter() - clock)
-    return _Run(take, state, blocks, weight, total, passes, converged, message, excluded, left,
-                notes)  # fmt: skip
+    return _Run(take, state, ended[0], ended[1], total, passes, converged, message, excluded,
+                left, notes, ended[2])  # fmt: skip
 
 
 def _finish(run: _Run, data: TakeData, rivals: tuple) -> TakeFit:
     """The run's windows' figures at its solution (residuals, noise grams, entries)."""
+    if not all(q.informs for q in run.take.problems):
+        run = _settle(run)
     take, state, layout = run.take, run.state, run.take.layout
     shards, problems = take.shards, take.problems
     records = sum(shards.call("final", [(v, state.t, data.config.model_form_floor) for v in
@@ -346,6 +330,25 @@ def _finish(run: _Run, data: TakeData, rivals: tuple) -> TakeFit:
                    rivals, front)  # fmt: skip
 
 
+def _settle(run: _Run) -> _Run:
+    """The fit's second stage: every window's controls at the shared unknowns found.
+
+    The first stage fitted the notes' constants, T and the informing windows' controls
+    and held the other windows' controls (not in its cost); here the shared unknowns are
+    held and every window's controls fitted at them, all windows counted, on the same
+    kernels and weight.
+    """
+    take = run.take
+    take.settling = True
+    state, ended, steps, ok, message = joint_pass(take, run.state, SE_TOLERANCE,
+                                                  (run.blocks, run.weight, run.exact))  # fmt: skip
+    log.debug("take fit, the windows given the shared unknowns: %d steps (%s)", steps, message)
+    note = message if not ok else run.message
+    return dataclasses.replace(run, state=state, blocks=ended[0], exact=ended[2],
+                               steps=run.steps + steps, converged=run.converged and ok,
+                               message=note)  # fmt: skip
+
+
 def _passes(take: TakeProblem, state: FitState, kernels, ends=None):
     """The passes of the joint fit, kernels rebuilt at T between them (``kernels(T)``).
 
@@ -354,8 +357,9 @@ def _passes(take: TakeProblem, state: FitState, kernels, ends=None):
     same pass goes on to :data:`SE_TOLERANCE`. ``ends = (stop, near)``, for a second run:
     ``stop(take, state, blocks, weight)`` is asked after each pass whether the run may end
     there (its reason, or ""), ``near(slow)`` at every accepted step whether it has reached
-    the first run's minimum (:func:`~mpipe.inversion.whole_take.cold_starts.agree`). The
-    last value returned says it ended so.
+    the first run's minimum (:func:`~mpipe.inversion.whole_take.cold_starts.agree`).
+    Returns ``(state, (blocks, weight, exact), steps, passes, converged, message, left)``,
+    ``left``: it ended so.
     """
     stop, near = ends if ends is not None else (None, None)
     total, converged, t_built, start = 0, True, state.t, None
@@ -363,16 +367,14 @@ def _passes(take: TakeProblem, state: FitState, kernels, ends=None):
         last = passes == MAX_PASSES
         tolerance = SE_TOLERANCE if last else LOOSE_SE
         state, ended, steps, ok, message = joint_pass(take, state, tolerance, start, near=near)
-        blocks, weight, _ = ended
         total += steps
         log.debug("take fit pass %d: T %.3f degC, %d steps (%s)", passes, state.t, steps, message)
-        why = stop(take, state, blocks, weight) if stop is not None else ""
+        why = stop(take, state, ended[0], ended[1]) if stop is not None else ""
         if why:
-            return state, blocks, weight, total, passes, ok, why, True
+            return state, ended, total, passes, ok, why, True
         if abs(state.t - t_built) < T_SETTLED_C or last:
             if not last:  # on to the tolerance, on the same kernels
                 state, ended, steps, ok, message = joint_pass(take, state, SE_TOLERANCE, ended)
-                blocks, weight, _ = ended
                 total += steps
             converged = ok
             break
@@ -381,8 +383,8 @@ def _passes(take: TakeProblem, state: FitState, kernels, ends=None):
         take.shards.call("rebuild", [(state.t, made)] * len(take.shards.ranges))
     if abs(state.t - t_built) >= T_SETTLED_C:
         # the last pass ended far from its kernels: its blocks measured on their own
-        blocks = take.blocks(state, "measure")
-    return state, blocks, weight, total, passes, converged, message, False
+        ended = (take.blocks(state, "measure"), ended[1], True)
+    return state, ended, total, passes, converged, message, False
 
 
 def _problems(p, u, fs, source, windows, config, zero_mean, t):
@@ -396,81 +398,6 @@ def _problems(p, u, fs, source, windows, config, zero_mean, t):
     n_taps = max(source.named(t, name)[0].n_taps for name in set(names))
     notes = [note_of[g] for g in segments]
     return problems_of(p, u, fs, starts, notes, names, config, zero_mean, n_taps), steady
-
-
-def _chains(problems) -> list[list[int]]:
-    """Runs of at most ``CHAIN`` consecutive windows of one note (take indices)."""
-    chains: list[list[int]] = []
-    for i, q in enumerate(problems):
-        if chains and problems[chains[-1][-1]].note == q.note and len(chains[-1]) < CHAIN:
-            chains[-1].append(i)
-        else:
-            chains.append([i])
-    return chains
-
-
-def _start(shards: Shards, problems, layout: Layout, origin: Origin):
-    """The fit's start: each note's constants and each window's controls, and those left out.
-
-    Every note starts from the constants a fit of the thinned take found for it
-    (``origin.slow``), else the cold start's; each window's controls are fitted along its
-    chain with them held. Whether the fit then ends in the take's minimum depends on the
-    cold start's window (:func:`cold_windows`); tried and not kept
-    (benchmarks/bench_estimator.py): every note from the median of its chains' first
-    windows' own fits; choosing between starts by the warm chains' sum of squares, which
-    picked the worse basin on one take of five where the passes' final one did not.
-    """
-    f, cold = layout.n_fast, origin.reed
-    notes = list(dict.fromkeys(q.note for q in problems))
-    base = np.array([getattr(cold, n) for n in layout.names[f:]])
-    slow = np.array([origin.slow.get(n, base) for n in notes], float)
-    row = {n: k for k, n in enumerate(notes)}
-    found = _warm(shards, problems, layout, origin, slow[[row[q.note] for q in problems]])
-    cold_fast = np.array([getattr(cold, n) for n in layout.names[:f]])
-    excluded = {q.start: "the model does not play this window from the take's cold start"
-                for q, x in zip(problems, found, strict=True) if x is None}  # fmt: skip
-    if len(excluded) == len(problems):
-        raise ValueError("the model plays none of the take's windows from its cold start")
-    fast = np.array([x[0] if x is not None else cold_fast for x in found])
-    return slow, fast, excluded
-
-
-def _warm(shards: Shards, problems, layout: Layout, origin: Origin, slow):
-    """Every window's fast controls warm along its chain: ``(fast, r^T r)`` or None.
-
-    ``slow`` are each window's note's constants (W, s), held. A chain's first window
-    starts from the nearest window's controls in ``origin.fast`` (fitted with those
-    constants on the thinned take), else from the cold start's (p_m scaled by the window's
-    peak pressure against the cold start window's, ``origin.peak``). None: none of the
-    window's starts plays.
-    """
-    f = layout.n_fast
-    cold_fast = np.array([getattr(origin.reed, n) for n in layout.names[:f]])
-    peaks = np.array([float(np.max(q.target.p)) for q in problems])
-    known = np.array(sorted(origin.fast), dtype=float)
-    chains = _chains(problems)
-    per_shard = []
-    for a, b in shards.ranges:
-        mine = [k for k, c in enumerate(chains) if a <= c[0] < b]
-        firsts = []
-        for k in mine:
-            first = problems[chains[k][0]]
-            scaled = cold_fast.copy()
-            if "p_m" in layout.names[:f]:  # p_m follows the window's loudness
-                scaled[layout.names.index("p_m")] *= peaks[chains[k][0]] / origin.peak
-            tries = [scaled, cold_fast]
-            if known.size:  # the nearest window of the thinned take's fit
-                near = int(known[np.argmin(np.abs(known - first.start))])
-                tries.insert(0, np.asarray(origin.fast[near], float))
-            firsts.append(tries)
-        slows = [slow[chains[k][0]] for k in mine]
-        per_shard.append(([[i - a for i in chains[k]] for k in mine], firsts, slows))
-    return sum(shards.call("warm", per_shard), [])
-
-
-def _renumber(problems):
-    index = {n: k for k, n in enumerate(dict.fromkeys(q.note for q in problems))}
-    return [dataclasses.replace(q, note=index[q.note]) for q in problems]
 
 
 __all__ = ["fit_take", "rival_costs", "thinned"]

@@ -145,3 +145,82 @@ def test_a_held_unknown_does_not_move_and_the_rest_solve_without_it():
     expected = np.linalg.solve(a[np.ix_(free, free)], -g[free])
     got = np.concatenate([d_fast.ravel(), d_slow.ravel(), d_take])[free]
     np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-12)
+
+
+def _two_stage_map(jacs, dense, index, given, info: float):
+    """The linear two-stage estimator as a matrix on its noise, built densely.
+
+    The noise is every window's samples (unit white) and the prior's pseudo-observation
+    (unit, scaled by sqrt(info)); the informing windows and the prior are solved jointly
+    for their fast unknowns and the shared ones, then each given window for its own fast
+    ones with the shared ones held at that solution. Returns the map (unknowns, noise).
+    """
+    n, f = jacs[0].shape[0], SIZES.fast
+    w = len(jacs)
+    shared = np.arange(w * f, dense.shape[1])
+    rows = np.concatenate([np.arange(i * n, (i + 1) * n) for i in range(w) if not given[i]])
+    cols = np.concatenate([np.arange(i * f, (i + 1) * f) for i in range(w) if not given[i]]
+                          + [shared])  # fmt: skip
+    design = np.zeros((rows.size + 1, cols.size))
+    design[:-1] = dense[np.ix_(rows, cols)]
+    design[-1, -1] = np.sqrt(info)  # the prior's row, on T
+    noise_rows = np.concatenate([rows, [w * n]])
+    stage1 = np.zeros((cols.size, w * n + 1))
+    stage1[:, noise_rows] = np.linalg.pinv(design)
+    out = np.zeros((dense.shape[1], w * n + 1))
+    out[cols] = stage1
+    for i in np.flatnonzero(given):
+        j_f, j_x = jacs[i][:, :f], jacs[i][:, f:]
+        own = np.zeros((n, w * n + 1))
+        own[:, i * n : (i + 1) * n] = np.eye(n)
+        out[i * f : (i + 1) * f] = np.linalg.pinv(j_f) @ (own - j_x @ out[index[i][f:]])
+    return out
+
+
+def test_a_window_fitted_given_the_shared_unknowns_carries_their_error():
+    # the two-stage estimator (an attack's windows fitted given their note's constants):
+    # the nested covariance with ``given`` against the dense map of the estimator itself;
+    # without ``given`` the given windows' fast variances are those of a joint fit
+    jacs, res, _, dense, index = _problem(6)
+    notes = (0, 0, 1, 1, 1, 2)
+    given = np.array([False, True, False, False, True, False])
+    prior = _prior()
+    system = TakeSystem.of(jacs, res, notes, SIZES, prior=prior)
+    system = TakeSystem(*[getattr(system, k) for k in ("sizes", "notes", "grams", "gradients",
+                          "prior_information", "prior_gradient")], given=given)  # fmt: skip
+    m = _two_stage_map(jacs, dense, index, given, float(prior[0][0, 0]))
+    expected = m @ m.T
+    cov = system.covariance(system.grams)  # unit white noise: B_i = J_i^T J_i
+    for i, cols in enumerate(index):
+        np.testing.assert_allclose(cov.window(i), expected[np.ix_(cols, cols)], rtol=1e-8,
+                                   atol=1e-12)  # fmt: skip
+    joint = TakeSystem.of(jacs, res, notes, SIZES, prior=prior).covariance(system.grams)
+    for i in np.flatnonzero(given):
+        assert not np.allclose(np.diag(joint.fast[i]), np.diag(cov.fast[i]), rtol=1e-3)
+
+
+def test_a_given_windows_step_follows_the_shared_ones():
+    # the step of the two-stage problem: the informing windows' and the shared unknowns'
+    # from their dense solve, each given window's its own Gauss-Newton step at them
+    jacs, res, _, dense, index = _problem(7)
+    notes = (0, 0, 1, 1, 1, 2)
+    given = np.array([True, False, False, True, False, False])
+    prior = _prior()
+    base = TakeSystem.of(jacs, res, notes, SIZES, prior=prior)
+    system = TakeSystem(base.sizes, base.notes, base.grams, base.gradients,
+                        base.prior_information, base.prior_gradient, given)  # fmt: skip
+    d_fast, d_slow, d_take = system.step(0.0)
+    f, w = SIZES.fast, len(notes)
+    keep = [i for i in range(w) if not given[i]]
+    cols = np.concatenate([index[i][:f] for i in keep] + [np.arange(w * f, dense.shape[1])])
+    rows = np.concatenate([np.arange(i * 30, (i + 1) * 30) for i in keep])
+    a, g = _dense_normal(dense[rows], [res[i] for i in keep], prior)
+    d = np.linalg.solve(a[np.ix_(cols, cols)], -g[cols])
+    np.testing.assert_allclose(d[-(3 * 3 + 1) :], np.concatenate([d_slow.ravel(), d_take]),
+                               rtol=1e-9, atol=1e-12)  # fmt: skip
+    x = np.concatenate([d_slow.ravel(), d_take])
+    for i in np.flatnonzero(given):
+        j_f, j_x = jacs[i][:, :f], jacs[i][:, f:]
+        x_i = x[system.reduced_index(notes[i])]
+        own = -np.linalg.solve(j_f.T @ j_f, j_f.T @ (res[i] + j_x @ x_i))
+        np.testing.assert_allclose(d_fast[i], own, rtol=1e-9, atol=1e-12)
