@@ -171,6 +171,13 @@ _INVERSION: tuple[Column, ...] = (
         "inversion.estimator: take), "
         "separated by ;; empty: the window's own fit",
     ),
+    _col(
+        "informs_note",
+        FLAG,
+        "the window's data inform its note's shared constants and the take's temperature; "
+        "false: a window of an attack or a release (p_m moving within it), fitted given them "
+        "(the per-window fit: true)",
+    ),
     _col("error", TEXT, "why the window has no estimate (empty: it has one)"),
     _col("take_checks", TEXT, "take-level checks that failed"),
 )

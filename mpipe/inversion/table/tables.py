@@ -71,6 +71,7 @@ def blank_row(
         at_bound="",
         warm=not cold,
         retried_cold=False,
+        informs_note=True,
         uncertainty_note="no estimate",
         take_checks="",
     )

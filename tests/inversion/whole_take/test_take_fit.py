@@ -112,6 +112,8 @@ def test_a_releases_windows_are_fitted_given_the_notes_constants(tmp_path):
                        temperature_c=20.0)  # fmt: skip
     t = done.tracking.table
     assert bool(t["optimiser_converged"].all())  # both stages ended by their tolerance
+    # the table says which windows informed the note: the steady ones, not the release's
+    assert list(t["informs_note"]) == list(WindowPlan.of(plan).steady)
     assert abs(done.temperature.temperature_c - 20.0) < 0.005
     for q, name in (("k", "k"), ("S", "S"), ("lam", "lambda")):
         assert float(np.median(t[q])) == pytest.approx(true[name], rel=1e-3), q
