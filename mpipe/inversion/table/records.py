@@ -175,7 +175,7 @@ _INVERSION: tuple[Column, ...] = (
         "informs_note",
         FLAG,
         "the window's data inform its note's shared constants and the take's temperature; "
-        "false: a window of an attack or a release (p_m moving within it), fitted given them "
+        "false: a window of its note's release (p_m falling within it), fitted given them "
         "(the per-window fit: true)",
     ),
     _col("error", TEXT, "why the window has no estimate (empty: it has one)"),

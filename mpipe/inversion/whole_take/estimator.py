@@ -29,9 +29,9 @@ pass is a damped Gauss-Newton
 :data:`T_SETTLED_C` the kernels are rebuilt there and a new pass starts from the current
 values: a few kernels per take, not one per temperature tried.
 
-**Two stages.** A window the conditioning calls not steady (an attack, a release: p_m
-moves within it while the model holds it over the window) does not inform its note's
-constants or T when its note has a steady one (:func:`informing`): the first stage fits
+**Two stages.** A window of a note's release (the conditioning's phase: p_m falls
+within it while the model holds it over the window) does not inform its note's
+constants or T when its note has other windows (:func:`informing`): the first stage fits
 the shared unknowns and the informing windows' controls, the second every window's
 controls at them (:mod:`mpipe.inversion.whole_take.gauss_newton`), and its covariance is
 that two-stage estimator's (:class:`mpipe.inversion.pooling.take_system.TakeSystem`,
@@ -125,10 +125,10 @@ class WindowProblem:
     bounds : ndarray
         Search bounds of the free parameters in the fit's order (fast then slow), (p, 2).
     informs : bool
-        The window informs its note's constants and the temperature. A window the
-        conditioning calls not steady (an attack, a release: p_m changes within it, which
-        the model holds over a window) does not, when its note has a steady one: its
-        controls are fitted given them (:func:`informing`).
+        The window informs its note's constants and the temperature. A window of its
+        note's release (the player's p_m falls within it, which the model holds over a
+        window) does not, when its note has another: its controls are fitted given them
+        (:func:`informing`).
     """
 
     start: int
@@ -139,18 +139,19 @@ class WindowProblem:
     informs: bool = True
 
 
-def informing(problems, steady) -> list:
-    """``problems`` with ``informs`` set: steady, or of a note without a steady window.
+def informing(problems, may) -> list:
+    """``problems`` with ``informs`` set: those that ``may``, and every window of a note with none.
 
-    On the steady tone's own noise-free signals (``benchmarks/bench_estimator.py``) the
-    take fit of all 107 windows ended at T -0.051 degC, S -1.02 %, lambda -0.78 % from the
-    truth, pulled by the 6 windows of the attack and the release that the model (p_m held
-    over a window) cannot fit; of the 101 steady ones, at the truth (within 0.001 %).
+    ``may``: each window may inform (the take fit's: all but its note's release's,
+    ``take_fit._informs``). On the steady tone's own noise-free signals
+    (``benchmarks/bench_estimator.py``) the take fit of all 107 windows ended at T -0.051
+    degC, S -1.02 %, lambda -0.78 % from the truth, pulled by the release's, which the
+    model (p_m held over a window) cannot fit; without them, at the truth (within 0.001 %).
     """
-    steady = [bool(s) for s in steady]
-    has = {q.note for q, s in zip(problems, steady, strict=True) if s}
+    may = [bool(s) for s in may]
+    has = {q.note for q, s in zip(problems, may, strict=True) if s}
     return [dataclasses.replace(q, informs=s or q.note not in has)
-            for q, s in zip(problems, steady, strict=True)]  # fmt: skip
+            for q, s in zip(problems, may, strict=True)]  # fmt: skip
 
 
 def given_mask(problems) -> np.ndarray | None:

@@ -152,6 +152,11 @@ class WindowPlan:
         The number of each window's note in the take (the plan's ``note_number``: 1, 2, ...
         over the notes only, 0 in a silence), the number the console and the report use;
         None: 1 for all when the plan has no segments either, else unknown.
+    phases : tuple of str or None
+        Each window's phase in its note (the plan's ``phase``: onset, sustain, release):
+        a release window does not inform its note's constants in the take's fit
+        (:func:`mpipe.inversion.whole_take.estimator.informing`); None: unknown (every
+        window informs).
     """
 
     starts: tuple[int, ...]
@@ -159,11 +164,12 @@ class WindowPlan:
     steady: tuple[bool, ...] | None = None
     fingerings: tuple[str, ...] | None = None
     notes: tuple[int, ...] | None = None
+    phases: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "starts", tuple(int(s) for s in self.starts))
         for name, kind in (("segments", int), ("steady", bool), ("fingerings", str),
-                           ("notes", int)):  # fmt: skip
+                           ("notes", int), ("phases", str)):  # fmt: skip
             values = getattr(self, name)
             if values is None:
                 continue
@@ -191,6 +197,7 @@ class WindowPlan:
                 rows["steady"].astype(bool).tolist() if "steady" in rows else None,
                 _names(rows["fingering"]) if "fingering" in rows else None,
                 rows["note_number"].astype(int).tolist() if "note_number" in rows else None,
+                rows["phase"].astype(str).tolist() if "phase" in rows else None,
             )
         return cls(tuple(windows))
 
@@ -224,7 +231,7 @@ class WindowPlan:
             return None if values is None else tuple(values[i] for i in keep)
 
         return WindowPlan(pick(self.starts), pick(self.segments), pick(self.steady),
-                          pick(self.fingerings), pick(self.notes))  # fmt: skip
+                          pick(self.fingerings), pick(self.notes), pick(self.phases))  # fmt: skip
 
     @property
     def segment_ids(self) -> list[int]:
