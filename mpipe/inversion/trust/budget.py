@@ -176,17 +176,11 @@ def _root_sum_square(table: pd.DataFrame, q: str, components, noise: np.ndarray)
     return np.where(np.isnan(noise), np.nan, np.sqrt(total))
 
 
-def budget_columns(components=COMPONENTS) -> tuple[str, ...]:
-    """The component columns of every quantity, quantity by quantity."""
-    return tuple(component_column(q, c) for q in QUANTITIES for c in components)
-
-
 __all__ = [
     "COMPONENTS",
     "QUANTITIES",
     "WINDOW_COMPONENTS",
     "WITHIN_TAKE",
-    "budget_columns",
     "combine",
     "combine_row",
     "combined",

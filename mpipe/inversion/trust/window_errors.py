@@ -16,12 +16,10 @@ import numpy as np
 
 from mpipe.inversion.trust.budget import (
     QUANTITIES,
-    WINDOW_COMPONENTS,
     combine_row,
     component_column,
 )
 from mpipe.inversion.trust.combinations import (
-    COMBINATION_NAMES,
     combination_errors,
     combination_values,
     exponent_vector,
@@ -171,18 +169,6 @@ def _describe(v: np.ndarray, names: Sequence[str]) -> str:
     return " ".join(f"{n}^{x:+.2f}" for n, x in zip(names, v, strict=True) if abs(x) > 0.05)
 
 
-def uncertainty_columns() -> tuple[str, ...]:
-    """Columns :func:`window_uncertainty` adds to the per-window table, in order."""
-    cols = [*COMBINATION_NAMES]
-    for name in (*SE_PARAMETERS, *COMBINATION_NAMES):
-        cols.append(f"{name}_se")
-    cols += [component_column(q, c) for q in QUANTITIES for c in WINDOW_COMPONENTS]
-    for name in (*SE_PARAMETERS, *COMBINATION_NAMES):
-        cols.append(f"determined_{name}")
-    return (*cols, "residual_sigma", "n_eff", "dof", "noise_residual", "model_residual",
-            "uncertainty_note")  # fmt: skip
-
-
 #: Columns of the long-format correlation table.
 CORRELATION_COLUMNS = ("window", "t_start_s", "parameter_a", "parameter_b", "correlation")
 
@@ -219,6 +205,5 @@ __all__ = [
     "CORRELATION_COLUMNS",
     "MODEL_FORM_NOT_MEASURED",
     "correlation_records",
-    "uncertainty_columns",
     "window_uncertainty",
 ]
