@@ -294,7 +294,8 @@ class TakeSystem:
         shared = self.sizes.shared
         eye = np.broadcast_to(np.eye(shared), (len(kq), shared, shared))
         m = np.concatenate([-np.transpose(kq, (0, 2, 1)), eye], axis=2)
-        mb = (m @ grams) * self._informing()[:, None, None]  # (W, s+t, loc); 0: given
+        informs = self._informing()
+        mb = (m @ grams) * informs[:, None, None]  # (W, s+t, loc); 0: given
         omega = np.zeros_like(big)
         for i, note in enumerate(self.notes):
             idx = self.reduced_index(int(note))
@@ -310,9 +311,8 @@ class TakeSystem:
             idx = self.reduced_index(int(note))
             cxu = r_inv[:, idx] @ mb[i]  # cov(x, u_i), (N s + t, loc)
             lb = lmat[i] @ grams[i]
-            cross = lb @ (r_inv[np.ix_(idx, idx)] @ m[i]).T  # cov(L u_i, x_n); 0: given
-            if self.given is not None and self.given[i]:
-                cross = np.zeros_like(cross)
+            # cov(L u_i, x_n); 0 for a given window (its score is not in x)
+            cross = informs[i] * (lb @ (r_inv[np.ix_(idx, idx)] @ m[i]).T)
             k = kq[i]
             cov_f = lb @ lmat[i].T - cross @ k.T - k @ cross.T + k @ cov_x[np.ix_(idx, idx)] @ k.T
             fast.append(0.5 * (cov_f + cov_f.T))

@@ -91,7 +91,7 @@ def fit_take(
     source = KernelSource(calibration, fs, windows.fingering_map())
     problems, steady = _problems(p, u, fs, source, windows, config, zero_mean, prior[0])
     # a window of a note's onset or release (or not steady, without phases): fitted given
-    problems = informing(problems, _informs(windows, steady))
+    problems = informing(problems, _informs(windows))
     colds = []
     with stage_workers((p, u), executor or ExecutorConfig(), workers):
         for window in cold_windows(problems, steady):
@@ -388,7 +388,7 @@ def _passes(take: TakeProblem, state: FitState, kernels, ends=None):
     return state, ended, total, passes, converged, message, False
 
 
-def _informs(windows, steady) -> list[bool]:
+def _informs(windows) -> list[bool]:
     """Which windows (in time order) may inform their note: all but its release's.
 
     The conditioning's phase (onset, sustain, release, from the note's segment) marks where
@@ -400,9 +400,8 @@ def _informs(windows, steady) -> list[bool]:
     all its windows ends at T -0.067 degC, S -1.4 % from the truth, without the release's at
     it; on the same phrase at 45 dB (3 seeds) the quiet third note's k ended -4.4 % (-2.5
     SE) with only the steady windows informing, -2.1 % with the sustain's, -0.5 % with all
-    but the release's. ``steady`` is not used; without phases every window informs.
+    but the release's. Without phases every window informs.
     """
-    del steady
     if windows.phases is None:
         return [True] * len(windows.starts)
     order = np.argsort(np.asarray(windows.starts), kind="stable")

@@ -1,5 +1,7 @@
 """The take's nested elimination against the dense joint system (exact algebra)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -185,9 +187,7 @@ def test_a_window_fitted_given_the_shared_unknowns_carries_their_error():
     notes = (0, 0, 1, 1, 1, 2)
     given = np.array([False, True, False, False, True, False])
     prior = _prior()
-    system = TakeSystem.of(jacs, res, notes, SIZES, prior=prior)
-    system = TakeSystem(*[getattr(system, k) for k in ("sizes", "notes", "grams", "gradients",
-                          "prior_information", "prior_gradient")], given=given)  # fmt: skip
+    system = dataclasses.replace(TakeSystem.of(jacs, res, notes, SIZES, prior=prior), given=given)
     m = _two_stage_map(jacs, dense, index, given, float(prior[0][0, 0]))
     expected = m @ m.T
     cov = system.covariance(system.grams)  # unit white noise: B_i = J_i^T J_i
@@ -206,9 +206,7 @@ def test_a_given_windows_step_follows_the_shared_ones():
     notes = (0, 0, 1, 1, 1, 2)
     given = np.array([True, False, False, True, False, False])
     prior = _prior()
-    base = TakeSystem.of(jacs, res, notes, SIZES, prior=prior)
-    system = TakeSystem(base.sizes, base.notes, base.grams, base.gradients,
-                        base.prior_information, base.prior_gradient, given)  # fmt: skip
+    system = dataclasses.replace(TakeSystem.of(jacs, res, notes, SIZES, prior=prior), given=given)
     d_fast, d_slow, d_take = system.step(0.0)
     f, w = SIZES.fast, len(notes)
     keep = [i for i in range(w) if not given[i]]

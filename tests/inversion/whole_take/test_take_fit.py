@@ -78,13 +78,12 @@ def test_a_chains_first_window_keeps_the_lower_of_its_two_minima():
     assert [x[1] for x in out] == [0.1, 0.2, 0.2, 0.2]
 
 
-def test_a_releases_windows_are_fitted_given_the_notes_constants(tmp_path):
-    # the model's own noise-free tone (true mouthpiece p and u, full band): the window model
-    # is exact at the true reed, but over the release (p_m falling within a window, which
-    # the model holds) it cannot fit; those windows, which the conditioning calls not
-    # steady, must not pull the note's constants and T. On this 0.6 s tone with them
-    # informing: T -0.138 degC, k +1.5 %, S -2.3 %, lambda -2.3 %; fitted given them, the
-    # truth to 1e-5 (on a 2.25 s tone: T -0.051 degC, S -1.02 % against 0.001 %).
+def _noise_free_fit(tmp_path, score_text: str):
+    """The take fit of the model's own noise-free tone (true mouthpiece p and u, full band).
+
+    Returns ``(plan, done, true)``: the conditioning's plan, the inversion and the true k,
+    S, lambda.
+    """
     import dataclasses
 
     from mpipe.cli.examples import EXAMPLE_CALIBRATION, EXAMPLE_REED
@@ -92,12 +91,10 @@ def test_a_releases_windows_are_fitted_given_the_notes_constants(tmp_path):
     from mpipe.inversion.preparation.conditioning import plan_inversion
     from mpipe.inversion.settings import ConditioningConfig, ExecutorConfig, InversionConfig
     from mpipe.inversion.whole_take.take import invert_take
-    from mpipe.inversion.whole_take.tracking import WindowPlan
     from mpipe.measurement.calibration import load_calibration
 
-    score = tmp_path / "tone.yaml"
-    score.write_text("description: tone\nend: 0.05\nnotes:\n  - duration: 0.6\n"
-                     "    attack: 0.01\n    release: 0.03\n    p_m: [[0.0, 2100.0]]\n")  # fmt: skip
+    score = tmp_path / "score.yaml"
+    score.write_text(score_text)
     files = make_take(EXAMPLE_CALIBRATION, EXAMPLE_REED, tmp_path / "take.flac",
                       SynthOptions(duration_s=None, seed=1, score=str(score)))  # fmt: skip
     with np.load(files.truth) as d:
@@ -107,18 +104,37 @@ def test_a_releases_windows_are_fitted_given_the_notes_constants(tmp_path):
     config = dataclasses.replace(InversionConfig(), sample_rate=fs, contact="fixed",
                                  estimator="take")  # fmt: skip
     plan = plan_inversion(p, fs, ConditioningConfig(), config.window_s, config.hop_s)
-    assert not all(WindowPlan.of(plan).steady)  # the release's windows are there
     done = invert_take(p, u, fs, cal, config, ExecutorConfig(workers=1), windows=plan,
                        temperature_c=20.0)  # fmt: skip
+    return plan, done, true
+
+
+def _at_the_truth(done, true) -> None:
+    t = done.tracking.table
+    assert abs(done.temperature.temperature_c - 20.0) < 0.005
+    for q, name in (("k", "k"), ("S", "S"), ("lam", "lambda")):
+        assert float(np.median(t[q])) == pytest.approx(true[name], rel=1e-3), q
+
+
+def test_a_releases_windows_are_fitted_given_the_notes_constants(tmp_path):
+    # the window model is exact at the true reed, but over the release (p_m falling within
+    # a window, which the model holds) it cannot fit; those windows must not pull the note's
+    # constants and T. On this 0.6 s tone with them informing: T -0.138 degC, k +1.5 %,
+    # S -2.3 %, lambda -2.3 %; fitted given them, the truth to 1e-5 (on a 2.25 s tone:
+    # T -0.051 degC, S -1.02 % against 0.001 %).
+    from mpipe.inversion.whole_take.tracking import WindowPlan
+
+    plan, done, true = _noise_free_fit(
+        tmp_path, "description: tone\nend: 0.05\nnotes:\n  - duration: 0.6\n"
+        "    attack: 0.01\n    release: 0.03\n    p_m: [[0.0, 2100.0]]\n")  # fmt: skip
+    assert not all(WindowPlan.of(plan).steady)  # the release's windows are there
     t = done.tracking.table
     assert bool(t["optimiser_converged"].all())  # both stages ended by their tolerance
     # the table says which windows informed the note: all but its release's
     phases = [str(x) for x in WindowPlan.of(plan).phases]
     assert "release" in phases
     assert list(t["informs_note"]) == [x != "release" for x in phases]
-    assert abs(done.temperature.temperature_c - 20.0) < 0.005
-    for q, name in (("k", "k"), ("S", "S"), ("lam", "lambda")):
-        assert float(np.median(t[q])) == pytest.approx(true[name], rel=1e-3), q
+    _at_the_truth(done, true)
 
 
 def test_a_tongued_notes_build_up_informs_its_constants(tmp_path):
@@ -126,37 +142,16 @@ def test_a_tongued_notes_build_up_informs_its_constants(tmp_path):
     # steadiness test calls those windows transient (their level grows by more than 2 % a
     # window), yet the model is exact there, so they inform the note (its sustain phase)
     # and the fit of the model's own noise-free signals stays at the truth
-    import dataclasses
-
-    from mpipe.cli.examples import EXAMPLE_CALIBRATION, EXAMPLE_REED
-    from mpipe.cli.virtual_takes import SynthOptions, make_take
-    from mpipe.inversion.preparation.conditioning import plan_inversion
-    from mpipe.inversion.settings import ConditioningConfig, ExecutorConfig, InversionConfig
-    from mpipe.inversion.whole_take.take import invert_take
     from mpipe.inversion.whole_take.tracking import WindowPlan
-    from mpipe.measurement.calibration import load_calibration
 
-    score = tmp_path / "tongued.yaml"
-    score.write_text("description: tongued\nend: 0.05\nnotes:\n  - gap: 0.05\n"
-                     "    duration: 0.5\n    tongued: true\n    tongue_hold: 0.03\n"
-                     "    attack: 0.02\n    release: 0.03\n    p_m: 1800.0\n")  # fmt: skip
-    files = make_take(EXAMPLE_CALIBRATION, EXAMPLE_REED, tmp_path / "take.flac",
-                      SynthOptions(duration_s=None, seed=1, score=str(score)))  # fmt: skip
-    with np.load(files.truth) as d:
-        p, u, fs = d["p"], d["u"], float(d["fs"])
-        true = {k: float(d[f"reed_{k}"]) for k in ("k", "S", "lambda")}
-    cal = load_calibration(files.calibration)
-    config = dataclasses.replace(InversionConfig(), sample_rate=fs, contact="fixed",
-                                 estimator="take")  # fmt: skip
-    plan = plan_inversion(p, fs, ConditioningConfig(), config.window_s, config.hop_s)
+    plan, done, true = _noise_free_fit(
+        tmp_path, "description: tongued\nend: 0.05\nnotes:\n  - gap: 0.05\n"
+        "    duration: 0.5\n    tongued: true\n    tongue_hold: 0.03\n"
+        "    attack: 0.02\n    release: 0.03\n    p_m: 1800.0\n")  # fmt: skip
     windows = WindowPlan.of(plan)
-    done = invert_take(p, u, fs, cal, config, ExecutorConfig(workers=1), windows=plan,
-                       temperature_c=20.0)  # fmt: skip
     t = done.tracking.table
     build_up = [i for i, (s, x) in enumerate(zip(windows.steady, windows.phases, strict=True))
                 if not s and x == "sustain"]  # fmt: skip
     assert len(build_up) >= 3
     assert bool(t["informs_note"].iloc[build_up].all())
-    assert abs(done.temperature.temperature_c - 20.0) < 0.005
-    for q, name in (("k", "k"), ("S", "S"), ("lam", "lambda")):
-        assert float(np.median(t[q])) == pytest.approx(true[name], rel=1e-3), q
+    _at_the_truth(done, true)
