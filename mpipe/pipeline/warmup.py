@@ -36,6 +36,7 @@ PACKAGE = Path(__file__).resolve().parents[1]
 MARKERS = (
     ("reed", "kernels.run-"),
     ("inversion/fit", "fastpath._evaluate-"),
+    ("inversion/fit", "input_tangents._respond-"),
     ("inversion/fit", "least_squares.normal_equations-"),
     ("reed", "block_fft.rfft_block-"),
     ("reed", "opening.drive_reed-"),

@@ -278,12 +278,13 @@ def run(x, n0, model, conv, state, pm, q_ext, out_p, full, tangent):
     q_ext : None, or n samples (Pa) added to the history term.
     out_p : the pressure, Pa (written).
     full : None, or the arrays (u, u_f, u_r, y, h, p-) to fill as well.
-    tangent : None, or (d, dy, dy_prev, ddp, xt, fut_t, line1, line2, out_dp, q_ones, c_t):
+    tangent : None, or (d, dy, dy_prev, ddp, xt, fut_t, line1, line2, out_dp, q_t):
         the seed matrix d (rows :data:`mpipe.reed.sensitivity.SEED_ROWS`, one column per
-        parameter), the tangent state per column (updated in place), the tangent of p+
-        (``xt[j]``, history given), its pending direct sums, its delay lines ((f_re, f_im,
-        work) with one row per column, on ``conv``'s levels), the output d p / d theta_j,
-        and a history shift ``c_t[j] q_ones`` added to the tangent of the history term.
+        parameter or input perturbation), the tangent state per column (updated in
+        place), the tangent of p+ (``xt[j]``, history given), its pending direct sums, its
+        delay lines ((f_re, f_im, work) with one row per column, on ``conv``'s levels), the
+        output d p / d theta_j, and ``q_t[j]`` (n samples, Pa per unit) added to column j's
+        tangent of the history term (the tangent of ``q_ext``).
 
     Returns the final (y, y_prev, dp).
     """
@@ -299,7 +300,7 @@ def run(x, n0, model, conv, state, pm, q_ext, out_p, full, tangent):
     if full is not None:
         out_u, out_uf, out_ur, out_y, out_h, out_pminus = full
     if tangent is not None:
-        d, dy, dy_prev, ddp, xt, fut_t, lt1, lt2, out_dp, q_ones, c_t = tangent
+        d, dy, dy_prev, ddp, xt, fut_t, lt1, lt2, out_dp, q_t = tangent
         wt1 = lt1[2]
         wt2 = lt2[2]
         for j in range(d.shape[1]):
@@ -342,7 +343,7 @@ def run(x, n0, model, conv, state, pm, q_ext, out_p, full, tangent):
                     dq += wt1[j, 4, r1]
                 if on2:
                     dq += wt2[j, 4, r2]
-                dq += c_t[j] * q_ones[i]
+                dq += q_t[j, i]
                 tstate = (dy[j], dy_prev[j], ddp[j])
                 dy_new, dpp, dpo = _step_tangent(d, j, dq, tstate, step, reed, bore)
                 xt[j, n0 + i] = dpp

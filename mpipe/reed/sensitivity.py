@@ -158,7 +158,7 @@ def pressure_sensitivities(
     conv = lean.conv(x, n_samples)
     tangent = (
         d, np.zeros(n_par), np.zeros(n_par), ddp, np.zeros((n_par, x.size)),
-        *tangent_lines(conv, n_par), out_dp, np.zeros(n_samples), np.zeros(n_par),
+        *tangent_lines(conv, n_par), out_dp, np.zeros((n_par, n_samples)),
     )  # fmt: skip
     pm = np.full(n_samples, reed.p_m)
     run(x, n0, model, conv, (y, y_prev, dp), pm, None, out, None, tangent)

@@ -36,94 +36,17 @@ from numba import njit
 from scipy import fft as sfft
 
 from mpipe.inversion.fit.history_start import pad_history
+from mpipe.inversion.fit.lead_in import lead_in, lead_in_tangent, missing_flow, missing_tangent
 from mpipe.inversion.fit.objective import ObjectiveSettings, TargetWindow
 from mpipe.reed.block_fft import fft_tables, irfft_last_half, rfft_block
 from mpipe.reed.bore_kernel import BoreKernel, prepare_lean
 from mpipe.reed.kernels import run
-from mpipe.reed.opening import drive_reed
 from mpipe.reed.parameters import ReedParameters, check_stability
 from mpipe.reed.scheme import scheme_records
 
 #: Status codes of :func:`_evaluate`.
 OK, DIVERGED, SILENT = 0, 1, 2
 REASONS = {DIVERGED: "diverged", SILENT: "silent"}
-
-
-@njit(cache=True)
-def _lead_in(ylead, p_lead, cand):
-    """Reed lead-in driven by the measured pressure (:func:`mpipe.reed.opening.drive_reed`)."""
-    reed = cand[0][0]
-    coefficients = (reed[0], reed[1], reed[2], reed[3])
-    drive_reed(ylead, p_lead, cand[3], cand[1], coefficients, (reed[5], reed[6]))
-
-
-@njit(cache=True)
-def _missing_flow(ylead, win, cand):
-    """history_start.missing_mean_flow: candidate minus measured flow over the lead-in."""
-    p_lead, u_lead, fs = win[2], win[3], win[8]
-    y_m, lam, rho = cand[0][0][4], cand[0][0][8], cand[0][1][1]
-    s_area, p_m = cand[2], cand[3]
-    n_lead = p_lead.size
-    half = n_lead // 2
-    acc = 0.0
-    for i in range(half, n_lead):
-        dp = p_m - p_lead[i]
-        h = y_m - ylead[i]
-        if h < 0.0:
-            h = 0.0
-        sgn = 1.0 if dp > 0.0 else (-1.0 if dp < 0.0 else 0.0)
-        uf = sgn * lam * h * math.sqrt(2.0 * abs(dp) / rho)
-        prev = ylead[i - 1] if i > 0 else ylead[0]
-        ur = s_area * (ylead[i] - prev) * fs
-        acc += uf + ur - u_lead[i]
-    return acc / (n_lead - half)
-
-
-@njit(cache=True)
-def _lead_in_tangent(dyl, ylead, p_lead, d, cand):
-    """Tangent of :func:`_lead_in` for every seed column of ``d``."""
-    reed = cand[0][0]
-    a1, a2, a3, b1, y_c, alpha = reed[0], reed[1], reed[2], reed[3], reed[5], reed[6]
-    k, p_m = cand[1], cand[3]
-    n_lead = p_lead.size
-    y0 = ylead[0]
-    for j in range(d.shape[1]):
-        dy0 = (d[7, j] - y0 * d[9, j]) / k
-        dyl[j, 0] = dy0
-        dyl[j, 1] = dy0
-        for i in range(1, n_lead - 1):
-            t = d[0, j] * ylead[i] + a1 * dyl[j, i] + d[1, j] * ylead[i - 1] + a2 * dyl[j, i - 1]
-            t += d[3, j] * (p_m - p_lead[i]) + b1 * d[7, j]
-            c = ylead[i] - y_c
-            if c > 0.0:
-                t += d[2, j] * c**alpha + a3 * alpha * c ** (alpha - 1.0) * (dyl[j, i] - d[6, j])
-            dyl[j, i + 1] = t
-
-
-@njit(cache=True)
-def _missing_tangent(dmiss, dyl, ylead, d, win, cand):
-    """Tangent of :func:`_missing_flow` per seed column."""
-    p_lead, fs = win[2], win[8]
-    y_m, lam, rho = cand[0][0][4], cand[0][0][8], cand[0][1][1]
-    s_area, p_m = cand[2], cand[3]
-    n_lead = p_lead.size
-    half = n_lead // 2
-    for j in range(d.shape[1]):
-        acc = 0.0
-        for i in range(half, n_lead):
-            dp = p_m - p_lead[i]
-            h = y_m - ylead[i]
-            dh = d[5, j] - dyl[j, i] if h > 0.0 else 0.0
-            if h < 0.0:
-                h = 0.0
-            sgn = 1.0 if dp > 0.0 else (-1.0 if dp < 0.0 else 0.0)
-            root = math.sqrt(2.0 * abs(dp) / rho)
-            droot = sgn * d[7, j] / (rho * root) if root > 0.0 else 0.0
-            duf = sgn * (d[8, j] * h * root + lam * dh * root + lam * h * droot)
-            ip = i - 1 if i > 0 else 0
-            dur = (d[4, j] / fs * (ylead[i] - ylead[ip]) + s_area * (dyl[j, i] - dyl[j, ip])) * fs
-            acc += duf + dur
-        dmiss[j] = acc / (n_lead - half)
 
 
 @njit(cache=True)
@@ -152,17 +75,19 @@ def history_term(kernel: BoreKernel, history: np.ndarray, n: int) -> np.ndarray:
     (nothing wraps below ``len(history) + n``, and what wraps from above ``L`` lands
     below ``len(h) - 1 - (L - len(history)) <= len(history)``). The taps' spectrum at ``L``
     is kept on the kernel (the same for every window on it), so a window costs one FFT of
-    its history and one inverse.
+    its history and one inverse. A 2-D ``history`` holds one history per row (of equal
+    length) and gives one row each.
     """
     x = np.asarray(history, dtype=float)
-    size = sfft.next_fast_len(max(x.size + n, kernel.n_taps), real=True)
+    m = x.shape[-1]
+    size = sfft.next_fast_len(max(m + n, kernel.n_taps), real=True)
     cache = kernel.__dict__.setdefault("_taps_spectra", {})
     if size not in cache:
         cache[size] = sfft.rfft(np.asarray(kernel.h, dtype=float), size)
-    full = sfft.irfft(sfft.rfft(x, size) * cache[size], size)
-    out = np.zeros(n)
-    tail = full[x.size : x.size + min(n, max(kernel.n_taps - 1, 0))]
-    out[: tail.size] = tail
+    full = sfft.irfft(sfft.rfft(x, size, axis=-1) * cache[size], size, axis=-1)
+    out = np.zeros((*x.shape[:-1], n))
+    tail = full[..., m : m + min(n, max(kernel.n_taps - 1, 0))]
+    out[..., : tail.shape[-1]] = tail
     return out
 
 
@@ -195,7 +120,7 @@ def run_kernel(kernel: BoreKernel, n_run: int):
 
 
 @njit(cache=True)
-def _lowpass(out, n, p_mod, p_ctx, lp):
+def measured_lowpass(out, n, p_mod, p_ctx, lp):
     """The first n samples of the measurement's low-pass of [p_ctx, p_mod] past p_ctx.
 
     Overlap-save FFT convolution: ``lp`` is (fir, fir_work, buf, n_taps_fir) with the
@@ -233,7 +158,7 @@ def _lowpass(out, n, p_mod, p_ctx, lp):
 
 
 @njit(cache=True)
-def _residual(out_r, p_mod, win, lp):
+def model_residual(out_r, p_mod, win, lp):
     """``target - measured model pressure`` into ``out_r``; returns a status code."""
     target_p, target_std, filt, p_ctx = win[0], win[1], win[4], win[5]
     n_run = p_mod.size
@@ -242,7 +167,7 @@ def _residual(out_r, p_mod, win, lp):
             return DIVERGED
     n = target_p.size
     if filt:
-        _lowpass(out_r, n, p_mod, p_ctx, lp)
+        measured_lowpass(out_r, n, p_mod, p_ctx, lp)
     else:
         for i in range(n):
             out_r[i] = p_mod[i]
@@ -263,30 +188,67 @@ def _residual(out_r, p_mod, win, lp):
 
 
 @njit(cache=True)
-def _tangent_start(jac, ylead, win, cand, conv_t):
-    """The kernel's ``tangent`` record after the lead-in: the lead-in's and c's tangents."""
-    d, tw, xt, dp_mod = jac[0], jac[2], jac[3], jac[4]
+def tangent_start(tan, ylead, win, cand):
+    """The kernel's ``tangent`` record after the lead-in: the lead-in's and c's tangents.
+
+    ``tan`` = (d, tw, xt, dp_mod, conv_t, dpl, dul, q_t): the seed matrix (one column per
+    parameter or change), the lead-in's tangents' scratch, p+'s, the output's, the
+    tangents' delay lines, each column's change of the measured lead-in pressure and flow
+    (zeros for a parameter) and its history term's tangent from the measured history
+    (zeros for a parameter), to which the missing flow's shift ``(Z0 dc / 2) q_ones`` is
+    added here.
+    """
+    d, tw, xt, dp_mod, conv_t, dpl, dul, q_t = tan
     n_lead = win[2].size
     n_par = d.shape[1]
     dyl = tw[:, :n_lead]
-    _lead_in_tangent(dyl, ylead, win[2], d, cand)
+    lead_in_tangent(dyl, ylead, win[2], d, dpl, cand)
     dmiss = np.zeros(n_par)
     if win[4]:
-        _missing_tangent(dmiss, dyl, ylead, d, win, cand)
+        missing_tangent(dmiss, dyl, ylead, d, dpl, dul, win, cand)
     fut_t, line1_t, line2_t = conv_t
     for line in (line1_t, line2_t):
         line[0].fill(0.0)
         line[1].fill(0.0)
     dy = dyl[:, n_lead - 1].copy()
     dy_prev = dyl[:, n_lead - 2].copy()
+    ddp = d[7] - dpl[:, n_lead - 1]
     z0 = cand[0][1][0]
-    c_t = 0.5 * z0 * dmiss
-    return (d, dy, dy_prev, d[7].copy(), xt, fut_t, line1_t, line2_t, dp_mod, win[7], c_t)
+    q_ones = win[7]
+    for j in range(n_par):
+        c_t = 0.5 * z0 * dmiss[j]
+        for i in range(q_ones.size):
+            q_t[j, i] += c_t * q_ones[i]
+    return (d, dy, dy_prev, ddp, xt, fut_t, line1_t, line2_t, dp_mod, q_t)
+
+
+@njit(cache=True)
+def start_run(win, buffers, cand):
+    """Before a candidate's run: the reed's lead-in, the missing flow, the history's share.
+
+    Writes the lead-in into ``buffers``' work row 0, the history's share into its
+    ``q_ext`` and the mouth pressure into its ``pm`` (records: :func:`_evaluate`); returns
+    the run's start state (y, y_prev, dp) in m, m, Pa.
+    """
+    _, _, conv, q_ext, _, pm, work = buffers
+    p_lead = win[2]
+    n_lead = p_lead.size
+    p_m = cand[3]
+    ylead = work[0, :n_lead]
+    lead_in(ylead, p_lead, cand)
+    missing = 0.0
+    if win[4]:
+        missing = missing_flow(ylead, win, cand)
+    _history_share(q_ext, win, 0.5 * cand[0][1][0] * missing, conv[2:])
+    for i in range(pm.size):
+        pm[i] = p_m
+    return (ylead[n_lead - 1], ylead[n_lead - 2], p_m - p_lead[n_lead - 1])
 
 
 # numba's on-disk cache of a function is keyed on its own file only: after editing the
-# kernels it calls (mpipe/reed/kernels.py, block_fft.py, or the helpers above from another
-# module), delete the stale caches (mpipe/**/__pycache__/*.nb*), which keep the old code.
+# kernels it calls (mpipe/reed/kernels.py, block_fft.py, fit/lead_in.py, or the helpers
+# above from another module), delete the stale caches (mpipe/**/__pycache__/*.nb*),
+# which keep the old code.
 @njit(cache=True)
 def _evaluate(out_r, win, lp, buffers, cand, jac):
     """Residual of one candidate into ``out_r``; returns a status code (OK, DIVERGED, SILENT).
@@ -296,7 +258,7 @@ def _evaluate(out_r, win, lp, buffers, cand, jac):
     mean flow; :func:`history_term`); the run starts on a zero history. Records:
 
     * ``win`` = (target_p, target_std, p_lead, u_lead, filt, p_ctx, q_base, q_ones, fs);
-    * ``lp`` = :func:`_lowpass`'s;
+    * ``lp`` = :func:`measured_lowpass`'s;
     * ``buffers`` = (x, n0, conv, q_ext, p_mod, pm, work): the kernel's p+ buffer and
       ``conv`` (:func:`mpipe.reed.kernels.run`), the history share, the model pressure,
       the mouth-pressure series and the lead-in's scratch;
@@ -307,31 +269,24 @@ def _evaluate(out_r, win, lp, buffers, cand, jac):
       :mod:`mpipe.inversion.fit.sensitivities`); written only when the status is OK.
     """
     x, n0, conv, q_ext, p_mod, pm, work = buffers
-    p_lead = win[2]
-    n_lead = p_lead.size
-    p_m = cand[3]
-    ylead = work[0, :n_lead]
-    _lead_in(ylead, p_lead, cand)
-    missing = 0.0
-    if win[4]:
-        missing = _missing_flow(ylead, win, cand)
-    _history_share(q_ext, win, 0.5 * cand[0][1][0] * missing, conv[2:])
-    for i in range(pm.size):
-        pm[i] = p_m
-    state = (ylead[n_lead - 1], ylead[n_lead - 2], p_m - p_lead[n_lead - 1])
+    state = start_run(win, buffers, cand)
+    ylead = work[0, : win[2].size]
     if jac is None:
         run(x, n0, cand[0], conv, state, pm, q_ext, p_mod, None, None)
-        return _residual(out_r, p_mod, win, lp)
-    tangent = _tangent_start(jac, ylead, win, cand, jac[7])
+        return model_residual(out_r, p_mod, win, lp)
+    n_par, n_lead = jac[0].shape[1], win[2].size
+    still = np.zeros((n_par, n_lead))  # the measured signals do not move with theta
+    tan = (jac[0], jac[2], jac[3], jac[4], jac[7], still, still, np.zeros((n_par, win[7].size)))
+    tangent = tangent_start(tan, ylead, win, cand)
     run(x, n0, cand[0], conv, state, pm, q_ext, p_mod, None, tangent)
-    code = _residual(out_r, p_mod, win, lp)
+    code = model_residual(out_r, p_mod, win, lp)
     if code != OK:
         return code
     d, out_j, dp_mod, ctx0, col = jac[0], jac[1], jac[4], jac[5], jac[6]
     n = out_r.size
     for j in range(d.shape[1]):
         if win[4]:
-            _lowpass(col, n, dp_mod[j], ctx0, lp)
+            measured_lowpass(col, n, dp_mod[j], ctx0, lp)
         else:
             col[:n] = dp_mod[j, :n]
         for i in range(n):
@@ -445,7 +400,7 @@ class WindowEvaluator:
 
 
 def _lowpass_record(lp, n: int, n_pad: int) -> tuple:
-    """:func:`_lowpass`'s record for the measurement's FIR ``lp`` (None: a dummy)."""
+    """:func:`measured_lowpass`'s record for the measurement's FIR ``lp`` (None: a dummy)."""
     if lp is None:
         return (
             (np.zeros(1), np.zeros(1), fft_tables(4, real_nyquist=True)),
@@ -469,4 +424,11 @@ def _lowpass_record(lp, n: int, n_pad: int) -> tuple:
     return fir, np.zeros((5, m + 1)), buf, taps.size
 
 
-__all__ = ["WindowEvaluator"]
+__all__ = [
+    "WindowEvaluator",
+    "history_term",
+    "measured_lowpass",
+    "model_residual",
+    "start_run",
+    "tangent_start",
+]

@@ -357,6 +357,11 @@ class F2Objective:
             return None
         return WindowEvaluator(self.kernel, self.target, self.settings)
 
+    @property
+    def evaluator(self):
+        """The window's compiled evaluator (None without one: ``fast`` false or a rest start)."""
+        return self._evaluator
+
     @functools.cached_property
     def _sensitivities(self):
         # the Jacobian's work buffers, built on first use once per window

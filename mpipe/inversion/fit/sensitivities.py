@@ -33,6 +33,7 @@ import numpy as np
 
 from mpipe.core.filters import design_lowpass
 from mpipe.inversion.fit.fastpath import WindowEvaluator
+from mpipe.inversion.fit.input_tangents import InputTangents
 from mpipe.inversion.fit.least_squares import broyden_update, normal_equations
 from mpipe.inversion.fit.objective import ObjectiveSettings, TargetWindow
 from mpipe.reed.bore_kernel import prepare_bore
@@ -123,5 +124,6 @@ def load_compiled() -> None:
     r, jac = np.empty(400), np.empty((400, len(names)))
     ev.residuals_into(reed, r)
     SensitivityEvaluator(ev, names, False).jacobian_into(reed, r, jac)
+    InputTangents(ev, 2).responses(reed, np.zeros((2, 600)), np.zeros((2, 600)))
     normal_equations(jac, r)
     broyden_update(jac.copy(), r, np.ones(len(names)))

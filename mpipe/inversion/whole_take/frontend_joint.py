@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mpipe.inversion.fit.window import window_objective
+from mpipe.inversion.fit.input_tangents import InputTangents
 from mpipe.inversion.pooling.take_system import TakeSystem
 from mpipe.inversion.whole_take import frontend_propagation as fp
 
@@ -188,34 +188,32 @@ def shard_gradients(shard, values: np.ndarray, t: float, a: int, changes: dict) 
     solution (its exact Jacobians there). ``changes``: name -> ``(dp, du)``, the change of
     the take's p (Pa) and u (m^3/s) from sample ``a`` on (over every sample the shard's
     windows and their histories read) when that front-end parameter moves by one SE.
-    ``dr`` is the window's residual on its target so moved less the residual on its own,
-    both at ``values`` on the kernel at the shard's temperature (the Taylor terms in T
-    cancel in the difference); ``J`` the exact Jacobian there with T's column. NaN rows:
-    the model cannot play the moved window.
+    ``dr`` is the window's residual change on its target so moved, to first order, at
+    ``values`` on the kernel at the shard's temperature (the Taylor terms in T do not move
+    with the target), every change in one run
+    (:class:`~mpipe.inversion.fit.input_tangents.InputTangents`; the model run on each
+    moved target gave the same to the change's second order); ``J`` the exact Jacobian
+    there with T's column. NaN rows: the model cannot play the window.
     """
-    out: dict = {name: [] for name in changes}
+    names = list(changes)
+    out: dict = {name: [] for name in names}
     for i, x in enumerate(values):
         x = np.asarray(x, float)
         r0, j0 = shard.at(i, x)
         _, d_t = shard.in_t(i, r0, t)
         j = np.concatenate([j0, d_t[:, None]], axis=1)
-        for name, (dp, du) in changes.items():
-            moved = moved_target(shard.problems[i].target, shard.problems[i].start, a, dp, du)
-            obj = window_objective(shard.objectives[i].kernel, moved, shard.spec.base,
-                                   shard.spec.config, shard.lowpass)  # fmt: skip
-            r = obj.residuals(x)
-            bad = obj.infeasible(r)
-            out[name].append(np.full(j.shape[1], np.nan) if bad else j.T @ (r - r0))
+        q, objective = shard.problems[i], shard.objectives[i]
+        w = slice(q.start - q.target.p_history.size - a, q.start + q.target.p.size - a)
+        dp = np.array([changes[name][0][w] for name in names])
+        du = np.array([changes[name][1][w] for name in names])
+        found = None
+        if names and objective.evaluator is not None:
+            found = InputTangents(objective.evaluator, len(names)).responses(
+                objective.reed(x), dp, du)  # fmt: skip
+        for k, name in enumerate(names):
+            bad = found is None or isinstance(found, str) or not np.all(np.isfinite(found[1][k]))
+            out[name].append(np.full(j.shape[1], np.nan) if bad else found[1][k] @ j)
     return {name: np.array(rows) for name, rows in out.items()}
-
-
-def moved_target(target, start: int, a: int, dp: np.ndarray, du: np.ndarray):
-    """``target`` (its window at ``start``) with ``dp, du`` (from sample ``a`` on) added."""
-    n, h = target.p.size, target.p_history.size
-    w, hist = slice(start - a, start - a + n), slice(start - h - a, start - a)
-    return dataclasses.replace(target, p=target.p + dp[w], u=target.u + du[w],
-                               p_history=target.p_history + dp[hist],
-                               u_history=target.u_history + du[hist])  # fmt: skip
 
 
 def record(shares: FrontendShares, names) -> dict:
@@ -241,7 +239,6 @@ __all__ = [
     "FrontendShares",
     "front_slice",
     "frontend_shares",
-    "moved_target",
     "record",
     "shard_changes",
     "shard_gradients",

@@ -382,7 +382,7 @@ class Shard:
             n_eff = r.size / integrated_autocorrelation(r)
             gram, excess, n_eff, dof, extra = residual_grams(j, r, pw, self.spec.fs, floor,
                                                              n_eff, n_eff - p_loc)  # fmt: skip
-            drawn = None if self.spec.noise is None else drawn_gram(self, i, x, r0, j,
+            drawn = None if self.spec.noise is None else drawn_gram(self, i, x, j,
                                                                      self.spec.noise)  # fmt: skip
             gram = gram if drawn is None else drawn
             f2 = float(np.linalg.norm(r))

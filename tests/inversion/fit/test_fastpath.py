@@ -4,36 +4,16 @@ import dataclasses
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from mpipe.acoustics.reflection import reflection_function
 from mpipe.core.filters import design_lowpass
 from mpipe.inversion.fit.fastpath import WindowEvaluator
 from mpipe.inversion.fit.objective import F2Objective, ObjectiveSettings, TargetWindow
 from mpipe.inversion.settings import PARAMETER_NAMES
-from mpipe.measurement.calibration import load_calibration
-from mpipe.reed.bore_kernel import prepare_bore
 from mpipe.reed.model import ModelState, simulate, simulate_pressure
-from mpipe.reed.parameters import ReedParameters
-
-FS = 100_000.0
-ROOT = Path(__file__).resolve().parents[3]
-TABLE1 = ReedParameters(
-    k=8.66e6, S=7.62e-5, y_m=4e-4, p_m=1800.0, lam=0.013, m=0.05, g=3000.0, k_c=8.23e10
-)
-W0, N = 20000, 2000
-
-
-@pytest.fixture(scope="module")
-def setup():
-    cal = load_calibration(ROOT / "calibration" / "simplified_clarinet.yaml")
-    air = cal.air_properties()
-    kernel = prepare_bore(reflection_function(cal.bore, air, fs=FS), air)
-    sim = simulate(TABLE1, kernel, W0 + N + 500)
-    return kernel, sim
+from tests.inversion.fit.table1 import FS, ROOT, TABLE1, W0, N
 
 
 def _objectives(kernel, sim, zero_mean):
@@ -47,10 +27,10 @@ def _objectives(kernel, sim, zero_mean):
 
 
 @pytest.mark.parametrize("zero_mean", [False, True])
-def test_fast_residuals_match_the_reference(setup, zero_mean):
+def test_fast_residuals_match_the_reference(table1_note, zero_mean):
     # 12 random candidates within +-10 % of Table 1 (several seeds' worth of spread): every
     # residual vector agrees with the plain reference to rounding
-    kernel, sim = setup
+    kernel, sim = table1_note
     fast, ref = _objectives(kernel, sim, zero_mean)
     x0 = np.array([getattr(TABLE1, n) for n in PARAMETER_NAMES])
     rng = np.random.default_rng(7)
@@ -61,8 +41,8 @@ def test_fast_residuals_match_the_reference(setup, zero_mean):
         assert fast(x) == pytest.approx(ref(x), rel=1e-12)
 
 
-def test_fast_path_flags_infeasible_candidates_like_the_reference(setup):
-    kernel, sim = setup
+def test_fast_path_flags_infeasible_candidates_like_the_reference(table1_note):
+    kernel, sim = table1_note
     fast, ref = _objectives(kernel, sim, True)
     x = np.array([getattr(TABLE1, n) for n in PARAMETER_NAMES])
     unstable = x.copy()
@@ -82,9 +62,9 @@ def test_fast_path_flags_infeasible_candidates_like_the_reference(setup):
     assert ev.residuals_into(fast.reed(unstable), out).startswith("unstable")
 
 
-def test_lean_kernel_matches_simulate(setup):
+def test_lean_kernel_matches_simulate(table1_note):
     # from rest and from a history, the pressure-only kernel reproduces simulate's pressure
-    kernel, sim = setup
+    kernel, sim = table1_note
     rest = simulate_pressure(TABLE1, kernel, 5000)
     np.testing.assert_allclose(rest, simulate(TABLE1, kernel, 5000).p, rtol=0, atol=1e-10)
     state = ModelState(sim.p_plus[:W0], sim.y[W0 - 1], sim.y[W0 - 2], TABLE1.p_m - sim.p[W0 - 1])
@@ -139,12 +119,12 @@ def test_numbers_do_not_depend_on_the_numba_cache(tmp_path):
     assert [k for k in fresh.files if not np.array_equal(fresh[k], cached[k])] == []
 
 
-def test_the_history_term_is_the_sum_that_defines_it(setup):
+def test_the_history_term_is_the_sum_that_defines_it(table1_note):
     # q(i) = sum_{j > i} h_j x(i - j): the circular convolution of history_term against
     # the sum written out, for a run shorter and one longer than the kernel
     from mpipe.inversion.fit.fastpath import history_term
 
-    kernel, _ = setup
+    kernel, _ = table1_note
     h = np.asarray(kernel.h, float)
     x = np.random.default_rng(3).standard_normal(kernel.n_taps - 1)  # x(-len) .. x(-1)
     for n in (700, kernel.n_taps + 50):

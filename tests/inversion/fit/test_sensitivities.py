@@ -1,33 +1,12 @@
 """The Jacobian of F2's residuals from the model's sensitivities, against differences."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-from mpipe.acoustics.reflection import reflection_function
 from mpipe.core.filters import design_lowpass
 from mpipe.inversion.fit.objective import F2Objective, ObjectiveSettings, TargetWindow
 from mpipe.inversion.settings import PARAMETER_NAMES
-from mpipe.measurement.calibration import load_calibration
-from mpipe.reed.bore_kernel import prepare_bore
-from mpipe.reed.model import simulate
-from mpipe.reed.parameters import ReedParameters
-
-FS = 100_000.0
-ROOT = Path(__file__).resolve().parents[3]
-TABLE1 = ReedParameters(
-    k=8.66e6, S=7.62e-5, y_m=4e-4, p_m=1800.0, lam=0.013, m=0.05, g=3000.0, k_c=8.23e10
-)
-W0, N = 20000, 2000
-
-
-@pytest.fixture(scope="module")
-def setup():
-    cal = load_calibration(ROOT / "calibration" / "simplified_clarinet.yaml")
-    air = cal.air_properties()
-    kernel = prepare_bore(reflection_function(cal.bore, air, fs=FS), air)
-    return kernel, simulate(TABLE1, kernel, W0 + N + 500)
+from tests.inversion.fit.table1 import FS, TABLE1, W0, N
 
 
 def _objective(kernel, sim, zero_mean, closure):
@@ -41,11 +20,11 @@ def _objective(kernel, sim, zero_mean, closure):
 
 @pytest.mark.parametrize("zero_mean", [False, True])
 @pytest.mark.parametrize("closure", [False, True])
-def test_jacobian_matches_central_differences(setup, zero_mean, closure):
+def test_jacobian_matches_central_differences(table1_note, zero_mean, closure):
     # 3 candidates within +-5 % of Table 1 per case: every column of the Jacobian agrees
     # with central differences of the residuals to 1e-4 relative (observed 2e-9..2e-6; the
     # differences' own error is ~1e-7), and its residuals are the residuals' bit for bit
-    kernel, sim = setup
+    kernel, sim = table1_note
     obj = _objective(kernel, sim, zero_mean, closure)
     assert obj.has_jacobian
     x0 = np.array([getattr(TABLE1, n) for n in PARAMETER_NAMES])
@@ -64,9 +43,9 @@ def test_jacobian_matches_central_differences(setup, zero_mean, closure):
             assert err < 1e-4, (PARAMETER_NAMES[j], err)
 
 
-def test_no_jacobian_for_an_infeasible_candidate(setup):
+def test_no_jacobian_for_an_infeasible_candidate(table1_note):
     # an unstable reed (T above 2 sqrt(m/k)) has no Jacobian; the search then falls back
-    kernel, sim = setup
+    kernel, sim = table1_note
     obj = _objective(kernel, sim, True, False)
     x = np.array([getattr(TABLE1, n) for n in PARAMETER_NAMES])
     x[PARAMETER_NAMES.index("m")] = 1e-6

@@ -39,6 +39,25 @@ def test_draws_have_the_spectra_and_the_cross_spectrum_they_are_drawn_from():
     assert MouthpieceNoise.of({"p_noise_psd": s_pp}) is None  # a file without them
 
 
+def test_a_band_limited_noise_keeps_its_spectrum_and_nothing_above():
+    # the mouthpiece noise ends where the translation's low-pass does: the draws (only of
+    # the bins below) have its spectrum there within 10 % (400 averages) and no power
+    # above it (a millionth of the band's, the periodogram's leakage)
+    fs, n = 100_000.0, 4096
+    f = np.linspace(0.0, fs / 2, 1001)
+    s_pp = np.where(f < 8000.0, 1e-4, 0.0)
+    s_uu = np.where(f < 8000.0, 1e-12, 0.0)
+    noise = MouthpieceNoise(f, s_pp, s_uu, np.zeros(f.size, complex))
+    p, u = noise.draw(n, fs, np.random.default_rng(4), 400)
+    grid = np.fft.rfftfreq(n, 1 / fs)
+    for x, s in ((p, 1e-4), (u, 1e-12)):
+        est = np.mean(np.abs(np.fft.rfft(x * np.hanning(n), axis=1)) ** 2, axis=0)
+        est *= 2 / (fs * np.sum(np.hanning(n) ** 2))
+        band, above = (grid > 500) & (grid < 7000), grid > 9000
+        assert np.median(np.abs(est[band] / s - 1)) < 0.1
+        assert np.max(est[above]) < 1e-6 * s
+
+
 @pytest.fixture(scope="module")
 def refits(short_take, short_fit):
     """The short take's fit, and five fits of it with more of the front end's noise added."""
