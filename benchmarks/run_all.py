@@ -50,7 +50,6 @@ QUICK_ARGS = {
     "bench_openwind": ["--duration", "1"],
     "bench_foreign": ["--quick"],
     "bench_note_coverage": [],
-    "bench_frontend_propagation": ["--duration", "1"],
     "bench_memory": ["--durations", "20", "--folder", "benchmarks/.cache/memory"],
     "bench_verdicts": ["--quick", "--rates", "default", "--snrs", "45"],
     "bench_segments": ["--seeds", "0"],

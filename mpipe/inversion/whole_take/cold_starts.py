@@ -66,18 +66,16 @@ def same_basin(a: ReedParameters, b: ReedParameters, config) -> bool:
 
 
 def cold_fit(p, u, fs: float, source: KernelSource, start: int, fingering: str, t: float,
-             config, zero_mean: bool, warm: ReedParameters | None = None):  # fmt: skip
+             config, zero_mean: bool):  # fmt: skip
     """One window's own fit: the per-window fit's global search of every parameter.
 
     On fingering ``fingering``'s bore at ``t`` degC, without standard errors. The take's
     cold starts and the contact law's choice (:mod:`mpipe.inversion.whole_take.contact_law`)
-    are made by it; with ``warm``, one local search from that reed instead (the front end's
-    reference re-fits, :func:`mpipe.inversion.whole_take.shared_errors.frontend_refit`).
-    Returns the window's ``WindowOutcome``.
+    are made by it. Returns the window's ``WindowOutcome``.
     """
     kernel, air = source.named(t, fingering)
     return invert_window(p, u, fs, start, kernel, air.rho, config, zero_mean=zero_mean,
-                         warm=warm, errors=False)  # fmt: skip
+                         errors=False)  # fmt: skip
 
 
 def cold_start(data: TakeData, source, problems, steady, t, window: int):

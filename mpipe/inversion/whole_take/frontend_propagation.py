@@ -20,15 +20,15 @@ answer are linear to first order, and both are taken only where a window reads t
    target's own history, so ``J`` moves with the signals too). One model run per
    perturbation and ``k`` for ``H``, instead of a warm re-fit per perturbation.
 
-The kernel temperature, fitted to the take, absorbs part of a front-end error; it is
-re-fitted here too, linearly: one more coordinate ``t`` of each window's normal
-equations (central differences over :data:`KERNEL_STEP_C`), shared by the windows and
-eliminated by the Schur complement of their own parameters, its shift kept within two
-steps, as the parabola of the re-fit method it replaces kept its vertex. ``d ln q`` per
-SE is the median over the windows.
-
-The re-fit method (:func:`mpipe.inversion.whole_take.shared_errors.frontend_refit`) stays as
-the reference; ``tests/inversion/whole_take/test_frontend_propagation.py`` compares them.
+A kernel temperature fitted to the take would absorb part of a front-end error; given the
+kernels at ``-/+`` :data:`KERNEL_STEP_C` it is re-fitted here too, linearly: one more
+coordinate ``t`` of each window's normal equations (central differences), shared by the
+windows and eliminated by the Schur complement of their own parameters, its shift kept
+within two steps. The per-window estimator's budget
+(:func:`mpipe.inversion.whole_take.shared_errors.frontend_linear`) holds the kernel at the
+front end's temperature; the take's joint fit takes only the signals' changes from here
+(:func:`span_changes`, :mod:`mpipe.inversion.whole_take.frontend_joint`). ``d ln q`` per SE
+is the median over the windows.
 """
 
 from __future__ import annotations

@@ -18,10 +18,10 @@ window as ``<q>_se_<component>`` (same unit as q) for every parameter and combin
   linearly on the windows' own spans (:func:`frontend_linear`,
   :mod:`mpipe.inversion.whole_take.frontend_propagation`): the change of p, u over a few ok
   windows' spans for theta moved by one SE, and the shift of each window's minimum by
-  the implicit function theorem, the kernel temperature re-fitted through its shared row.
-  ``d ln q`` per SE, median over the windows, added in quadrature over theta. The
-  re-separation of the whole take with warm re-fits (:func:`frontend_refit`) is the
-  reference it was checked against.
+  the implicit function theorem, on the kernel at the front end's temperature.
+  ``d ln q`` per SE, median over the windows, added in quadrature over theta. (The take's
+  joint fit carries the front end's share through its own system instead,
+  :mod:`mpipe.inversion.whole_take.frontend_joint`.)
 """
 
 from __future__ import annotations
@@ -38,14 +38,11 @@ import pandas as pd
 from mpipe.inversion.preparation.kernel import KernelSource
 from mpipe.inversion.preparation.segments import pick_windows
 from mpipe.inversion.settings import PARAMETER_NAMES, InversionConfig
-from mpipe.inversion.trust.combinations import COMBINATION_NAMES, combination_values
+from mpipe.inversion.trust.combinations import COMBINATION_NAMES
 from mpipe.inversion.trust.uncertainty import SE_PARAMETERS
 from mpipe.inversion.whole_take import frontend_propagation as fp
-from mpipe.inversion.whole_take.cold_starts import cold_fit
 from mpipe.inversion.whole_take.front_end import FrontEnd
 from mpipe.measurement.calibration import Calibration
-from mpipe.measurement.separation.perturbation import reseparate
-from mpipe.measurement.translation import translate
 from mpipe.reed.parameters import ReedParameters
 
 logger = logging.getLogger(__name__)
@@ -65,8 +62,6 @@ ASSUMED_SENSITIVITY_SE_DB = 0.15
 FRONTEND_NAMES = fp.FRONTEND_NAMES
 #: Ok windows the front end's sensitivity is measured on.
 FRONTEND_WINDOWS = 6
-#: Half-spacing of the kernel temperatures of the re-fit, degC (the linear propagation's).
-KERNEL_STEP_C = fp.KERNEL_STEP_C
 
 
 def sensitivity_se_db(calibration: Calibration) -> tuple[float, str]:
@@ -124,103 +119,6 @@ class _Refit:
         return KernelSource(self.calibration, self.fs, built=self.kernels).named(t, name)
 
 
-def _logs(refit: _Refit, p, u, t: float) -> tuple[float, np.ndarray]:
-    """``R`` (Pa^2) and ``ln q`` (windows x quantities) of the windows re-fitted at ``t`` degC."""
-    total, logs = 0.0, []
-    names = list(refit.names) or [""] * len(refit.starts)
-    source = KernelSource(refit.calibration, refit.fs, built=refit.kernels)  # the same kernels
-    for start, warm, name in zip(refit.starts, refit.warm, names, strict=True):
-        kernel, air = refit.kernel(t, name)
-        # the re-fit's estimate and F2 only (no standard errors)
-        out = cold_fit(p, u, refit.fs, source, start, name, t, refit.config, refit.zero_mean,
-                       warm)  # fmt: skip
-        if out.reed is None or not math.isfinite(out.row["f2"]):
-            # this window's re-fit failed: its row is NaN (left out of the median over
-            # windows, never a zero change) and the summed residual has no minimum
-            total = math.nan
-            logs.append(np.full(len(QUANTITIES), np.nan))
-            continue
-        total += float(out.row["f2"]) ** 2
-        values = {k: float(getattr(out.reed, k)) for k in (*PARAMETER_NAMES, "y_c")}
-        values.update(combination_values(values, kernel.z0, air.rho))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            logs.append(np.log([values.get(q, math.nan) for q in QUANTITIES]))
-    return total, np.array(logs)
-
-
-def _at_kernel_minimum(refit: _Refit, p, u, t0: float, refit_kernel: bool) -> np.ndarray:
-    """``ln q`` per window where the kernel temperature fits these signals best.
-
-    Three kernels ``t0 + (-h, 0, h)``; the windows' ``ln q`` is interpolated (parabola) at
-    the vertex of the summed residual, kept within ``2 h`` of ``t0``. Without
-    ``refit_kernel``, or without a minimum, at ``t0``.
-    """
-    if not refit_kernel:
-        return _logs(refit, p, u, t0)[1]
-    ts = (t0 - KERNEL_STEP_C, t0, t0 + KERNEL_STEP_C)
-    runs = [_logs(refit, p, u, t) for t in ts]
-    r = np.array([x[0] for x in runs])
-    logs = np.stack([x[1] for x in runs])  # (3, windows, quantities)
-    d = 0.0
-    a = r[0] + r[2] - 2 * r[1]
-    if np.all(np.isfinite(r)) and a > 0:
-        d = float(np.clip(0.5 * (r[0] - r[2]) / a, -2.0, 2.0))  # vertex, in steps of h
-    # Lagrange weights of the three points at offset d (in units of h)
-    w = np.array([0.5 * d * (d - 1), 1 - d * d, 0.5 * d * (d + 1)])
-    return np.tensordot(w, logs, axes=1)
-
-
-def frontend_refit(
-    p: np.ndarray,
-    u: np.ndarray,
-    calibration: Calibration,
-    front: FrontEnd,
-    refit: _Refit,
-    *,
-    kernel_c: float,
-    refit_kernel: bool,
-) -> dict[str, np.ndarray]:
-    """``d ln q`` per SE of each front-end parameter by re-separation and warm re-fits.
-
-    The reference method (slow: the whole take re-separated and re-translated for each
-    parameter, every window re-fitted at three kernel temperatures each time); the budget
-    uses :func:`frontend_linear`, which agrees with it (the tests compare them).
-
-    Returns
-    -------
-    dict
-        Front-end parameter name -> array over :data:`QUANTITIES` (only the parameters with
-        a positive, finite SE).
-    """
-    fs = refit.fs
-    base_p, base_u = _translated(front.p0, front.u0, fs, calibration, front, 0.0)
-    base = _at_kernel_minimum(refit, p, u, kernel_c, refit_kernel)
-    out = {}
-    for j, name in enumerate(FRONTEND_NAMES):
-        se = float(front.level_se[j])
-        if not (math.isfinite(se) and se > 0):
-            continue
-        moved = np.array(front.level, dtype=float)
-        moved[j] += se
-        p0, u0 = reseparate(front.p0, front.u0, fs, calibration, front.level, moved,
-                            front.band_hz)  # fmt: skip
-        dt = se if name == "temperature" else 0.0
-        tp, tu = _translated(p0, u0, fs, calibration, front, dt)
-        logs = _at_kernel_minimum(refit, p + tp - base_p, u + tu - base_u, kernel_c, refit_kernel)
-        out[name] = _median_over_windows(logs - base)
-    return out
-
-
-def _median_over_windows(d: np.ndarray) -> np.ndarray:
-    """Median over the windows (rows) of their finite changes; NaN where none is finite."""
-    out = np.full(d.shape[1], np.nan)
-    for j in range(d.shape[1]):
-        col = d[:, j][np.isfinite(d[:, j])]
-        if col.size:
-            out[j] = float(np.median(col))
-    return out
-
-
 def frontend_linear(
     p,
     u,
@@ -229,75 +127,52 @@ def frontend_linear(
     refit: _Refit,
     *,
     kernel_c: float,
-    refit_kernel: bool,
-    kernel_shifts: dict | None = None,
 ) -> dict[str, np.ndarray]:
     """``d ln q`` per SE of each front-end parameter, propagated linearly on the windows' spans.
 
     :mod:`mpipe.inversion.whole_take.frontend_propagation`: dp, du over each window's span,
-    one Jacobian and one residual per perturbation per window, the kernel temperature
-    re-fitted through its shared column. Reads p, u, p0, u0 around the windows only.
-
-    ``kernel_shifts``, when given, receives the kernel temperature's shift (degC) per SE of
-    each front-end parameter (``refit_kernel``): the front end's share of the take's
-    temperature.
+    one Jacobian and one residual per perturbation per window, on the kernel at
+    ``kernel_c`` degC (held: the per-window fit's temperature is the front end's). Reads p,
+    u, p0, u0 around the windows only.
 
     Returns
     -------
     dict
-        As :func:`frontend_refit`.
+        Front-end parameter name -> array over :data:`QUANTITIES` (only the parameters with
+        a positive, finite SE).
     """
     fs, config = refit.fs, refit.config
     spans = fp.Spans.of(front, calibration, fs)
     n = int(round(config.window_s * fs))
     lead = int(round(config.lead_s * fs))
     names = list(refit.names) or [""] * len(refit.starts)
-    offsets = (-fp.KERNEL_STEP_C, 0.0, fp.KERNEL_STEP_C) if refit_kernel else (0.0,)
     windows, airs = [], []
     for start, warm, name in zip(refit.starts, refit.warm, names, strict=True):
-        built = {dt: refit.kernel(kernel_c + dt, name) for dt in offsets}
-        keep = max(max(k.n_taps for k, _ in built.values()), lead, 2, n)
+        kernel, air = refit.kernel(kernel_c, name)
+        keep = max(kernel.n_taps, lead, 2, n)
         a, b = max(start - keep, 0), start + n
         changes = fp.span_changes(front, calibration, fs, spans, a, b)
         lin = fp.linearise(
             np.asarray(p[a:b], dtype=float), np.asarray(u[a:b], dtype=float), fs, start, warm,
-            lambda dt, built=built: built[dt][0] if dt in built else None, config, changes,
+            lambda dt, kernel=kernel: kernel if dt == 0.0 else None, config, changes,
             zero_mean=refit.zero_mean, span_start=a,
         )  # fmt: skip
         if lin is not None:
             windows.append(lin)
-            airs.append({dt: (k.z0, air.rho) for dt, (k, air) in built.items()})
+            airs.append((kernel.z0, air.rho))
     out = {}
     closure = config.law == "closure"
     for j, name in enumerate(FRONTEND_NAMES):
         se = float(front.level_se[j])
         if not (math.isfinite(se) and se > 0) or not windows:
             continue
-        dlnx, dt = fp.shifts(windows, name, len(config.search_parameters))
-        if kernel_shifts is not None and refit_kernel:
-            kernel_shifts[name] = float(dt)
+        dlnx, _ = fp.shifts(windows, name, len(config.search_parameters))
         logs = [
-            fp.log_changes(w, d, config.search_parameters, (z[0.0], _between(z, dt)), closure)
+            fp.log_changes(w, d, config.search_parameters, (z, z), closure)
             for w, d, z in zip(windows, dlnx, airs, strict=True)
         ]
         out[name] = np.nanmedian(np.array(logs), axis=0)
     return out
-
-
-def _between(z: dict, dt: float) -> tuple[float, float]:
-    """``(z0, rho)`` at the kernel temperature moved by ``dt`` degC, linear in ``dt``."""
-    if dt == 0.0 or len(z) < 3:
-        return z[0.0]
-    h = fp.KERNEL_STEP_C
-    lo, hi = z[-h], z[h]
-    return tuple(c + dt * (b - a) / (2 * h) for c, a, b in zip(z[0.0], lo, hi, strict=True))
-
-
-def _translated(p0, u0, fs, calibration, front: FrontEnd, dt: float):
-    temps = np.asarray(front.temperature_c, dtype=float) + dt
-    # quiet: the separation stage said the translation once; this repeats it per quantity
-    tr = translate(p0, u0, fs, calibration, front.translation, temps, quiet=True)
-    return tr.p, tr.u
 
 
 def frontend_columns(
@@ -340,7 +215,6 @@ def shared_components(
     *,
     zero_mean: bool,
     kernel_c: float,
-    refit_kernel: bool,
     front: FrontEnd | None = None,
 ) -> tuple[pd.DataFrame, dict]:
     """The windows table with the calibration's and (with ``front``) the front end's columns.
@@ -364,8 +238,6 @@ def shared_components(
         The flow is zero-mean.
     kernel_c : float
         The kernel temperature, degC.
-    refit_kernel : bool
-        The kernel temperature was fitted: re-fit it on the perturbed signals too.
     front : FrontEnd, optional
         The front end's estimate; None: no ``frontend`` component (absent).
 
@@ -390,11 +262,7 @@ def shared_components(
     names = [str(r.get("fingering", "") or "") for r in rows]
     refit = _Refit(fs, calibration, config, zero_mean, starts, [_reed(r) for r in rows],
                    names=names)  # fmt: skip
-    kernel_shifts: dict = {}
-    sens = frontend_linear(p, u, calibration, front, refit, kernel_c=kernel_c,
-                           refit_kernel=refit_kernel, kernel_shifts=kernel_shifts)  # fmt: skip
-    if kernel_shifts:
-        record["frontend_kernel_shift_c"] = kernel_shifts
+    sens = frontend_linear(p, u, calibration, front, refit, kernel_c=kernel_c)
     failed = failed_refits(sens)
     if failed:
         logger.warning("front-end component not measured: the propagation of %s failed (NaN)",
@@ -414,14 +282,12 @@ __all__ = [
     "ASSUMED_SENSITIVITY_SE_DB",
     "FRONTEND_NAMES",
     "FRONTEND_WINDOWS",
-    "KERNEL_STEP_C",
     "QUANTITIES",
     "SCALE_EXPONENTS",
     "calibration_columns",
     "failed_refits",
     "frontend_columns",
     "frontend_linear",
-    "frontend_refit",
     "sensitivity_se_db",
     "shared_components",
 ]

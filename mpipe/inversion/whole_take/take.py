@@ -215,7 +215,7 @@ def _invert(data: TakeData, executor, front, carried, front_end, extra_checks, o
                                 kernel_temperature_se_c=math.nan)  # fmt: skip
     table, shared = shared_components(
         p, u, fs, table, calibration, config, zero_mean=zero_mean, kernel_c=fit.temperature_c,
-        refit_kernel=False, front=front_end,
+        front=front_end,
     )  # fmt: skip
     table = rate_errors(table, fs)  # the model's discretisation at fs
     table = combine(table, config.determined_limit)
@@ -246,7 +246,7 @@ def _invert_jointly(data, front, carried, front_end, extra_checks, run) -> TakeI
     # the calibration's share; the front end's came with the fit (its rows' frontend columns)
     table, shared = shared_components(
         p, u, fs, joint.tracking.table, calibration, config, zero_mean=zero_mean,
-        kernel_c=fit.temperature_c, refit_kernel=False, front=None,
+        kernel_c=fit.temperature_c, front=None,
     )  # fmt: skip
     shared.update(joint.shared)
     table["kernel_temperature_se_c"] = fit.se_c

@@ -10,11 +10,18 @@ import pytest
 
 from mpipe.inversion.whole_take import frontend_propagation as fp
 from mpipe.inversion.whole_take.estimator import TakeData
-from mpipe.inversion.whole_take.shared_errors import _translated
 from mpipe.inversion.whole_take.take_fit import fit_take
 from mpipe.inversion.whole_take.take_rows import take_covariances, window_rows
 from mpipe.inversion.whole_take.tracking import WindowPlan
 from mpipe.measurement.separation.perturbation import reseparate
+from mpipe.measurement.translation import translate
+
+
+def _translated(p0, u0, fs, cal, front, dt):
+    """The reference signals translated to the mouthpiece at the front end's T + dt degC."""
+    temps = np.asarray(front.temperature_c, dtype=float) + dt
+    tr = translate(p0, u0, fs, cal, front.translation, temps, quiet=True)
+    return tr.p, tr.u
 
 
 @pytest.fixture(scope="module")

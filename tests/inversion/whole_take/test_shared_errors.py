@@ -75,7 +75,7 @@ def test_an_unstated_calibration_stays_out_of_the_error_bars(shipped_calibration
                           "status": ["ok"]})  # fmt: skip
     out, record = shared_components(
         np.zeros(10), np.zeros(10), 1e5, table, shipped_calibration, InversionConfig(),
-        zero_mean=False, kernel_c=20.0, refit_kernel=False,
+        zero_mean=False, kernel_c=20.0,
     )  # fmt: skip
     assert "p_m_se_calibration" not in out
     assert out["p_m_se_scale"].iloc[0] == pytest.approx(1800.0 * math.log(10) / 20 * 0.15)
@@ -89,7 +89,7 @@ def test_an_unstated_calibration_stays_out_of_the_error_bars(shipped_calibration
     )  # fmt: skip
     out, record = shared_components(
         np.zeros(10), np.zeros(10), 1e5, table, stated, InversionConfig(),
-        zero_mean=False, kernel_c=20.0, refit_kernel=False,
+        zero_mean=False, kernel_c=20.0,
     )  # fmt: skip
     rel = math.log(10) / 20 * 0.05
     assert "p_m_se_scale" not in out and record["sensitivity_se_db"] == 0.05
