@@ -109,6 +109,7 @@ def _uncertainty_columns() -> list[Column]:
         _col("dof", FLOAT, "those left to measure the noise (NaN: no standard errors)"),
         _col("noise_residual", FLOAT, "relative residual the noise alone would leave"),
         _col("model_residual", FLOAT, "relative residual at the harmonics beyond the noise"),
+        _col("drawn_noise_residual", FLOAT, "relative residual the front end's noise makes"),
         _col("uncertainty_note", TEXT, "what is fixed, undetermined or not valid, and why"),
     ]
 

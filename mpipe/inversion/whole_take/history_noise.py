@@ -58,8 +58,11 @@ def reach(taps: np.ndarray, floor: int) -> int:
 
 
 def drawn_gram(shard, i: int, x: np.ndarray, j: np.ndarray, noise,
-               draws: int = DRAWS) -> np.ndarray | None:  # fmt: skip
+               draws: int = DRAWS) -> tuple[np.ndarray, float] | None:  # fmt: skip
     """Window i's meat ``mean(g g^T)`` over ``draws`` realisations of the noise (Pa^2 ...).
+
+    And the residual's sum of squares the noise makes there, for the window's goodness of
+    fit against independent evidence of its noise (``drawn_noise_residual``).
 
     Parameters
     ----------
@@ -78,8 +81,10 @@ def drawn_gram(shard, i: int, x: np.ndarray, j: np.ndarray, noise,
 
     Returns
     -------
-    ndarray or None
-        (L, L); None when the model cannot be played at ``x`` or a response is not finite.
+    (ndarray, float) or None
+        The meat (L, L), and ``mean ||dr||^2`` (Pa^2), the residual's sum of squares the
+        noise alone would make at the solution; None when the model cannot be played at
+        ``x`` or a response is not finite.
     """
     q = shard.problems[i]
     target, fs = q.target, shard.spec.fs
@@ -100,7 +105,7 @@ def drawn_gram(shard, i: int, x: np.ndarray, j: np.ndarray, noise,
     if isinstance(out, str) or not np.all(np.isfinite(out[1])):
         return None
     g = out[1] @ j
-    return g.T @ g / draws
+    return g.T @ g / draws, float(np.mean(np.sum(out[1] ** 2, axis=1)))
 
 
 __all__ = ["DRAWS", "REACH", "SEED", "drawn_gram", "reach"]

@@ -127,6 +127,7 @@ def window_rows(fit: TakeFit, base: ReedParameters, config: InversionConfig, fs:
             for name in QUANTITIES:
                 row[component_column(name, "frontend")] = by_f[component_column(name, "noise")]
         row["kernel_temperature_c"], row["kernel_temperature_se_c"] = fit.temperature_c, t_se
+        row["drawn_noise_residual"] = figures[i].get("drawn_noise_residual", math.nan)
         row["pooled"] = ";".join(fit.names[fit.sizes.fast :])  # shared by the note's windows
         row["informs_note"] = bool(q.informs)  # False: fitted given them (two stages)
         row["status"], row["status_reason"] = window_status(row, required_quantities(config))

@@ -384,9 +384,11 @@ class Shard:
                                                              n_eff, n_eff - p_loc)  # fmt: skip
             drawn = None if self.spec.noise is None else drawn_gram(self, i, x, j,
                                                                      self.spec.noise)  # fmt: skip
-            gram = gram if drawn is None else drawn
+            norm_p = float(np.linalg.norm(pw)) + 1e-300
+            if drawn is not None:
+                gram, extra["drawn_noise_residual"] = drawn[0], math.sqrt(drawn[1]) / norm_p
             f2 = float(np.linalg.norm(r))
-            rel = f2 / (float(np.linalg.norm(pw)) + 1e-300)
+            rel = f2 / norm_p
             played = playing_difference(pw, pw - r, self.spec.fs)
             out.append(dict(gram=gram, excess=excess, n_eff=n_eff, dof=dof, tau=r.size / n_eff,
                             runs=self.runs[i],
