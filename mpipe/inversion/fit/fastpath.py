@@ -264,9 +264,11 @@ def _evaluate(out_r, win, lp, buffers, cand, jac):
       the mouth-pressure series and the lead-in's scratch;
     * ``cand`` = (model, k, S, p_m): the kernel's ``model`` record of the candidate and
       the parameters the lead-in reads (SI units);
-    * ``jac``: None, or (d, out_j, tw, xt, dp_mod, ctx0, col, conv_t) to also write the
-      Jacobian ``out_j`` (n, P) from the forward sensitivities (seed matrix ``d``,
-      :mod:`mpipe.inversion.fit.sensitivities`); written only when the status is OK.
+    * ``jac``: None, or (d, out_j, tw, xt, dp_mod, ctx0, col, conv_t, still, q_t) to also
+      write the Jacobian ``out_j`` (n, P) from the forward sensitivities (seed matrix
+      ``d``, :mod:`mpipe.inversion.fit.sensitivities`; ``still`` zeros for the measured
+      lead-in, ``q_t`` the history term's tangent, zeroed here); written only when the
+      status is OK.
     """
     x, n0, conv, q_ext, p_mod, pm, work = buffers
     state = start_run(win, buffers, cand)
@@ -274,10 +276,10 @@ def _evaluate(out_r, win, lp, buffers, cand, jac):
     if jac is None:
         run(x, n0, cand[0], conv, state, pm, q_ext, p_mod, None, None)
         return model_residual(out_r, p_mod, win, lp)
-    n_par, n_lead = jac[0].shape[1], win[2].size
-    still = np.zeros((n_par, n_lead))  # the measured signals do not move with theta
-    tan = (jac[0], jac[2], jac[3], jac[4], jac[7], still, still, np.zeros((n_par, win[7].size)))
-    tangent = tangent_start(tan, ylead, win, cand)
+    still, q_t = jac[8], jac[9]  # the measured signals do not move with theta
+    q_t.fill(0.0)
+    tangent = tangent_start((jac[0], jac[2], jac[3], jac[4], jac[7], still, still, q_t), ylead,
+                            win, cand)  # fmt: skip
     run(x, n0, cand[0], conv, state, pm, q_ext, p_mod, None, tangent)
     code = model_residual(out_r, p_mod, win, lp)
     if code != OK:

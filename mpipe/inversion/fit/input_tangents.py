@@ -14,8 +14,10 @@ where ``dq`` is the change of the history term (the history's share convolved, t
 lead-in's and the missing flow's tangents) and ``T`` the model's tangent along the
 window: the same compiled kernel (:func:`mpipe.reed.kernels.run`) with one tangent column
 per change, its seed zero (no reed parameter moves) and its history term's tangent given.
-K changes cost one model run with K tangent columns (about a quarter of a run each)
-instead of K runs of the model on K moved targets, each with its own history convolved.
+K changes cost one model run with K tangent columns instead of K runs of the model on K
+moved targets, each with its own history convolved (on the 4 s tone of `mpipe run`, 2
+workers, the shards' final figures with the 16 draws a window took 2.12 s against 3.06 s,
+``mpipe -v run``'s "take fit's shards" line).
 
 The tests compare it with those runs (finite differences of the model on moved targets:
 tests/inversion/fit/test_input_tangents.py).

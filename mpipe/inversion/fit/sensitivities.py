@@ -66,11 +66,14 @@ class SensitivityEvaluator:
         x, _, conv, _, p_mod, _, work = evaluator.buffers
         n = evaluator.target_p.size
         # the tangents' buffers: the lead-in's, p+'s (zero history), the model pressure's,
-        # the low-pass's (zero context: the measured context does not depend on theta)
+        # the low-pass's (zero context: the measured context does not depend on theta),
+        # the measured lead-in's change (zero: it does not either) and the history term's
+        # tangent (zeroed by each run)
         self.buffers = (
             np.zeros((n_par, work.shape[1])), np.zeros((n_par, x.size)),
             np.empty((n_par, p_mod.size)), np.zeros(evaluator.win[5].size),
             np.empty(max(n, p_mod.size)), tangent_lines(conv, n_par),
+            np.zeros((n_par, evaluator.win[2].size)), np.zeros((n_par, p_mod.size)),
         )  # fmt: skip
 
     def jacobian_into(self, reed: ReedParameters, out_r: np.ndarray, out_j: np.ndarray) -> str:
@@ -93,8 +96,7 @@ class SensitivityEvaluator:
             :meth:`WindowEvaluator.residuals_into`).
         """
         d = coefficient_derivatives(reed, self.ev.fs, self.names, self.contact_at_closure)
-        tw, xt, dp_mod, ctx0, col, conv_t = self.buffers
-        return self.ev.evaluate_into(reed, out_r, (d, out_j, tw, xt, dp_mod, ctx0, col, conv_t))
+        return self.ev.evaluate_into(reed, out_r, (d, out_j, *self.buffers))
 
 
 __all__ = ["SensitivityEvaluator"]

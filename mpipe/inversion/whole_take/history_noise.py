@@ -19,12 +19,13 @@ coherent at low frequency). :data:`DRAWS` realisations over each window and its 
 give ``B_i = mean(g g^T)`` with ``g = J_i^T dr`` and ``dr`` the residual's response to the
 realisation at the fit's solution, to first order (errors in variables): all of them in one
 model run with a tangent column each (:class:`mpipe.inversion.fit.input_tangents
-.InputTangents`; the model run on each moved target, as before, gave the same grams to the
-noise's second order at three times the cost). Each window's draws are its own (seeded by
-its first sample, so the answer does not depend on the sharding): the correlation between
-neighbouring windows' scores, which share samples through the history, is left out (it
-lowered the temperature's noise variance by about 20 % on those takes: the bars err wide by
-~10 %).
+.InputTangents`; the model run on each moved target, as before, gives the same grams to
+the noise's second order: the 9 takes of benchmarks.md's "the meat and the front end's
+shifts by tangents" kept their estimates and moved RMS z by at most 0.05). Each window's
+draws are its own (seeded by its first sample, so the answer does not depend on the
+sharding): the correlation between neighbouring windows' scores, which share samples
+through the history, is left out (it lowered the temperature's noise variance by about
+20 % on those takes: the bars err wide by ~10 %).
 """
 
 from __future__ import annotations
