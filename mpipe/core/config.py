@@ -228,12 +228,12 @@ def build(cls: type, data: Any, where: Where):
     gone = [k for k in unknown if k in removed]
     if len(gone) == 1:
         why = removed[gone[0]]
-        raise where.error(str(gone[0]), f"removed in issue 23's clean-up: {why}; delete this key")
+        raise where.error(str(gone[0]), f"removed from mpipe: {why}; delete this key")
     if gone:
         # an earlier mpipe's full pipeline file holds several: name them all at once
         raise where.error(
             None,
-            f"{', '.join(map(str, gone))}: removed in issue 23's clean-up; delete these keys "
+            f"{', '.join(map(str, gone))}: removed from mpipe; delete these keys "
             "(what became of each: docs/settings.md, Removed settings)",
         )
     if unknown:
@@ -254,7 +254,7 @@ def build(cls: type, data: Any, where: Where):
         retired = getattr(cls, "removed_choices", {}).get(name, {})
         if isinstance(data[name], str) and data[name] in retired:
             why = retired[data[name]]
-            raise child.error(None, f"{data[name]!r} was removed in issue 23's clean-up: {why}")
+            raise child.error(None, f"{data[name]!r} was removed from mpipe: {why}")
         value = _convert(hints[name], data[name], child)
         check = f.metadata.get("check")
         if check is not None and value is not None:

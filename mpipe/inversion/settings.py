@@ -148,6 +148,10 @@ REMOVED_KEYS = {
     "(inversion.estimator: take, the default; docs/estimator.md)",
     "pooling_stretch_s": "it belonged to pooling, which is gone: the take's one fit "
     "(inversion.estimator: take) shares each note's reed constants over the note",
+    # issue 45: one start per window, no cold retries after it
+    "retry_cold": "a window is fitted once, from the take's cold start (estimator: take) "
+    "or its note's (estimator: window); one that is not ok is reported so, not re-fitted "
+    "from a cold start of its own",
     # issue 45: one estimate of the temperature, the take's fit's
     "temperature": "the take's one fit (inversion.estimator: take) estimates the bore's "
     "temperature with the reed; estimator: window inverts at the front end's estimate",
@@ -325,12 +329,6 @@ class InversionConfig:
         "every window's eight parameters fitted on its own at the front end's temperature "
         "(the paper's method, the reference)",
         default="take",
-    )
-    retry_cold: bool = spec(
-        "",
-        "give a window that is not ok after its warm start a cold start of its own (kept "
-        "when its F2 is lower)",
-        default=True,
     )
     initial_step: float = spec(
         "",

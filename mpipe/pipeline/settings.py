@@ -253,8 +253,9 @@ def _removed_markdown() -> list[str]:
 
 
 REMOVED_NOTE = (
-    "Issue 23's clean-up (one model, one cold start, one search beside the paper's) removed "
-    "these keys and choices. A pipeline file written for an earlier mpipe that sets one "
+    "Clean-ups removed these keys and choices (issue 23: one model, one cold start, one "
+    "search beside the paper's; issue 45: one estimator for the take, one start per "
+    "window). A pipeline file written for an earlier mpipe that sets one "
     "gets a one-line error saying what became of it: delete the key (or pick a kept choice)."
 )
 

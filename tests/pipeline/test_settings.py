@@ -225,7 +225,7 @@ def test_a_removed_key_says_it_was_removed_and_what_replaces_it(tmp_path, text, 
         load_pipeline(write(tmp_path, f"calibration: cal.yaml\ninversion: {{{text}}}\n"))
     message = str(info.value)
     key = text.partition(":")[0]
-    assert message.startswith(f"{tmp_path / 'pipe.yaml'}: inversion.{key}: removed in issue 23")
+    assert message.startswith(f"{tmp_path / 'pipe.yaml'}: inversion.{key}: removed from mpipe")
     assert "\n" not in message and says in message and "unknown key" not in message
 
 

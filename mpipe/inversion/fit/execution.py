@@ -1,8 +1,8 @@
 """Where a take's windows run: in this process, a local process pool, or a Dask cluster.
 
-Every window depends only on its own data and on the start it is given (the take's cold
-start, or none for a retry), never on which windows ran before it in the same task, so the
-table does not depend on how windows are spread over workers. Windows are grouped into
+Every window depends only on its own data and on the start it is given (its note's cold
+start, or none: a cold start of its own), never on which windows ran before it in the same
+task, so the table does not depend on how windows are spread over workers. Windows are grouped into
 contiguous chunks, several per worker, handed out as workers free up. With a checkpoint
 folder each finished window is saved as it completes and windows already saved are read
 back instead of recomputed.
@@ -61,28 +61,21 @@ class Job:
 
 def run_windows(
     job: Job,
-    items: Sequence[tuple[int, dict | None]],
+    starts: Sequence[int],
     warm: ReedParameters | Mapping[int, ReedParameters] | None,
     report: Callable[[int], None] | None = None,
 ) -> list[tuple[dict, np.ndarray | None]]:
-    """Invert windows, each from the same start ``warm`` (cold when None).
+    """Invert the windows at first samples ``starts``, each from ``warm`` (cold when None).
 
     ``warm`` may also map a window's start sample to its start (its segment's cold start);
-    a window missing from the mapping is cold-started.
-
-    ``items`` are ``(start sample, previous row)`` pairs. Every window depends only on its
+    a window missing from the mapping is cold-started. Every window depends only on its
     own data and on ``warm``, never on which windows ran before it in the same task, so the
     table does not depend on how windows are spread over workers. With a checkpoint folder
     each finished window is saved as it completes, and windows already saved are read back
     instead of recomputed.
-
-    A window given with a previous row is a retry: it gets a cold start of its own, and its
-    row is replaced when the cold start reaches a lower F2 (``retried_cold`` either way);
-    when ``warm`` maps its start to a list of reeds (its neighbours' answers), it is warm
-    started from each of those instead, the lowest F2 kept.
     """
     with _one_blas_thread():
-        return _run_windows_inner(job, items, warm, report)
+        return _run_windows_inner(job, starts, warm, report)
 
 
 def _one_blas_thread():
@@ -96,61 +89,27 @@ def _one_blas_thread():
     return threadpool_limits(limits=1, user_api="blas")
 
 
-def _run_windows_inner(job, items, warm, report):
+def _run_windows_inner(job, starts, warm, report):
     out = []
-    for s, previous in items:
-        out.append(_one_window(job, s, previous, warm))
+    for s in starts:
+        out.append(_one_window(job, int(s), warm))
         if report is not None:
             report(1)
     return out
 
 
-def _one_window(job: Job, s: int, previous: dict | None, warm) -> tuple[dict, np.ndarray | None]:
-    """Row and step-2 history of the window at sample ``s``: read back, retried or inverted."""
+def _one_window(job: Job, s: int, warm) -> tuple[dict, np.ndarray | None]:
+    """Row and step-2 history of the window at sample ``s``: read back, or inverted."""
     saved = None if job.checkpoint is None else load_checkpoint(job.checkpoint, s)
-    if previous is not None and saved is not None and saved[0].get("retried_cold"):
-        row, hist = saved
-    elif previous is not None and isinstance(warm, Mapping) and s in warm:
-        row, hist = _retry_from(job, s, previous, warm[s])
-    elif previous is not None:
-        row, hist = _retry_cold(job, s, previous)
-    elif saved is not None:
-        row, hist = saved
-    else:
-        start = warm.get(s) if isinstance(warm, Mapping) else warm  # per segment, or one
-        o = _fit(job, s, start)
-        row, hist = o.row, None if o.search is None else o.search.history
-    if job.checkpoint is not None and (saved is None or previous is not None):
+    if saved is not None:
+        return saved
+    start = warm.get(s) if isinstance(warm, Mapping) else warm  # per segment, or one
+    o = invert_window(job.p, job.u, job.fs, s, job.kernel, job.rho, job.config,
+                      zero_mean=job.zero_mean, warm=start)  # fmt: skip
+    row, hist = o.row, None if o.search is None else o.search.history
+    if job.checkpoint is not None:
         save_checkpoint(job.checkpoint, s, row, hist)
     return row, hist
-
-
-def _fit(job: Job, s: int, warm):
-    """The window at sample ``s`` fitted from ``warm`` (None: its own cold start)."""
-    return invert_window(job.p, job.u, job.fs, s, job.kernel, job.rho, job.config,
-                         zero_mean=job.zero_mean, warm=warm)  # fmt: skip
-
-
-def _retry_from(job: Job, s: int, previous: dict, starts) -> tuple[dict, np.ndarray | None]:
-    """Warm starts from ``starts`` (the neighbours' reeds), the lowest F2 kept if lower.
-
-    ``previous``'s row stays when none is lower. Not a cold retry: one may still follow.
-    """
-    row, hist = previous, None
-    for reed in starts:
-        o = _fit(job, s, reed)
-        if not o.row["error"] and o.row["f2"] < row["f2"]:
-            row, hist = o.row, None if o.search is None else o.search.history
-    return row, hist
-
-
-def _retry_cold(job: Job, s: int, previous: dict) -> tuple[dict, np.ndarray | None]:
-    """A cold start of the window's own; kept when it reaches a lower F2 than ``previous``."""
-    o = _fit(job, s, None)
-    row, hist = previous, None
-    if not o.row["error"] and o.row["f2"] < previous["f2"]:
-        row, hist = o.row, None if o.search is None else o.search.history
-    return row.replace(retried_cold=True), hist
 
 
 # The take's shared data in a worker process of the local pool: set once per worker by the
@@ -165,19 +124,19 @@ def _init_worker(job: Job) -> None:
 
 def _windows_task(args) -> list[tuple[dict, np.ndarray | None]]:
     # Top-level function: picklable for process pools.
-    items, warm, queue = args
-    return run_windows(_WORKER_JOB[0], items, warm, None if queue is None else queue.put)
+    starts, warm, queue = args
+    return run_windows(_WORKER_JOB[0], starts, warm, None if queue is None else queue.put)
 
 
 def split_chains(starts: Sequence[int], n_chains: int) -> list[list[int]]:
     """Split window starts into at most ``n_chains`` contiguous groups of similar length."""
     n_chains = max(1, min(n_chains, len(starts)))
-    return [list(c) for c in np.array_split(np.asarray(starts, dtype=int), n_chains) if c.size]
+    return [c.tolist() for c in np.array_split(np.asarray(starts, dtype=int), n_chains) if c.size]
 
 
 def dispatch(
     job: Job,
-    items: Sequence[tuple[int, dict | None]],
+    starts: Sequence[int],
     warm: ReedParameters | Mapping[int, ReedParameters] | None,
     executor: ExecutorConfig,
     workers: int,
@@ -186,19 +145,16 @@ def dispatch(
 ) -> list[tuple[dict, np.ndarray | None]]:
     """Run windows on the configured executor; the grouping does not change any result.
 
-    ``items`` and ``warm`` as in :func:`run_windows`; ``client`` is a Dask client or None.
-    Results come in the order of ``items`` whatever the executor.
+    ``starts`` and ``warm`` as in :func:`run_windows`; ``client`` is a Dask client or None.
+    Results come in the order of ``starts`` whatever the executor.
     """
-    if not items:
+    if not starts:
         return []
     if executor.kind == "local" and workers == 1 and client is None:
-        return run_windows(job, items, warm, update)
+        return run_windows(job, starts, warm, update)
     # Several chunks per worker, handed out as workers free up: windows differ in cost
     # (a few need more steps), and one chunk per worker left one idle at the end.
-    groups = [
-        [items[i] for i in g]
-        for g in split_chains(list(range(len(items))), executor.chunks or 4 * workers)
-    ]
+    groups = split_chains(list(starts), executor.chunks or 4 * workers)
     if executor.kind == "dask" or client is not None:
         return _track_dask(job, groups, warm, executor, client, update)
     return _track_processes(job, groups, warm, workers, update)
@@ -252,12 +208,12 @@ def _dask_checkpointed(client, job: Job, groups, warm, update) -> list:
     checkpoint folder and are saved here as their group arrives: the workers need not see
     this process's file system.
     """
-    items = [item for g in groups for item in g]
+    items = [s for g in groups for s in g]
     results: list = [None] * len(items)
     todo = []
-    for i, (s, previous) in enumerate(items):
+    for i, s in enumerate(items):
         saved = load_checkpoint(job.checkpoint, s)
-        if saved is not None and (previous is None or saved[0].get("retried_cold")):
+        if saved is not None:
             results[i] = saved
         else:
             todo.append(i)
@@ -267,7 +223,7 @@ def _dask_checkpointed(client, job: Job, groups, warm, update) -> list:
 
     def keep(k: int, part: list) -> None:
         for i, (row, hist) in zip(chunks[k], part, strict=True):
-            save_checkpoint(job.checkpoint, items[i][0], row, hist)
+            save_checkpoint(job.checkpoint, items[i], row, hist)
             results[i] = (row, hist)
 
     if chunks:
@@ -353,8 +309,8 @@ def gather_in_order(client, job: Job, groups, warm, update=None, done=None) -> l
 
     The take's shared data are scattered to every worker under a key of their own
     (``hash=False``) and held until every group has finished. (A content-hashed key, the
-    default, is the same for the same take in two consecutive calls, such as the warm
-    windows and then their cold retries: the release of the first call's copy could reach
+    default, is the same for the same take in two consecutive calls, such as the notes'
+    cold starts and then their warm windows: the release of the first call's copy could reach
     the scheduler after the second scatter and delete it, and the tasks waiting on it were
     cancelled with "lost dependencies".) A task that raised is retried (``TASK_RETRIES``);
     a task whose worker died is rerun on another worker by the scheduler; when the data
@@ -365,8 +321,8 @@ def gather_in_order(client, job: Job, groups, warm, update=None, done=None) -> l
     ----------
     client : distributed.Client
     job : Job
-    groups : sequence of sequence of (int, dict or None)
-        Windows per task, as ``items`` of :func:`run_windows`.
+    groups : sequence of sequence of int
+        Windows per task (their first samples), as ``starts`` of :func:`run_windows`.
     warm : ReedParameters or None
         The start of every window.
     update : callable, optional
@@ -417,8 +373,8 @@ def gather_in_order(client, job: Job, groups, warm, update=None, done=None) -> l
     )
 
 
-def _dask_windows(job, items, warm):
-    return run_windows(job, items, warm)
+def _dask_windows(job, starts, warm):
+    return run_windows(job, starts, warm)
 
 
 # The signals of the take in a worker of :func:`stage_workers` (set once per worker).

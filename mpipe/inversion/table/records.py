@@ -163,7 +163,6 @@ _INVERSION: tuple[Column, ...] = (
     _col("at_bound", TEXT, "free parameters on a search bound, e.g. m=lower;y_m=y_c"),
     _col("warm", FLAG, "started from another window's result (not cold)"),
     _col("cold_starts_agreeing", COUNT, "cold starts that reached the best minimum"),
-    _col("retried_cold", FLAG, "cold-started again after a warm start that was not ok"),
     _col("wall_time_s", FLOAT, "wall time of the window"),
     _col(
         "pooled",
@@ -217,7 +216,10 @@ SCHEMA_BY_NAME = {c.name: c for c in WINDOW_SCHEMA}
 #: Columns of a window's record (those the inversion fills), in order.
 RECORD_COLUMNS = tuple(c.name for c in _INVERSION)
 #: Columns earlier versions wrote, no longer written: name -> what to read instead.
-RETIRED = {"converged": "status == 'ok' (the search's own verdict: optimiser_converged)"}
+RETIRED = {
+    "converged": "status == 'ok' (the search's own verdict: optimiser_converged)",
+    "retried_cold": "gone with the cold retries: a window is fitted once (issue 45)",
+}
 
 
 @dataclass(frozen=True, eq=False)

@@ -70,7 +70,6 @@ def blank_row(
         optimiser_message="",
         at_bound="",
         warm=not cold,
-        retried_cold=False,
         informs_note=True,
         uncertainty_note="no estimate",
         take_checks="",

@@ -77,9 +77,6 @@ STATUSES = (
     "failed",
 )
 
-#: Statuses a cold retry can fix (another basin); the others keep their warm result.
-RETRIED = ("high-residual", "not-converged")
-
 #: A note with fewer windows than this is judged with the take's windows.
 MIN_NOTE = 4
 
@@ -370,7 +367,6 @@ __all__ = [
     "MIN_NOTE",
     "NEIGHBOUR_SD",
     "NEIGHBOUR_SE",
-    "RETRIED",
     "STATUSES",
     "classify",
     "count",

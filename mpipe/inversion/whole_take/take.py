@@ -323,16 +323,10 @@ def merge_trackings(parts: Sequence[Tracking]) -> Tracking:
 
 
 def _first_agreeing(table) -> int | None:
-    """The least agreement of the take's own cold starts (one per note), if it had any.
-
-    Only the notes' cold starts count: not a window's own cold retry (``retried_cold``).
-    """
+    """The least agreement of the take's own cold starts (one per note), if it had any."""
     if "cold_starts_agreeing" not in table:
         return None
-    own = pd.Series(True, index=table.index)
-    for flag in ("warm", "retried_cold"):
-        if flag in table:
-            own &= table[flag].eq(False)
+    own = table["warm"].eq(False) if "warm" in table else pd.Series(True, index=table.index)
     values = table.loc[own, "cold_starts_agreeing"].dropna()
     return int(values.min()) if len(values) else None
 

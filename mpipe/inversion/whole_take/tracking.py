@@ -36,7 +36,7 @@ from mpipe.inversion.preparation.span import span_samples
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.table.records import reed_from_row, typed
 from mpipe.inversion.table.tables import histories_and_correlations, saved_windows, window_table
-from mpipe.inversion.trust.status import RETRIED, classify
+from mpipe.inversion.trust.status import classify
 from mpipe.inversion.trust.window_errors import CORRELATION_COLUMNS
 from mpipe.reed.bore_kernel import BoreKernel
 from mpipe.reed.parameters import ReedParameters
@@ -287,9 +287,8 @@ def track(
     The first window is cold-started (see :func:`mpipe.inversion.fit.window.invert_window`);
     every other window is started from its result, so each window's answer depends only on
     its own data and on that one shared start: 1 or N workers, local processes or Dask give
-    the same table. Windows ``high-residual`` or ``not-converged`` after their warm start
-    are then given a cold start of their own (``config.retry_cold``), and every window gets
-    its final status from :func:`mpipe.inversion.trust.status.classify`.
+    the same table. Every window is fitted once, and gets its status from
+    :func:`mpipe.inversion.trust.status.classify`: one that is not ok is reported so.
 
     Parameters
     ----------
@@ -362,8 +361,6 @@ def track(
     results = _cold_then_warm(job, starts, segments, anchors, update, **run)
     in_time = [g for _, g in sorted(zip(starts, segments, strict=True))]
     table = classify(window_table(results), config, in_time)
-    if config.retry_cold:
-        table = _retry_not_ok(job, results, table, in_time, **run)
     table["segment"] = in_time
     table["note_number"] = [n for _, n in sorted(zip(starts, plan.note_ids, strict=True),
                                                  key=lambda x: x[0])]  # fmt: skip
@@ -402,52 +399,22 @@ def _cold_then_warm(
             firsts[g] = s
     # One cold start per segment: several go to the workers one each; a single one spreads
     # its independent parts (design points, short local searches) over the workers.
-    cold_items = [(s, None) for s in firsts.values()]
+    cold_starts = list(firsts.values())
     if len(firsts) > 1:
-        colds = dispatch(job, cold_items, None, executor, workers, client, update)
+        colds = dispatch(job, cold_starts, None, executor, workers, client, update)
     else:
         with stage_workers((job.p, job.u), executor, workers, client):
-            colds = run_windows(job, cold_items, None, update)
+            colds = run_windows(job, cold_starts, None, update)
     by_start = {int(round(r[0]["t_start_s"] * job.fs)): r for r in colds}
     for g, s in firsts.items():
         row = by_start[s][0]
         anchors[g] = None if row.get("error") else reed_from_row(row)
     warm = {s: anchors[g] for s, g in zip(starts, segments, strict=True)}
     done = set(firsts.values())
-    items = [(s, None) for s in starts if s not in done]
-    results = colds + dispatch(job, items, warm, executor, workers, client, update)
+    rest = [s for s in starts if s not in done]
+    results = colds + dispatch(job, rest, warm, executor, workers, client, update)
     results.sort(key=lambda r: r[0]["t_start_s"])
     return results
-
-
-def _retry_not_ok(
-    job: Job, results: list, table: pd.DataFrame, segments: list, *, executor, workers, client
-) -> pd.DataFrame:
-    """Cold-start the warm windows a retry can fix (``results`` updated in place).
-
-    Only ``high-residual`` and ``not-converged`` windows (:data:`RETRIED`): another basin
-    may fit them. A ``low-dof``, ``at-bound``, ``no-errors`` or ``undetermined`` window is
-    what its data make it, and a cold start cannot change that: it keeps its warm result.
-    Returns the table classified again (the same table when no window needed a retry).
-    """
-    redo = [
-        i
-        for i, (row, _) in enumerate(results)
-        if table.loc[i, "status"] in RETRIED and row["warm"] and not row["retried_cold"]
-    ]
-    if not redo:
-        return table
-    log.info("%d windows not ok after their warm start: cold-starting them", len(redo))
-    items = [(_start(results[i], job.fs), results[i][0]) for i in redo]
-    again = dispatch(job, items, None, executor, workers, client, None)
-    for i, new in zip(redo, sorted(again, key=lambda r: r[0]["t_start_s"]), strict=True):
-        results[i] = new
-    return classify(window_table(results), job.config, segments)
-
-
-def _start(result, fs: float) -> int:
-    """A window's first sample, from its row."""
-    return int(round(result[0]["t_start_s"] * fs))
 
 
 __all__ = [

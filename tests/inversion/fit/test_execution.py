@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from mpipe.acoustics.reflection import reflection_function
-from mpipe.inversion.fit.execution import Job, dispatch, run_windows, split_chains
+from mpipe.inversion.fit.execution import Job, dispatch, split_chains
 from mpipe.inversion.output.resynthesis import reed_from_row
 from mpipe.inversion.settings import ExecutorConfig, InversionConfig
 from mpipe.inversion.table.tables import COLUMNS
@@ -73,17 +73,17 @@ def _track(take, executor, end_s=None, **kw):
 
 def test_repeated_runs_on_a_real_cluster_equal_the_local_run(take, cluster):
     # Issue 25: two of six runs lost their scattered data ("lost dependencies") when a take
-    # was dispatched twice (warm windows, then cold retries) under the same content key.
+    # was dispatched twice (then: warm windows, then cold retries) under the same content key.
     client, address, _ = cluster
     local = _track(take, ExecutorConfig(workers=1))
-    assert len(local.table) == 12 and local.table["retried_cold"].any()  # two dispatches
+    assert len(local.table) == 12
     dask_cfg = ExecutorConfig(kind="dask", scheduler=address, chunks=4)
     result = _track(take, dask_cfg, client=client)
     pd.testing.assert_frame_equal(local.table[SAME], result.table[SAME])
     # the same take's data dispatched back to back, as the tracking does between its calls
     kernel, rho, sim = take
     job = Job(sim.p, sim.u, FS, kernel, rho, CHEAP, False, None)
-    items = [(int(s), None) for s in local.table["t_start_s"].to_numpy()[1:] * FS]
+    items = [int(round(s * FS)) for s in local.table["t_start_s"].to_numpy()[1:]]
     warm = reed_from_row(local.table.iloc[0].to_dict())
     first = _rows(dispatch(job, items, warm, dask_cfg, 2, client, None))
     for _ in range(5):
@@ -227,27 +227,3 @@ def test_a_stage_worker_runs_nested_tasks_in_place():
     with coldstart.spread_over(lambda fn, items: 1 / 0):  # a mapper that must not be used
         _init_stage((None, None))
         assert coldstart.map_tasks(lambda shared, item: item + 1, [1, 2]) == [2, 3]
-
-
-def test_a_retry_from_neighbours_keeps_the_lowest_f2_and_is_not_a_cold_retry(monkeypatch):
-    # a fake window fit: F2 is the distance of the start's k from 3e6; a warm retry from the
-    # neighbours' reeds keeps the best start's row, a worse one keeps the previous row
-    from dataclasses import replace
-    from types import SimpleNamespace
-
-    from mpipe.inversion.fit import execution
-
-    def fake(p, u, fs, s, kernel, rho, config, *, zero_mean, warm):
-        row = {"error": "", "f2": abs(warm.k - 3e6), "warm": True, "retried_cold": False}
-        return SimpleNamespace(row=row, search=None)
-
-    monkeypatch.setattr(execution, "invert_window", fake)
-    job = Job(None, None, FS, None, 1.2, CHEAP, False, None)
-    reed = ReedParameters(k=1e6, S=7e-5, y_m=4e-4, p_m=1800.0, lam=0.013, m=0.05, g=3000.0,
-                          k_c=8e10)  # fmt: skip
-    starts = [replace(reed, k=2e6), replace(reed, k=2.9e6)]
-    previous = {"error": "", "f2": 5e5, "warm": True, "retried_cold": False}
-    ((row, _),) = run_windows(job, [(0, previous)], {0: starts})
-    assert row["f2"] == pytest.approx(1e5) and not row["retried_cold"]
-    ((row, _),) = run_windows(job, [(0, dict(previous, f2=1e4))], {0: starts})
-    assert row["f2"] == 1e4  # neither start beat the window's own

@@ -121,9 +121,11 @@ def test_a_column_outside_the_schema_is_an_error(tmp_path):
 
 @pytest.mark.parametrize("suffix", [".csv", ".parquet"])
 def test_a_table_of_an_earlier_version_reads_without_its_retired_column(tmp_path, suffix):
-    # earlier versions wrote "converged" (status == "ok") beside optimiser_converged
+    # earlier versions wrote "converged" (status == "ok") beside optimiser_converged, and
+    # "retried_cold" (the cold retries, gone)
     old = pd.DataFrame({"status": ["ok", "at-bound"], "converged": [True, False],
-                        "optimiser_converged": [True, True]})  # fmt: skip
+                        "optimiser_converged": [True, True],
+                        "retried_cold": [False, True]})  # fmt: skip
     path = tmp_path / f"w{suffix}"
     old.to_csv(path, index=False) if suffix == ".csv" else old.to_parquet(path, index=False)
     back = read_windows(path)
@@ -134,8 +136,8 @@ def test_a_table_of_an_earlier_version_reads_without_its_retired_column(tmp_path
 def test_the_correlation_is_a_typed_field_of_the_record():
     corr = Correlation(("k", "p_m"), np.array([[1.0, 0.3], [0.3, 1.0]]))
     row = WindowRecord({"k": 1.0}, corr)
-    again = row.replace(retried_cold=True)
-    assert again.correlation is corr and again["retried_cold"] and "retried_cold" not in row
+    again = row.replace(warm=True)
+    assert again.correlation is corr and again["warm"] and "warm" not in row
     back = Correlation.from_json(corr.to_json())
     assert back.names == corr.names and np.array_equal(back.matrix, corr.matrix)
     assert Correlation.from_json(None) is None

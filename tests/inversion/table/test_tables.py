@@ -25,7 +25,7 @@ def test_blank_row_is_a_failed_window_without_estimate():
     row = blank_row(2000, 2000, 100_000.0, InversionConfig(), cold=True)
     assert set(COLUMNS) <= set(row)
     assert row["t_start_s"] == 0.02 and row["t_end_s"] == 0.04
-    assert row["status"] == "failed" and not row["warm"] and not row["retried_cold"]
+    assert row["status"] == "failed" and not row["warm"]
     assert math.isnan(row["k"]) and row["determined_k"] is False
 
 

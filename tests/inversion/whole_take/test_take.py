@@ -70,13 +70,12 @@ def test_two_workers_give_the_same_take(played):
 
 
 def test_the_takes_agreement_is_its_least_agreed_notes_own_cold_start():
-    # two notes cold-started (warm False): agreement 6 and 1; an attack window's own cold
-    # retry (agreement 0) does not count, nor do warm windows
+    # two notes cold-started (warm False): agreement 6 and 1; a warm window's record (0
+    # here) does not count
     from mpipe.inversion.whole_take.take import _first_agreeing
 
     table = pd.DataFrame({
         "warm": [False, True, True, False, True],
-        "retried_cold": [False, False, True, False, False],
         "cold_starts_agreeing": [6.0, np.nan, 0.0, 1.0, np.nan],
     })  # fmt: skip
     assert _first_agreeing(table) == 1
