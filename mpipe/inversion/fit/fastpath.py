@@ -20,7 +20,7 @@ recomputes for every candidate is the same for every candidate of a window. A
 * forms the residual ``p_target - p_model`` in place.
 
 It agrees with the reference to rounding (tests/inversion/fit/test_fastpath.py: ~1e-12
-relative); the reference still computes the model flow for plots and the ``rest`` start.
+relative); the reference still computes the model flow, for plots.
 Given a ``jac`` record the same compiled evaluation (:func:`_evaluate`) also differentiates
 every step forward and writes the Jacobian (:mod:`mpipe.inversion.fit.sensitivities`). Its
 arguments are records (tuples numba types), documented in :func:`_evaluate`.
@@ -253,7 +253,7 @@ def start_run(win, buffers, cand):
 def _evaluate(out_r, win, lp, buffers, cand, jac):
     """Residual of one candidate into ``out_r``; returns a status code (OK, DIVERGED, SILENT).
 
-    Mirrors :func:`mpipe.inversion.fit.objective.run_model` with the history start. The
+    Mirrors :func:`mpipe.inversion.fit.objective.run_model`. The
     history's share of the history term is ``q_base + (Z0 c / 2) q_ones`` (c the missing
     mean flow; :func:`history_term`); the run starts on a zero history. Records:
 
@@ -297,7 +297,7 @@ def _evaluate(out_r, win, lp, buffers, cand, jac):
 
 
 class WindowEvaluator:
-    """Residual vector of F2 for one window's candidates, computed fast (history start).
+    """Residual vector of F2 for one window's candidates, computed fast.
 
     Holds work buffers, so one evaluator must not be used by two threads at once; each
     window (and each worker process) builds its own.
@@ -309,17 +309,15 @@ class WindowEvaluator:
     target : TargetWindow
         Target window and history.
     settings : ObjectiveSettings
-        Must use ``start="history"``; ``lowpass`` for zero-mean targets.
+        The lead-in, and the ``lowpass`` zero-mean targets need.
 
     Raises
     ------
     ValueError
-        For a ``rest`` start (use the reference :func:`~mpipe.inversion.fit.objective.run_model`).
+        For a zero-mean target without a low-pass, or a lead-in under 3 samples.
     """
 
     def __init__(self, kernel: BoreKernel, target: TargetWindow, settings: ObjectiveSettings):
-        if settings.start != "history":
-            raise ValueError("the compiled evaluator supports the history start only")
         fs = target.fs
         n = target.p.size
         n_taps = kernel.n_taps

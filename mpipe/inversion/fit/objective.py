@@ -1,23 +1,16 @@
 """The step-2 objective F2 = ||p - p_model||_2 over one window (paper eq. 15).
 
-Two ways to start the model for a candidate parameter set:
-
-``"history"`` (default)
-    Start at the window's first sample from the target's own past: the forward wave
-    ``p+ = (p + Z0 u) / 2`` over the reflection function's length, and a reed state made by
-    driving the reed equation with the target's pressure difference over a short lead-in,
-    started from the quasi-static estimate ``y = dp/k``. The model then runs over the
-    window only and is compared sample by sample: no synchronisation is needed.
-``"rest"``
-    The paper's way: run from rest into steady state (``settle_s``), then synchronise with
-    the target by a lag search over one period (physics.md J) and compare.
-
-Why ``"history"`` is the default: on the shipped instrument it costs a 20 ms run instead
-of a 250 ms one per evaluation (~15x fewer samples), and its F2 is a smooth function of the
-parameters near the optimum because no lag has to be re-chosen between evaluations; with
-exact parameters its F2 vanishes to the lead-in transient (~e^{-g t/2}). ``benchmarks/
-bench_inversion.py`` measures both. ``"rest"`` stays useful far from the optimum, where a
-candidate's limit cycle differs from the target's and the history start drifts.
+Every model run starts at the window's first sample from the target's own past: the
+forward wave ``p+ = (p + Z0 u) / 2`` over the reflection function's length, and a reed
+state made by driving the reed equation with the target's pressure difference over a short
+lead-in, started from the quasi-static estimate ``y = dp/k``. The model then runs over the
+window only and is compared sample by sample: no synchronisation is needed. (The paper
+runs the model from rest into steady state and synchronises it with the target by a lag
+search over one period, physics.md J. That start was a setting until issue 23 and left the
+package with issue 45: it cost a 250 ms run per evaluation instead of 20 ms on the shipped
+instrument, and its F2 jumps wherever the chosen lag changes, while the history start's F2
+is smooth near the optimum and vanishes with exact parameters to the lead-in transient,
+~e^{-g t/2}.)
 
 For a zero-mean (measured) target the model output passes through the measurement's
 7.25 kHz FIR before the comparison. The pressure gets no high-pass: the separation keeps
@@ -36,25 +29,16 @@ import dataclasses
 import functools
 import math
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 
 from mpipe.core.filters import LowPass, apply_lowpass
 from mpipe.inversion.fit.history_start import missing_mean_flow, pad_history
-from mpipe.inversion.preparation.conditioning import (
-    estimate_period,
-    match_measurement,
-    relative_residual,
-    steady_state,
-    synchronise,
-)
+from mpipe.inversion.preparation.conditioning import relative_residual
 from mpipe.reed.bore_kernel import BoreKernel
 from mpipe.reed.model import ModelState, simulate
 from mpipe.reed.opening import reed_trajectory
 from mpipe.reed.parameters import ReedParameters, check_stability
-
-StartMethod = Literal["history", "rest"]
 
 
 @dataclass(frozen=True)
@@ -91,19 +75,13 @@ class ObjectiveSettings:
 
     Attributes
     ----------
-    start : {"history", "rest"}
-        How each model run starts (see the module docstring).
     lead_s : float
-        Reed lead-in driven by the target pressure before the window, s (history start).
-    settle_s : float
-        Simulated time from rest before the compared segment, s (rest start).
+        Reed lead-in driven by the target pressure before the window, s.
     lowpass : LowPass or None
         The measurement's FIR, applied to model output of zero-mean targets.
     """
 
-    start: StartMethod = "history"
     lead_s: float = 0.01
-    settle_s: float = 0.25
     lowpass: LowPass | None = None
 
 
@@ -123,10 +101,6 @@ class ModelWindow:
         The candidate gave a stable, oscillating run.
     reason : str
         Why it is infeasible ("" otherwise).
-    lag : int
-        Synchronisation lag, samples (rest start; 0 otherwise).
-    steady : bool
-        The model had reached steady state (rest start; True otherwise).
     """
 
     p: np.ndarray
@@ -135,8 +109,6 @@ class ModelWindow:
     relative_residual: float
     feasible: bool
     reason: str
-    lag: int = 0
-    steady: bool = True
 
 
 def _measured_pressure(p: np.ndarray, lp, ctx: int, n: int) -> np.ndarray:
@@ -204,13 +176,9 @@ def run_model(
         check_stability(reed, fs)
     except ValueError as exc:
         return infeasible(f"unstable: {exc}")
-    lag, steady = 0, True
     try:
         with np.errstate(all="ignore"):
-            if settings.start == "history":
-                p_mod, u_mod = _run_from_history(reed, kernel, target, settings)
-            else:
-                p_mod, u_mod, lag, steady = _run_from_rest(reed, kernel, target, settings)
+            p_mod, u_mod = _run_from_history(reed, kernel, target, settings)
     except _Infeasible as exc:
         return infeasible(str(exc))
     if np.std(p_mod) < 0.01 * np.std(target.p):
@@ -218,7 +186,7 @@ def run_model(
     f2 = float(np.linalg.norm(target.p - p_mod))
     if not math.isfinite(f2):
         return infeasible("diverged")
-    return ModelWindow(p_mod, u_mod, f2, relative_residual(target.p, p_mod), True, "", lag, steady)
+    return ModelWindow(p_mod, u_mod, f2, relative_residual(target.p, p_mod), True, "")
 
 
 class _Infeasible(Exception):
@@ -269,47 +237,6 @@ def _run_from_history(
     return p_mod, u_mod
 
 
-def _run_from_rest(
-    reed: ReedParameters, kernel: BoreKernel, target: TargetWindow, settings: ObjectiveSettings
-) -> tuple[np.ndarray, np.ndarray, int, bool]:
-    """The model started from rest, settled, and synchronised with the target.
-
-    Returns the model's pressure and flow over the window, the lag found (samples) and
-    whether the model's oscillation was steady.
-    """
-    n, fs = target.p.size, target.fs
-    filt = target.zero_mean
-    lp = settings.lowpass if filt else None
-    period = _target_period(target)
-    n_lags = max(int(math.ceil(period)), 1)
-    n_settle = int(round(settings.settle_s * fs))
-    n_pad = lp.delay + 1 if filt else 0
-    p_all, u_all = _simulate(reed, kernel, n_settle + n + n_lags + n_pad)
-    if filt:
-        p_all = match_measurement(p_all, fs, lp, None)
-        u_all = match_measurement(u_all, fs, lp, None)
-    seg_p, seg_u = (
-        p_all[n_settle : p_all.size - n_pad],
-        u_all[n_settle : p_all.size - n_pad],
-    )
-    target_rms = float(np.std(target.p))
-    st = steady_state(p_all, period, silence_rms=0.01 * target_rms)
-    if not st.oscillating:
-        raise _Infeasible("silent")
-    lag = synchronise(target.p, seg_p, n_lags)
-    p_mod, u_mod = seg_p[lag : lag + n], seg_u[lag : lag + n]
-    if filt:
-        u_mod = u_mod - u_mod.mean() + target.u.mean()
-    return p_mod, u_mod, lag, st.steady
-
-
-def _target_period(target: TargetWindow) -> float:
-    period = estimate_period(
-        np.concatenate([target.p_history[-target.p.size :], target.p]), target.fs
-    )
-    return period if period > 0 else target.p.size / 4
-
-
 @dataclass(frozen=True)
 class F2Objective:
     """F2 as a function of the free parameters, for the optimisers.
@@ -334,7 +261,7 @@ class F2Objective:
         Tie the contact point to the rest opening (y_c = y_m) in every candidate.
     fast : bool
         Compute F2 and the residuals by the compiled evaluator of
-        :mod:`mpipe.inversion.fit.fastpath` (history start only; the same numbers to rounding).
+        :mod:`mpipe.inversion.fit.fastpath` (the same numbers to rounding).
         False: by :func:`run_model`, the plain reference. :meth:`evaluate` (model pressure
         and flow, for plots) always uses the reference.
     """
@@ -353,13 +280,13 @@ class F2Objective:
         # are shared by every candidate of the window
         from mpipe.inversion.fit.fastpath import WindowEvaluator
 
-        if not self.fast or self.settings.start != "history":
+        if not self.fast:
             return None
         return WindowEvaluator(self.kernel, self.target, self.settings)
 
     @property
     def evaluator(self):
-        """The window's compiled evaluator (None without one: ``fast`` false or a rest start)."""
+        """The window's compiled evaluator (None without one: ``fast`` false)."""
         return self._evaluator
 
     @functools.cached_property
@@ -391,7 +318,7 @@ class F2Objective:
             ``r`` as :meth:`residuals`, ``J[i, j] = d r_i / d x_j`` (Pa per the SI unit of
             parameter j), computed in one model run
             (:mod:`mpipe.inversion.fit.sensitivities`); None for an infeasible candidate or
-            without the compiled evaluator (``fast`` false or a rest start).
+            without the compiled evaluator (``fast`` false).
         """
         sens = self._sensitivities
         if sens is None:

@@ -1,7 +1,7 @@
 """What the fit is given: the span, the notes, the conditioning, the bore kernel.
 
 The span inverted, the take split into notes and silences, the steady windows and the
-conditioning of the model's output (filtering, period, synchronisation), the bore kernel at one
+conditioning stage's plan (a signal's period, the windows to invert), the bore kernel at one
 documented temperature.
 
 Room 1 of 7 of :mod:`mpipe.inversion` (bottom up). It may import the floor (settings,

@@ -1,70 +1,28 @@
-"""Conditioning model output for comparison with a target: filtering, period, sync.
+"""The conditioning stage's helpers: a signal's period, which windows are steady, the plan.
 
-Pure helpers shared by the step-2 objective and the resynthesis (physics.md J):
+- :func:`estimate_period` finds a signal's period (autocorrelation, parabolic peak);
+- :func:`relative_residual` and :func:`is_zero_mean` compare and classify signals;
+- :func:`steady_windows` tells which windows of a take hold a steady note;
+- :func:`plan_take` and :func:`plan_inversion` make the windows table the inversion reads
+  (segments, phases, the windows to invert);
+- :func:`bore_resonances` lists the bore's resonances a note's regime is named from.
 
-- :func:`match_measurement` passes model output through the measurement's own
-  post-processing (zero-phase high-pass, then the 7.25 kHz linear-phase FIR), so that a
-  model flow with its mean can be compared with a zero-mean measured flow;
-- :func:`estimate_period` and :func:`steady_state` decide whether a simulated signal has
-  reached a periodic regime;
-- :func:`synchronise` finds the lag that best aligns a simulated segment with the target.
-
-References
-----------
-Chatziioannou & van Walstijn 2012, section 4.2 ("a simple synchronisation procedure").
+(The paper's rest start synchronised a model run with its target by a lag search,
+section 4.2; the history start needs none, and those helpers left with it in issue 45.)
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 from scipy import signal
 
-from mpipe.core.filters import LowPass, apply_lowpass, highpass_zero_phase
 from mpipe.core.signals import DiskArray, as_signal, signal_moments
 from mpipe.inversion.preparation.segments import assign_windows, segment_take
 from mpipe.inversion.preparation.span import check_span, span_samples
 from mpipe.measurement.impedance import impedance_curve
-
-
-def match_measurement(
-    x: np.ndarray, fs: float, lowpass: LowPass | None, highpass_hz: float | None
-) -> np.ndarray:
-    """Apply the measurement chain's filters to a model signal.
-
-    Apply it to the whole simulated signal and cut the window afterwards: a 20 Hz
-    high-pass has no meaning over a 20 ms window alone.
-
-    Parameters
-    ----------
-    x : ndarray
-        Model signal (pressure in Pa or flow in m^3/s), 1-D.
-    fs : float
-        Sample rate, Hz.
-    lowpass : LowPass or None
-        The FIR of :func:`mpipe.core.filters.design_lowpass`; None skips it.
-    highpass_hz : float or None
-        Cut-off of the zero-phase Butterworth high-pass, Hz; None skips it.
-
-    Returns
-    -------
-    ndarray
-        Filtered signal, same units and length.
-
-    References
-    ----------
-    physics.md F.2 and J (zero-mean / high-pass).
-    """
-    y = np.asarray(x, dtype=float)
-    if highpass_hz is not None:
-        # sosfiltfilt needs a few times the filter length; shorter signals lose only DC.
-        y = highpass_zero_phase(y, fs, highpass_hz) if y.size > 30 else y - y.mean()
-    if lowpass is not None:
-        y = apply_lowpass(y, lowpass)
-    return y
 
 
 def estimate_period(x: np.ndarray, fs: float, fmin: float = 60.0, fmax: float = 2000.0) -> float:
@@ -108,118 +66,6 @@ def estimate_period(x: np.ndarray, fs: float, fmin: float = 60.0, fmax: float = 
     den = a - 2 * b + c
     frac = 0.5 * (a - c) / den if den != 0 else 0.0
     return float(j + np.clip(frac, -0.5, 0.5))
-
-
-@dataclass(frozen=True)
-class SteadyState:
-    """Outcome of :func:`steady_state`.
-
-    Attributes
-    ----------
-    steady : bool
-        Successive periods differ by less than the tolerance.
-    oscillating : bool
-        The signal's AC RMS exceeds the silence threshold.
-    max_change : float
-        Largest RMS difference between successive periods relative to the AC RMS.
-    period : float
-        Period used, samples.
-    """
-
-    steady: bool
-    oscillating: bool
-    max_change: float
-    period: float
-
-
-def steady_state(
-    x: np.ndarray,
-    period: float,
-    *,
-    n_periods: int = 3,
-    tolerance: float = 1e-3,
-    silence_rms: float = 1.0,
-) -> SteadyState:
-    """Check that the last periods of a simulated signal repeat.
-
-    Successive periods are compared at the same phase by linear interpolation, so a period
-    that is not a whole number of samples does not count as change.
-
-    Parameters
-    ----------
-    x : ndarray
-        Simulated signal (Pa), 1-D; its end is checked.
-    period : float
-        Period in samples (e.g. from :func:`estimate_period`).
-    n_periods : int
-        Number of successive period-to-period changes checked at the end of ``x``.
-    tolerance : float
-        Largest allowed relative RMS change between successive periods (physics.md J: 0.1 %).
-    silence_rms : float
-        AC RMS (units of ``x``) below which the signal counts as silent.
-
-    Returns
-    -------
-    SteadyState
-    """
-    x = np.asarray(x, dtype=float)
-    need = int(np.ceil((n_periods + 1) * period)) + 1
-    tail = x[-need:] if period > 0 and x.size >= need else x
-    rms = float(np.std(tail))
-    oscillating = rms > silence_rms
-    if period <= 1 or x.size < need or not oscillating:
-        return SteadyState(False, oscillating, float("inf"), float(period))
-    idx = np.arange(int(period))
-    ref = np.arange(tail.size, dtype=float)
-    start = tail.size - 1 - (n_periods + 1) * period
-    segs = [np.interp(start + k * period + idx, ref, tail) for k in range(n_periods + 1)]
-    change = max(
-        float(np.sqrt(np.mean((b - a) ** 2))) / rms for a, b in zip(segs, segs[1:], strict=False)
-    )
-    return SteadyState(change < tolerance, True, change, float(period))
-
-
-def synchronise(target: np.ndarray, model: np.ndarray, max_lag: int) -> int:
-    """Lag that aligns a model segment with the target in the least-squares sense.
-
-    Finds ``l`` in ``[0, max_lag)`` minimising ``||target - model[l:l + N]||^2`` =
-    ``||target||^2 + ||model_l||^2 - 2 target . model_l``, with the dot products by FFT
-    cross-correlation and the segment energies by a cumulative sum.
-
-    Parameters
-    ----------
-    target : ndarray
-        Target window, length N.
-    model : ndarray
-        Model segment, length at least ``N + max_lag - 1`` (one period longer than the
-        window, physics.md J).
-    max_lag : int
-        Number of lags searched (one period, in samples).
-
-    Returns
-    -------
-    int
-        The best lag, samples. Apply the same lag to the flow.
-
-    Raises
-    ------
-    ValueError
-        If the model segment is too short.
-    """
-    t = np.asarray(target, dtype=float)
-    m = np.asarray(model, dtype=float)
-    n = t.size
-    max_lag = max(int(max_lag), 1)
-    if m.size < n + max_lag - 1:
-        raise ValueError(
-            f"model segment of {m.size} samples is shorter than window + lags ({n + max_lag - 1})"
-        )
-    m = m[: n + max_lag - 1]
-    dots = signal.correlate(m, t, mode="valid", method="fft")[:max_lag]
-    c = np.concatenate([[0.0], np.cumsum(m * m)])
-    energies = c[n : n + max_lag] - c[:max_lag]
-    cost = energies - 2.0 * dots
-    return int(np.argmin(cost))
 
 
 def relative_residual(target: np.ndarray, model: np.ndarray) -> float:

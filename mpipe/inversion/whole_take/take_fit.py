@@ -105,7 +105,7 @@ def fit_take(
         thin = thinned(problems)
         if len(thin) < len(problems):  # the basins found on the thinned take, then the whole
             with contextlib.ExitStack() as searched:
-                found = fit_(searched, [problems[i] for i in thin], origins)
+                found = fit_(searched, [problems[i] for i in thin], origins, tolerance=LOOSE_SE)
                 costs = rival_costs(found)
                 order = [int(k) for k in np.argsort(costs)]
                 near = [k for k in order[1:] if not found[k].left
@@ -161,14 +161,19 @@ def thinned(problems) -> list[int]:
     return sorted(out)
 
 
-def _runs(stack, problems, origins, *, data, prior, t_range, workers, source) -> list:
+def _runs(stack, problems, origins, *, data, prior, t_range, workers, source,
+          tolerance: float = SE_TOLERANCE) -> list:  # fmt: skip
     """The fit from each origin over ``problems``; a later one may end early (:func:`_leave`).
 
     ``source``: the take's kernels, built here once per temperature for every run
-    (:func:`pass_kernels`).
+    (:func:`pass_kernels`); ``tolerance``: where each run stops, in SEs (the thinned take's
+    runs, which only find the basins and a start for the whole take, stop at
+    :data:`LOOSE_SE`: on the 4 s tone of the speed benchmark their steps on to
+    :data:`SE_TOLERANCE` (3 of 11) changed the whole take's estimates by at most 0.005 of
+    their SEs).
     """
     fit = functools.partial(_run_from, stack, data, problems, prior=prior, t_range=t_range,
-                            workers=workers, source=source)  # fmt: skip
+                            workers=workers, source=source, tolerance=tolerance)  # fmt: skip
     runs = [fit(origins[0])]
     for origin in origins[1:]:
         ends = (functools.partial(_leave, first=runs[0]),
@@ -266,11 +271,11 @@ class _Run:
 
 
 def _run_from(stack: contextlib.ExitStack, data: TakeData, problems, origin: Origin, *, prior,
-              t_range, workers, source, ends=None) -> _Run:  # fmt: skip
+              t_range, workers, source, ends=None, tolerance=SE_TOLERANCE) -> _Run:  # fmt: skip
     """The take's fit from ``origin``: its warm chains and passes (shards in ``stack``).
 
     ``source``: the take's kernels (:func:`pass_kernels`); ``ends``: ``(stop, near)`` of a
-    second run, which may end early (:func:`_passes`).
+    second run, which may end early; ``tolerance``: the last pass's, SEs (:func:`_passes`).
     """
     fs, config = data.fs, data.config
     # a note of this run without an informing window: every one of its windows informs
@@ -304,7 +309,8 @@ def _run_from(stack: contextlib.ExitStack, data: TakeData, problems, origin: Ori
     boxes = search_boxes(problems, layout.n_fast, len(notes), t_range)
     take = TakeProblem(shards, problems, layout, sizes, prior, boxes)
     kernels = functools.partial(pass_kernels, source, names=names)
-    state, ended, total, passes, converged, message, left = _passes(take, state, kernels, ends)
+    state, ended, total, passes, converged, message, left = _passes(take, state, kernels, ends,
+                                                                    tolerance)  # fmt: skip
     log.debug("take fit: passes after %.2f s", time.perf_counter() - clock)
     return _Run(take, state, ended[0], ended[1], total, passes, converged, message, excluded,
                 left, notes, ended[2])  # fmt: skip
@@ -350,12 +356,13 @@ def _settle(run: _Run) -> _Run:
                                message=note)  # fmt: skip
 
 
-def _passes(take: TakeProblem, state: FitState, kernels, ends=None):
+def _passes(take: TakeProblem, state: FitState, kernels, ends=None, final=SE_TOLERANCE):
     """The passes of the joint fit, kernels rebuilt at T between them (``kernels(T)``).
 
     A pass first runs to :data:`LOOSE_SE` (where T is headed); when T has moved by more
     than :data:`T_SETTLED_C` the kernels are rebuilt there and a new pass starts, else the
-    same pass goes on to :data:`SE_TOLERANCE`. ``ends = (stop, near)``, for a second run:
+    same pass goes on to ``final`` SEs (:data:`SE_TOLERANCE`; nothing more when ``final``
+    is :data:`LOOSE_SE`). ``ends = (stop, near)``, for a second run:
     ``stop(take, state, blocks, weight)`` is asked after each pass whether the run may end
     there (its reason, or ""), ``near(slow)`` at every accepted step whether it has reached
     the first run's minimum (:func:`~mpipe.inversion.whole_take.cold_starts.agree`).
@@ -366,7 +373,7 @@ def _passes(take: TakeProblem, state: FitState, kernels, ends=None):
     total, converged, t_built, start = 0, True, state.t, None
     for passes in range(1, MAX_PASSES + 1):
         last = passes == MAX_PASSES
-        tolerance = SE_TOLERANCE if last else LOOSE_SE
+        tolerance = final if last else max(final, LOOSE_SE)
         state, ended, steps, ok, message = joint_pass(take, state, tolerance, start, near=near)
         total += steps
         log.debug("take fit pass %d: T %.3f degC, %d steps (%s)", passes, state.t, steps, message)
@@ -374,8 +381,8 @@ def _passes(take: TakeProblem, state: FitState, kernels, ends=None):
         if why:
             return state, ended, total, passes, ok, why, True
         if abs(state.t - t_built) < T_SETTLED_C or last:
-            if not last:  # on to the tolerance, on the same kernels
-                state, ended, steps, ok, message = joint_pass(take, state, SE_TOLERANCE, ended)
+            if not last and final < tolerance:  # on to the tolerance, on the same kernels
+                state, ended, steps, ok, message = joint_pass(take, state, final, ended)
                 total += steps
             converged = ok
             break

@@ -1,18 +1,14 @@
-"""Conditioning helpers: filtering, period, steady state, synchronisation."""
+"""Conditioning helpers: period, residual, zero-mean flow, steady windows, the plan."""
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mpipe.core.filters import design_lowpass
 from mpipe.inversion.preparation.conditioning import (
     estimate_period,
     is_zero_mean,
-    match_measurement,
     relative_residual,
-    steady_state,
-    synchronise,
 )
 from tests import lengths
 
@@ -24,45 +20,9 @@ def wave(n, f0=147.0, phase=0.0):
     return 1000 * np.sin(2 * np.pi * f0 * t + phase) + 300 * np.sin(4 * np.pi * f0 * t + 1.0)
 
 
-def test_match_measurement_removes_mean_keeps_ac():
-    x = wave(30000) + 500.0
-    y = match_measurement(x, FS, design_lowpass(FS), 20.0)
-    mid = slice(5000, 25000)
-    assert abs(y[mid].mean()) < 5.0
-    np.testing.assert_allclose(y[mid], x[mid] - 500.0, atol=0.05 * 1000)
-
-
-def test_match_measurement_can_skip_both():
-    x = wave(100)
-    np.testing.assert_array_equal(match_measurement(x, FS, None, None), x)
-
-
 def test_estimate_period():
     assert abs(estimate_period(wave(4000), FS) - FS / 147.0) <= 1
     assert estimate_period(np.zeros(100), FS) == 0
-
-
-def test_steady_state():
-    x = wave(8000)
-    period = round(FS / 147.0)
-    s = steady_state(x, FS / 147.0)
-    assert s.steady and s.oscillating
-    growing = x * np.linspace(0.5, 1.0, x.size)
-    assert not steady_state(growing, period).steady
-    assert not steady_state(np.zeros(8000), period).oscillating
-
-
-@pytest.mark.parametrize("lag", [0, 1, 137, 679])
-def test_synchronise_finds_the_lag(lag):
-    period = round(FS / 147.0)
-    model = wave(2000 + period + 10)
-    target = model[lag : lag + 2000]
-    assert synchronise(target, model, period) == lag
-
-
-def test_synchronise_needs_long_enough_model():
-    with pytest.raises(ValueError, match="shorter"):
-        synchronise(np.ones(100), np.ones(120), 50)
 
 
 def test_relative_residual_and_zero_mean():
