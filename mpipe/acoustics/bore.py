@@ -13,6 +13,7 @@ clarinet); physics.md sections B-D.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -254,6 +255,24 @@ class Bore:
             if hi - lo > JOIN_TOLERANCE:
                 pieces.append(seg.cut(lo, hi))
         return tuple(pieces)
+
+
+def mean_flow_resistance(bore: Bore, air: Air, x0: float = 0.0, x1: float | None = None) -> float:
+    """The bore's resistance to a steady flow between ``x0`` and ``x1`` (m), Pa s/m^3.
+
+    Poiseuille's law along the main bore, ``R = int 8 mu / (pi a(x)^4) dx``: for a cylinder
+    ``8 mu L / (pi a^4)``, for a cone from radius a0 to a1 ``8 mu L (a0^2 + a0 a1 + a1^2) /
+    (3 pi a0^3 a1^3)`` (``int dx / a^4`` of a linear a(x)). The limit at zero frequency of
+    the transfer matrix's series term (:func:`transfer_matrix`, viscous losses). Side holes
+    are left out (closed, they carry no steady flow). ``air.mu`` is the dynamic viscosity,
+    Pa s.
+    """
+    x1 = bore.length if x1 is None else x1
+    total = 0.0
+    for seg in bore.between(x0, x1):
+        a0, a1 = seg.r_in, seg.r_out
+        total += seg.length * (a0 * a0 + a0 * a1 + a1 * a1) / (3.0 * a0**3 * a1**3)
+    return 8.0 * air.mu / math.pi * total
 
 
 def transfer_matrix(

@@ -58,6 +58,12 @@ class BoreKernel:
         ``half - 1``, for half = 1, 2, 4, ..., B/2.
     rfft_w_re, rfft_w_im : ndarray
         Twiddles ``exp(-2 pi i k / (2B))``, k = 0..B, for the real-FFT split.
+    reference_resistance : float
+        Resistance to a steady flow of the bore between its entry and the plane where a
+        measurement took the pressure's mean, Pa s/m^3 (0: none). A mouthpiece pressure
+        translated from there with a zero-mean flow lacks it times the mean flow: the
+        inversion's window model adds it back (:mod:`mpipe.inversion.fit.objective`). Not
+        used by the model's run.
     """
 
     h: np.ndarray
@@ -72,6 +78,7 @@ class BoreKernel:
     fft_tw_im: np.ndarray
     rfft_w_re: np.ndarray
     rfft_w_im: np.ndarray
+    reference_resistance: float = 0.0
 
     @property
     def n_taps(self) -> int:

@@ -9,6 +9,7 @@ from mpipe.acoustics.bore import (
     Segment,
     find_resonances,
     input_impedance,
+    mean_flow_resistance,
     reflectance,
     transfer_matrix,
 )
@@ -155,3 +156,28 @@ def test_half_power_bandwidth_of_a_curve_with_a_gap_is_nan_not_an_error():
     assert np.isnan(half_power_bandwidth(freqs, level, 20, 0.0))
     level[18] = -10 * np.log10(1 + ((freqs[18] - 100.0) / 2.0) ** 2)
     assert half_power_bandwidth(freqs, level, 20, 0.0) == pytest.approx(4.0, rel=1e-6)
+
+
+def test_mean_flow_resistance_is_poiseuilles_law_and_the_transfer_matrix_at_dc(
+    shipped_calibration, shipped_air
+):
+    # a cylinder: 8 mu L / (pi a^4); a cone: the integral of 8 mu / (pi a(x)^4) by
+    # quadrature (a second method); both the zero-frequency limit of the transfer matrix's
+    # series term (the lossy ducts' own model, at 1 mHz)
+    from scipy.integrate import quad
+
+    air = shipped_air
+    cylinder = Bore((Segment(0.0, 0.2, radius=0.0075),), Radiation())
+    expected = 8 * air.mu * 0.2 / (np.pi * 0.0075**4)
+    assert mean_flow_resistance(cylinder, air) == pytest.approx(expected, rel=1e-12)
+    cone = Bore((Segment(0.0, 0.3, radius_start=0.007, radius_end=0.012),),
+                Radiation())  # fmt: skip
+    area = quad(lambda x: 8 * air.mu / (np.pi * (0.007 + 0.005 * x / 0.3) ** 4), 0.0, 0.3)[0]
+    assert mean_flow_resistance(cone, air) == pytest.approx(area, rel=1e-9)
+    omega = np.array([2 * np.pi * 1e-3])
+    series = transfer_matrix(cylinder, omega, air)[0, 0, 1].real
+    assert series == pytest.approx(expected, rel=1e-3)
+    bore = shipped_calibration.bore
+    part = mean_flow_resistance(bore, air, 0.0, shipped_calibration.reference_plane)
+    series = transfer_matrix(bore, omega, air, 0.0, shipped_calibration.reference_plane)
+    assert series[0, 0, 1].real == pytest.approx(part, rel=1e-2)  # observed 0.5 %

@@ -35,6 +35,7 @@ import numpy as np
 from numba import njit
 from scipy import fft as sfft
 
+from mpipe.core.filters import apply_lowpass
 from mpipe.inversion.fit.history_start import pad_history
 from mpipe.inversion.fit.lead_in import lead_in, lead_in_tangent, missing_flow, missing_tangent
 from mpipe.inversion.fit.objective import ObjectiveSettings, TargetWindow
@@ -105,6 +106,17 @@ def _ones_term(kernel: BoreKernel, n_history: int, n_run: int) -> np.ndarray:
     return cache[key]
 
 
+def _filter_edge(lp, n: int, n_ctx: int) -> np.ndarray:
+    """``1 - LP([1] * n_ctx + [0] * (n + n_ctx))`` over the n window samples (dimensionless).
+
+    What of a constant added to the pressure before and in the window reaches the window
+    through the measurement's low-pass when only the window's part is the model's: the
+    measured pressure's missing ``R c`` enters the residual as ``R c`` times this.
+    """
+    x = np.concatenate([np.ones(n_ctx), np.zeros(n + n_ctx)])
+    return np.ascontiguousarray(1.0 - apply_lowpass(x, lp)[n_ctx : n_ctx + n])
+
+
 def run_kernel(kernel: BoreKernel, n_run: int):
     """The lean kernel of a run of ``n_run`` samples from a zero history (r_f cut to it).
 
@@ -158,9 +170,14 @@ def measured_lowpass(out, n, p_mod, p_ctx, lp):
 
 
 @njit(cache=True)
-def model_residual(out_r, p_mod, win, lp):
-    """``target - measured model pressure`` into ``out_r``; returns a status code."""
-    target_p, target_std, filt, p_ctx = win[0], win[1], win[4], win[5]
+def model_residual(out_r, p_mod, win, lp, drop):
+    """``target - measured model pressure`` into ``out_r``; returns a status code.
+
+    ``drop``: the mean flow's drop the measured pressure lacks (``R c``, Pa); the
+    measurement's model pressure is short of it but for the filter's edge
+    (``win[10]``, :class:`WindowEvaluator`).
+    """
+    target_p, target_std, filt, p_ctx, edge = win[0], win[1], win[4], win[5], win[10]
     n_run = p_mod.size
     for i in range(n_run):
         if not math.isfinite(p_mod[i]):
@@ -181,7 +198,7 @@ def model_residual(out_r, p_mod, win, lp):
     if math.sqrt(var / n) < 0.01 * target_std:
         return SILENT
     for i in range(n):
-        out_r[i] = target_p[i] - out_r[i]
+        out_r[i] = target_p[i] - out_r[i] + drop * edge[i]
         if not math.isfinite(out_r[i]):
             return DIVERGED
     return OK
@@ -195,8 +212,9 @@ def tangent_start(tan, ylead, win, cand):
     parameter or change), the lead-in's tangents' scratch, p+'s, the output's, the
     tangents' delay lines, each column's change of the measured lead-in pressure and flow
     (zeros for a parameter) and its history term's tangent from the measured history
-    (zeros for a parameter), to which the missing flow's shift ``(Z0 dc / 2) q_ones`` is
-    added here.
+    (zeros for a parameter), to which the missing flow's shift ``((Z0 + R) dc / 2)
+    q_ones`` is added here (R the reference resistance, ``win[9]``: the measured pressure
+    lacks ``R c``). Returns the kernel's record and each column's ``dc`` (m^3/s per unit).
     """
     d, tw, xt, dp_mod, conv_t, dpl, dul, q_t = tan
     n_lead = win[2].size
@@ -216,10 +234,10 @@ def tangent_start(tan, ylead, win, cand):
     z0 = cand[0][1][0]
     q_ones = win[7]
     for j in range(n_par):
-        c_t = 0.5 * z0 * dmiss[j]
+        c_t = 0.5 * (z0 + win[9]) * dmiss[j]
         for i in range(q_ones.size):
             q_t[j, i] += c_t * q_ones[i]
-    return (d, dy, dy_prev, ddp, xt, fut_t, line1_t, line2_t, dp_mod, q_t)
+    return (d, dy, dy_prev, ddp, xt, fut_t, line1_t, line2_t, dp_mod, q_t), dmiss
 
 
 @njit(cache=True)
@@ -228,7 +246,8 @@ def start_run(win, buffers, cand):
 
     Writes the lead-in into ``buffers``' work row 0, the history's share into its
     ``q_ext`` and the mouth pressure into its ``pm`` (records: :func:`_evaluate`); returns
-    the run's start state (y, y_prev, dp) in m, m, Pa.
+    the run's start state (y, y_prev, dp) in m, m, Pa, and the missing mean flow c, m^3/s
+    (the history's p+ moves by ``(Z0 + R) c / 2``, R the reference resistance ``win[9]``).
     """
     _, _, conv, q_ext, _, pm, work = buffers
     p_lead = win[2]
@@ -239,10 +258,10 @@ def start_run(win, buffers, cand):
     missing = 0.0
     if win[4]:
         missing = missing_flow(ylead, win, cand)
-    _history_share(q_ext, win, 0.5 * cand[0][1][0] * missing, conv[2:])
+    _history_share(q_ext, win, 0.5 * (cand[0][1][0] + win[9]) * missing, conv[2:])
     for i in range(pm.size):
         pm[i] = p_m
-    return (ylead[n_lead - 1], ylead[n_lead - 2], p_m - p_lead[n_lead - 1])
+    return (ylead[n_lead - 1], ylead[n_lead - 2], p_m - p_lead[n_lead - 1]), missing
 
 
 # numba's on-disk cache of a function is keyed on its own file only: after editing the
@@ -257,7 +276,9 @@ def _evaluate(out_r, win, lp, buffers, cand, jac):
     history's share of the history term is ``q_base + (Z0 c / 2) q_ones`` (c the missing
     mean flow; :func:`history_term`); the run starts on a zero history. Records:
 
-    * ``win`` = (target_p, target_std, p_lead, u_lead, filt, p_ctx, q_base, q_ones, fs);
+    * ``win`` = (target_p, target_std, p_lead, u_lead, filt, p_ctx, q_base, q_ones, fs,
+      r_dc, edge): r_dc the reference resistance (Pa s/m^3, 0 for a flow with its mean),
+      edge ``1 - LP([1 over p_ctx, 0 over the run])`` over the window;
     * ``lp`` = :func:`measured_lowpass`'s;
     * ``buffers`` = (x, n0, conv, q_ext, p_mod, pm, work): the kernel's p+ buffer and
       ``conv`` (:func:`mpipe.reed.kernels.run`), the history share, the model pressure,
@@ -271,17 +292,18 @@ def _evaluate(out_r, win, lp, buffers, cand, jac):
       status is OK.
     """
     x, n0, conv, q_ext, p_mod, pm, work = buffers
-    state = start_run(win, buffers, cand)
+    state, missing = start_run(win, buffers, cand)
     ylead = work[0, : win[2].size]
+    r_dc, edge = win[9], win[10]
     if jac is None:
         run(x, n0, cand[0], conv, state, pm, q_ext, p_mod, None, None)
-        return model_residual(out_r, p_mod, win, lp)
+        return model_residual(out_r, p_mod, win, lp, r_dc * missing)
     still, q_t = jac[8], jac[9]  # the measured signals do not move with theta
     q_t.fill(0.0)
-    tangent = tangent_start((jac[0], jac[2], jac[3], jac[4], jac[7], still, still, q_t), ylead,
-                            win, cand)  # fmt: skip
+    tangent, dmiss = tangent_start((jac[0], jac[2], jac[3], jac[4], jac[7], still, still, q_t),
+                                   ylead, win, cand)  # fmt: skip
     run(x, n0, cand[0], conv, state, pm, q_ext, p_mod, None, tangent)
-    code = model_residual(out_r, p_mod, win, lp)
+    code = model_residual(out_r, p_mod, win, lp, r_dc * missing)
     if code != OK:
         return code
     d, out_j, dp_mod, ctx0, col = jac[0], jac[1], jac[4], jac[5], jac[6]
@@ -292,7 +314,7 @@ def _evaluate(out_r, win, lp, buffers, cand, jac):
         else:
             col[:n] = dp_mod[j, :n]
         for i in range(n):
-            out_j[i, j] = -col[i]
+            out_j[i, j] = -col[i] + r_dc * dmiss[j] * edge[i]
     return OK
 
 
@@ -352,6 +374,8 @@ class WindowEvaluator:
             history_term(kernel, 0.5 * (ph + kernel.z0 * uh), n_run),
             _ones_term(kernel, ph.size, n_run),
             self.fs,
+            float(kernel.reference_resistance) if filt else 0.0,
+            _filter_edge(lp, n, n_pad) if filt else np.zeros(n),
         )
         self.lean = run_kernel(kernel, n_run)
         x = np.zeros(self.lean.n0 + n_run)

@@ -57,11 +57,12 @@ def _respond(out_r, win, lp, buffers, cand, tan):
     """
     x, n0, conv, q_ext, p_mod, pm, work = buffers
     d, tw, xt, dp_mod, col, conv_t, q_t, dpl, dul, dctx, dpw, out_dr = tan
-    state = start_run(win, buffers, cand)
+    state, missing = start_run(win, buffers, cand)
     ylead = work[0, : win[2].size]
-    tangent = tangent_start((d, tw, xt, dp_mod, conv_t, dpl, dul, q_t), ylead, win, cand)
+    tangent, dmiss = tangent_start((d, tw, xt, dp_mod, conv_t, dpl, dul, q_t), ylead, win, cand)
     run(x, n0, cand[0], conv, state, pm, q_ext, p_mod, None, tangent)
-    code = model_residual(out_r, p_mod, win, lp)
+    r_dc, edge = win[9], win[10]
+    code = model_residual(out_r, p_mod, win, lp, r_dc * missing)
     if code != OK:
         return code
     n = out_r.size
@@ -71,7 +72,7 @@ def _respond(out_r, win, lp, buffers, cand, tan):
         else:
             col[:n] = dp_mod[j, :n]
         for i in range(n):
-            out_dr[j, i] = dpw[j, i] - col[i]
+            out_dr[j, i] = dpw[j, i] - col[i] + r_dc * dmiss[j] * edge[i]
     return OK
 
 

@@ -207,7 +207,14 @@ def _simulate(reed: ReedParameters, kernel: BoreKernel, n: int, state=None):
 def _run_from_history(
     reed: ReedParameters, kernel: BoreKernel, target: TargetWindow, settings: ObjectiveSettings
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The model started from the target's history, over the window (conditioned)."""
+    """The model started from the target's history, over the window (conditioned).
+
+    A zero-mean target's flow lacks its mean c (estimated from the candidate over the
+    lead-in), and its pressure the mean flow's drop over the bore between the mouthpiece
+    and where the pressure's mean was measured, ``R c`` (``kernel.reference_resistance``):
+    both are added to the history, and the model pressure is returned as the measurement
+    gives it (low-passed, less ``R c``).
+    """
     n, fs = target.p.size, target.fs
     filt = target.zero_mean
     lp = settings.lowpass if filt else None
@@ -218,8 +225,11 @@ def _run_from_history(
     dp_lead = reed.p_m - p_hist[-n_lead:]
     y_lead = reed_trajectory(reed, p_hist[-n_lead:], fs)
     y, y_prev = float(y_lead[-1]), float(y_lead[-2])
+    drop = 0.0  # Pa: the mean flow's drop the measured pressure lacks
     if filt:
-        u_hist = u_hist + missing_mean_flow(reed, dp_lead, y_lead, u_hist[-n_lead:], fs, kernel.rho)
+        c = missing_mean_flow(reed, dp_lead, y_lead, u_hist[-n_lead:], fs, kernel.rho)
+        drop = kernel.reference_resistance * c
+        u_hist, p_hist = u_hist + c, p_hist + drop
     state = ModelState(
         p_plus=0.5 * (p_hist[-n_taps:] + kernel.z0 * u_hist[-n_taps:]),
         y=y,
@@ -232,7 +242,7 @@ def _run_from_history(
     p_mod, u_mod = _simulate(reed, kernel, n + n_pad, state=state)
     if filt:
         ctx = lp.delay + 1
-        p_mod = _measured_pressure(np.concatenate([p_hist[-ctx:], p_mod]), lp, ctx, n)
+        p_mod = _measured_pressure(np.concatenate([p_hist[-ctx:], p_mod]), lp, ctx, n) - drop
         u_mod = _measured_flow(np.concatenate([u_hist[-ctx:], u_mod]), lp, ctx, n, target)
     return p_mod, u_mod
 

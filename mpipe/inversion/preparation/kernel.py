@@ -18,12 +18,14 @@ The air model (``keefe`` or ``ernoult``) is the calibration's.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from mpipe.acoustics.air import Air
+from mpipe.acoustics.bore import mean_flow_resistance
 from mpipe.acoustics.reflection import reflection_function
 from mpipe.core.signals import DiskArray, signal_median, signal_range
 from mpipe.measurement.calibration import Calibration
@@ -75,9 +77,15 @@ def bore_kernel(
     Returns
     -------
     (BoreKernel, Air)
+        The kernel carries the bore's steady-flow resistance from its entry to the
+        calibration's reference plane (``reference_resistance``): the separation takes the
+        pressure's mean there, and the translation of a zero-mean flow cannot add the mean
+        flow's drop over it (benchmarks.md, tenth session).
     """
     air = calibration.air_properties(temperature_c)
-    return prepare_bore(reflection_function(calibration.bore, air, fs=fs), air), air
+    kernel = prepare_bore(reflection_function(calibration.bore, air, fs=fs), air)
+    resistance = mean_flow_resistance(calibration.bore, air, 0.0, calibration.reference_plane)
+    return dataclasses.replace(kernel, reference_resistance=resistance), air
 
 
 def fingered(calibration: Calibration, fingering: str | None) -> Calibration:
