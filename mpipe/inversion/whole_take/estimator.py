@@ -9,7 +9,7 @@ with its parameters in three tiers (:mod:`mpipe.inversion.pooling.take_system`):
 - the take's air temperature T (degC), which sets the bore's reflection function, with
   the front end's estimate and its standard error as a Gaussian prior.
 
-**How it runs.** Two cold starts per take, on its first and its loudest steady window
+**How it runs.** Three cold starts per take, on its first, loudest and middle steady window
 (:mod:`mpipe.inversion.whole_take.cold_starts`: the global search of
 :mod:`mpipe.inversion.fit.coldstart`), at the prior's temperature, each followed on the
 thinned take (every 4th window of a note) and the whole take fitted from the lower one's

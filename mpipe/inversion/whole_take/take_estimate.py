@@ -76,7 +76,7 @@ def rival_checks(rivals) -> tuple[str, ...]:
     costs = np.sort(np.asarray(rivals, float))
     if costs.size < 2 or not costs[1] - costs[0] < RIVAL_MARGIN:
         return ()
-    return (f"the take's fit from its two cold starts ended in two minima whose costs differ "
+    return (f"the take's fit from its cold starts ended in two minima whose costs differ "
             f"by {costs[1] - costs[0]:.2g} (< {RIVAL_MARGIN:g}, chi-square units): the data "
             "barely prefer the one reported",)  # fmt: skip
 

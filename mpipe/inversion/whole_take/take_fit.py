@@ -2,7 +2,7 @@
 
 The driver of :mod:`mpipe.inversion.whole_take.estimator` (which holds the fit's records,
 its pass and its stopping rule): the windows of a plan in time order and their notes, the
-take's cold starts (its first and its loudest steady window,
+take's cold starts (its first, loudest and middle steady window,
 :mod:`mpipe.inversion.whole_take.cold_starts`), from each start that lies in a basin of
 its own a run on the thinned take (:func:`thinned`), the whole take from the lowest
 (:func:`rival_costs`) at its note constants, temperature and controls: each window's

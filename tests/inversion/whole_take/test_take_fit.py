@@ -21,12 +21,14 @@ def _run(starts, rr, weight, t, prior=(20.0, 0.5), given=()):
                            state=SimpleNamespace(t=t))  # fmt: skip
 
 
-def test_cold_windows_are_the_first_and_the_loudest_steady_window():
+def test_cold_windows_are_the_first_the_loudest_and_the_middle_steady_window():
     problems = [_problem(100 * i, a) for i, a in enumerate([900.0, 1000.0, 3000.0, 2000.0])]
     assert cold_windows(problems, [False, True, False, True]) == [1, 3]
-    assert cold_windows(problems, [True, True, True, True]) == [0, 2]
-    # the first steady window is the loudest: one cold start
+    assert cold_windows(problems, [True, True, True, True]) == [0, 2]  # the middle is loudest
+    # the first steady window is the loudest and the middle: one cold start
     assert cold_windows(problems, [False, False, True, False]) == [2]
+    five = [_problem(100 * i, a) for i, a in enumerate([900.0, 1000.0, 1100.0, 3000.0, 2000.0])]
+    assert cold_windows(five, [True] * 5) == [0, 3, 2]
 
 
 def test_rival_costs_compare_on_the_first_runs_weight_and_the_windows_both_kept():
