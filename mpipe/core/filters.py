@@ -147,8 +147,10 @@ def highpass_zero_phase(
 ) -> np.ndarray:
     """Zero-phase Butterworth high-pass (forward-backward), physics.md J.
 
-    The measured flow has no DC (the three-microphone system is singular at DC), so the
-    model output is passed through this filter before it is compared with measured data.
+    The measured flow has no DC (the three-microphone system is singular at DC): tests and
+    benchmarks make a model flow look measured with it. The inversion does not filter the
+    model's output with it (it estimates the flow's missing mean instead,
+    :mod:`mpipe.inversion.fit.objective`).
 
     Parameters
     ----------

@@ -4,7 +4,8 @@ A window's residual ``r = p_target - LP(p_model)`` (:mod:`mpipe.inversion.fit.fa
 reads the measured pressure and flow four ways: the window's pressure (the target), and
 from the history before it the bore's history term (a convolution of the forward wave
 ``p+ = (p + Z0 u) / 2``), the reed's lead-in driven by the measured pressure, the missing
-mean flow over the lead-in (a shift of the history's p+ by ``Z0 c / 2``), and the
+mean flow over the lead-in (a shift of the history's p+ by ``(Z0 + R) c / 2`` and of the
+residual by ``R c`` times the filter's edge, R the reference resistance), and the
 low-pass's context. A change ``(dp, du)`` of those signals (a realisation of their noise,
 :mod:`mpipe.inversion.whole_take.history_noise`) moves r, to first order, by
 

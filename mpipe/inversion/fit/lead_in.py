@@ -4,7 +4,8 @@ The inversion's history start (physics.md H; :mod:`mpipe.inversion.fit.fastpath`
 the reed over a lead-in before each window with the measured pressure
 (:func:`mpipe.reed.opening.drive_reed`), and estimates the mean flow the measurement lost
 (``c``: the candidate's flow less the measured one, averaged over the lead-in's second
-half), which shifts the history's forward wave by ``Z0 c / 2``. Here both, and their
+half), which shifts the history's forward wave by ``(Z0 + R) c / 2`` (R the reference
+resistance: the measured pressure also lacks ``R c``). Here both, and their
 tangents: per reed parameter (the seed matrix's columns, for the Jacobian,
 :mod:`mpipe.inversion.fit.sensitivities`) and per change of the measured lead-in
 (:mod:`mpipe.inversion.fit.input_tangents`), in one function each.

@@ -7,8 +7,10 @@ of the history start is differentiated forward alongside the pressure,
 
 * the reed lead-in driven by the measured pressure (its recursion's tangent);
 * the missing mean flow over the lead-in, which shifts the forward-wave history by
-  ``Z0 c / 2``, so the tangent of the history's share of the history term is
-  ``(Z0 dc / 2) q_ones`` (the window's precomputed convolution of the shift);
+  ``(Z0 + R) c / 2`` and the residual by ``R c`` times the filter's edge (R the reference
+  resistance), so the tangent of the history's share of the history term is
+  ``((Z0 + R) dc / 2) q_ones`` (the window's precomputed convolution of the shift) and the
+  residual's gets ``R dc`` times the edge;
 * the model run itself with the tangents of every parameter (the one compiled kernel,
   :func:`mpipe.reed.kernels.run`, given its ``tangent`` record);
 * the measurement's low-pass, which is linear: each tangent goes through the same FIR
