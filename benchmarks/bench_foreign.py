@@ -170,6 +170,11 @@ def window_figures(take: Path, truth) -> tuple[dict, pd.DataFrame]:
     res = {"sounding": sounding, "ok_sounding": int((ok.to_numpy() & in_sounding).sum()),
            "n_ok": len(okw), "statuses": win["status"].value_counts().to_dict()}  # fmt: skip
     res["frac_ok"] = res["ok_sounding"] / sounding if sounding else float("nan")
+    snd = win[ok.to_numpy() & in_sounding]
+    snd_true = [truth_over(truth, "control_p_M", a, b)
+                for a, b in zip(snd["t_start_s"], snd["t_end_s"], strict=True)]  # fmt: skip
+    near = np.abs(snd["p_M"].to_numpy(float) / np.asarray(snd_true, dtype=float) - 1) <= 0.05
+    res["p_M_5pc"] = int(near.sum()) / sounding if sounding else float("nan")
     for name in ("p_m", "p_M"):
         err = (okw[name] - okw[f"{name}_true"]).to_numpy(float)
         se = okw[f"{name}_se"].to_numpy(float) if f"{name}_se" in okw else np.full(len(okw), np.nan)
@@ -279,6 +284,12 @@ def targets(rows: list[dict]) -> list[tuple[str, str, bool]]:
                 bool(frac >= 0.90)))  # fmt: skip
     no_se = sum(w.get("p_m_no_se", 0) for w in W)
     out.append(("0 ok windows without a finite p_m SE", f"{no_se}", no_se == 0))
+    near = [np.nan_to_num(w.get("p_M_5pc", np.nan), nan=0.0) for w in W]
+    out.append(("issue 45: >= 80 % of sounding windows ok with p_M within 5 %, every take",
+                f"worst {100 * min(near):.1f} %", min(near) >= 0.80))  # fmt: skip
+    passed = sum(r["verdict"].startswith("PASS") for r in done)
+    out.append(("issue 45: every take PASS (no false CHECK or FAIL)",
+                f"{passed}/{len(done)} PASS", passed == len(done)))  # fmt: skip
     return out
 
 
