@@ -22,30 +22,26 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
+import numpy as np
+import pandas as pd
 import soundfile
 
-from mpipe.core.io import write_atomic  # noqa: E402
-from mpipe.inversion.fit.flow_fit import flow_signals  # noqa: E402
-from mpipe.inversion.fit.history_start import lead_in  # noqa: E402
-from mpipe.inversion.fit.objective import (  # noqa: E402
+from mpipe.core.io import write_atomic
+from mpipe.inversion.fit.flow_fit import flow_signals
+from mpipe.inversion.fit.history_start import lead_in
+from mpipe.inversion.fit.objective import (
     ObjectiveSettings,
     TargetWindow,
     run_model,
 )
 from mpipe.inversion.fit.step1 import (
-    Step1Result,  # noqa: E402
+    Step1Result,
     step1,
 )
-from mpipe.inversion.settings import InversionConfig  # noqa: E402
-from mpipe.inversion.table.records import reed_from_row  # noqa: E402
+from mpipe.inversion.settings import InversionConfig
+from mpipe.inversion.table.records import reed_from_row
 from mpipe.inversion.trust.status_words import reason_words
-from mpipe.reed.bore_kernel import BoreKernel  # noqa: E402
+from mpipe.reed.bore_kernel import BoreKernel
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +63,21 @@ class Resynthesis:
     fs: float
     p: np.ndarray
     u: np.ndarray
+
+
+def pyplot():
+    """The pyplot of matplotlib on the Agg backend, imported on the first figure.
+
+    Not at the module's import: the inversion stage imports this module in the run's
+    process, and matplotlib costs about 0.5 s there that its figures (drawn by the
+    background processes of :mod:`mpipe.pipeline.figures`) never need.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
 
 
 def resynthesise(
@@ -205,7 +216,7 @@ def plot_signals(
     -------
     Path
     """
-    fig, (a1, a2) = plt.subplots(2, 1, sharex=True, figsize=(8, 5))
+    fig, (a1, a2) = pyplot().subplots(2, 1, sharex=True, figsize=(8, 5))
     a1.plot(t, p, color="0.6", lw=2, label="target")
     a1.plot(t, p_res, color="k", lw=0.8, label="resynthesised")
     a1.set_ylabel("pressure [Pa]")
@@ -263,7 +274,7 @@ def plot_flow_pressure(
     d = d - mean
     dp = s1.p_m - np.asarray(p)
     show = two_periods(p, fs, f0_hz)
-    fig, ax = plt.subplots(figsize=(6.5, 4.8))
+    fig, ax = pyplot().subplots(figsize=(6.5, 4.8))
     ax.plot(dp[show], np.asarray(u)[show], "-", color="0.6", lw=2, label="measured (two periods)")
     grid = np.linspace(dp[show].min(), dp[show].max(), 200)
     g1, g2, _ = flow_signals(s1.p_m - grid, s1.p_m, fs, s1.rho)
@@ -301,7 +312,7 @@ def plot_history(history: np.ndarray, path: str | Path, f1: float | None = None)
     -------
     Path
     """
-    fig, ax = plt.subplots(figsize=(6, 3.5))
+    fig, ax = pyplot().subplots(figsize=(6, 3.5))
     ax.semilogy(np.arange(1, len(history) + 1), history, "k-")
     ax.set_xlabel("evaluations")
     ax.set_ylabel("F2 [Pa]")
@@ -347,7 +358,7 @@ def save_figure(fig, path: str | Path, *, layout: bool = True) -> Path:
     try:
         return write_atomic(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
     finally:
-        plt.close(fig)
+        pyplot().close(fig)
 
 
 def pick_window(rows: pd.DataFrame) -> pd.Series | None:

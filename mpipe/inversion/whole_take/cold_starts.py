@@ -14,7 +14,7 @@ import logging
 
 import numpy as np
 
-from mpipe.inversion.fit.coldstart import AGREEMENT
+from mpipe.inversion.fit.coldstart import AGREEMENT, map_tasks
 from mpipe.inversion.fit.window import invert_window
 from mpipe.inversion.preparation.kernel import KernelSource
 from mpipe.inversion.whole_take.estimator import TakeData, layout_of
@@ -82,13 +82,41 @@ def cold_fit(p, u, fs: float, source: KernelSource, start: int, fingering: str, 
                          errors=False)  # fmt: skip
 
 
-def cold_start(data: TakeData, source, problems, steady, t, window: int):
-    """A cold start on ``window``, else on the next steady windows that give an estimate."""
+def cold_fits(p, u, fs: float, source: KernelSource, jobs, zero_mean: bool) -> list:
+    """Several windows' own fits (:func:`cold_fit`) at once, spread over the stage's workers.
+
+    ``jobs``: ``(start, fingering, t, config)`` per fit. Each fit is one task (its global
+    search run in the worker, one by one): the searches' own tasks are too few to keep two
+    workers busy, and a search's step 1 and polish run alone. The kernels are built here
+    first (once, kept in ``source``). Returns the ``WindowOutcome`` of each job, in order:
+    the same as :func:`cold_fit` on each, with any number of workers.
+    """
+    items = []
+    for start, fingering, t, config in jobs:
+        kernel, air = source.named(t, fingering)
+        items.append((fs, int(start), kernel, air.rho, config, zero_mean))
+    return map_tasks(_cold_task, items, shared=(p, u))
+
+
+def _cold_task(shared, item):
+    p, u = shared
+    fs, start, kernel, rho, config, zero_mean = item
+    return invert_window(p, u, fs, start, kernel, rho, config, zero_mean=zero_mean,
+                         errors=False)  # fmt: skip
+
+
+def cold_start(data: TakeData, source, problems, steady, t, window: int, made=None):
+    """A cold start on ``window``, else on the next steady windows that give an estimate.
+
+    ``made``: first sample -> a fit already made there at ``t`` (:func:`cold_fits`), as
+    ``data.cold``.
+    """
+    made = {**(made or {}), **data.cold}
     picks = [window] + [i for i, ok in enumerate(steady) if ok and i != window]
     picks += [i for i, ok in enumerate(steady) if not ok and i != window]
     for i in picks[:4]:
         q = problems[i]
-        out = data.cold.get(q.start) or cold_fit(
+        out = made.get(q.start) or cold_fit(
             data.p, data.u, data.fs, source, q.start, q.fingering, t, data.config, data.zero_mean
         )
         if out.reed is not None:
@@ -97,4 +125,4 @@ def cold_start(data: TakeData, source, problems, steady, t, window: int):
     raise ValueError("no window of the take could be cold-started (the model does not play it)")
 
 
-__all__ = ["agree", "cold_fit", "cold_start", "cold_windows", "loudest", "same_basin"]
+__all__ = ["agree", "cold_fit", "cold_fits", "cold_start", "cold_windows", "loudest", "same_basin"]

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 from mpipe.inversion.preparation.kernel import KernelSource
 from mpipe.inversion.settings import InversionConfig
-from mpipe.inversion.whole_take.cold_starts import cold_fit, loudest
+from mpipe.inversion.whole_take.cold_starts import cold_fits, loudest
 
 log = logging.getLogger(__name__)
 
@@ -158,9 +158,8 @@ def choose_contact(
     start = int(starts[loudest([p[s : s + n] for s in starts], steady)])
     fingering = source.fingering(start)
     f2, outcomes, bounds = {}, {}, {}
-    for law in LAWS:
-        out = cold_fit(p, u, fs, source, start, fingering, t_c,
-                       dataclasses.replace(config, contact=law), zero_mean)  # fmt: skip
+    jobs = [(start, fingering, t_c, dataclasses.replace(config, contact=law)) for law in LAWS]
+    for law, out in zip(LAWS, cold_fits(p, u, fs, source, jobs, zero_mean), strict=True):
         value = float(out.row["f2"]) if out.reed is not None else math.nan
         f2[law], outcomes[law] = (value if math.isfinite(value) else math.nan), out
         bounds[law] = str(out.row["at_bound"] or "") if out.reed is not None else ""

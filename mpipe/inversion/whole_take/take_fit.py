@@ -29,7 +29,13 @@ from mpipe.inversion.fit.execution import stage_workers
 from mpipe.inversion.pooling.take_system import TierSizes
 from mpipe.inversion.preparation.kernel import KernelSource, bore_kernel, fingered
 from mpipe.inversion.settings import ExecutorConfig
-from mpipe.inversion.whole_take.cold_starts import agree, cold_start, cold_windows, same_basin
+from mpipe.inversion.whole_take.cold_starts import (
+    agree,
+    cold_fits,
+    cold_start,
+    cold_windows,
+    same_basin,
+)
 from mpipe.inversion.whole_take.estimator import (
     MAX_PASSES,
     T_SETTLED_C,
@@ -94,8 +100,13 @@ def fit_take(
     problems = informing(problems, _informs(windows))
     colds = []
     with stage_workers((p, u), executor or ExecutorConfig(), workers):
-        for window in cold_windows(problems, steady):
-            cold = cold_start(data, source, problems, steady, prior[0], window)
+        windows_ = cold_windows(problems, steady)
+        todo = [problems[i] for i in windows_ if problems[i].start not in data.cold]
+        jobs = [(q.start, q.fingering, prior[0], config) for q in todo]
+        made = dict(zip([q.start for q in todo], cold_fits(p, u, fs, source, jobs, zero_mean),
+                        strict=True))  # fmt: skip
+        for window in windows_:
+            cold = cold_start(data, source, problems, steady, prior[0], window, made)
             if not any(same_basin(cold[0], c[0], config) for c in colds):
                 colds.append(cold)
     origins = [Origin(reed, peak) for reed, _, peak in colds]

@@ -67,3 +67,23 @@ def test_laws_that_fit_alike_go_to_the_one_whose_fit_is_not_on_a_bound():
     assert decide(alike, {"fixed": "", "closure": ""})[:2] == ("fixed", False)
     assert decide(alike, {"fixed": "lam=upper", "closure": "k=lower"})[:2] == ("fixed", False)
     assert decide({"fixed": math.nan, "closure": 5.0}, {})[:2] == ("closure", True)
+
+
+def test_the_laws_fits_on_two_workers_are_the_fits_made_here(shipped_calibration):
+    # cold_fits spreads the two laws' searches over a stage's workers, one task each: the
+    # same outcomes as cold_fit one after the other here (one answer per input)
+    from mpipe.inversion.fit.execution import stage_workers
+    from mpipe.inversion.settings import ExecutorConfig
+    from mpipe.inversion.whole_take.cold_starts import cold_fit, cold_fits
+
+    kernel, _ = bore_kernel(shipped_calibration, FS, 20.0)
+    sim = simulate(PLAYED["closure"], kernel, 28000)
+    p = sim.p + 1e-3 * np.std(sim.p) * np.random.default_rng(5).standard_normal(sim.p.size)
+    config = InversionConfig(sample_rate=FS)
+    jobs = [(24000, "", 20.0, dataclasses.replace(config, contact=law)) for law in PLAYED]
+    source = KernelSource(shipped_calibration, FS, {})
+    here = [cold_fit(p, sim.u, FS, source, s, f, t, c, False) for s, f, t, c in jobs]
+    with stage_workers((p, sim.u), ExecutorConfig(workers=2), 2):
+        spread = cold_fits(p, sim.u, FS, source, jobs, False)
+    for a, b in zip(here, spread, strict=True):
+        assert a.reed is not None and a.reed == b.reed and a.row["f2"] == b.row["f2"]
