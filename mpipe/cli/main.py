@@ -10,10 +10,14 @@ as one line, without a traceback.
 from __future__ import annotations
 
 import argparse
+import atexit
 import errno
 import importlib
 import logging
+import multiprocessing
+import os
 import sys
+import threading
 
 from mpipe import __version__
 from mpipe.core.config import ConfigError
@@ -149,5 +153,29 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
 
+def entry() -> None:
+    """The ``mpipe`` command: :func:`main`, then the process ends with its exit code.
+
+    When the command is done (every output written and closed, every worker pool ended)
+    the process ends without the interpreter's teardown: freeing the modules a run loads
+    (numpy, scipy, pandas, numba's compiled kernels) took 0.3-0.5 s after every command,
+    measured on the 4 s tone of the speed benchmark (main returned at 18.78 s, the process
+    ended at 19.27 s). The exit functions still run and the streams are flushed; with a
+    thread or a child process still alive the ordinary exit waits for them as before.
+    """
+    code = main()
+    others = [t for t in threading.enumerate() if t is not threading.main_thread()]
+    if any(not t.daemon for t in others) or multiprocessing.active_children():
+        sys.exit(code)
+    run_exit_functions = getattr(atexit, "_run_exitfuncs", None)
+    if run_exit_functions is None:  # not CPython: the ordinary exit
+        sys.exit(code)
+    run_exit_functions()
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

@@ -136,3 +136,29 @@ def test_help_is_printed_with_the_defaults(capsys):
     with pytest.raises(SystemExit):
         main(["separate", "--help"])
     assert "(default: " in capsys.readouterr().out
+
+
+def test_the_command_ends_with_its_code_its_whole_output_and_its_exit_functions(tmp_path,
+                                                                              capsys):  # fmt: skip
+    # entry() ends the process without the interpreter's teardown: the exit code, every
+    # line written to a pipe and the exit functions (here one that writes a file) survive
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    cal = Path(__file__).resolve().parents[2] / "calibration" / "simplified_clarinet.yaml"
+    assert main(["impedance", str(cal), "--fmax", "3000"]) == 0
+    here = capsys.readouterr().out
+    mark = tmp_path / "atexit.txt"
+    code = (
+        "import atexit, pathlib; from mpipe.cli.main import entry; "
+        f"atexit.register(pathlib.Path({str(mark)!r}).write_text, 'ran'); entry()"
+    )
+    ok = subprocess.run([sys.executable, "-c", code, "impedance", str(cal), "--fmax", "3000"],
+                        capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert ok.returncode == 0, ok.stderr
+    assert ok.stdout == here and len(here.splitlines()) > 5  # nothing lost in the pipe
+    assert mark.read_text() == "ran"
+    bad = subprocess.run([sys.executable, "-c", code, "impedance", str(tmp_path / "none.yaml")],
+                         capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert bad.returncode == 2 and "none.yaml" in bad.stderr
