@@ -77,9 +77,7 @@ def cold_fit(p, u, fs: float, source: KernelSource, start: int, fingering: str, 
     cold starts and the contact law's choice (:mod:`mpipe.inversion.whole_take.contact_law`)
     are made by it. Returns the window's ``WindowOutcome``.
     """
-    kernel, air = source.named(t, fingering)
-    return invert_window(p, u, fs, start, kernel, air.rho, config, zero_mean=zero_mean,
-                         errors=False)  # fmt: skip
+    return cold_fits(p, u, fs, source, [(start, fingering, t, config)], zero_mean)[0]
 
 
 def cold_fits(p, u, fs: float, source: KernelSource, jobs, zero_mean: bool) -> list:
