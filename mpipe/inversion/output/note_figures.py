@@ -23,6 +23,7 @@ import numpy as np
 import pandas as pd
 
 from mpipe.inversion.output.resynthesis import (
+    fixed_margins,
     pick_window,
     plot_signals,
     save_figure,
@@ -111,7 +112,7 @@ def note_figure(signals, fs: float, row: pd.Series, title: str, zero_mean: bool 
     a_up = fig.add_subplot(grid[:, 1])
     # a zero-mean flow is the flow's variation about its unknown mean: said so, never drawn
     # as the flow itself (it goes negative while the reed is shut)
-    u_name = "u − ū [m³/s] (zero-mean: the mean flow is not measured)" if zero_mean else "u [m³/s]"
+    u_name = "u − ū [m³/s]" if zero_mean else "u [m³/s]"
     for ax, meas, res, label in ((a_p, p, p_res, "p [Pa]"), (a_u, u, u_res, u_name)):
         ax.plot(t_ms, meas[show], color="0.6", lw=2.2, label="measured")
         ax.plot(t_ms, res[show], color="k", lw=0.9, label="resynthesised")
@@ -132,7 +133,11 @@ def note_figure(signals, fs: float, row: pd.Series, title: str, zero_mean: bool 
         top.set_xlabel("Δp = p_m − p [Pa]", fontsize=8)
     ok = str(row.get("status", "")) == "ok"
     words = textwrap.fill(window_words(row), 150)
+    if zero_mean:
+        words += "\nzero-mean flow (u − ū): its mean is not measured"
     fig.suptitle(f"{title}\n{words}", fontsize=9, color="k" if ok else "tab:red")
+    fixed_margins(fig, 1.0, 0.6, 0.2, 0.45 + 0.16 * (title.count("\n") + words.count("\n") + 2),
+                  wspace=0.18, hspace=0.43)  # fmt: skip
     return fig
 
 

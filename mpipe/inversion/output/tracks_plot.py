@@ -119,7 +119,7 @@ def plot_tracks(
     Path
     """
     # margins fixed by tracks_figure: tight_layout's extra draw cost 0.45 of 1.6 s CPU
-    return save_figure(tracks_figure(table, segments, fingering), path, layout=False)
+    return save_figure(tracks_figure(table, segments, fingering), path)
 
 
 def tracks_figure(

@@ -64,7 +64,9 @@ def test_a_zero_mean_flow_is_labelled_so_and_a_tapered_edge_is_not_drawn():
     fig = note_figure((p, u, p, u), FS, row, "note 1", zero_mean=True)
     try:
         a_p, a_u, a_up = fig.axes[:3]
-        assert "zero-mean" in a_u.get_ylabel() and "zero-mean" in a_up.get_ylabel()
+        # the flow's panels say it is the variation about the mean, the title why
+        assert "u − ū" in a_u.get_ylabel() and "zero-mean" in a_up.get_ylabel()
+        assert "its mean is not measured" in fig.get_suptitle()
         shown = np.asarray(a_p.lines[0].get_ydata(), dtype=float)
         assert np.ptp(shown[-100:]) > 1900  # the last period shown is at full amplitude
     finally:
