@@ -256,18 +256,39 @@ def problems_of(
     p, u, fs: float, starts: Sequence[int], notes: Sequence[int], fingerings: Sequence[str],
     config: InversionConfig, zero_mean: bool, n_taps: int,
 ) -> list[WindowProblem]:  # fmt: skip
-    """Every window's target and bounds (the fit's order of parameters: fast then slow)."""
+    """Every window's target and bounds (the fit's order of parameters: fast then slow).
+
+    p_m's upper bound is at least the configured factor times the largest pressure of the
+    window's note (:func:`note_peaks`), beside :func:`window_bounds`' context: p_m is one
+    mouth pressure a window holds, and a note whose oscillation builds up slowly plays far
+    below it for longer than any fixed context (a soft note of p_m 1400 Pa, just above its
+    threshold, grew from 50 to 770 Pa peak over 0.8 s: every window's bound lay below the
+    truth until its last, the fit ended on it in all 36 and the take FAILed).
+    """
     n = int(round(config.window_s * fs))
     order = layout_of(config).names
     index = [config.search_parameters.index(name) for name in order]
+    peaks = note_peaks(p, starts, notes, n)
+    pm = order.index("p_m") if "p_m" in order else None
     out = []
     for s, g, name in zip(starts, notes, fingerings, strict=True):
         history = lead_in(p, u, s, n, n_taps, config.lead_s, fs)
         target = TargetWindow(np.asarray(p[s : s + n], float), np.asarray(u[s : s + n], float),
                               *history, fs, zero_mean)  # fmt: skip
         bounds = window_bounds(config, p, s, n, fs)[index]
+        if pm is not None:
+            bounds[pm, 1] = max(bounds[pm, 1], config.bounds.p_m[1] * peaks[g])
         out.append(WindowProblem(int(s), int(g), name, target, bounds))
     return out
+
+
+def note_peaks(p, starts: Sequence[int], notes: Sequence[int], n: int) -> dict:
+    """Each note's largest pressure (Pa) over its windows' samples: note -> max p."""
+    spans: dict = {}
+    for s, g in zip(starts, notes, strict=True):
+        a, b = spans.get(g, (int(s), int(s) + n))
+        spans[g] = (min(a, int(s)), max(b, int(s) + n))
+    return {g: float(np.max(np.asarray(p[a:b], float))) for g, (a, b) in spans.items()}
 
 
 def _prior(t: float, prior: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
@@ -308,5 +329,6 @@ __all__ = [
     "search_boxes",
     "layout_of",
     "normal_system",
+    "note_peaks",
     "problems_of",
 ]

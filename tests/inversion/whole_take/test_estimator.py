@@ -113,3 +113,31 @@ def test_the_errors_respect_the_standard_errors(shipped_calibration, seed):
         parts = [table[f"{name}_se_{c}"].to_numpy() for c in ("noise", "model", "temperature")]
         z = (table[name].to_numpy() - true) / np.sqrt(sum(np.nan_to_num(x) ** 2 for x in parts))
         assert np.all(np.abs(z) < 3), (name, z)
+
+
+def test_a_slowly_building_notes_windows_may_reach_its_mouth_pressure():
+    # a note just above its threshold grows for longer than p_m_context_s: each window's
+    # p_m may reach twice the note's largest pressure, whatever its own and its
+    # neighbours' level (the soft note of bench_verdicts.py: p_m 1400 Pa, the first
+    # windows' peak 50 Pa; every window's bound lay below the truth and the take FAILed)
+    from mpipe.inversion.whole_take.estimator import layout_of, problems_of
+
+    fs, n = 44_100.0, 882
+    t = np.arange(int(0.8 * fs)) / fs
+    p = (50.0 + 1000.0 * t) * np.sin(2 * np.pi * 147.0 * t)  # 50 Pa growing to 850 Pa
+    config = InversionConfig(sample_rate=fs)
+    starts = list(range(4410, t.size - n, 4410))
+    quiet = list(range(len(starts)))  # every window, all in note 0
+    problems = problems_of(p, np.zeros_like(p), fs, starts, [0] * len(starts), [""] * len(starts),
+                           config, False, 64)  # fmt: skip
+    i = layout_of(config).names.index("p_m")
+    peak = float(np.max(p[starts[0] : starts[-1] + n]))
+    top = config.bounds.p_m[1] * peak
+    for k in quiet:
+        assert problems[k].bounds[i, 1] >= top * (1 - 1e-12)
+        # the lower bound stays the window's own (a quiet window's p_m is not raised)
+        own = float(np.max(p[starts[k] : starts[k] + n]))
+        assert problems[k].bounds[i, 0] == pytest.approx(config.bounds.p_m[0] * own)
+    # the first window's old bound (its 0.2 s context) lay far below the note's
+    context = float(np.max(p[: starts[0] + n + int(0.2 * fs)]))
+    assert config.bounds.p_m[1] * context < 0.5 * top
