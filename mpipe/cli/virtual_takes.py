@@ -358,10 +358,15 @@ def make_take(
     truth["swell"] = options.swell
     truth["breath_noise_pa"] = options.breath_noise_pa
     truth.update(played_truth(run, options.chunk_s))
-    if score is not None and len(set(score.fingerings(calibration.fingering))) > 1:
+    played = set(score.fingerings(calibration.fingering)) if score is not None else set()
+    if len(played) > 1:
         # the take plays several fingerings: its calibration copy names no default, so that
         # mpipe finds each note's (auto) instead of validating every note on one
         calibration = dataclasses.replace(calibration, fingering=None)
+    elif played and None not in played and played != {calibration.fingering}:
+        # every note plays one fingering, not the calibration's default: the copy names it
+        # (a steady xxoo note of the four-hole clarinet was validated on xxxx and FAILed)
+        calibration = calibration.with_fingering(played.pop())
     return _write(
         out,
         take,

@@ -136,3 +136,27 @@ def test_a_take_of_several_fingerings_leaves_each_notes_to_be_found(tmp_path):
     files = make_take(cal, reed, tmp_path / "t.flac", options)
     assert "fingering" not in yaml.safe_load(files.calibration.read_text())
     assert load_calibration(files.calibration).fingering == "auto"
+
+
+def test_a_take_of_one_fingering_names_it_in_its_calibration_copy(tmp_path):
+    # the verdict corpus: a steady xxoo note of the four-hole clarinet was written with
+    # the calibration's default xxxx, so mpipe run validated it on xxxx and FAILed the
+    # correct take at every SNR; its copy names the fingering the score plays
+    from pathlib import Path
+
+    from mpipe.cli.virtual_takes import SynthOptions, make_take
+    from mpipe.measurement.calibration import load_calibration
+
+    root = Path(__file__).resolve().parents[2]
+    cal, reed = (
+        root / "calibration" / "four_hole_clarinet.yaml",
+        root / "calibration" / "reed_table1.yaml",
+    )
+    score = tmp_path / "s.yaml"
+    notes = [{"duration": 0.1, "fingering": "xxoo", "p_m": 1800.0}]
+    score.write_text(yaml.safe_dump({"notes": notes}))
+    options = SynthOptions(duration_s=None, score=str(score), fs_model=50_000.0)
+    files = make_take(cal, reed, tmp_path / "t.flac", options)
+    copy = load_calibration(files.calibration)
+    assert copy.fingering == "xxoo"
+    assert copy.bore.open_holes == load_calibration(cal).with_fingering("xxoo").bore.open_holes
