@@ -29,6 +29,7 @@ from mpipe.inversion.fit.execution import stage_workers
 from mpipe.inversion.pooling.take_system import TierSizes
 from mpipe.inversion.preparation.kernel import KernelSource, bore_kernel, fingered
 from mpipe.inversion.settings import ExecutorConfig
+from mpipe.inversion.trust.status import MAD_FACTOR, MIN_NOTE
 from mpipe.inversion.whole_take.cold_starts import (
     agree,
     cold_fits,
@@ -322,9 +323,48 @@ def _run_from(stack: contextlib.ExitStack, data: TakeData, problems, origin: Ori
     kernels = functools.partial(pass_kernels, source, names=names)
     state, ended, total, passes, converged, message, left = _passes(take, state, kernels, ends,
                                                                     tolerance)  # fmt: skip
+    far = misfit_windows(take.problems, ended[0].rr, config.residual_factor)
+    if far and not left:  # windows the model does not play: fitted given their notes
+        may = [q.informs and i not in far for i, q in enumerate(take.problems)]
+        take.problems = informing(take.problems, may)
+        log.info("take fit: %d windows far above their notes' sum of squares fitted given "
+                 "their notes (at %s s)", len(far),
+                 ", ".join(f"{take.problems[i].start / fs:.3f}" for i in far[:5]))  # fmt: skip
+        state, ended, more, extra, converged, message, left = _passes(take, state, kernels,
+                                                                      ends, tolerance)  # fmt: skip
+        total, passes = total + more, passes + extra
     log.debug("take fit: passes after %.2f s", time.perf_counter() - clock)
     return _Run(take, state, ended[0], ended[1], total, passes, converged, message, excluded,
                 left, notes, ended[2])  # fmt: skip
+
+
+def misfit_windows(problems, rr, factor: float) -> list[int]:
+    """Informing windows whose F2 lies far above their note's: the model does not play them.
+
+    Over each note's informing windows (at least :data:`~mpipe.inversion.trust.status.MIN_NOTE`)
+    the level is robust, as the status's: ``max(factor x median, median + MAD_FACTOR x 1.4826
+    MAD)`` of their F2 (Pa, ``sqrt(rr)``). A window above it carries what the model cannot play
+    (a fingering changing within it, a click) and would pull its note's constants: on a
+    noise-free slur of the four-hole clarinet the window before the change (F2 48 times its
+    note's median) moved the first note's m by +84 %, g +110 %, k_c x15 and left its other
+    windows at 1.5 % relative residual against 0.02 % in the other notes. Such a window is
+    then fitted given its note, as a release's is (:func:`_informs`). F2 in Pa, not relative:
+    a quiet window's noise is no larger than a loud one's.
+    """
+    f2 = np.sqrt(np.maximum(np.asarray(rr, float), 0.0))
+    notes = np.array([q.note for q in problems])
+    may = np.array([q.informs for q in problems], dtype=bool)
+    out: list[int] = []
+    for note in np.unique(notes):
+        idx = np.flatnonzero((notes == note) & may)
+        if idx.size < MIN_NOTE:
+            continue
+        values = f2[idx]
+        median = float(np.median(values))
+        spread = 1.4826 * float(np.median(np.abs(values - median)))
+        level = max(factor * median, median + MAD_FACTOR * spread)
+        out += idx[values > level].tolist()
+    return sorted(out)
 
 
 def _finish(run: _Run, data: TakeData, rivals: tuple) -> TakeFit:
@@ -439,4 +479,4 @@ def _problems(p, u, fs, source, windows, config, zero_mean, t):
     return problems_of(p, u, fs, starts, notes, names, config, zero_mean, n_taps), steady
 
 
-__all__ = ["fit_take", "rival_costs", "thinned"]
+__all__ = ["fit_take", "misfit_windows", "rival_costs", "thinned"]

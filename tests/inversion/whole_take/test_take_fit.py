@@ -157,3 +157,22 @@ def test_a_tongued_notes_build_up_informs_its_constants(tmp_path):
     assert len(build_up) >= 3
     assert bool(t["informs_note"].iloc[build_up].all())
     _at_the_truth(done, true)
+
+
+def test_a_window_far_above_its_notes_sum_of_squares_no_longer_informs_it():
+    # misfit_windows: per note, the informing windows whose F2 lies above max(3 x median,
+    # median + 5 MAD) of the note's; a note of fewer than MIN_NOTE informing windows and a
+    # window already fitted given its note are not judged. Noise alone (F2 within a few
+    # per cent of each other, 40 windows, 5 seeds) never leaves a window out
+    from types import SimpleNamespace as Q
+
+    from mpipe.inversion.whole_take.take_fit import misfit_windows
+
+    problems = [Q(note=0, informs=True) for _ in range(10)] + [Q(note=1, informs=True)] * 3
+    problems[4] = Q(note=0, informs=False)  # a release: not judged
+    f2 = np.ones(13)
+    f2[[2, 4, 11]] = 48.0  # the slur's window, a release far off, a short note's window
+    assert misfit_windows(problems, f2**2, 3.0) == [2]
+    for seed in range(5):
+        rr = (1.0 + 0.03 * np.random.default_rng(seed).standard_normal(40)) ** 2
+        assert misfit_windows([Q(note=0, informs=True)] * 40, rr, 3.0) == []
