@@ -1,5 +1,7 @@
 """Virtual takes: rates an audio file cannot store are refused before any work."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import yaml
@@ -119,21 +121,9 @@ def test_a_take_of_several_fingerings_leaves_each_notes_to_be_found(tmp_path):
     # the verdict corpus (issue 38): a score slurring xxxx -> xxoo was written with the
     # calibration's default xxxx, so mpipe run validated both notes on xxxx and FAILed the
     # correct take; its copy names no default, so each note's fingering is found (auto)
-    from pathlib import Path
-
-    from mpipe.cli.virtual_takes import SynthOptions, make_take
     from mpipe.measurement.calibration import load_calibration
 
-    root = Path(__file__).resolve().parents[2]
-    cal, reed = (
-        root / "calibration" / "four_hole_clarinet.yaml",
-        root / "calibration" / "reed_table1.yaml",
-    )
-    score = tmp_path / "s.yaml"
-    notes = [{"duration": 0.1, "fingering": f, "p_m": 1800.0} for f in ("xxxx", "xxoo")]
-    score.write_text(yaml.safe_dump({"notes": notes}))
-    options = SynthOptions(duration_s=None, score=str(score), fs_model=50_000.0)
-    files = make_take(cal, reed, tmp_path / "t.flac", options)
+    files = _four_hole_take(tmp_path, ("xxxx", "xxoo"))
     assert "fingering" not in yaml.safe_load(files.calibration.read_text())
     assert load_calibration(files.calibration).fingering == "auto"
 
@@ -142,21 +132,23 @@ def test_a_take_of_one_fingering_names_it_in_its_calibration_copy(tmp_path):
     # the verdict corpus: a steady xxoo note of the four-hole clarinet was written with
     # the calibration's default xxxx, so mpipe run validated it on xxxx and FAILed the
     # correct take at every SNR; its copy names the fingering the score plays
-    from pathlib import Path
-
-    from mpipe.cli.virtual_takes import SynthOptions, make_take
     from mpipe.measurement.calibration import load_calibration
 
-    root = Path(__file__).resolve().parents[2]
-    cal, reed = (
-        root / "calibration" / "four_hole_clarinet.yaml",
-        root / "calibration" / "reed_table1.yaml",
-    )
-    score = tmp_path / "s.yaml"
-    notes = [{"duration": 0.1, "fingering": "xxoo", "p_m": 1800.0}]
-    score.write_text(yaml.safe_dump({"notes": notes}))
-    options = SynthOptions(duration_s=None, score=str(score), fs_model=50_000.0)
-    files = make_take(cal, reed, tmp_path / "t.flac", options)
+    files = _four_hole_take(tmp_path, ("xxoo",))
     copy = load_calibration(files.calibration)
     assert copy.fingering == "xxoo"
-    assert copy.bore.open_holes == load_calibration(cal).with_fingering("xxoo").bore.open_holes
+    shipped = load_calibration(FOUR_HOLE).with_fingering("xxoo")
+    assert copy.bore.open_holes == shipped.bore.open_holes
+
+
+FOUR_HOLE = Path(__file__).resolve().parents[2] / "calibration" / "four_hole_clarinet.yaml"
+
+
+def _four_hole_take(folder, fingerings):
+    """A virtual take of the four-hole clarinet, one 0.1 s note per fingering given."""
+    reed = FOUR_HOLE.parents[0] / "reed_table1.yaml"
+    score = folder / "s.yaml"
+    notes = [{"duration": 0.1, "fingering": f, "p_m": 1800.0} for f in fingerings]
+    score.write_text(yaml.safe_dump({"notes": notes}))
+    options = SynthOptions(duration_s=None, score=str(score), fs_model=50_000.0)
+    return make_take(FOUR_HOLE, reed, folder / "t.flac", options)

@@ -379,10 +379,10 @@ def save_figure(fig, path: str | Path) -> Path:
 def fixed_margins(fig, left: float, bottom: float, right: float, top: float, **spacing) -> None:
     """Set the figure's margins in inches (``spacing``: ``wspace``, ``hspace`` as fractions).
 
-    Each figure's margins are what ``tight_layout`` chose on the shipped example's figures
-    with room for a wider tick label; drawing with ``tight_layout`` cost 0.19-0.26 s of CPU
-    against 0.15-0.16 s for a two-panel figure (measured on 2026-12-07), and the figures of
-    the run's last stage are waited for.
+    Each figure's margins are what ``tight_layout`` chose on the figures of the speed
+    benchmark's 4 s tone, with room for a wider tick label; drawing with ``tight_layout``
+    cost 0.19-0.26 s of CPU against 0.15-0.16 s for a two-panel figure (measured on
+    2026-12-07), and the figures of the run's last stage are waited for.
     """
     width, height = fig.get_size_inches()
     fig.subplots_adjust(left=left / width, right=1.0 - right / width, bottom=bottom / height,

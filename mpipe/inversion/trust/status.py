@@ -334,19 +334,25 @@ def _allowed_model_residual(table, status, config, segments) -> np.ndarray:
         segments = table["segment"] if "segment" in table else np.zeros(len(table), dtype=int)
     seg = pd.to_numeric(pd.Series(list(segments)), errors="coerce").fillna(-1).to_numpy()
     usable = np.array([s != "failed" for s in status]) & np.isfinite(mr)
-
-    def level(values: np.ndarray) -> float:
-        median = float(np.median(values))
-        spread = 1.4826 * float(np.median(np.abs(values - median)))
-        return max(config.residual_factor * median, median + MAD_FACTOR * spread)
-
-    take = level(mr[usable]) if usable.any() else math.nan
+    factor = config.residual_factor
+    take = robust_level(mr[usable], factor) if usable.any() else math.nan
     allowed = np.full(mr.size, np.nan)
     for g in np.unique(seg):
         mine = seg == g
         pool = mr[mine & usable]
-        allowed[mine] = level(pool) if pool.size >= MIN_NOTE else take
+        allowed[mine] = robust_level(pool, factor) if pool.size >= MIN_NOTE else take
     return allowed
+
+
+def robust_level(values: np.ndarray, factor: float) -> float:
+    """The level a note's windows allow: ``max(factor x median, median + MAD_FACTOR s)``.
+
+    ``s`` is the robust standard deviation ``1.4826 MAD`` of ``values``; the unit is theirs.
+    """
+    values = np.asarray(values, dtype=float)
+    median = float(np.median(values))
+    spread = 1.4826 * float(np.median(np.abs(values - median)))
+    return max(factor * median, median + MAD_FACTOR * spread)
 
 
 def count(table: pd.DataFrame) -> dict[str, int]:
@@ -372,6 +378,7 @@ __all__ = [
     "count",
     "on_bounds",
     "required_quantities",
+    "robust_level",
     "search_bounds",
     "summary_line",
     "window_status",

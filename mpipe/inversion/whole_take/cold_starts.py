@@ -87,7 +87,9 @@ def cold_fits(p, u, fs: float, source: KernelSource, jobs, zero_mean: bool) -> l
     search run in the worker, one by one): the searches' own tasks are too few to keep two
     workers busy, and a search's step 1 and polish run alone. The kernels are built here
     first (once, kept in ``source``). Returns the ``WindowOutcome`` of each job, in order:
-    the same as :func:`cold_fit` on each, with any number of workers.
+    the same as :func:`cold_fit` on each, with any number of workers. Inside a pool of
+    :func:`~mpipe.inversion.fit.execution.stage_workers` the workers read the take's p and u
+    the pool was made with, which must be ``p`` and ``u``.
     """
     items = []
     for start, fingering, t, config in jobs:

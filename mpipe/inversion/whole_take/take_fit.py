@@ -29,7 +29,7 @@ from mpipe.inversion.fit.execution import stage_workers
 from mpipe.inversion.pooling.take_system import TierSizes
 from mpipe.inversion.preparation.kernel import KernelSource, bore_kernel, fingered
 from mpipe.inversion.settings import ExecutorConfig
-from mpipe.inversion.trust.status import MAD_FACTOR, MIN_NOTE
+from mpipe.inversion.trust.status import MIN_NOTE, robust_level
 from mpipe.inversion.whole_take.cold_starts import (
     agree,
     cold_fits,
@@ -342,8 +342,8 @@ def misfit_windows(problems, rr, factor: float) -> list[int]:
     """Informing windows whose F2 lies far above their note's: the model does not play them.
 
     Over each note's informing windows (at least :data:`~mpipe.inversion.trust.status.MIN_NOTE`)
-    the level is robust, as the status's: ``max(factor x median, median + MAD_FACTOR x 1.4826
-    MAD)`` of their F2 (Pa, ``sqrt(rr)``). A window above it carries what the model cannot play
+    the level is the status's (:func:`~mpipe.inversion.trust.status.robust_level`) of their
+    F2 (Pa, ``sqrt(rr)``). A window above it carries what the model cannot play
     (a fingering changing within it, a click) and would pull its note's constants: on a
     noise-free slur of the four-hole clarinet the window before the change (F2 48 times its
     note's median) moved the first note's m by +84 %, g +110 %, k_c x15 and left its other
@@ -359,11 +359,7 @@ def misfit_windows(problems, rr, factor: float) -> list[int]:
         idx = np.flatnonzero((notes == note) & may)
         if idx.size < MIN_NOTE:
             continue
-        values = f2[idx]
-        median = float(np.median(values))
-        spread = 1.4826 * float(np.median(np.abs(values - median)))
-        level = max(factor * median, median + MAD_FACTOR * spread)
-        out += idx[values > level].tolist()
+        out += idx[f2[idx] > robust_level(f2[idx], factor)].tolist()
     return sorted(out)
 
 
