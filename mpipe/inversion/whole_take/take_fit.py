@@ -55,6 +55,7 @@ from mpipe.inversion.whole_take.gauss_newton import (
     TakeProblem,
     joint_pass,
 )
+from mpipe.inversion.whole_take.note_starts import swapped_origin
 from mpipe.inversion.whole_take.shard_workers import Shards, shard_ranges
 from mpipe.inversion.whole_take.take_shards import DELTA_T_C, ShardSpec
 from mpipe.inversion.whole_take.warm_starts import Origin, chains, renumber, run_start
@@ -117,7 +118,10 @@ def fit_take(
         thin = thinned(problems)
         if len(thin) < len(problems):  # the basins found on the thinned take, then the whole
             with contextlib.ExitStack() as searched:
-                found = fit_(searched, [problems[i] for i in thin], origins, tolerance=LOOSE_SE)
+                sub = [problems[i] for i in thin]
+                found = fit_(searched, sub, origins, tolerance=LOOSE_SE)
+                found, origins, colds = _note_start(fit_, searched, sub, (found, origins, colds),
+                                                    tolerance=LOOSE_SE)  # fmt: skip
                 costs = rival_costs(found)
                 order = [int(k) for k in np.argsort(costs)]
                 near = [k for k in order[1:] if not found[k].left
@@ -133,6 +137,8 @@ def fit_take(
         else:
             origins_full = origins
         runs = fit_(stack, problems, origins_full)
+        if len(thin) == len(problems):
+            runs, _, colds = _note_start(fit_, stack, problems, (runs, origins_full, colds))
         costs = rival_costs(runs)
         best = int(np.argmin(costs))
         rivals = [k for k, r in enumerate(runs) if k != best and not r.left
@@ -171,6 +177,22 @@ def thinned(problems) -> list[int]:
             every = idx[np.round(np.linspace(0, idx.size - 1, THIN_MIN)).astype(int)]
         out += sorted(set(every.tolist()))
     return sorted(out)
+
+
+def _note_start(fit_, stack, problems, starts, **kw):
+    """One more start where notes of the lowest run lie in a worse basin than another's.
+
+    ``starts = (runs, origins, colds)``, one of each per run; returns them with the run from
+    :func:`~mpipe.inversion.whole_take.note_starts.swapped_origin` added (its origin, and the
+    cold start of the run it moved), or as given when no note of the lowest run moved.
+    """
+    runs, origins, colds = starts
+    k = int(np.argmin(rival_costs(runs)))
+    swapped = swapped_origin(runs[k], origins[k])
+    if swapped is None:
+        return runs, origins, colds
+    run = fit_(stack, problems, [swapped[0]], **kw)[0]
+    return [*runs, run], [*origins, swapped[0]], [*colds, colds[k]]
 
 
 def _runs(stack, problems, origins, *, data, prior, t_range, workers, source,

@@ -74,7 +74,7 @@ def run_start(shards: Shards, problems, layout: Layout, origin: Origin):
     base = np.array([getattr(cold, n) for n in layout.names[f:]])
     slow = np.array([origin.slow.get(n, base) for n in notes], float)
     row = {n: k for k, n in enumerate(notes)}
-    found = _warm(shards, problems, layout, origin, slow[[row[q.note] for q in problems]])
+    found = warm_controls(shards, problems, layout, origin, slow[[row[q.note] for q in problems]])
     cold_fast = np.array([getattr(cold, n) for n in layout.names[:f]])
     excluded = {q.start: "the model does not play this window from the take's cold start"
                 for q, x in zip(problems, found, strict=True) if x is None}  # fmt: skip
@@ -84,7 +84,7 @@ def run_start(shards: Shards, problems, layout: Layout, origin: Origin):
     return slow, fast, excluded
 
 
-def _warm(shards: Shards, problems, layout: Layout, origin: Origin, slow):
+def warm_controls(shards: Shards, problems, layout: Layout, origin: Origin, slow):
     """Every window's fast controls warm along its chain: ``(fast, r^T r)`` or None.
 
     ``slow`` are each window's note's constants (W, s), held. A chain's first window
@@ -123,4 +123,4 @@ def renumber(problems):
     return [dataclasses.replace(q, note=index[q.note]) for q in problems]
 
 
-__all__ = ["Origin", "chains", "renumber", "run_start"]
+__all__ = ["Origin", "chains", "renumber", "run_start", "warm_controls"]
