@@ -289,6 +289,15 @@ class InversionConfig:
         between(1e-6, 10.0),
         default=0.10,
     )
+    model_form_limit: float = spec(
+        "",
+        "a note whose windows leave a median misfit at the harmonics beyond the noise "
+        "(model_residual, a fraction of the pressure) above this is flagged: the model "
+        "cannot play what was played (an independent simulator's notes, OpenWInD, left at "
+        "most 0.014, a flow no reed makes 0.026-0.046: docs/uncertainty.md)",
+        between(1e-6, 1.0),
+        default=0.02,
+    )
     model_form_floor: float = spec(
         "",
         "model-form floor: the misfit the model is assumed to leave at least at every "

@@ -17,11 +17,11 @@ not fire):
 - a note of at least :data:`NOTE_MIN_WINDOWS` windows of which at least half ended
   ``at-bound``, ``failed``, ``not-converged`` or ``high-residual``: the model cannot play
   it (a reed outside the search bounds, another fingering);
-- at least :data:`OUTLIER_MIN` windows inside their notes (and :data:`OUTLIER_FRACTION`
-  of them)
-  whose residual is more than :data:`OUTLIER_FACTOR` times the take's lower quartile (its normal
-  level, even with half its windows far off): something the model does not play (another
-  sound, a click, a manipulated signal);
+- a note whose windows leave, at their harmonics beyond the noise (``model_residual``,
+  :mod:`mpipe.inversion.trust.harmonics`), a median misfit above
+  ``inversion.model_form_limit``: the model cannot play what was played (a flow no reed
+  makes, another instrument); each window's status judges it against its note, so a
+  note misfit throughout is seen here (:func:`_misfit_notes`);
 - reasons found before the inversion (``extra``: e.g. a take read with a calibration
   other than the one its sidecar records, :mod:`mpipe.pipeline.take_calibration`).
 
@@ -47,16 +47,6 @@ MIN_AGREEING = 2
 NOTE_MIN_WINDOWS = 3
 #: Statuses of windows the model did not play: half a note of them and the note is flagged.
 UNPLAYED = ("at-bound", "failed", "not-converged", "high-residual")
-#: A window inside its note whose relative residual is more than this many times the take's
-#: lower quartile is an outlier (a right fit's stayed within 3x of it on the good takes
-#: measured; its releases reach 24x, so each note's first and last windows are left out).
-OUTLIER_FACTOR = 5.0
-#: Windows left out at each end of a note by the outlier check.
-OUTLIER_EDGE = 2
-#: Outlier windows flag the take from this many on, and from this fraction of its windows.
-OUTLIER_MIN = 3
-OUTLIER_FRACTION = 0.02
-
 #: Plausible ``|P(f0)| / (Z_c |U(f0)|)`` at the mouthpiece: a reed plays near a resonance
 #: of the bore, where |Z_in| / Z_c is about 3 to 50 (15 on the shipped instrument); a flow
 #: in L/s (x1000) or scaled by 0.001 moves it by three decades.
@@ -133,7 +123,7 @@ def take_checks(
         return reasons
     reasons += _playing_checks(table, config)
     reasons += _unplayable_notes(table)
-    reasons += _outlier_windows(table)
+    reasons += _misfit_notes(table, config)
     return reasons
 
 
@@ -205,46 +195,43 @@ def _which(rows: pd.DataFrame, segment) -> str:
     return f"note {int(number.iloc[0])}" if len(number) else f"segment {segment}"
 
 
-def _outlier_windows(table: pd.DataFrame) -> list[str]:
-    """Windows inside their notes whose residual is many times the take's lower quartile.
+def _misfit_notes(table: pd.DataFrame, config: InversionConfig) -> list[str]:
+    """Notes whose windows' median model-form residual exceeds ``model_form_limit``.
 
-    The first and last :data:`OUTLIER_EDGE` windows of each note (its attack and release)
-    are left out when enough windows remain: a right fit leaves a release window at up to
-    24x the lower quartile.
+    Over each note's windows that inform it (``informs_note``; all where the column is
+    absent) with a finite ``model_residual``; a note of fewer than :data:`NOTE_MIN_WINDOWS`
+    such windows is judged with the take's (all its windows as one). The median, not the
+    sum: the few windows a note cannot hold (a fingering changing within one, a click) are
+    flagged one by one by their statuses and do not make the note misfit.
     """
-    if "relative_residual" not in table:
+    if "model_residual" not in table:
         return []
-    segments = table["segment"] if "segment" in table else pd.Series(0, index=table.index)
-    order = segments.groupby(segments).cumcount()
-    size = segments.map(segments.value_counts())
-    held = ((order >= OUTLIER_EDGE) & (order < size - OUTLIER_EDGE)).to_numpy()
-    rows = table[held] if held.sum() >= 2 * OUTLIER_MIN else table
-    residual = pd.to_numeric(rows["relative_residual"], errors="coerce")
-    finite = residual[np.isfinite(residual)]
-    if not len(finite):
-        return []
-    # the lower quartile: the normal level even when half the windows are far off
-    normal = float(finite.quantile(0.25))
-    far = finite[finite > OUTLIER_FACTOR * normal]
-    if len(far) < max(OUTLIER_MIN, OUTLIER_FRACTION * len(finite)):
-        return []
-    t = (
-        pd.to_numeric(rows.loc[far.index, "t_start_s"], errors="coerce")
-        if "t_start_s" in rows
-        else None
-    )
-    at = (
-        ""
-        if t is None
-        else " at " + ", ".join(f"{x:.2f}" for x in t.head(5)) + (" s, ..." if len(t) > 5 else " s")
-    )
-    return [
-        f"{len(far)} of {len(finite)} {'' if rows is table else 'inner '}windows have a "
-        "residual more than "
-        f"{OUTLIER_FACTOR:g}x the take's lower quartile {normal:.3g} (up to "
-        f"{float(far.max()) / normal:.0f}x){at}: something the model does not play (another "
-        "sound, a click, a manipulated signal)"
-    ]
+    misfit = pd.to_numeric(table["model_residual"], errors="coerce")
+    use = np.isfinite(misfit.to_numpy(dtype=float))
+    if "informs_note" in table:
+        use &= table["informs_note"].astype(str).str.lower().isin(("true", "1")).to_numpy()
+    rows = table[use]
+    segments = rows["segment"] if "segment" in rows else pd.Series(0, index=rows.index)
+    sizes = segments.map(segments.value_counts())
+    groups = segments.where(sizes >= NOTE_MIN_WINDOWS, other=-1)
+    if (groups == -1).all():  # no note of its own: the take's windows as one
+        groups = pd.Series(-1, index=rows.index)
+    elif (groups == -1).any():
+        groups = groups[groups != -1]
+    limit = config.model_form_limit
+    reasons = []
+    for g, idx in groups.groupby(groups, sort=True).groups.items():
+        level = float(np.median(misfit[idx]))
+        if not level > limit:
+            continue
+        which = "the take's windows" if g == -1 else _which(rows.loc[idx], g)
+        reasons.append(
+            f"{which}: the model leaves {100 * level:.2g} % of the pressure at the harmonics "
+            f"beyond the noise (median of {len(idx)} windows; inversion.model_form_limit "
+            f"{100 * limit:g} %): the model cannot play what was played (a flow no reed "
+            "makes, another instrument, a wrong bore)"
+        )
+    return reasons
 
 
 def _values(table: pd.DataFrame, column: str) -> np.ndarray:
@@ -262,10 +249,6 @@ __all__ = [
     "IMPEDANCE_RATIO_RANGE",
     "MIN_AGREEING",
     "NOTE_MIN_WINDOWS",
-    "OUTLIER_EDGE",
-    "OUTLIER_FACTOR",
-    "OUTLIER_FRACTION",
-    "OUTLIER_MIN",
     "UNPLAYED",
     "PRESSURE_RANGE",
     "check_plausible",
