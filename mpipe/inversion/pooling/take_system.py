@@ -233,6 +233,16 @@ class TakeSystem:
             big[np.diag_indices_from(big)] += mu * np.maximum(diag, 1e-12 * max(diag.max(), 1e-300))
         return big, rhs, f_inv, kq
 
+    def shared_information(self) -> np.ndarray:
+        """R: the cost's curvature in the shared unknowns, each window's controls eliminated.
+
+        ``d^T R d`` is the rise of the sum of squares (prior included) the linear model
+        predicts when the notes' constants and the take's unknowns move by ``d`` (ln x,
+        and the take's own units) from a minimum, every window's controls fitted again;
+        (N s + t) square.
+        """
+        return self._reduced(0.0)[0]
+
     def step(self, mu: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The Levenberg-Marquardt step ``(A + mu diag A) d = -g`` by the two eliminations.
 

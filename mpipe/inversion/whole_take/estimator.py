@@ -203,7 +203,7 @@ class TakeFit:
         Each window's F2 (Pa) at every point the fit took, (points, W).
     rivals : tuple of float
         The cost of the fit from each of the take's cold starts that began in a basin of
-        its own, this one's among them (``take_fit.rival_costs``; empty: one start).
+        its own, this one's among them (``rivals.rival_costs``; empty: one start).
     frontend : FrontendShares, optional
         The solution moved by one SE of each front-end parameter
         (:mod:`mpipe.inversion.whole_take.frontend_joint`); None: not measured.

@@ -14,7 +14,7 @@ constants with its windows' controls fitted along their chains and the constants
 shards for every note at once). A note whose sum there lies below its own fitted minimum
 is in a worse basin; :func:`swapped_origin` starts it from those constants, and the run
 from that origin is one more start of the multi-start search: its cost on the take decides
-(:func:`~mpipe.inversion.whole_take.take_fit.rival_costs`), not a rule.
+(:func:`~mpipe.inversion.whole_take.rivals.rival_costs`), not a rule.
 """
 
 from __future__ import annotations

@@ -56,6 +56,7 @@ from mpipe.inversion.whole_take.gauss_newton import (
     joint_pass,
 )
 from mpipe.inversion.whole_take.note_starts import swapped_origin
+from mpipe.inversion.whole_take.rivals import RIVAL_MARGIN, apart, rival_costs
 from mpipe.inversion.whole_take.shard_workers import Shards, shard_ranges
 from mpipe.inversion.whole_take.take_shards import DELTA_T_C, ShardSpec
 from mpipe.inversion.whole_take.warm_starts import Origin, chains, renumber, run_start
@@ -142,7 +143,7 @@ def fit_take(
         costs = rival_costs(runs)
         best = int(np.argmin(costs))
         rivals = [k for k, r in enumerate(runs) if k != best and not r.left
-                  and not agree(r.state.slow, runs[best].state.slow)]  # fmt: skip
+                  and apart(runs[best], r) > RIVAL_MARGIN]  # fmt: skip
         if len(runs) > 1:
             log.info("take fit: %d starts in different basins, costs %s (%s); the lowest "
                      "kept", len(runs), ", ".join(f"{c:.6g}" for c in costs),
@@ -259,25 +260,6 @@ def _leave(take: TakeProblem, state: FitState, blocks, weight: float, *, first: 
     if mine > theirs + LEAVE_MARGIN:
         return f"left: its cost {mine:.6g} above the first start's {theirs:.6g}"
     return ""
-
-
-def rival_costs(runs) -> np.ndarray:
-    """Each run's cost on one scale: the first run's weight, the windows all runs kept.
-
-    ``weight * sum(F2^2) + ((T - T_prior) / se)^2`` over the informing windows every run
-    kept (first samples in common), so runs that left out different windows compare on the
-    same data (the cost each minimised).
-    """
-    common = set.intersection(*({q.start for q in r.take.problems if q.informs}
-                                for r in runs))  # fmt: skip
-    weight = runs[0].weight
-    mean, se = runs[0].take.prior
-    out = []
-    for r in runs:
-        keep = np.array([q.start in common for q in r.take.problems])
-        ss = float(np.sum(r.blocks.rr[keep]))
-        out.append(weight * ss + ((r.state.t - mean) / se) ** 2)
-    return np.array(out)
 
 
 @dataclass
@@ -497,4 +479,4 @@ def _problems(p, u, fs, source, windows, config, zero_mean, t):
     return problems_of(p, u, fs, starts, notes, names, config, zero_mean, n_taps), steady
 
 
-__all__ = ["fit_take", "misfit_windows", "rival_costs", "thinned"]
+__all__ = ["fit_take", "misfit_windows", "thinned"]

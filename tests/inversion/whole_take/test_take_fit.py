@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from mpipe.inversion.whole_take.cold_starts import cold_windows
-from mpipe.inversion.whole_take.take_fit import THIN, THIN_MIN, rival_costs, thinned
+from mpipe.inversion.whole_take.rivals import rival_costs
+from mpipe.inversion.whole_take.take_fit import THIN, THIN_MIN, thinned
 
 
 def _problem(start: int, amplitude: float):
