@@ -144,7 +144,7 @@ def foreign_take(folder: Path, geo: str, play: str, snr: str, cache: Path, seed:
     """An OpenWInD take of a cached simulation (simulated here when missing)."""
     from mpipe.reed.take_files import take_file_paths
 
-    g, p = fsim.GEOMETRIES[geo], fsim.PLAYINGS[play]
+    g, p = fsim.GEOMETRIES[geo], fsim.PLAYINGS.get(play, fsim.SLUR)
     stem = f"foreign_{geo}_{play}_{snr}"
     files = take_file_paths(folder / "takes" / f"{stem}.flac")
     if files.truth.exists() and files.calibration.exists():
@@ -152,7 +152,8 @@ def foreign_take(folder: Path, geo: str, play: str, snr: str, cache: Path, seed:
     (folder / "takes").mkdir(parents=True, exist_ok=True)
     reed = fsim.reed_for(g, REED)
     sim = fsim.simulate(g, p, reed, bf.RECORD_FS, cache)
-    cal = fsim.write_calibration(g, folder / "takes")
+    slur = fsim.SLUR_FINGERINGS if p is fsim.SLUR else None  # its calibration names both
+    cal = fsim.write_calibration(g, folder / "takes", slur)
     return fsim.write_take(sim, folder / "takes", stem, g, p, reed, SNRS[snr], bf.RECORD_FS,
                            seed, cal)  # fmt: skip
 
@@ -388,7 +389,7 @@ def corpus(args) -> list[Case]:
     """The cases chosen by the command line."""
     cases = []
     own_plays = ("steady", "crescendo", "phrase", "slurs", "holed") if args.quick else tuple(OWN)
-    geo_plays = [(g, p) for g in FOREIGN_GEOS for p in FOREIGN_PLAYS]
+    geo_plays = [(g, p) for g in FOREIGN_GEOS for p in FOREIGN_PLAYS] + [("holed", "slur")]
     if args.quick:
         geo_plays = [("cylinder", "crescendo"), ("holed", "tongued"), ("conical", "vibrato")]
     snrs = args.snrs or (("clean", "45") if args.quick else tuple(SNRS))

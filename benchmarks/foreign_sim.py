@@ -115,6 +115,11 @@ PLAYINGS = {
 }
 #: The silence between the two articulated notes, s.
 HOLD = (0.55, 0.70)
+#: A slur of the holed tube between two fingerings at the middle of the take (not in
+#: PLAYINGS: the other geometries have no holes): the fingerings, the change's duration (s).
+SLUR = Playing("slur", "gamma 0.55, fingering xoo -> xxo over 50 ms at the middle", 1.2)
+SLUR_FINGERINGS = ("xoo", "xxo")
+SLUR_TRANSITION_S = 0.05
 
 
 def _ramp(x):
@@ -162,6 +167,22 @@ def controls(playing: Playing, p_close: float):
     return pm, [(0.0, d)]
 
 
+def slur_controls(playing: Playing, p_close: float):
+    """:func:`controls` of :data:`SLUR`: a steady gamma 0.55, two notes split at the middle."""
+    d = playing.duration
+
+    def pm(t):
+        t = np.asarray(t, dtype=float)
+        return p_close * 0.55 * _ramp(t / ATTACK_S) * _ramp((d - t) / RELEASE_S)
+
+    return pm, [(0.0, 0.5 * d), (0.5 * d, d)]
+
+
+def playing_controls(playing: Playing, p_close: float):
+    """:func:`controls`, or :func:`slur_controls` for :data:`SLUR`."""
+    return (slur_controls if playing.name == SLUR.name else controls)(playing, p_close)
+
+
 def reed_for(geometry: Geometry, reed_path: Path):
     """The Table 1 reed scaled by the geometry's factors (an mpipe ReedParameters)."""
     from mpipe.reed.parameters import load_reed
@@ -170,8 +191,12 @@ def reed_for(geometry: Geometry, reed_path: Path):
     return dataclasses.replace(reed, **{k: getattr(reed, k) * f for k, f in geometry.reed_scale})
 
 
-def calibration_mapping(geometry: Geometry) -> dict:
-    """The mpipe calibration of the geometry (the same bore OpenWInD plays)."""
+def calibration_mapping(geometry: Geometry, fingerings=None) -> dict:
+    """The mpipe calibration of the geometry (the same bore OpenWInD plays).
+
+    ``fingerings``: the fingerings it names (a take of several, none the default); None:
+    the geometry's own, named as the take's.
+    """
     segs = []
     for i, (a, b, r0, r1) in enumerate(geometry.segments):
         seg = {"name": f"s{i + 1}", "x_start": a, "x_end": b}
@@ -198,14 +223,20 @@ def calibration_mapping(geometry: Geometry) -> dict:
         bore["holes"] = [{"name": n, "position": x, "radius": r, "chimney": c}
                          for n, x, r, c in geometry.holes]  # fmt: skip
         fing = "".join("o" if h[0] in geometry.open_holes else "x" for h in geometry.holes)
-        data["fingerings"] = {fing: list(geometry.open_holes)}
-        data["fingering"] = fing
+        if fingerings is None:
+            data["fingerings"] = {fing: list(geometry.open_holes)}
+            data["fingering"] = fing
+        else:
+            data["fingerings"] = {f: [h[0] for h, c in zip(geometry.holes, f, strict=True)
+                                      if c == "o"] for f in fingerings}  # fmt: skip
     return data
 
 
-def write_calibration(geometry: Geometry, folder: Path) -> Path:
-    path = folder / f"{geometry.name}.calibration.yaml"
-    path.write_text(yaml.safe_dump(calibration_mapping(geometry), sort_keys=False))
+def write_calibration(geometry: Geometry, folder: Path, fingerings=None) -> Path:
+    """The geometry's calibration file in ``folder`` (``fingerings``: as calibration_mapping)."""
+    stem = geometry.name if fingerings is None else f"{geometry.name}_{'_'.join(fingerings)}"
+    path = folder / f"{stem}.calibration.yaml"
+    path.write_text(yaml.safe_dump(calibration_mapping(geometry, fingerings), sort_keys=False))
     return path
 
 
@@ -230,11 +261,32 @@ def _physics(geometry: Geometry, reed_dict: dict):
                              humidity=HUMIDITY, carbon=CO2, **extra)  # fmt: skip
 
 
+def _slur_physics(geometry: Geometry, reed_dict: dict, playing: Playing):
+    """:func:`_physics` of :data:`SLUR`: the fingering changes at the middle of the take."""
+    from openwind import InstrumentGeometry, InstrumentPhysics, Player
+
+    shape = [[a, b, r0, r1, "linear"] for a, b, r0, r1 in geometry.segments]
+    holes = [["label", "position", "radius", "chimney"], *[list(h) for h in geometry.holes]]
+    chart = [["label", *SLUR_FINGERINGS]] + [
+        [h[0], *(f[i] for f in SLUR_FINGERINGS)] for i, h in enumerate(geometry.holes)
+    ]
+    instrument = InstrumentGeometry(shape, holes, chart)
+    first, second = SLUR_FINGERINGS
+    change = 0.5 * playing.duration - 0.5 * SLUR_TRANSITION_S
+    player = Player(reed_dict, [(first, 0.0), (second, change)], SLUR_TRANSITION_S)
+    return InstrumentPhysics(instrument, TEMPERATURE_C, player, losses="diffrepr",
+                             humidity=HUMIDITY, carbon=CO2, matching_volume=True,
+                             radiation_category={"bell": "infinite_flanged",
+                                                 "holes": "unflanged"})  # fmt: skip
+
+
 def sim_key(geometry: Geometry, playing: Playing, reed, record_fs: float, fs_sim: float) -> str:
     """A hash of everything that defines a simulation (the code of its curves included)."""
     import openwind
 
-    code = "".join(inspect.getsource(f) for f in (controls, _physics))
+    slur = playing.name == SLUR.name
+    code = "".join(inspect.getsource(f) for f in
+                   ((slur_controls, _slur_physics) if slur else (controls, _physics)))  # fmt: skip
     blob = json.dumps([SIM_VERSION, openwind.__version__, code, dataclasses.asdict(geometry),
                        dataclasses.asdict(playing), reed.to_mapping(), record_fs, fs_sim, HOLD,
                        CUT_S, ATTACK_S, RELEASE_S, HUMIDITY, CO2, TEMPERATURE_C],
@@ -247,9 +299,11 @@ def _solver(geometry: Geometry, playing: Playing, reed, record_fs: float, cache:
     from bench_openwind import openwind_reed
     from openwind import TemporalSolver
 
-    pm, _ = controls(playing, reed.k * reed.y_m)
+    pm, _ = playing_controls(playing, reed.k * reed.y_m)
     reed_dict = openwind_reed(reed, lambda t: float(pm(t)))
-    solver = TemporalSolver(_physics(geometry, reed_dict))
+    slur = playing.name == SLUR.name
+    physics = _slur_physics(geometry, reed_dict, playing) if slur else _physics(geometry, reed_dict)
+    solver = TemporalSolver(physics)
     least = math.ceil(SIM_RATE_MIN / record_fs - 1e-9)
     factor = max(least, math.ceil(1.0 / (solver.get_dt() * record_fs) - 1e-9))
     key = sim_key(geometry, playing, reed, record_fs, factor * record_fs)
@@ -369,7 +423,7 @@ def write_take(sim_path: Path, folder: Path, stem: str, geometry: Geometry, play
         noise_rms=tuple(float(v) for v in noise_rms), seed=seed,
         fs_model=float(sim["fs_sim"]), edge_s=0.0,
     )  # fmt: skip
-    pm, planned = controls(playing, reed.k * reed.y_m)
+    pm, planned = playing_controls(playing, reed.k * reed.y_m)
     notes = sounding_notes(mics[:, 0], record_fs, planned)
     cells = np.arange(int(round(playing.duration * 1000))) / 1000.0
     sub = cells[:, None] + (np.arange(50) + 0.5)[None, :] / 50_000.0

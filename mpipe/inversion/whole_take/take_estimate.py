@@ -22,7 +22,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from scipy.stats import norm
 
 from mpipe.inversion.table.tables import blank_row
 from mpipe.inversion.trust.window_errors import CORRELATION_COLUMNS, correlation_records
@@ -75,39 +74,6 @@ def rival_checks(rivals) -> tuple[str, ...]:
     return (f"the take's fit from its cold starts ended in two minima whose costs differ "
             f"by {costs[1] - costs[0]:.2g} (< {RIVAL_MARGIN:g}, chi-square units): the data "
             "barely prefer the one reported",)  # fmt: skip
-
-
-#: A take's temperature this improbable under its prior (two-sided) is flagged: the
-#: validation's false-alarm rate (``validation.false_alarm``'s default).
-CONFLICT_P = 1e-3
-
-
-def prior_checks(t_c: float, prior: tuple[float, float], carried: bool) -> tuple[str, ...]:
-    """A reason when the take's fitted temperature contradicts the front end's estimate.
-
-    ``t_c``: the fit's temperature, degC; ``prior``: the front end's estimate and its SE
-    (degC), which the fit's prior is (``carried``; a calibration's temperature with
-    :data:`PRIOR_SE_C` is no measurement to contradict). ``z = (T - T_prior) / se_prior``:
-    under the model the fit's T departs from its prior by less than the prior's own SE
-    (the conjugate posterior moves by ``se_prior^2 - se_T^2`` in variance), so ``|z|``
-    above the two-sided ``CONFLICT_P`` quantile (3.29) says that the take's playing puts
-    the air elsewhere than its microphones did: a temperature, bore or microphone that is
-    not what the calibration says. Measured (``benchmarks/bench_verdicts.py``,
-    ``bench_foreign.py``): the own correct takes |z| <= 1.3; the independent simulator's
-    tone-hole tube, whose T the fit puts 1.2-1.8 degC low with the reed right, 2.2-3.1;
-    the air 3 degC off the calibration's (held by a 0.05 degC prior) 10.8 and 40.
-    """
-    mean, se = prior
-    if not carried or not (math.isfinite(se) and se > 0) or not math.isfinite(t_c):
-        return ()
-    z = (t_c - mean) / se
-    limit = float(norm.isf(CONFLICT_P / 2.0))
-    if abs(z) <= limit:
-        return ()
-    return (f"the take's fit puts the air at {t_c:.2f} degC, {abs(z):.3g} of the front end's "
-            f"SEs from its {mean:.2f} +- {se:.2g} degC (|z| > {limit:.2f}, p < {CONFLICT_P:g}): "
-            "the temperature, the bore or a microphone's position is not what the "
-            "calibration says",)  # fmt: skip
 
 
 def temperature_prior(front_c: float, front_se_c: float | None) -> tuple[float, float]:
@@ -172,8 +138,7 @@ def estimate_take(
             log.warning("front-end component not measured: the model cannot play the take "
                         "with %s moved by one SE", ", ".join(fit.frontend.failed))  # fmt: skip
             shared["frontend_failed"] = list(fit.frontend.failed)
-    checks = (*rival_checks(fit.rivals), *prior_checks(fit.temperature_c, prior, carried))
-    return JointResult(tracking, temperature, checks, shared)
+    return JointResult(tracking, temperature, rival_checks(fit.rivals), shared)
 
 
 def _with_plan_columns(table, fit, plan: WindowPlan, fs: float, config) -> pd.DataFrame:
@@ -208,5 +173,5 @@ def _with_excluded(table, fit, plan: WindowPlan, fs: float, config) -> pd.DataFr
     return out
 
 
-__all__ = ["CONFLICT_P", "JointResult", "PRIOR_SE_C", "RIVAL_MARGIN", "estimate_take",
-           "prior_checks", "rival_checks", "temperature_prior"]  # fmt: skip
+__all__ = ["JointResult", "PRIOR_SE_C", "RIVAL_MARGIN", "estimate_take", "rival_checks",
+           "temperature_prior"]  # fmt: skip
