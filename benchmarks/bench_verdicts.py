@@ -16,8 +16,9 @@ verdict is seen, not only the first; must-fail takes without it, as a user runs 
   each plays a crescendo, a vibrato, two tongued notes and a diminuendo.
 
 Each is clean and at 60 and 45 dB SNR, inverted at the take's own rate and at mpipe's default.
-OpenWInD's takes are inverted with the simulator's contact law (``inversion.contact:
-closure``) until the data choose it (issue 39).
+Every take is inverted with mpipe's default settings: the contact law is the data's choice
+(``inversion.contact: auto``), for OpenWInD's takes too (given by hand, ``closure``, until the
+twelfth session).
 
 **Must-fail takes** are correct ones with one fault a lab makes (the fault is applied to the
 files a user gives mpipe, never to mpipe's code): the wrong fingering named, the air held 3 degC
@@ -428,15 +429,10 @@ def take_of(case: Case, folder: Path, cache: Path):
     return foreign_take(folder, geo, play, case.snr, cache)
 
 
-#: The simulator's contact law, given to mpipe for OpenWInD's takes (its reed touches the lay
-#: only at closure) until the data choose the law (issue 39); own takes use mpipe's default.
-FOREIGN_CONTACT = {"inversion": {"contact": "closure"}}
-
-
 def run_case(case: Case, folder: Path, args) -> Case:
     files = take_of(case, folder, args.cache)
     label = f"{case.snr}_{case.rate}"
-    contact = FOREIGN_CONTACT if case.source == "foreign" else {}
+    contact: dict = {}  # every source with mpipe's default contact law (the data's choice)
     if case.fault in ("unplayable", "flow_unit"):
         _, base_take = run_take(files, folder, label, case.rate, args.workers, contact, True)
         ran, take = run_invert(base_take, folder, case.fault, args.workers, args.reuse)
