@@ -57,6 +57,8 @@ import bench_foreign as bf  # noqa: E402
 import foreign_sim as fsim  # noqa: E402
 from headline import record  # noqa: E402
 
+from mpipe.inversion.trust.diagnostics import note_misfits  # noqa: E402
+
 CAL = ROOT / "calibration" / "simplified_clarinet.yaml"
 HOLES = ROOT / "calibration" / "four_hole_clarinet.yaml"
 REED = ROOT / "calibration" / "reed_table1.yaml"
@@ -307,11 +309,16 @@ def verdicts(take: Path, ran: dict) -> dict:
         table = pd.read_csv(notes_path)
         if "verdict" in table:
             note_verdicts = [str(v) for v in table["verdict"]]
-    statuses = {}
-    win_path = take / "inversion" / "windows.csv"
-    if win_path.exists():
-        win = pd.read_csv(win_path, usecols=lambda c: c in ("status",))
+    statuses, misfit = {}, float("nan")
+    win_path = next((p for p in (take / "inversion" / "windows.csv", take / "windows.csv")
+                     if p.exists()), None)  # fmt: skip
+    if win_path is not None:
+        cols = ("status", "segment", "informs_note", "model_residual")
+        win = pd.read_csv(win_path, usecols=lambda c: c in cols)
         statuses = win["status"].astype(str).value_counts().to_dict() if "status" in win else {}
+        # the largest of the notes' median model-form residuals (inversion.model_form_limit)
+        levels = [m for m, _ in note_misfits(win).values()]
+        misfit = max(levels) if levels else float("nan")
     headline = bf.verdict(take) if (take / "report.html").exists() else "?"
     console = ran.get("console", "")
     if headline == "?":  # mpipe invert writes no report: its console's last verdict line
@@ -320,7 +327,8 @@ def verdicts(take: Path, ran: dict) -> dict:
         headline = m[-1] if m else (f"FAIL: exit {code}" if code else "?")
     return {"exit": ran.get("exit"), "headline": headline,
             "validation": str(val.get("verdict", "?")), "note_validation": note_verdicts,
-            "statuses": statuses, "take_checks": list(inv.get("take_checks", [])),
+            "statuses": statuses, "misfit": misfit,
+            "take_checks": list(inv.get("take_checks", [])),
             "console": console}  # fmt: skip
 
 
@@ -469,7 +477,8 @@ def print_case(case: Case) -> None:
     else:
         extra = f" cause named: {'yes' if case.row['cause'] else 'NO'}"
     print(f"{case.name:52s} exit {v['exit']} | {v['headline'][:70]} | validation {v['validation']}"
-          f" notes [{nv}] | windows ok {ok}/{n}{extra} | checks {len(v['take_checks'])}"
+          f" notes [{nv}] | windows ok {ok}/{n}{extra} | misfit {v.get('misfit', np.nan):.4f}"
+          f" | checks {len(v['take_checks'])}"
           f" | {case.row['wall_s']:.0f} s", flush=True)  # fmt: skip
 
 

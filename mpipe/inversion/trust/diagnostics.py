@@ -195,39 +195,43 @@ def _which(rows: pd.DataFrame, segment) -> str:
     return f"note {int(number.iloc[0])}" if len(number) else f"segment {segment}"
 
 
-def _misfit_notes(table: pd.DataFrame, config: InversionConfig) -> list[str]:
-    """Notes whose windows' median model-form residual exceeds ``model_form_limit``.
+def note_misfits(table: pd.DataFrame) -> dict:
+    """Each note's median model-form residual: group -> (median, windows), a fraction of p.
 
     Over each note's windows that inform it (``informs_note``; all where the column is
-    absent) with a finite ``model_residual``; a note of fewer than :data:`NOTE_MIN_WINDOWS`
-    such windows is judged with the take's (all its windows as one). The median, not the
-    sum: the few windows a note cannot hold (a fingering changing within one, a click) are
-    flagged one by one by their statuses and do not make the note misfit.
+    absent) with a finite ``model_residual``, grouped by ``segment``; notes of fewer than
+    :data:`NOTE_MIN_WINDOWS` such windows are left out, unless no note has that many: then
+    the take's windows form one group, keyed -1. The median, not the sum: the few windows
+    a note cannot hold (a fingering changing within one, a click) are flagged one by one by
+    their statuses and do not make the note misfit.
     """
     if "model_residual" not in table:
-        return []
+        return {}
     misfit = pd.to_numeric(table["model_residual"], errors="coerce")
     use = np.isfinite(misfit.to_numpy(dtype=float))
     if "informs_note" in table:
         use &= table["informs_note"].astype(str).str.lower().isin(("true", "1")).to_numpy()
-    rows = table[use]
-    segments = rows["segment"] if "segment" in rows else pd.Series(0, index=rows.index)
+    rows = misfit[use]
+    segments = table.loc[use, "segment"] if "segment" in table else pd.Series(0, index=rows.index)
     sizes = segments.map(segments.value_counts())
-    groups = segments.where(sizes >= NOTE_MIN_WINDOWS, other=-1)
-    if (groups == -1).all():  # no note of its own: the take's windows as one
-        groups = pd.Series(-1, index=rows.index)
-    elif (groups == -1).any():
-        groups = groups[groups != -1]
+    big = sizes >= NOTE_MIN_WINDOWS
+    groups = segments[big] if big.any() else pd.Series(-1, index=rows.index)
+    return {g: (float(np.median(rows[idx])), len(idx))
+            for g, idx in groups.groupby(groups, sort=True).groups.items()}  # fmt: skip
+
+
+def _misfit_notes(table: pd.DataFrame, config: InversionConfig) -> list[str]:
+    """Notes whose median model-form residual (:func:`note_misfits`) exceeds the limit."""
     limit = config.model_form_limit
     reasons = []
-    for g, idx in groups.groupby(groups, sort=True).groups.items():
-        level = float(np.median(misfit[idx]))
+    for g, (level, n) in note_misfits(table).items():
         if not level > limit:
             continue
-        which = "the take's windows" if g == -1 else _which(rows.loc[idx], g)
+        mine = table[table["segment"] == g] if "segment" in table else table
+        which = "the take's windows" if g == -1 else _which(mine, g)
         reasons.append(
             f"{which}: the model leaves {100 * level:.2g} % of the pressure at the harmonics "
-            f"beyond the noise (median of {len(idx)} windows; inversion.model_form_limit "
+            f"beyond the noise (median of {n} windows; inversion.model_form_limit "
             f"{100 * limit:g} %): the model cannot play what was played (a flow no reed "
             "makes, another instrument, a wrong bore)"
         )
@@ -252,6 +256,7 @@ __all__ = [
     "UNPLAYED",
     "PRESSURE_RANGE",
     "check_plausible",
+    "note_misfits",
     "impedance_ratio",
     "playing_difference",
     "take_checks",
