@@ -258,6 +258,16 @@ class TakeSystem:
         x = inv @ rhs
         return self._split(x, f_inv, kq)
 
+    def refitted(self, x: np.ndarray) -> np.ndarray:
+        """The windows' fast unknowns' move when the reduced ones move by ``x``, refitted.
+
+        Each window's controls minimise its own linear model again at the shared unknowns'
+        new values: ``-K_i x_n(i)`` (``K_i = F_i^-1 Q_i``), (W, f).
+        """
+        _, _, _, kq = self._reduced(0.0)
+        x_win = np.array([np.asarray(x, float)[self.reduced_index(int(n))] for n in self.notes])
+        return -np.einsum("wfa,wa->wf", kq, x_win)
+
     def _split(self, x, f_inv, kq):
         f, s, t = self.sizes.fast, self.sizes.slow, self.sizes.take
         g_f = self.gradients[:, :f]
