@@ -125,7 +125,7 @@ def conflict_checks(z: float, pulls: np.ndarray, names, where, prior, t_c: float
     names : sequence of str
         The results' names (q).
     where : sequence of str
-        Each window's description, e.g. ``"of the window at 0.850 s"`` (W).
+        Each window's description, e.g. ``"the window at 0.850 s (note 1)"`` (W).
     prior : tuple of float
         The prior's mean and standard error, degC.
     t_c : float
@@ -141,9 +141,9 @@ def conflict_checks(z: float, pulls: np.ndarray, names, where, prior, t_c: float
     return (f"the front end's air temperature, {mean:.2f} +- {se:.2g} degC, contradicts the "
             f"reed's data (the take's fit puts the air at {t_c:.2f} degC; conflict z = "
             f"{z:.3g}, |z| > {limit:.2f}) and holds the results where the data do not put "
-            f"them: without it {names[j]} {where[i]} would move by {pulls[i, j]:.2g} of its "
-            "SEs; the temperature, the bore or a microphone's position is not what the "
-            "calibration says",)  # fmt: skip
+            f"them: without it {names[j]} would move by {pulls[i, j]:.2g} of its SEs in "
+            f"{where[i]}; the temperature, the bore or a microphone's position is not what "
+            "the calibration says",)  # fmt: skip
 
 
 __all__ = ["CONFLICT_P", "PULL_LIMIT", "PriorConflict", "conflict_checks", "prior_conflict"]

@@ -114,10 +114,10 @@ def estimate_take(
     fit, cold, cold_row = fit_take(data, prior=prior, t_range=(front_c - reach, front_c + reach),
                                    executor=executor, workers=workers)  # fmt: skip
     table, t_se, correlations = window_rows(fit, cold, config, fs)
-    checks = (*rival_checks(fit.rivals), *(_prior_checks(fit, table, fs) if carried else ()))
     # the fit is one computation: each window is charged its share of its wall time
     table["wall_time_s"] = (time.perf_counter() - clock) / max(len(table), 1)
     table = _with_plan_columns(table, fit, plan, fs, config)
+    checks = (*rival_checks(fit.rivals), *(_prior_checks(fit, table, fs) if carried else ()))
     table = _with_excluded(table, fit, plan, fs, config)
     if len(table) and "cold_starts_agreeing" in cold_row:
         table.loc[table.index[0], "cold_starts_agreeing"] = cold_row["cold_starts_agreeing"]
@@ -162,7 +162,8 @@ def _prior_checks(fit, table: pd.DataFrame, fs: float) -> tuple[str, ...]:
         relative = np.column_stack([table[f"{n}_se"].to_numpy(float) / table[n].to_numpy(float)
                                     for n in names])  # fmt: skip
         pulls = moves / np.abs(relative)
-    where = [f"of the window at {q.start / fs:.3f} s" for q in fit.problems]
+    where = [f"the window at {q.start / fs:.3f} s (note {n})"
+             for q, n in zip(fit.problems, table["note_number"], strict=True)]  # fmt: skip
     top = np.nanmax(np.abs(pulls)) if np.isfinite(pulls).any() else math.nan
     log.info("temperature prior %.2f +- %.2g degC against the fit's %.3f degC: conflict z %.3g, "
              "T %+.3g degC without it, largest pull %.3g SE", *fit.prior, fit.temperature_c,

@@ -83,12 +83,13 @@ def _no_t():
 
 
 def test_a_check_needs_both_a_conflict_and_a_pull():
-    names, where = ["p_m", "k"], ["of the window at 0.000 s", "of the window at 0.020 s"]
+    names = ["p_m", "k"]
+    where = ["the window at 0.000 s (note 1)", "the window at 0.020 s (note 1)"]
     big, small = np.array([[0.2, 3.0], [0.1, 0.0]]), np.array([[0.2, 0.5], [0.1, 0.0]])
     strong = 4.0  # beyond the two-sided 1e-3 quantile, 3.29
     assert CONFLICT_P == 1e-3 and PULL_LIMIT == 1.0
     (reason,) = conflict_checks(strong, big, names, where, (23.0, 0.05), 22.4)
-    assert "k of the window at 0.000 s would move by 3 of its SEs" in reason
+    assert "k would move by 3 of its SEs in the window at 0.000 s (note 1)" in reason
     assert conflict_checks(strong, small, names, where, (23.0, 0.05), 22.4) == ()
     assert conflict_checks(3.0, big, names, where, (23.0, 0.05), 22.4) == ()
     assert conflict_checks(np.nan, big, names, where, (23.0, 0.05), 22.4) == ()
