@@ -47,6 +47,7 @@ from mpipe.inversion.trust.discretisation import rate_errors
 from mpipe.inversion.whole_take.contact_law import choose_contact
 from mpipe.inversion.whole_take.estimator import TakeData
 from mpipe.inversion.whole_take.front_end import FrontEnd
+from mpipe.inversion.whole_take.prior_conflict import prior_checks
 from mpipe.inversion.whole_take.shared_errors import shared_components
 from mpipe.inversion.whole_take.take_estimate import estimate_take
 from mpipe.inversion.whole_take.temperature import TemperatureFit
@@ -256,7 +257,8 @@ def _invert_jointly(data, front, carried, front_end, extra_checks, run) -> TakeI
     table = pd.concat([table, openings], axis=1)
     # whether the take's minimum was found is the fit's own test (its runs from two cold
     # starts, joint.checks), not the agreement of one window's short searches
-    checks = take_checks(table, config, extra=(*extra_checks, *joint.checks))
+    own = (*joint.checks, *prior_checks(table, joint.prior))
+    checks = take_checks(table, config, extra=(*extra_checks, *own))
     table["take_checks"] = "; ".join(checks)
     tracking = dataclasses.replace(joint.tracking, table=table)
     return TakeInversion(tracking, fit, kernel, air, tuple(checks), shared)

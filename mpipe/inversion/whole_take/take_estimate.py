@@ -27,7 +27,7 @@ from mpipe.inversion.table.tables import blank_row
 from mpipe.inversion.trust.window_errors import CORRELATION_COLUMNS, correlation_records
 from mpipe.inversion.whole_take.estimator import TakeData
 from mpipe.inversion.whole_take.frontend_joint import record as frontend_record
-from mpipe.inversion.whole_take.prior_conflict import conflict_checks, prior_conflict
+from mpipe.inversion.whole_take.prior_conflict import PriorMoves, prior_moves
 from mpipe.inversion.whole_take.rivals import RIVAL_MARGIN
 from mpipe.inversion.whole_take.take_fit import fit_take
 from mpipe.inversion.whole_take.take_rows import window_rows
@@ -52,18 +52,22 @@ class JointResult:
     temperature : TemperatureFit
         The take's one temperature and its SE.
     checks : tuple of str
-        The fit's own reasons why the take should not pass: two minima the data barely
-        tell apart (:func:`rival_checks`), a temperature prior the data contradict that
-        holds the results (:mod:`mpipe.inversion.whole_take.prior_conflict`).
+        The fit's own reasons why the take should not pass (:func:`rival_checks`).
     shared : dict
         The front end's share for the run's record (``frontend``: per parameter its SE and
         the solution's median shift; ``frontend_failed``), empty without a front end.
+    prior : PriorMoves, optional
+        The temperature prior's conflict with the data and the results' moves without it,
+        judged against the finished table's SEs
+        (:func:`mpipe.inversion.whole_take.prior_conflict.prior_checks`); None when the
+        prior is no measurement (the calibration's temperature).
     """
 
     tracking: Tracking
     temperature: TemperatureFit
     checks: tuple[str, ...] = ()
     shared: dict = dataclasses.field(default_factory=dict)
+    prior: PriorMoves | None = None
 
 
 def rival_checks(rivals) -> tuple[str, ...]:
@@ -117,7 +121,6 @@ def estimate_take(
     # the fit is one computation: each window is charged its share of its wall time
     table["wall_time_s"] = (time.perf_counter() - clock) / max(len(table), 1)
     table = _with_plan_columns(table, fit, plan, fs, config)
-    checks = (*rival_checks(fit.rivals), *(_prior_checks(fit, table, fs) if carried else ()))
     table = _with_excluded(table, fit, plan, fs, config)
     if len(table) and "cold_starts_agreeing" in cold_row:
         table.loc[table.index[0], "cold_starts_agreeing"] = cold_row["cold_starts_agreeing"]
@@ -142,33 +145,8 @@ def estimate_take(
             log.warning("front-end component not measured: the model cannot play the take "
                         "with %s moved by one SE", ", ".join(fit.frontend.failed))  # fmt: skip
             shared["frontend_failed"] = list(fit.frontend.failed)
-    return JointResult(tracking, temperature, checks, shared)
-
-
-def _prior_checks(fit, table: pd.DataFrame, fs: float) -> tuple[str, ...]:
-    """The prior's conflict with the data, judged by its pull on each window's results.
-
-    ``table``: the fit's windows table, its rows in ``fit.problems``' order
-    (:func:`mpipe.inversion.whole_take.prior_conflict.conflict_checks`).
-    """
-    system = fit.system()
-    conflict = prior_conflict(system, fit.temperature_c, fit.prior)
-    names = list(fit.names)
-    moves = np.array([conflict.window(system, i) for i in range(len(fit.problems))])
-    if {"k", "y_m"} <= set(names):  # p_M = k y_m: its ln moves by the sum
-        moves = np.column_stack([moves, moves[:, names.index("k")] + moves[:, names.index("y_m")]])
-        names.append("p_M")
-    with np.errstate(divide="ignore", invalid="ignore"):
-        relative = np.column_stack([table[f"{n}_se"].to_numpy(float) / table[n].to_numpy(float)
-                                    for n in names])  # fmt: skip
-        pulls = moves / np.abs(relative)
-    where = [f"the window at {q.start / fs:.3f} s (note {n})"
-             for q, n in zip(fit.problems, table["note_number"], strict=True)]  # fmt: skip
-    top = np.nanmax(np.abs(pulls)) if np.isfinite(pulls).any() else math.nan
-    log.info("temperature prior %.2f +- %.2g degC against the fit's %.3f degC: conflict z %.3g, "
-             "T %+.3g degC without it, largest pull %.3g SE", *fit.prior, fit.temperature_c,
-             conflict.z, conflict.shift_c, top)  # fmt: skip
-    return conflict_checks(conflict.z, pulls, names, where, fit.prior, fit.temperature_c)
+    moves = prior_moves(fit, fs) if carried else None
+    return JointResult(tracking, temperature, rival_checks(fit.rivals), shared, moves)
 
 
 def _with_plan_columns(table, fit, plan: WindowPlan, fs: float, config) -> pd.DataFrame:

@@ -1,13 +1,16 @@
 """The prior's conflict and pull against a direct least-squares fit of a linear take."""
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from mpipe.inversion.pooling.take_system import TakeSystem, TierSizes
 from mpipe.inversion.whole_take.prior_conflict import (
     CONFLICT_P,
     PULL_LIMIT,
+    PriorMoves,
     conflict_checks,
+    prior_checks,
     prior_conflict,
 )
 
@@ -93,3 +96,16 @@ def test_a_check_needs_both_a_conflict_and_a_pull():
     assert conflict_checks(strong, small, names, where, (23.0, 0.05), 22.4) == ()
     assert conflict_checks(3.0, big, names, where, (23.0, 0.05), 22.4) == ()
     assert conflict_checks(np.nan, big, names, where, (23.0, 0.05), 22.4) == ()
+
+
+def test_the_pull_is_judged_against_the_tables_combined_error_bars():
+    moves = pd.DataFrame({"t_start_s": [0.0, 0.02], "k": [0.02, 0.001], "p_M": [0.0, 0.0]})
+    result = PriorMoves(z=5.0, shift_c=-1.0, prior=(23.0, 0.05), t_c=22.5, moves=moves)
+    columns = {"t_start_s": [0.02, 0.0, 0.04], "note_number": [1, 1, 1], "k": [1e7] * 3,
+               "p_M": [3000.0] * 3, "p_M_se": [30.0] * 3}  # fmt: skip
+    table = pd.DataFrame(columns)
+    # k's 2 % move against a 1 % bar is 2 SE; against a 4 % bar it is half of one
+    (reason,) = prior_checks(table.assign(k_se=1e5), result)
+    assert "k would move by 2 of its SEs in the window at 0.000 s (note 1)" in reason
+    assert prior_checks(table.assign(k_se=4e5), result) == ()
+    assert prior_checks(table.assign(k_se=1e5), None) == ()
