@@ -325,9 +325,11 @@ def verdicts(take: Path, ran: dict) -> dict:
         m = re.findall(r"\b(PASS|CHECK|FAIL)\b[^\n]*", console)
         code = ran.get("exit")
         headline = m[-1] if m else (f"FAIL: exit {code}" if code else "?")
+    prior = inv.get("shared_errors", {}).get("temperature_prior", {})
     return {"exit": ran.get("exit"), "headline": headline,
             "validation": str(val.get("verdict", "?")), "note_validation": note_verdicts,
             "statuses": statuses, "misfit": misfit,
+            "prior_z": prior.get("z", np.nan), "prior_pull": prior.get("largest_pull_se", np.nan),
             "take_checks": list(inv.get("take_checks", [])),
             "console": console}  # fmt: skip
 
@@ -478,6 +480,7 @@ def print_case(case: Case) -> None:
         extra = f" cause named: {'yes' if case.row['cause'] else 'NO'}"
     print(f"{case.name:52s} exit {v['exit']} | {v['headline'][:70]} | validation {v['validation']}"
           f" notes [{nv}] | windows ok {ok}/{n}{extra} | misfit {v.get('misfit', np.nan):.4f}"
+          f" | prior z {v.get('prior_z', np.nan):.3g} pull {v.get('prior_pull', np.nan):.2g}"
           f" | checks {len(v['take_checks'])}"
           f" | {case.row['wall_s']:.0f} s", flush=True)  # fmt: skip
 

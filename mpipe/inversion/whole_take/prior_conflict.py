@@ -160,16 +160,17 @@ def prior_moves(fit, fs: float) -> PriorMoves:
     return PriorMoves(conflict.z, conflict.shift_c, tuple(fit.prior), fit.temperature_c, frame)
 
 
-def prior_checks(table: pd.DataFrame, result: PriorMoves | None) -> tuple[str, ...]:
+def prior_checks(table: pd.DataFrame, result: PriorMoves | None) -> tuple[tuple, dict]:
     """A reason when the prior contradicts the data and holds a result beyond its SE.
 
     ``table``: the take's finished windows table (``t_start_s``, ``note_number``, each
     result and its combined ``<q>_se``, every component of the budget in it): a result
     is held wrong when the prior moves it by more than :data:`PULL_LIMIT` of the
-    uncertainty the take states for it.
+    uncertainty the take states for it. Returns the reasons and the figures for the run's
+    record (``z``, ``t_without_c``, ``largest_pull_se``; empty when ``result`` is None).
     """
     if result is None:
-        return ()
+        return (), {}
     rows = table.set_index("t_start_s")
     moves = result.moves.set_index("t_start_s")
     moves = moves.loc[moves.index.isin(rows.index)]
@@ -186,7 +187,9 @@ def prior_checks(table: pd.DataFrame, result: PriorMoves | None) -> tuple[str, .
     log.info("temperature prior %.2f +- %.2g degC against the fit's %.3f degC: conflict z "
              "%.3g, T %+.3g degC without it, largest pull %.3g SE", *result.prior, result.t_c,
              result.z, result.shift_c, top)  # fmt: skip
-    return conflict_checks(result.z, pulls, names, where, result.prior, result.t_c)
+    figures = {"prior_c": list(result.prior), "z": result.z,
+               "t_without_c": result.t_c + result.shift_c, "largest_pull_se": top}  # fmt: skip
+    return conflict_checks(result.z, pulls, names, where, result.prior, result.t_c), figures
 
 
 def conflict_checks(z: float, pulls: np.ndarray, names, where, prior, t_c: float) -> tuple:

@@ -257,7 +257,10 @@ def _invert_jointly(data, front, carried, front_end, extra_checks, run) -> TakeI
     table = pd.concat([table, openings], axis=1)
     # whether the take's minimum was found is the fit's own test (its runs from two cold
     # starts, joint.checks), not the agreement of one window's short searches
-    own = (*joint.checks, *prior_checks(table, joint.prior))
+    conflict, figures = prior_checks(table, joint.prior)
+    if figures:
+        shared["temperature_prior"] = figures
+    own = (*joint.checks, *conflict)
     checks = take_checks(table, config, extra=(*extra_checks, *own))
     table["take_checks"] = "; ".join(checks)
     tracking = dataclasses.replace(joint.tracking, table=table)

@@ -105,7 +105,9 @@ def test_the_pull_is_judged_against_the_tables_combined_error_bars():
                "p_M": [3000.0] * 3, "p_M_se": [30.0] * 3}  # fmt: skip
     table = pd.DataFrame(columns)
     # k's 2 % move against a 1 % bar is 2 SE; against a 4 % bar it is half of one
-    (reason,) = prior_checks(table.assign(k_se=1e5), result)
+    (reason,), figures = prior_checks(table.assign(k_se=1e5), result)
     assert "k would move by 2 of its SEs in the window at 0.000 s (note 1)" in reason
-    assert prior_checks(table.assign(k_se=4e5), result) == ()
-    assert prior_checks(table.assign(k_se=1e5), None) == ()
+    assert figures["largest_pull_se"] == pytest.approx(2.0)
+    assert figures["t_without_c"] == pytest.approx(21.5)
+    assert prior_checks(table.assign(k_se=4e5), result)[0] == ()
+    assert prior_checks(table.assign(k_se=1e5), None) == ((), {})
