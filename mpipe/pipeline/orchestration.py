@@ -191,8 +191,8 @@ def _run_stages(cfg, cal_path, take_paths, out, force, client, say, accept_faile
         return rec
 
     takes = {f"take_{i}": p for i, p in enumerate(take_paths)}
-    stage(1, "separation", {**takes, **cal_inputs}, cfg.separation,
-          stage_separation(take_paths, cal, cfg, figures.draw))  # fmt: skip
+    sep = stage(1, "separation", {**takes, **cal_inputs}, cfg.separation,
+                stage_separation(take_paths, cal, cfg, figures.draw))  # fmt: skip
     reference = d["separation"] / "reference.npz"
     blocks = d["separation"] / "blocks.csv"
     stage(2, "translation", {"reference": reference, **cal_inputs}, cfg.translation,
@@ -220,12 +220,14 @@ def _run_stages(cfg, cal_path, take_paths, out, force, client, say, accept_faile
     say(f"[{name}]     {cond.summary['to_invert']} of {cond.summary['windows']} windows to invert")
     plan = d["conditioning"] / "plan.csv"
     inv_inputs = {"mouthpiece": mouthpiece, "plan": plan, "blocks": blocks, **cal_inputs}
-    # a take read with sensitivities other than those its sidecar records is CHECK
+    # a take read with sensitivities other than those its sidecar records is CHECK, and so
+    # is one separated at a temperature its microphones contradict
     mismatch = sidecar_check(take_paths, cal)
+    before = (mismatch, *sep.summary.get("front_end_checks", []),
+              *val.summary.get("fingering_checks", []))  # fmt: skip
     inv = stage(5, "inversion", inv_inputs, cfg.inversion,
-                stage_inversion(mouthpiece, plan, cal, cfg, client,
-                                 (mismatch, *val.summary.get("fingering_checks", [])),
-                                 figures.draw))  # fmt: skip
+                stage_inversion(mouthpiece, plan, cal, cfg, client, before,
+                                figures.draw))  # fmt: skip
     say(f"[{name}]     {inv.summary['temperature_line']}")
     for line in inv.summary.get("segment_lines", []):
         say(f"[{name}]     {line}")

@@ -1,8 +1,10 @@
-"""The take's temperature prior against its playing: their conflict and its pull on results.
+"""How far the take's fit leans on its temperature prior: the conflict and the pull.
 
 The take's fit weighs the front end's temperature ``T_p`` (SE ``s_p``) against the reed's
 data as one more residual, ``(T - T_p) / s_p``. Two statistics of that one fit say whether
-this pseudo-observation is at odds with the rest and whether it matters.
+this pseudo-observation is at odds with the rest and how much the results depend on it;
+both go to the run's record (``shared_errors.temperature_prior`` of the inversion's
+manifest), for the acoustician reading how well the bore model and the microphones agree.
 
 **The conflict.** In the fit's linear model, with ``C = R^-1`` the Gauss-Newton covariance
 of the shared unknowns (``R``: the take's reduced information, the prior's ``b = 1/s_p^2``
@@ -19,16 +21,18 @@ data's cost alone; the prior is rank one, so by the Sherman-Morrison identity
 
 and every window's controls follow by ``-K_i dx`` (refitted,
 :meth:`mpipe.inversion.pooling.take_system.TakeSystem.refitted`). Divided by a result's
-standard error (the take's finished one, every component of its budget in it, so that
-PASS keeps meaning the results hold within the uncertainty stated for them), that is how
-far the prior holds the result from where the data alone put it. A conflict alone is no
-wrong result: when the data outweigh the prior the fit follows them and the pull is small
-(the independent simulator's tone-hole tube puts ``T`` 2.5 degC below the front end with
-the reed right). A pull alone is no wrong result either: a tight prior in agreement with
-the data moves the results by chance when left out. Both at once say the results sit
-where a temperature the data contradict holds them. On a noise-free take every noise SE
-is tiny and any bias of the bore model's T is a conflict: the budget's other components
-(the model's rate among them) then decide whether it matters.
+finished standard error (every component of the budget in it), that is how far the prior
+holds the result from where the reed's data alone put it.
+
+**No verdict.** Neither tells a wrong front end from a bore model that renders the
+instrument slightly wrongly: both move the reed's T from the front end's. Measured
+(``benchmarks/bench_verdicts.py``, thirteenth session): the air held 3 degC off by a
+0.05 degC prior, z -17.6 to -46.1 with pulls 2.6-36 SE (the results wrong); OpenWInD's
+tone-hole slur, whose model tone holes put T 2.5 degC low, z -3.8 with a pull of 0.01 SE
+at 45 dB but z -37.2 with a pull of 4.9 SE noise-free, its reed right to 0.23 % (held at
+the front end's right temperature, the prior is what keeps it right). A temperature the
+calibration states wrongly is caught where it is wrong, at the separation
+(:class:`mpipe.measurement.separation.drift.PriorConflict`).
 
 References
 ----------
@@ -45,20 +49,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from scipy.stats import norm
 
 from mpipe.inversion.pooling.take_system import TakeSystem, pseudo_inverse
 
 log = logging.getLogger(__name__)
-
-#: A conflict this improbable under the model (two-sided) counts: the validation's
-#: false-alarm rate (``validation.false_alarm``'s default).
-CONFLICT_P = 1e-3
-
-#: A result the prior holds more than this many of its standard errors from the data's
-#: own estimate is held wrong: a bias of one SE already lifts a result's RMS z to 1.41,
-#: beyond what an honest error bar allows (issue 45's [0.8, 1.25]).
-PULL_LIMIT = 1.0
 
 
 @dataclass(frozen=True)
@@ -160,17 +154,16 @@ def prior_moves(fit, fs: float) -> PriorMoves:
     return PriorMoves(conflict.z, conflict.shift_c, tuple(fit.prior), fit.temperature_c, frame)
 
 
-def prior_checks(table: pd.DataFrame, result: PriorMoves | None) -> tuple[tuple, dict]:
-    """A reason when the prior contradicts the data and holds a result beyond its SE.
+def prior_figures(table: pd.DataFrame, result: PriorMoves | None) -> dict:
+    """The prior's conflict and its largest pull on the finished table, for the record.
 
     ``table``: the take's finished windows table (``t_start_s``, ``note_number``, each
-    result and its combined ``<q>_se``, every component of the budget in it): a result
-    is held wrong when the prior moves it by more than :data:`PULL_LIMIT` of the
-    uncertainty the take states for it. Returns the reasons and the figures for the run's
-    record (``z``, ``t_without_c``, ``largest_pull_se``; empty when ``result`` is None).
+    result and its combined ``<q>_se``). Returns ``prior_c`` (mean, SE), ``z``,
+    ``t_without_c`` (T without the prior), ``largest_pull_se`` and where it is
+    (``largest_pull``: the result and its window); empty when ``result`` is None.
     """
     if result is None:
-        return (), {}
+        return {}
     rows = table.set_index("t_start_s")
     moves = result.moves.set_index("t_start_s")
     moves = moves.loc[moves.index.isin(rows.index)]
@@ -179,52 +172,20 @@ def prior_checks(table: pd.DataFrame, result: PriorMoves | None) -> tuple[tuple,
     with np.errstate(divide="ignore", invalid="ignore"):
         relative = np.abs(here[[f"{n}_se" for n in names]].to_numpy(float)
                           / here[names].to_numpy(float))  # fmt: skip
-        pulls = moves[names].to_numpy(float) / relative
-    notes = here["note_number"] if "note_number" in here else pd.Series("?", index=here.index)
-    where = [f"the window at {t:.3f} s (note {n})" for t, n in zip(here.index, notes, strict=True)]
-    finite = np.isfinite(pulls)
-    top = float(np.max(np.abs(pulls[finite]))) if finite.any() else math.nan
-    log.info("temperature prior %.2f +- %.2g degC against the fit's %.3f degC: conflict z "
-             "%.3g, T %+.3g degC without it, largest pull %.3g SE", *result.prior, result.t_c,
-             result.z, result.shift_c, top)  # fmt: skip
-    figures = {"prior_c": list(result.prior), "z": result.z,
-               "t_without_c": result.t_c + result.shift_c, "largest_pull_se": top}  # fmt: skip
-    return conflict_checks(result.z, pulls, names, where, result.prior, result.t_c), figures
-
-
-def conflict_checks(z: float, pulls: np.ndarray, names, where, prior, t_c: float) -> tuple:
-    """A reason when the prior contradicts the data and holds a result beyond its SE.
-
-    Parameters
-    ----------
-    z : float
-        The conflict statistic (:attr:`PriorConflict.z`).
-    pulls : ndarray
-        Each window's results' moves without the prior in their standard errors,
-        (W, q); NaN: not reported.
-    names : sequence of str
-        The results' names (q).
-    where : sequence of str
-        Each window's description, e.g. ``"the window at 0.850 s (note 1)"`` (W).
-    prior : tuple of float
-        The prior's mean and standard error, degC.
-    t_c : float
-        The fit's temperature, degC.
-    """
-    limit = float(norm.isf(CONFLICT_P / 2.0))
-    pulls = np.abs(np.asarray(pulls, float))
+        pulls = np.abs(moves[names].to_numpy(float) / relative)
     pulls = np.where(np.isfinite(pulls), pulls, 0.0)
-    if not abs(z) > limit or not pulls.size or not pulls.max() > PULL_LIMIT:
-        return ()
-    i, j = np.unravel_index(int(np.argmax(pulls)), pulls.shape)
-    mean, se = prior
-    return (f"the front end's air temperature, {mean:.2f} +- {se:.2g} degC, contradicts the "
-            f"reed's data (the take's fit puts the air at {t_c:.2f} degC; conflict z = "
-            f"{z:.3g}, |z| > {limit:.2f}) and holds the results where the data do not put "
-            f"them: without it {names[j]} would move by {pulls[i, j]:.2g} of its SEs in "
-            f"{where[i]}; the temperature, the bore or a microphone's position is not what "
-            "the calibration says",)  # fmt: skip
+    top, where = math.nan, ""
+    if pulls.size:
+        i, j = np.unravel_index(int(np.argmax(pulls)), pulls.shape)
+        notes = here["note_number"] if "note_number" in here else pd.Series("?", here.index)
+        top = float(pulls[i, j])
+        where = f"{names[j]} in the window at {here.index[i]:.3f} s (note {notes.iloc[i]})"
+    log.info("temperature prior %.2f +- %.2g degC against the fit's %.3f degC: conflict z "
+             "%.3g, T %+.3g degC without it, largest pull %.3g SE (%s)", *result.prior,
+             result.t_c, result.z, result.shift_c, top, where)  # fmt: skip
+    return {"prior_c": list(result.prior), "z": result.z,
+            "t_without_c": result.t_c + result.shift_c, "largest_pull_se": top,
+            "largest_pull": where}  # fmt: skip
 
 
-__all__ = ["CONFLICT_P", "PULL_LIMIT", "PriorConflict", "PriorMoves", "conflict_checks",
-           "prior_checks", "prior_conflict", "prior_moves"]  # fmt: skip
+__all__ = ["PriorConflict", "PriorMoves", "prior_conflict", "prior_figures", "prior_moves"]

@@ -47,7 +47,7 @@ from mpipe.inversion.trust.discretisation import rate_errors
 from mpipe.inversion.whole_take.contact_law import choose_contact
 from mpipe.inversion.whole_take.estimator import TakeData
 from mpipe.inversion.whole_take.front_end import FrontEnd
-from mpipe.inversion.whole_take.prior_conflict import prior_checks
+from mpipe.inversion.whole_take.prior_conflict import prior_figures
 from mpipe.inversion.whole_take.shared_errors import shared_components
 from mpipe.inversion.whole_take.take_estimate import estimate_take
 from mpipe.inversion.whole_take.temperature import TemperatureFit
@@ -257,11 +257,10 @@ def _invert_jointly(data, front, carried, front_end, extra_checks, run) -> TakeI
     table = pd.concat([table, openings], axis=1)
     # whether the take's minimum was found is the fit's own test (its runs from two cold
     # starts, joint.checks), not the agreement of one window's short searches
-    conflict, figures = prior_checks(table, joint.prior)
+    figures = prior_figures(table, joint.prior)  # how far the fit leans on its prior
     if figures:
         shared["temperature_prior"] = figures
-    own = (*joint.checks, *conflict)
-    checks = take_checks(table, config, extra=(*extra_checks, *own))
+    checks = take_checks(table, config, extra=(*extra_checks, *joint.checks))
     table["take_checks"] = "; ".join(checks)
     tracking = dataclasses.replace(joint.tracking, table=table)
     return TakeInversion(tracking, fit, kernel, air, tuple(checks), shared)

@@ -58,8 +58,8 @@ class JointResult:
         the solution's median shift; ``frontend_failed``), empty without a front end.
     prior : PriorMoves, optional
         The temperature prior's conflict with the data and the results' moves without it,
-        judged against the finished table's SEs
-        (:func:`mpipe.inversion.whole_take.prior_conflict.prior_checks`); None when the
+        for the record against the finished table's SEs
+        (:func:`mpipe.inversion.whole_take.prior_conflict.prior_figures`); None when the
         prior is no measurement (the calibration's temperature).
     """
 

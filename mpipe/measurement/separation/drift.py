@@ -30,6 +30,56 @@ from mpipe.measurement.separation.propagation import BlockEstimate, Prior
 MODELS = ("constant", "linear", "smooth")
 
 
+#: A prior this improbable given the microphones' data (two-sided) is contradicted by them:
+#: the validation's false-alarm rate (``validation.false_alarm``'s default).
+CONFLICT_P = 1e-3
+
+
+@dataclass(frozen=True)
+class PriorConflict:
+    """The temperature prior against the microphones' own take-level temperature.
+
+    The constant model is fitted to the blocks with every prior but the temperature's
+    (``data_c`` +- ``data_se_c``, degC, the blocks' overlap in its sandwich); under the
+    model that estimate and the prior's mean differ by a normal deviate of variance
+    ``data_se_c^2 + prior_se_c^2``, so ``z`` is standard normal when both hold (Evans &
+    Moshonov 2006, "Checking for prior-data conflict", Bayesian Analysis 1(4)). A
+    significant ``z`` says the prior holds the separation at a temperature the
+    microphones contradict: the waves are separated and translated at the wrong speed of
+    sound, so every result after it is suspect. A temperature prior only matters when it
+    is narrow (the default 5 degC never decides a take), so the check fires on a prior a
+    user set narrow and wrong.
+    """
+
+    prior_c: float
+    prior_se_c: float
+    data_c: float
+    data_se_c: float
+
+    @property
+    def z(self) -> float:
+        """(data - prior) / sqrt(data_se^2 + prior_se^2)."""
+        return (self.data_c - self.prior_c) / float(np.hypot(self.data_se_c, self.prior_se_c))
+
+    def reasons(self) -> list[str]:
+        """The check's reason when the conflict is significant at :data:`CONFLICT_P`."""
+        limit = float(stats.norm.isf(CONFLICT_P / 2.0))
+        if not abs(self.z) > limit:
+            return []
+        return [f"the separation's temperature prior, {self.prior_c:.2f} +- "
+                f"{self.prior_se_c:.2g} degC, is contradicted by the microphones, which put the "
+                f"air at {self.data_c:.2f} +- {self.data_se_c:.2g} degC (z = {self.z:.3g}, |z| > "
+                f"{limit:.2f}): the waves were separated and translated at a temperature the "
+                "data reject; widen separation.temperature_prior_c or correct the calibration's "
+                "air temperature",]  # fmt: skip
+
+    def summary(self) -> dict:
+        """JSON-safe figures and, when significant, the reason (``front_end_checks``)."""
+        return {"temperature_prior_c": [self.prior_c, self.prior_se_c],
+                "temperature_data_c": self.data_c, "temperature_data_se_c": self.data_se_c,
+                "temperature_prior_z": self.z, "front_end_checks": self.reasons()}  # fmt: skip
+
+
 @dataclass(frozen=True)
 class TrackChoice:
     """theta over the take as the data support it.
@@ -76,6 +126,7 @@ class TrackChoice:
     span_s: float
     drift_level: float = float("nan")
     level_cov: np.ndarray | None = None
+    prior_conflict: PriorConflict | None = None
 
     def sentence(self, deg: str = "degC", pm: str = "+-") -> str:
         """Whether the data show a drift of the temperature, in words (``deg``: its unit)."""
@@ -123,8 +174,14 @@ class TrackChoice:
         return words + ", not below the level either)."
 
     def summary(self) -> dict:
-        """JSON-safe take-level figures (degC): model, value, SE, drift, its SE, in words."""
-        return {
+        """JSON-safe take-level figures (degC): model, value, SE, drift, its SE, in words.
+
+        With a temperature prior, also the microphones' own take-level temperature, the
+        prior-data conflict and, when it is significant, ``front_end_checks``: the reason
+        the take should not pass (:class:`PriorConflict`).
+        """
+        conflict = {} if self.prior_conflict is None else self.prior_conflict.summary()
+        return conflict | {
             "track_model": self.model,
             "temperature_c_take": float(self.level[0]),
             "temperature_se_c_take": float(self.level_se[0]),
@@ -324,4 +381,20 @@ def choose_track(
         span,
         level,
         lev_cov,
+        _conflict(times, meas, prior, t_ref, rho),
     )
+
+
+def _conflict(times, meas, prior: Prior, t_ref: float, rho: float) -> PriorConflict | None:
+    """The temperature prior against the blocks' constant fit without it (None: no prior)."""
+    idx = np.flatnonzero(prior.free)
+    if not (idx.size and idx[0] == 0 and np.isfinite(prior.width[0]) and prior.width[0] > 0):
+        return None
+    width = prior.width.copy()
+    width[0] = np.inf
+    beta, cov, _ = _line_fit(times, meas, replace(prior, width=width), 0, t_ref, rho)
+    var = float(cov[0, 0])
+    if not (np.isfinite(var) and var > 0):
+        return None
+    return PriorConflict(float(prior.mean[0]), float(prior.width[0]), float(beta[0]),
+                         float(np.sqrt(var)))  # fmt: skip

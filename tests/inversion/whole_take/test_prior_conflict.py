@@ -5,14 +5,7 @@ import pandas as pd
 import pytest
 
 from mpipe.inversion.pooling.take_system import TakeSystem, TierSizes
-from mpipe.inversion.whole_take.prior_conflict import (
-    CONFLICT_P,
-    PULL_LIMIT,
-    PriorMoves,
-    conflict_checks,
-    prior_checks,
-    prior_conflict,
-)
+from mpipe.inversion.whole_take.prior_conflict import PriorMoves, prior_conflict, prior_figures
 
 SIZES = TierSizes(2, 2, 1)
 NOTES = [0, 0, 0, 1, 1, 1]
@@ -85,29 +78,16 @@ def _no_t():
     return mask
 
 
-def test_a_check_needs_both_a_conflict_and_a_pull():
-    names = ["p_m", "k"]
-    where = ["the window at 0.000 s (note 1)", "the window at 0.020 s (note 1)"]
-    big, small = np.array([[0.2, 3.0], [0.1, 0.0]]), np.array([[0.2, 0.5], [0.1, 0.0]])
-    strong = 4.0  # beyond the two-sided 1e-3 quantile, 3.29
-    assert CONFLICT_P == 1e-3 and PULL_LIMIT == 1.0
-    (reason,) = conflict_checks(strong, big, names, where, (23.0, 0.05), 22.4)
-    assert "k would move by 3 of its SEs in the window at 0.000 s (note 1)" in reason
-    assert conflict_checks(strong, small, names, where, (23.0, 0.05), 22.4) == ()
-    assert conflict_checks(3.0, big, names, where, (23.0, 0.05), 22.4) == ()
-    assert conflict_checks(np.nan, big, names, where, (23.0, 0.05), 22.4) == ()
-
-
-def test_the_pull_is_judged_against_the_tables_combined_error_bars():
+def test_the_pull_is_measured_against_the_tables_combined_error_bars():
     moves = pd.DataFrame({"t_start_s": [0.0, 0.02], "k": [0.02, 0.001], "p_M": [0.0, 0.0]})
     result = PriorMoves(z=5.0, shift_c=-1.0, prior=(23.0, 0.05), t_c=22.5, moves=moves)
     columns = {"t_start_s": [0.02, 0.0, 0.04], "note_number": [1, 1, 1], "k": [1e7] * 3,
                "p_M": [3000.0] * 3, "p_M_se": [30.0] * 3}  # fmt: skip
     table = pd.DataFrame(columns)
     # k's 2 % move against a 1 % bar is 2 SE; against a 4 % bar it is half of one
-    (reason,), figures = prior_checks(table.assign(k_se=1e5), result)
-    assert "k would move by 2 of its SEs in the window at 0.000 s (note 1)" in reason
+    figures = prior_figures(table.assign(k_se=1e5), result)
     assert figures["largest_pull_se"] == pytest.approx(2.0)
-    assert figures["t_without_c"] == pytest.approx(21.5)
-    assert prior_checks(table.assign(k_se=4e5), result)[0] == ()
-    assert prior_checks(table.assign(k_se=1e5), None) == ((), {})
+    assert figures["largest_pull"] == "k in the window at 0.000 s (note 1)"
+    assert figures["t_without_c"] == pytest.approx(21.5) and figures["z"] == 5.0
+    assert prior_figures(table.assign(k_se=4e5), result)["largest_pull_se"] == pytest.approx(0.5)
+    assert prior_figures(table, None) == {}

@@ -187,3 +187,53 @@ def test_the_drift_sentence_judges_the_change_at_the_tests_own_level():
         "the data show a drift of +8.00 +- 2.50 degC"
         in _choice("linear", 8.0, 2.5, 1e-4).sentence()
     )
+
+
+def _with_prior(truth, sigma, mean, width, rng):
+    """Blocks fitted with a Gaussian prior on T: their posterior and their data's information."""
+    info_d = 1.0 / sigma**2
+    post = info_d + 1.0 / width**2
+    out = []
+    for t in truth:
+        x = t + sigma * rng.standard_normal()
+        v = np.array([(x * info_d + mean / width**2) / post, 1.0, 0.0, 0.0])
+        out.append(BlockEstimate(v, np.array([[1.0 / post]]), np.array([[info_d]]), 1.0, 1.0,
+                                 (), 1))  # fmt: skip
+    return out
+
+
+def _prior(mean, width):
+    return Prior(np.array([mean, 1.0, 0.0, 0.0]), np.array([width, INF, INF, INF]), PRIOR.lower,
+                 PRIOR.upper, PRIOR.free)  # fmt: skip
+
+
+def _conflict(est, prior):
+    times = np.arange(len(est)) * 0.04
+    return choose_track(times, est, prior, smooth_blocks(times, est, prior, 1.0, dof=True),
+                        0.0, 0.01).prior_conflict  # fmt: skip
+
+
+def test_the_temperature_priors_conflict_is_the_data_alone_against_it():
+    # 25 blocks of SE 1 degC: the data's own take-level value is their mean with SE 1/5
+    # (the prior taken out of every block), whatever the prior; with a prior drawn about
+    # the truth with its own width, z = (data - prior) / sqrt(0.2^2 + width^2) is standard
+    # normal (300 draws: mean within 0.2, SD within 0.88-1.12)
+    rng = np.random.default_rng(3)
+    zs = []
+    for i in range(300):
+        mean = 20.0 + 0.3 * rng.standard_normal()
+        est = _with_prior(np.full(25, 20.0), 1.0, mean, 0.3, rng)
+        c = _conflict(est, _prior(mean, 0.3))
+        if i == 0:
+            data = np.mean([(e.values[0] * 1.0 / e.cov[0, 0] - mean / 0.09) for e in est])
+            assert abs(c.data_c - data) < 1e-9 and abs(c.data_se_c - 0.2) < 1e-9
+        zs.append(c.z)
+    assert abs(np.mean(zs)) < 0.2 and 0.88 < np.std(zs) < 1.12
+    # the air 3 degC off the calibration's: a 0.05 degC prior is contradicted, the default
+    # 5 degC one is not; without a prior there is nothing to contradict
+    narrow = _conflict(_with_prior(np.full(25, 20.0), 1.0, 23.0, 0.05, rng), _prior(23.0, 0.05))
+    (reason,) = narrow.reasons()
+    assert "contradicted by the microphones" in reason and narrow.z < -10
+    assert _conflict(_with_prior(np.full(25, 20.0), 1.0, 23.0, 5.0, rng), _prior(23.0, 5.0)) \
+        .reasons() == []  # fmt: skip
+    assert _conflict(_blocks(np.full(25, 20.0), 1.0, rng), PRIOR) is None
