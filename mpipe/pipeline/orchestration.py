@@ -220,11 +220,7 @@ def _run_stages(cfg, cal_path, take_paths, out, force, client, say, accept_faile
     say(f"[{name}]     {cond.summary['to_invert']} of {cond.summary['windows']} windows to invert")
     plan = d["conditioning"] / "plan.csv"
     inv_inputs = {"mouthpiece": mouthpiece, "plan": plan, "blocks": blocks, **cal_inputs}
-    # a take read with sensitivities other than those its sidecar records is CHECK, and so
-    # is one separated at a temperature its microphones contradict
-    mismatch = sidecar_check(take_paths, cal)
-    before = (mismatch, *sep.summary.get("front_end_checks", []),
-              *val.summary.get("fingering_checks", []))  # fmt: skip
+    before = _checks_before(take_paths, cal, sep, val)
     inv = stage(5, "inversion", inv_inputs, cfg.inversion,
                 stage_inversion(mouthpiece, plan, cal, cfg, client, before,
                                 figures.draw))  # fmt: skip
@@ -245,6 +241,17 @@ def _run_stages(cfg, cal_path, take_paths, out, force, client, say, accept_faile
     report = write_take_report(root, name, take_paths, cal_path, records)
     say(f"[{name}]     report: {report}")
     return TakeRun(name, root, records, report)
+
+
+def _checks_before(take_paths, cal, sep, val) -> tuple[str, ...]:
+    """The take's reasons found before its inversion, kept first among its checks.
+
+    A take read with sensitivities other than those its sidecar records, one separated at a
+    temperature its microphones contradict (the separation's ``front_end_checks``), and the
+    validation's fingering checks.
+    """
+    return (sidecar_check(take_paths, cal), *sep.summary.get("front_end_checks", []),
+            *val.summary.get("fingering_checks", []))  # fmt: skip
 
 
 def usable(run: TakeRun) -> bool:
