@@ -1,7 +1,7 @@
 """Which of the chain's mouthpiece signals carries a take's systematic error: p, u or neither.
 
 Usage: ``.venv/bin/python benchmarks/true_signals.py [--score crescendo] [--snr 100]
-[--seed 0] [--folder DIR] [--workers 1]``
+[--seed 0] [--folder DIR] [--workers 1] [--lead-s 0.003,0.01,0.04]``
 
 Inverts one of ``bench_estimator.py``'s virtual takes (made or read from ``--folder``) four
 ways, each with the take's estimator: the chain's p and u (what ``mpipe run`` inverts);
@@ -10,19 +10,27 @@ the truth's p, low-passed as the translation does, in place of the chain's; the 
 chain's; and both. Prints each quantity's median error over the ok windows and over the
 take's last 0.25 s. An error the truth's p removes is the pressure's (the mean flow's
 Poiseuille drop of the twelfth session was found so), one the truth's u removes the
-flow's; one neither removes is the inversion's own.
+flow's; one neither removes is the inversion's own. With ``--lead-s``, the chain's signals
+again at each reed lead-in length given (``inversion.lead_s``, s).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 from bench_estimator import ROOT, front_end, invert, score_path, scores
 
 from mpipe.core.filters import apply_lowpass, design_lowpass
+from mpipe.inversion.preparation.conditioning import plan_inversion
+from mpipe.inversion.settings import ExecutorConfig
+from mpipe.inversion.whole_take.front_end import FrontEnd
+from mpipe.inversion.whole_take.take import invert_take
 from mpipe.pipeline.settings import load_pipeline
+
+PIPELINE = ROOT / "pipelines" / "simplified_clarinet.yaml"
 
 QUANTITIES = ("p_m", "p_M", "k", "y_m", "S", "lam")
 MODES = ("chain", "true p", "true u", "both")
@@ -30,7 +38,7 @@ MODES = ("chain", "true p", "true u", "both")
 
 def signals_for(mode: str, signals: dict, truth: dict) -> dict:
     """The take's signals with the truth's p and/or u (low-passed as the chain's) in place."""
-    tr = load_pipeline(ROOT / "pipelines" / "simplified_clarinet.yaml").translation
+    tr = load_pipeline(PIPELINE).translation
     fs = float(signals["fs"])
     lp = design_lowpass(fs, tr.lowpass_hz, tr.transition_hz, tr.stopband_db)
     out = dict(signals)
@@ -49,6 +57,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--folder", type=Path, default=ROOT / "benchmarks" / ".cache" / "estimator")
     ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--lead-s", default="", help="lead-in lengths, s, comma-separated")
     args = ap.parse_args(argv)
     args.folder.mkdir(parents=True, exist_ok=True)
     signals, truth, cal = front_end(args.seed, args.snr, score_path(args.score), args.folder)
@@ -56,14 +65,35 @@ def main(argv=None) -> int:
           "(over the last 0.25 s)")  # fmt: skip
     for mode in MODES:
         done, _, duration = invert(signals_for(mode, signals, truth), cal, "take", args.workers)
-        table = done.tracking.table
-        s = scores(table, truth)
-        ok = table["status"].eq("ok").to_numpy()
-        late = ok & (table["t_start_s"].to_numpy() > duration - 0.25)
-        cells = [f"{q} {100 * np.median(s[q]['err'][ok]):+.3f}% "
-                 f"({100 * np.median(s[q]['err'][late]):+.3f}%)" for q in QUANTITIES]  # fmt: skip
-        print(f"{mode:7s} T {done.temperature.temperature_c:.3f}  " + "  ".join(cells), flush=True)
+        _line(mode, done, truth, duration)
+    for lead in [float(x) for x in args.lead_s.split(",")] if args.lead_s else []:
+        done, duration = _with_lead(signals, cal, lead, args.workers)
+        _line(f"lead {1e3 * lead:g} ms", done, truth, duration)
     return 0
+
+
+def _with_lead(signals: dict, cal, lead_s: float, workers: int):
+    """The chain's signals inverted with ``inversion.lead_s`` at ``lead_s`` (s)."""
+    pipe = load_pipeline(PIPELINE)
+    fs = float(signals["fs"])
+    plan = plan_inversion(signals["p"], fs, pipe.conditioning, pipe.inversion.window_s,
+                          pipe.inversion.hop_s)  # fmt: skip
+    config = dataclasses.replace(pipe.inversion, lead_s=lead_s)
+    front = FrontEnd.of(signals, pipe.separation, pipe.translation)
+    done = invert_take(signals["p"], signals["u"], fs, cal, config,
+                       ExecutorConfig(workers=workers), windows=plan,
+                       temperature_c=signals["temperature_c"], front_end=front)  # fmt: skip
+    return done, len(signals["p"]) / fs
+
+
+def _line(label: str, done, truth: dict, duration: float) -> None:
+    table = done.tracking.table
+    s = scores(table, truth)
+    ok = table["status"].eq("ok").to_numpy()
+    late = ok & (table["t_start_s"].to_numpy() > duration - 0.25)
+    cells = [f"{q} {100 * np.median(s[q]['err'][ok]):+.3f}% "
+             f"({100 * np.median(s[q]['err'][late]):+.3f}%)" for q in QUANTITIES]  # fmt: skip
+    print(f"{label:9s} T {done.temperature.temperature_c:.3f}  " + "  ".join(cells), flush=True)
 
 
 if __name__ == "__main__":
