@@ -106,13 +106,16 @@ def score_path(name: str) -> Path:
     return Path(name)
 
 
-def invert(signals: dict, cal, estimator: str, workers: int):
-    """One inversion of the take's sounding windows; its table, temperature and wall time."""
+def invert(signals: dict, cal, estimator: str, workers: int, **settings):
+    """One inversion of the take's sounding windows; its table, temperature and wall time.
+
+    ``settings``: inversion settings other than the shipped pipeline's (``lead_s=0.003``).
+    """
     pipe = load_pipeline(PIPELINE)
     fs = float(signals["fs"])
     plan = plan_inversion(signals["p"], fs, pipe.conditioning, pipe.inversion.window_s,
                           pipe.inversion.hop_s)  # fmt: skip
-    config = dataclasses.replace(pipe.inversion, estimator=estimator)
+    config = dataclasses.replace(pipe.inversion, estimator=estimator, **settings)
     front = FrontEnd.of(signals, pipe.separation, pipe.translation)
     t0 = time.perf_counter()
     executor = ExecutorConfig(workers=workers)

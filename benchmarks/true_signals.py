@@ -17,17 +17,12 @@ again at each reed lead-in length given (``inversion.lead_s``, s).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 from pathlib import Path
 
 import numpy as np
 from bench_estimator import ROOT, front_end, invert, score_path, scores
 
 from mpipe.core.filters import apply_lowpass, design_lowpass
-from mpipe.inversion.preparation.conditioning import plan_inversion
-from mpipe.inversion.settings import ExecutorConfig
-from mpipe.inversion.whole_take.front_end import FrontEnd
-from mpipe.inversion.whole_take.take import invert_take
 from mpipe.pipeline.settings import load_pipeline
 
 PIPELINE = ROOT / "pipelines" / "simplified_clarinet.yaml"
@@ -67,23 +62,9 @@ def main(argv=None) -> int:
         done, _, duration = invert(signals_for(mode, signals, truth), cal, "take", args.workers)
         _line(mode, done, truth, duration)
     for lead in [float(x) for x in args.lead_s.split(",")] if args.lead_s else []:
-        done, duration = _with_lead(signals, cal, lead, args.workers)
+        done, _, duration = invert(signals, cal, "take", args.workers, lead_s=lead)
         _line(f"lead {1e3 * lead:g} ms", done, truth, duration)
     return 0
-
-
-def _with_lead(signals: dict, cal, lead_s: float, workers: int):
-    """The chain's signals inverted with ``inversion.lead_s`` at ``lead_s`` (s)."""
-    pipe = load_pipeline(PIPELINE)
-    fs = float(signals["fs"])
-    plan = plan_inversion(signals["p"], fs, pipe.conditioning, pipe.inversion.window_s,
-                          pipe.inversion.hop_s)  # fmt: skip
-    config = dataclasses.replace(pipe.inversion, lead_s=lead_s)
-    front = FrontEnd.of(signals, pipe.separation, pipe.translation)
-    done = invert_take(signals["p"], signals["u"], fs, cal, config,
-                       ExecutorConfig(workers=workers), windows=plan,
-                       temperature_c=signals["temperature_c"], front_end=front)  # fmt: skip
-    return done, len(signals["p"]) / fs
 
 
 def _line(label: str, done, truth: dict, duration: float) -> None:
