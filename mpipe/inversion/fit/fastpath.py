@@ -38,7 +38,7 @@ from scipy import fft as sfft
 from mpipe.core.filters import apply_lowpass
 from mpipe.inversion.fit.history_start import pad_history
 from mpipe.inversion.fit.lead_in import lead_in, lead_in_tangent, missing_flow, missing_tangent
-from mpipe.inversion.fit.objective import ObjectiveSettings, TargetWindow
+from mpipe.inversion.fit.objective import ObjectiveSettings, TargetWindow, mouth_pressure_ramp
 from mpipe.reed.block_fft import fft_tables, irfft_last_half, rfft_block
 from mpipe.reed.bore_kernel import BoreKernel, prepare_lean
 from mpipe.reed.kernels import run
@@ -266,8 +266,11 @@ def start_run(win, buffers, cand):
     if win[4]:
         missing = missing_flow(ylead, win, cand)
     _history_share(q_ext, win, 0.5 * (cand[0][1][0] + win[9]) * missing, conv[2:])
+    # the mouth pressure's ramp about the window's centre (win[11], Pa/s; the lead-in's
+    # is in p_lead, win[2]: objective.mouth_pressure_ramp)
+    slope, half = win[11], 0.5 * win[0].size
     for i in range(pm.size):
-        pm[i] = p_m
+        pm[i] = p_m + slope * (i - half) / win[8]
     return (ylead[n_lead - 1], ylead[n_lead - 2], p_m - p_lead[n_lead - 1]), missing
 
 
@@ -285,8 +288,10 @@ def _evaluate(out_r, win, lp, buffers, cand, jac):
     ``R c``; :func:`history_term`); the run starts on a zero history. Records:
 
     * ``win`` = (target_p, target_std, p_lead, u_lead, filt, p_ctx, q_base, q_ones, fs,
-      r_dc, edge): r_dc the reference resistance (Pa s/m^3, 0 for a flow with its mean),
-      edge ``1 - LP([1 over p_ctx, 0 over the run])`` over the window;
+      r_dc, edge, slope): r_dc the reference resistance (Pa s/m^3, 0 for a flow with its
+      mean), edge ``1 - LP([1 over p_ctx, 0 over the run])`` over the window, slope the
+      mouth pressure's ramp (Pa/s, ``TargetWindow.p_m_slope``); p_lead is the measured
+      lead-in less the ramp's share there (the reed reads only ``p_m(t) - p``);
     * ``lp`` = :func:`measured_lowpass`'s;
     * ``buffers`` = (x, n0, conv, q_ext, p_mod, pm, work): the kernel's p+ buffer and
       ``conv`` (:func:`mpipe.reed.kernels.run`), the history share, the model pressure,
@@ -372,10 +377,11 @@ class WindowEvaluator:
         ph = p_hist[-(n_taps - 1) :]
         uh = u_hist[-(n_taps - 1) :]
         p_ctx = np.ascontiguousarray(p_hist[-(lp.delay + 1) :]) if filt else np.zeros(0)
+        ramp_lead, _ = mouth_pressure_ramp(target.p_m_slope, n, n_lead, fs)
         self.win = (
             self.target_p,
             float(np.std(self.target_p)),
-            np.ascontiguousarray(p_hist[-n_lead:]),
+            np.ascontiguousarray(p_hist[-n_lead:] - ramp_lead),
             np.ascontiguousarray(u_hist[-n_lead:]),
             filt,
             p_ctx,
@@ -384,6 +390,7 @@ class WindowEvaluator:
             self.fs,
             float(kernel.reference_resistance) if filt else 0.0,
             _filter_edge(lp, n, n_pad) if filt else np.zeros(n),
+            float(target.p_m_slope),
         )
         self.lean = run_kernel(kernel, n_run)
         x = np.zeros(self.lean.n0 + n_run)

@@ -59,6 +59,12 @@ class TargetWindow:
         Sample rate, Hz.
     zero_mean : bool
         The flow is zero-mean (a measurement); the model output is filtered to match.
+    p_m_slope : float
+        The mouth pressure's rate of change about the window, Pa/s: the lead-in and the
+        window are played at ``p_m + p_m_slope (t - t_c)``, ``t_c`` the window's centre,
+        so that ``p_m`` stays the window's mean (:func:`mouth_pressure_ramp`). 0 (the
+        paper's window, p_m held) unless the take's fit sets it from the neighbouring
+        windows (:mod:`mpipe.inversion.whole_take.mouth_slopes`).
     """
 
     p: np.ndarray
@@ -67,6 +73,20 @@ class TargetWindow:
     u_history: np.ndarray
     fs: float
     zero_mean: bool
+    p_m_slope: float = 0.0
+
+
+def mouth_pressure_ramp(slope: float, n: int, n_lead: int, fs: float):
+    """The mouth pressure's departure from p_m over a lead-in and a window's run, Pa.
+
+    ``(lead, run)``: at the lead-in's ``n_lead`` samples before the window and at its
+    samples ``0..n-1`` (and on, for a run longer than the window), ``slope (t - t_c)`` with
+    ``t_c`` the window's centre, ``n / 2`` samples in; ``slope`` in Pa/s. The compiled
+    evaluator plays the same (:func:`mpipe.inversion.fit.fastpath.start_run`).
+    """
+    half = 0.5 * n
+    lead = slope * (np.arange(-n_lead, 0) - half) / fs
+    return lead, lambda m: slope * (np.arange(m) - half) / fs
 
 
 @dataclass(frozen=True)
@@ -193,10 +213,13 @@ class _Infeasible(Exception):
     """The model cannot run the candidate, or its output is unusable (the reason)."""
 
 
-def _simulate(reed: ReedParameters, kernel: BoreKernel, n: int, state=None):
-    """Model pressure and flow over ``n`` samples; raises :class:`_Infeasible` on failure."""
+def _simulate(reed: ReedParameters, kernel: BoreKernel, n: int, state=None, mouth=None):
+    """Model pressure and flow over ``n`` samples; raises :class:`_Infeasible` on failure.
+
+    ``mouth``: the mouth pressure per sample, Pa (None: ``reed.p_m`` held).
+    """
     try:
-        sim = simulate(reed, kernel, n, state=state)
+        sim = simulate(reed, kernel, n, state=state, mouth_pressure=mouth)
     except ValueError as exc:
         raise _Infeasible(f"model: {exc}") from exc
     if not np.all(np.isfinite(sim.p)):
@@ -222,8 +245,11 @@ def _run_from_history(
     n_lead = max(int(round(settings.lead_s * fs)), 2)
     p_hist = pad_history(target.p_history, max(n_taps, n_lead))
     u_hist = pad_history(target.u_history, max(n_taps, n_lead))
-    dp_lead = reed.p_m - p_hist[-n_lead:]
-    y_lead = reed_trajectory(reed, p_hist[-n_lead:], fs)
+    ramp_lead, ramp = mouth_pressure_ramp(target.p_m_slope, n, n_lead, fs)
+    # the reed reads only p_m(t) - p: a ramp of the mouth pressure is the measured
+    # pressure less the ramp under a held p_m
+    dp_lead = reed.p_m + ramp_lead - p_hist[-n_lead:]
+    y_lead = reed_trajectory(reed, p_hist[-n_lead:] - ramp_lead, fs)
     y, y_prev = float(y_lead[-1]), float(y_lead[-2])
     drop = 0.0  # Pa: the mean flow's drop the measured pressure lacks
     if filt:
@@ -239,7 +265,8 @@ def _run_from_history(
     # Run on past the window when filtering: the linear-phase FIR needs its
     # half-length of signal on both sides of the window.
     n_pad = lp.delay + 1 if filt else 0
-    p_mod, u_mod = _simulate(reed, kernel, n + n_pad, state=state)
+    mouth = reed.p_m + ramp(n + n_pad) if target.p_m_slope else None
+    p_mod, u_mod = _simulate(reed, kernel, n + n_pad, state=state, mouth=mouth)
     if filt:
         ctx = lp.delay + 1
         p_mod = _measured_pressure(np.concatenate([p_hist[-ctx:], p_mod]), lp, ctx, n) - drop

@@ -111,6 +111,10 @@ class TakeProblem:
         self.n_eff = np.full(len(problems), math.nan)  # each window's, at the last measurement
         # the second stage: the windows' controls alone, the shared unknowns held
         self.settling = False
+        # the mouth pressure's slope each window plays (Pa/s; None: p_m held over it) and
+        # what sets them (take_fit._slopes: fs in Hz, a lead-in's reach in s, p_m's column)
+        self.slopes: np.ndarray | None = None
+        self.ramp: tuple | None = None
 
     def given(self) -> np.ndarray | None:
         """The windows fitted given the shared unknowns (:func:`given_mask`)."""

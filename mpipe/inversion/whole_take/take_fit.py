@@ -38,8 +38,6 @@ from mpipe.inversion.whole_take.cold_starts import (
     same_basin,
 )
 from mpipe.inversion.whole_take.estimator import (
-    MAX_PASSES,
-    T_SETTLED_C,
     TakeData,
     TakeFit,
     informing,
@@ -56,6 +54,7 @@ from mpipe.inversion.whole_take.gauss_newton import (
     joint_pass,
 )
 from mpipe.inversion.whole_take.note_starts import swapped_origin
+from mpipe.inversion.whole_take.passes import run_passes, set_slopes, slopes_at
 from mpipe.inversion.whole_take.rivals import RIVAL_MARGIN, apart, rival_costs
 from mpipe.inversion.whole_take.shard_workers import Shards, shard_ranges
 from mpipe.inversion.whole_take.take_shards import DELTA_T_C, ShardSpec
@@ -291,7 +290,8 @@ def _run_from(stack: contextlib.ExitStack, data: TakeData, problems, origin: Ori
     """The take's fit from ``origin``: its warm chains and passes (shards in ``stack``).
 
     ``source``: the take's kernels (:func:`pass_kernels`); ``ends``: ``(stop, near)`` of a
-    second run, which may end early; ``tolerance``: the last pass's, SEs (:func:`_passes`).
+    second run, which may end early; ``tolerance``: the last pass's, SEs
+    (:func:`~mpipe.inversion.whole_take.passes.run_passes`).
     """
     fs, config = data.fs, data.config
     # a note of this run without an informing window: every one of its windows informs
@@ -325,7 +325,11 @@ def _run_from(stack: contextlib.ExitStack, data: TakeData, problems, origin: Ori
     boxes = search_boxes(problems, layout.n_fast, len(notes), t_range)
     take = TakeProblem(shards, problems, layout, sizes, prior, boxes)
     kernels = functools.partial(pass_kernels, source, names=names)
-    state, ended, total, passes, converged, message, left = _passes(take, state, kernels, ends,
+    fast_names = list(layout.names[: layout.n_fast])
+    if "p_m" in fast_names:  # the windows' slopes from the warm chains' p_m
+        take.ramp = (fs, config.lead_s + 0.5 * config.window_s, fast_names.index("p_m"))
+        set_slopes(take, slopes_at(take, state), t0, kernels(t0))
+    state, ended, total, passes, converged, message, left = run_passes(take, state, kernels, ends,
                                                                     tolerance)  # fmt: skip
     far = misfit_windows(take.problems, ended[0].rr, config.residual_factor)
     if far and not left:  # windows the model does not play: fitted given their notes
@@ -334,7 +338,7 @@ def _run_from(stack: contextlib.ExitStack, data: TakeData, problems, origin: Ori
         log.info("take fit: %d windows far above their notes' sum of squares fitted given "
                  "their notes (at %s s)", len(far),
                  ", ".join(f"{take.problems[i].start / fs:.3f}" for i in far[:5]))  # fmt: skip
-        state, ended, more, extra, converged, message, left = _passes(take, state, kernels,
+        state, ended, more, extra, converged, message, left = run_passes(take, state, kernels,
                                                                       ends, tolerance)  # fmt: skip
         total, passes = total + more, passes + extra
     log.debug("take fit: passes after %.2f s", time.perf_counter() - clock)
@@ -405,45 +409,6 @@ def _settle(run: _Run) -> _Run:
     return dataclasses.replace(run, state=state, blocks=ended[0], exact=ended[2],
                                steps=run.steps + steps, converged=run.converged and ok,
                                message=note)  # fmt: skip
-
-
-def _passes(take: TakeProblem, state: FitState, kernels, ends=None, final=SE_TOLERANCE):
-    """The passes of the joint fit, kernels rebuilt at T between them (``kernels(T)``).
-
-    A pass first runs to :data:`LOOSE_SE` (where T is headed); when T has moved by more
-    than :data:`T_SETTLED_C` the kernels are rebuilt there and a new pass starts, else the
-    same pass goes on to ``final`` SEs (:data:`SE_TOLERANCE`; nothing more when ``final``
-    is :data:`LOOSE_SE`). ``ends = (stop, near)``, for a second run:
-    ``stop(take, state, blocks, weight)`` is asked after each pass whether the run may end
-    there (its reason, or ""), ``near(slow)`` at every accepted step whether it has reached
-    the first run's minimum (:func:`~mpipe.inversion.whole_take.cold_starts.agree`).
-    Returns ``(state, (blocks, weight, exact), steps, passes, converged, message, left)``,
-    ``left``: it ended so.
-    """
-    stop, near = ends if ends is not None else (None, None)
-    total, converged, t_built, start = 0, True, state.t, None
-    for passes in range(1, MAX_PASSES + 1):
-        last = passes == MAX_PASSES
-        tolerance = final if last else max(final, LOOSE_SE)
-        state, ended, steps, ok, message = joint_pass(take, state, tolerance, start, near=near)
-        total += steps
-        log.debug("take fit pass %d: T %.3f degC, %d steps (%s)", passes, state.t, steps, message)
-        why = stop(take, state, ended[0], ended[1]) if stop is not None else ""
-        if why:
-            return state, ended, total, passes, ok, why, True
-        if abs(state.t - t_built) < T_SETTLED_C or last:
-            if not last and final < tolerance:  # on to the tolerance, on the same kernels
-                state, ended, steps, ok, message = joint_pass(take, state, final, ended)
-                total += steps
-            converged = ok
-            break
-        t_built = state.t
-        made = kernels(state.t)
-        take.shards.call("rebuild", [(state.t, made)] * len(take.shards.ranges))
-    if abs(state.t - t_built) >= T_SETTLED_C:
-        # the last pass ended far from its kernels: its blocks measured on their own
-        ended = (take.blocks(state, "measure"), ended[1], True)
-    return state, ended, total, passes, converged, message, False
 
 
 def _informs(windows) -> list[bool]:

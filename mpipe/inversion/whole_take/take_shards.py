@@ -144,12 +144,19 @@ class Shard:
         self.lowpass = spec.config.lowpass.design(spec.fs)  # one design for every window
         self.rebuild(spec.t, spec.kernels)
 
-    def rebuild(self, t: float, kernels: dict | None = None) -> None:
+    def rebuild(self, t: float, kernels: dict | None = None, slopes=None) -> None:
         """Objectives on the kernels at ``t`` degC (the Taylor terms and points forgotten).
 
         ``kernels``: ``(T, fingering) -> (kernel, air)`` made by the caller for this pass (at
         ``t`` and ``t -+ DELTA_T_C``); the others are built here when asked for.
+        ``slopes``: each window's mouth-pressure slope, Pa/s
+        (:attr:`~mpipe.inversion.fit.objective.TargetWindow.p_m_slope`; None: as they are).
         """
+        if slopes is not None:
+            self.problems = [
+                dataclasses.replace(q, target=dataclasses.replace(q.target, p_m_slope=float(s)))
+                for q, s in zip(self.problems, slopes, strict=True)
+            ]
         self.t = float(t)
         self.source.built.clear()  # the kernels of other temperatures are not used again
         self.source.built.update(kernels or {})

@@ -28,8 +28,12 @@ def _moved(target, dp, du, eps):
                                p_history=ph, u_history=uh)  # fmt: skip
 
 
-@pytest.mark.parametrize(("zero_mean", "resistance"), [(False, 0.0), (True, 0.0), (True, 5e3)])
-def test_responses_match_the_model_run_on_moved_targets(table1_note, zero_mean, resistance):
+@pytest.mark.parametrize(
+    ("zero_mean", "resistance", "slope"), [(False, 0.0, 0.0), (True, 0.0, 0.0), (True, 5e3, 0.0),
+                                           (True, 5e3, 4e3)],
+)  # fmt: skip
+def test_responses_match_the_model_run_on_moved_targets(table1_note, zero_mean, resistance,
+                                                        slope):  # fmt: skip
     # Three changes over the window and the 6000 samples before it (the lead-in, the
     # low-pass's context and most of the bore's reach): white, low-passed and one in the
     # history only. Each dr agrees with central differences of the residuals of the
@@ -40,7 +44,7 @@ def test_responses_match_the_model_run_on_moved_targets(table1_note, zero_mean, 
     p, u = sim.p.copy(), sim.u.copy()
     if zero_mean:
         u = u - u.mean()
-    target = TargetWindow(p[W0 : W0 + N], u[W0 : W0 + N], p[:W0], u[:W0], FS, zero_mean)
+    target = TargetWindow(p[W0 : W0 + N], u[W0 : W0 + N], p[:W0], u[:W0], FS, zero_mean, slope)
     obj = _objective(kernel, target, zero_mean)
     x = np.array([getattr(TABLE1, n) for n in PARAMETER_NAMES])
     rng = np.random.default_rng(5)
