@@ -43,6 +43,7 @@ Regression*, Wiley 1989, section 2.1 (the sandwich covariance).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -208,7 +209,20 @@ class TakeSystem:
         return f_inv, q, self.grams[:, f:, f:]
 
     def _reduced(self, mu: float):
-        """The reduced matrix R (N s + t square), its right-hand side and the blocks."""
+        """The reduced matrix R (N s + t square), its right-hand side and the blocks.
+
+        Undamped (``mu`` 0) it is made once per system: the covariance, the information and
+        the refitted windows all read it (never written to).
+        """
+        if mu == 0.0:
+            return self._undamped
+        return self._reduce(mu)
+
+    @functools.cached_property
+    def _undamped(self):
+        return self._reduce(0.0)
+
+    def _reduce(self, mu: float):
         f_inv, q, shared = self._blocks(mu)
         f = self.sizes.fast
         kq = f_inv @ q  # K_i = F_i^-1 Q_i

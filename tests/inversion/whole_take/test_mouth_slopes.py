@@ -31,10 +31,19 @@ def test_a_short_note_holds_its_mouth_pressure():
     assert np.all(s == 0.0)
 
 
-def test_the_release_does_not_tilt_the_line_before_it():
+def test_a_bend_is_followed_not_smoothed():
+    # a crescendo that stops (the score's bend at 0.6 s): each window's slope is its side's,
+    # the line before the bend or after it, not one across it (which tilts 0.2 s each side)
+    t = np.arange(60) * HOP
+    p_m = np.where(t < 0.6, 1800 + 540 * t, 1800 + 540 * 0.6)
+    s = mouth_slopes(t, np.zeros(t.size, int), p_m, REACH)
+    np.testing.assert_allclose(s, np.where(t < 0.59, 540.0, 0.0), atol=1e-9)
+
+
+def test_the_release_is_played_at_the_line_before_it():
     # a steady note whose last two windows' p_m fall (the release): drawn through the
-    # informing windows only, every slope is 0; drawn through all, the nine steady windows
-    # within SPAN_S (0.2 s) before the release tilt by over 1000 Pa/s, those before stay
+    # informing windows only, every slope is 0, the release's too; drawn through all, the
+    # steady windows keep 0 (the line before them) and the release's windows tilt
     t = np.arange(30) * HOP
     p_m = np.full(t.size, 2100.0)
     p_m[-2:] = [1200.0, 300.0]
@@ -43,7 +52,7 @@ def test_the_release_does_not_tilt_the_line_before_it():
     held = mouth_slopes(t, np.zeros(t.size, int), p_m, REACH, informs)
     assert np.all(held == 0.0)
     tilted = mouth_slopes(t, np.zeros(t.size, int), p_m, REACH)
-    assert np.all(tilted[19:28] < -1000.0) and np.all(tilted[:18] == 0.0)
+    assert np.all(tilted[:28] == 0.0) and np.all(tilted[28:] < -500.0)
 
 
 def test_a_steep_onset_is_limited():
@@ -57,18 +66,19 @@ def test_a_steep_onset_is_limited():
 @pytest.mark.parametrize("seed", range(4))
 def test_the_slopes_noise_is_the_local_lines(seed):
     # a steady note of 2 s whose windows' p_m carry white noise of 5 Pa: the slope's
-    # standard deviation over 400 draws is the least-squares line's, sigma / sqrt(sum dt^2)
-    # over the windows within SPAN_S (21 of them at 20 ms), to its sampling error (7 %
-    # for 400 draws: 3.5 SE allowed); 4 seeds, all must pass
+    # standard deviation over 400 draws is about one least-squares line's, sigma /
+    # sqrt(sum dt^2) over 21 windows 20 ms apart: the choice among three such lines adds
+    # 6 % (2000 draws); 4 seeds, all must pass, within 0.95-1.2 of it (the draws' own
+    # sampling error is 3.5 %)
     rng = np.random.default_rng(seed)
     t = np.arange(100) * HOP
     draws = np.array([mouth_slopes(t, np.zeros(100, int), 1800 + 5.0 * rng.standard_normal(100),
                                    REACH)[50] for _ in range(400)])  # fmt: skip
     dt = np.arange(-10, 11) * HOP
     expected = 5.0 / np.sqrt(dt @ dt)
-    assert np.std(draws) == pytest.approx(expected, rel=3.5 / np.sqrt(2 * 400))
-    # and at the lead-in's start it is a tenth of one window's p_m noise
-    assert REACH * expected < 0.11 * 5.0
+    assert 0.95 * expected < np.std(draws) < 1.2 * expected
+    # and at the lead-in's start it is under a twentieth of one window's p_m noise
+    assert REACH * 1.2 * expected < 0.05 * 5.0
 
 
 def test_slopes_settle_by_their_rms_move():
