@@ -29,9 +29,12 @@ def run_passes(take: TakeProblem, state: FitState, kernels, ends=None, final=SE_
     """The passes of the joint fit, kernels rebuilt at T between them (``kernels(T)``).
 
     A pass first runs to :data:`LOOSE_SE` (where T is headed); when T has moved by more
-    than :data:`T_SETTLED_C` the kernels are rebuilt there and a new pass starts, else the
-    same pass goes on to ``final`` SEs (:data:`SE_TOLERANCE`; nothing more when ``final``
-    is :data:`LOOSE_SE`). ``ends = (stop, near)``, for a second run:
+    than :data:`T_SETTLED_C` the kernels are rebuilt there, and when the windows'
+    mouth-pressure slopes at the pass's p_m moved
+    (:func:`~mpipe.inversion.whole_take.mouth_slopes.slopes_moved`) the objectives are
+    remade with them; either way a new pass starts. Else the same pass goes on to
+    ``final`` SEs (:data:`SE_TOLERANCE`; nothing more when ``final`` is :data:`LOOSE_SE`).
+    ``ends = (stop, near)``, for a second run:
     ``stop(take, state, blocks, weight)`` is asked after each pass whether the run may end
     there (its reason, or ""), ``near(slow)`` at every accepted step whether it has reached
     the first run's minimum (:func:`~mpipe.inversion.whole_take.cold_starts.agree`).
