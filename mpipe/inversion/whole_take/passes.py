@@ -53,7 +53,9 @@ def run_passes(take: TakeProblem, state: FitState, kernels, ends=None, final=SE_
         if why:
             return state, ended, total, passes, ok, why, True
         slopes = slopes_at(take, state)
-        moved = slopes is not None and slopes_moved(
+        # a run that only finds the basin (``final`` LOOSE_SE: the thinned take's) takes no
+        # pass for the slopes alone; they are set again whenever T moves
+        moved = final < LOOSE_SE and slopes is not None and slopes_moved(
             take.slopes, slopes, state.fast[:, take.ramp[2]], take.ramp[1])  # fmt: skip
         if (abs(state.t - t_built) < T_SETTLED_C and not moved) or last:
             if not last and final < tolerance:  # on to the tolerance, on the same kernels
