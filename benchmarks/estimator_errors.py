@@ -9,8 +9,9 @@ as the tables name it (``steady_60dB``). For each group, over its seeds: the RMS
 the rate component of p_m, p_M and y_m over the ok windows (as ``bench_estimator.py``
 counts it), split into each take's mean z (an error every window of the take shares: the
 note's constants, the temperature, a systematic of the chain) and z about that mean (the
-windows' own); the temperature's RMS z; and the correlations over the takes of the take
-means of T, p_m, y_m, k, S and lambda (which direction the shared error takes).
+windows' own); k, S and lambda once per take (its one note) with their mean z; the
+temperature's RMS z; and the correlations over the takes of the take means of T, p_m, y_m,
+k, S and lambda (which direction the shared error takes).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from bench_estimator import scores
 
 SHARED = ("p_m", "p_M", "y_m")
 MEANS = ("p_m", "y_m", "k", "S", "lam")
+NOTES = ("k", "S", "lam")
 
 
 def take_z(tables: Path, folder: Path, name: str) -> tuple[dict, float]:
@@ -57,6 +59,9 @@ def report(tables: Path, folder: Path, group: str, seeds: int) -> None:
             f"  {q}: RMS z {rms(every):.2f}; take means {rms(means):.2f}, about them "
             f"{rms(about):.2f}; |z| > 4 in {int(np.sum(np.abs(every) > 4))} of {every.size}"
         )
+    for q in NOTES:  # each note's constant once (its windows share it): RMS and mean of z
+        z = np.array([np.median(z[q]) for z, _ in takes if z[q].size])
+        print(f"  {q} (once per take's note): RMS z {rms(z):.2f}, mean z {z.mean():+.2f}")
     frame = pd.DataFrame([{"T": t, **{q: z[q].mean() for q in MEANS}} for z, t in takes])
     print("  correlations of the take means:")
     print(frame.corr().round(2).to_string())

@@ -112,7 +112,7 @@ class TakeProblem:
         # the second stage: the windows' controls alone, the shared unknowns held
         self.settling = False
         # the mouth pressure's slope each window plays (Pa/s; None: p_m held over it) and
-        # what sets them (take_fit._slopes: fs in Hz, a lead-in's reach in s, p_m's column)
+        # what sets them (passes.slopes_at: fs in Hz, a lead-in's reach in s, p_m's column)
         self.slopes: np.ndarray | None = None
         self.ramp: tuple | None = None
 

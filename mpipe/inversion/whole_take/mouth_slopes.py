@@ -114,18 +114,21 @@ def _line_slope(t: np.ndarray, p: np.ndarray, at: float) -> float:
     best, slope = np.inf, 0.0
     for lo, hi in ((at - SPAN_S, at + SPAN_S), (at - 2 * SPAN_S, at), (at, at + 2 * SPAN_S)):
         near = (t >= lo - 1e-9) & (t <= hi + 1e-9)
-        if near.sum() < MIN_WINDOWS:
-            continue
-        dt = t[near] - t[near].mean()
-        b = float(dt @ (p[near] - p[near].mean()) / (dt @ dt))
-        scatter = float(np.mean((p[near] - p[near].mean() - b * dt) ** 2))
-        if scatter < best:
-            best, slope = scatter, b
+        if near.sum() >= MIN_WINDOWS:
+            b, scatter = _line(t[near], p[near])
+            if scatter < best:
+                best, slope = scatter, b
     if not np.isfinite(best):  # no span holds MIN_WINDOWS: the nearest ones
-        near = np.argsort(np.abs(t - at), kind="stable")[:MIN_WINDOWS]
-        dt = t[near] - t[near].mean()
-        slope = float(dt @ (p[near] - p[near].mean()) / (dt @ dt))
+        slope = _line(*(x[np.argsort(np.abs(t - at), kind="stable")[:MIN_WINDOWS]]
+                        for x in (t, p)))[0]  # fmt: skip
     return slope
+
+
+def _line(t: np.ndarray, p: np.ndarray) -> tuple[float, float]:
+    """The least-squares line's slope (Pa/s) and the mean square of p about it (Pa^2)."""
+    dt, dp = t - t.mean(), p - p.mean()
+    b = float(dt @ dp / (dt @ dt))
+    return b, float(np.mean((dp - b * dt) ** 2))
 
 
 def slopes_moved(old: np.ndarray, new: np.ndarray, p_m: np.ndarray, reach_s: float) -> bool:

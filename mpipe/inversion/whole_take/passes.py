@@ -22,7 +22,7 @@ from mpipe.inversion.whole_take.gauss_newton import (
 )
 from mpipe.inversion.whole_take.mouth_slopes import mouth_slopes, slopes_moved
 
-log = logging.getLogger("mpipe.inversion.whole_take.take_fit")  # the take fit's own lines
+log = logging.getLogger(__name__)
 
 
 def run_passes(take: TakeProblem, state: FitState, kernels, ends=None, final=SE_TOLERANCE):
