@@ -145,7 +145,7 @@ class TakeProblem:
         T measured first (``measure``); ``accept``: the last trial was accepted.
         """
         parts = self.shards.split(state.values(self.layout, self.problems))
-        args = [(v,) if method == "measure" else (v, state.t, accept) for v in parts]
+        args = [(v, state.t) if method == "measure" else (v, state.t, accept) for v in parts]
         out = self.shards.call(method, args)
         return None if any(b is None for b in out) else Blocks.join(out)
 
