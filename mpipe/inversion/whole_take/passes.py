@@ -21,6 +21,7 @@ from mpipe.inversion.whole_take.gauss_newton import (
     joint_pass,
 )
 from mpipe.inversion.whole_take.mouth_slopes import mouth_slopes, slopes_moved
+from mpipe.inversion.whole_take.take_shards import Blocks
 
 log = logging.getLogger(__name__)
 
@@ -32,7 +33,8 @@ def run_passes(take: TakeProblem, state: FitState, kernels, ends=None, final=SE_
     than :data:`T_SETTLED_C` the kernels are rebuilt there, and when the windows'
     mouth-pressure slopes at the pass's p_m moved
     (:func:`~mpipe.inversion.whole_take.mouth_slopes.slopes_moved`) the objectives are
-    remade with them; either way a new pass starts. Else the same pass goes on to
+    remade with them, the pass's terms in T and Jacobians kept when T has not moved
+    (:func:`reslope`); either way a new pass starts. Else the same pass goes on to
     ``final`` SEs (:data:`SE_TOLERANCE`; nothing more when ``final`` is :data:`LOOSE_SE`).
     ``ends = (stop, near)``, for a second run:
     ``stop(take, state, blocks, weight)`` is asked after each pass whether the run may end
@@ -63,9 +65,13 @@ def run_passes(take: TakeProblem, state: FitState, kernels, ends=None, final=SE_
                 total += steps
             converged = ok
             break
-        if abs(state.t - t_built) >= T_SETTLED_C:
-            t_built = state.t
-        set_slopes(take, slopes, t_built, kernels(t_built))
+        start = None
+        if abs(state.t - t_built) < T_SETTLED_C:  # only the slopes moved: the terms kept
+            start = reslope(take, slopes, state, ended[1])
+        if start is None:
+            if abs(state.t - t_built) >= T_SETTLED_C:
+                t_built = state.t
+            set_slopes(take, slopes, t_built, kernels(t_built))
     if abs(state.t - t_built) >= T_SETTLED_C or moved:
         # the last pass ended far from its kernels or slopes: its blocks measured anew
         if moved:
@@ -85,6 +91,24 @@ def slopes_at(take: TakeProblem, state: FitState):
                         [q.informs for q in take.problems])  # fmt: skip
 
 
+def reslope(take: TakeProblem, slopes, state: FitState, weight: float):
+    """The next pass's start when only the slopes moved: ``(blocks, weight, exact)``.
+
+    The shards keep the pass's Taylor terms in T and their Jacobians
+    (:meth:`~mpipe.inversion.whole_take.take_shards.Shard.reslope`) and play each window's
+    residual again under its new slope; the pass goes on from there on a secant Jacobian
+    instead of measuring the terms anew (three model runs and a Jacobian a window). None
+    when a window cannot be played so: the objectives are then made anew
+    (:func:`set_slopes`).
+    """
+    parts = take.shards.split(slopes)
+    out = take.shards.call("reslope", [(part, state.t) for part in parts])
+    take.slopes = slopes
+    if any(b is None for b in out):
+        return None
+    return Blocks.join(out), weight, False
+
+
 def set_slopes(take: TakeProblem, slopes, t: float, made: dict) -> None:
     """The shards' objectives remade at ``t`` degC, with each window's slope (Pa/s).
 
@@ -96,4 +120,4 @@ def set_slopes(take: TakeProblem, slopes, t: float, made: dict) -> None:
     take.shards.call("rebuild", [(t, made, part) for part in parts])
 
 
-__all__ = ["run_passes", "set_slopes", "slopes_at"]
+__all__ = ["reslope", "run_passes", "set_slopes", "slopes_at"]

@@ -166,6 +166,31 @@ class Shard:
         self.pending: list | None = None
         self.exact_accepted = False  # the accepted points' J0 are exact (no secant since)
 
+    def reslope(self, slopes: np.ndarray, t: float) -> Blocks | None:
+        """The windows' mouth-pressure slopes set anew, the pass's terms kept (Pa/s each).
+
+        Only the objectives change: the Taylor terms in T and the accepted points'
+        Jacobians are kept (a slope moves the mouth pressure at a lead-in's start by a few
+        10^-4 of p_m, its Jacobian and T terms to that order), and each accepted point's
+        residual is played again under its new slope (one model run a window). Returns the
+        blocks there at ``t`` degC with the Jacobian a secant one (made exact before the pass
+        may stop), or None when a window cannot be played.
+        """
+        self.commit(False)
+        taylor, accepted = self.taylor, self.accepted
+        self.rebuild(self.t, dict(self.source.built), slopes)
+        self.taylor = taylor
+        points, parts = [], []
+        for i, (x, _, j0) in enumerate(accepted):
+            self.runs[i] += 1
+            r0 = self.objectives[i].residuals(x)
+            if self.objectives[i].infeasible(r0):
+                return None
+            points.append((x, r0, j0))
+            parts.append(self._block(i, r0, j0, t))
+        self.accepted = points
+        return self._blocks(parts)
+
     def _objective(self, q, t: float) -> F2Objective:
         kernel, _ = self.source.named(t, q.fingering)
         return window_objective(kernel, q.target, self.spec.base, self.spec.config,
