@@ -186,8 +186,8 @@ def stage_inversion(mouthpiece: Path, plan: Path, cal: Calibration, cfg: Pipelin
             take = invert_take(
                 p, u, fs, cal, inv, cfg.executor, windows=WindowPlan.of(chosen),
                 temperature_c=mp.get("temperature_c"),
-                options=RunOptions(progress=bar, client=client, checkpoint=checkpoint),
-                extra_checks=checks,
+                options=RunOptions(progress=bar, client=client, checkpoint=checkpoint,
+                                   checks=tuple(checks)),
                 front_end=FrontEnd.of(mp, cfg.separation, cfg.translation),
             )  # fmt: skip
         finally:

@@ -16,9 +16,9 @@ table whichever is used:
    (:mod:`mpipe.inversion.trust.discretisation`) and the take-wide components of the front
    end and the microphones' calibration (:mod:`mpipe.inversion.whole_take.shared_errors`),
    combined into every ``<q>_se`` (:func:`mpipe.inversion.trust.budget.combine`);
-4. the take-level checks (:func:`mpipe.inversion.trust.diagnostics.take_checks`, with
-   ``extra_checks``): each reason in :attr:`TakeInversion.checks` and in the table's
-   ``take_checks`` column;
+4. the take-level checks (:func:`mpipe.inversion.trust.diagnostics.take_checks`, with the
+   run's own, :attr:`~mpipe.inversion.whole_take.tracking.RunOptions.checks`): each reason
+   in :attr:`TakeInversion.checks` and in the table's ``take_checks`` column;
 5. the fitted reed's opening in every window: ``h_mean``, ``h_min`` (m) and
    ``closed_fraction`` (:func:`mpipe.inversion.preparation.segments.reed_openings`).
 """
@@ -107,7 +107,6 @@ def invert_take(
     windows: WindowPlan | Sequence[int] | pd.DataFrame,
     temperature_c: np.ndarray | float | None = None,
     options: RunOptions | None = None,
-    extra_checks: Sequence[str] = (),
     front_end: FrontEnd | None = None,
 ) -> TakeInversion:
     """Invert the planned windows of a take (see the module docstring for the steps).
@@ -134,11 +133,10 @@ def invert_take(
         The temperature the signals carry, degC (the separation's, per sample); None: the
         calibration's.
     options : RunOptions, optional
-        Progress bar, Dask client, checkpoint folder
+        Progress bar, Dask client, checkpoint folder and the reasons found before the
+        inversion why the take should not pass (e.g. a calibration other than the take's
+        own), kept first among its checks
         (:class:`mpipe.inversion.whole_take.tracking.RunOptions`).
-    extra_checks : sequence of str
-        Reasons found before the inversion why the take should not pass (e.g. a
-        calibration other than the take's own), kept first among its checks.
     front_end : FrontEnd, optional
         The front end's estimate with its SEs: its share of every SE (``<q>_se_frontend``)
         is measured; None leaves that component out.
@@ -185,7 +183,7 @@ def invert_take(
                 config, law = dataclasses.replace(config, contact=choice.law), choice.law
                 cold = {choice.start: choice.outcome}  # the take fit's cold start, reused
             data = TakeData(p, u, fs, calibration, plan, config, zero_mean, cold)
-            done = _invert(data, executor, front, carried, front_end, extra_checks, options)
+            done = _invert(data, executor, front, carried, front_end, options)
         table = done.tracking.table.assign(contact=law)
         return dataclasses.replace(done, tracking=dataclasses.replace(done.tracking, table=table))
 
@@ -197,9 +195,9 @@ def _stage_count(executor: ExecutorConfig, options: RunOptions | None) -> int:
     return executor.processes
 
 
-def _invert(data: TakeData, executor, front, carried, front_end, extra_checks, options
-            ) -> TakeInversion:  # fmt: skip
+def _invert(data: TakeData, executor, front, carried, front_end, options) -> TakeInversion:
     """:func:`invert_take` once its settings are concrete (the contact law chosen)."""
+    extra_checks = tuple(options.checks) if options is not None else ()
     p, u, fs, calibration, plan = data.p, data.u, data.fs, data.calibration, data.windows
     config, zero_mean = data.config, data.zero_mean
     # the fit's cold start and its windows spread over the workers (the same answer)

@@ -262,11 +262,16 @@ class RunOptions:
         An existing Dask client (overrides the executor's scheduler address).
     checkpoint : str, Path or None
         Folder where each finished window is saved; windows found there are not redone.
+    checks : tuple of str
+        Reasons found before the inversion why the take should not pass (e.g. a
+        calibration other than the take's own), kept first among the take's checks
+        (:func:`mpipe.inversion.whole_take.take.invert_take`).
     """
 
     progress: ProgressBar | None = None
     client: object = None
     checkpoint: str | Path | None = None
+    checks: tuple[str, ...] = ()
 
 
 def track(
