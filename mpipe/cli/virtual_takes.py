@@ -28,7 +28,7 @@ from mpipe.reed.parameters import load_reed
 from mpipe.reed.recorder import RecorderOptions
 from mpipe.reed.recording import VirtualTake, virtual_recording
 from mpipe.reed.score import load_score, score_controls, score_mapping
-from mpipe.reed.take_files import TakeFiles, take_file_paths
+from mpipe.reed.take_files import AUDIO_FORMATS, TakeFiles, take_file_paths
 from mpipe.reed.take_files import write_virtual_take as _write
 
 log = logging.getLogger(__name__)
@@ -451,8 +451,12 @@ def check_file_rate(path: str | Path, fs: float) -> None:
     Raises
     ------
     ValueError
-        Naming the rate and what the format allows.
+        Naming the rate and what the format allows, or an extension that names no audio
+        format (before any simulation: the file was once refused only when written).
     """
+    suffix = Path(path).suffix.lower()
+    if suffix not in AUDIO_FORMATS:
+        raise ValueError(f"unsupported extension {suffix or '(none)'!r}; use .flac, .wav or .aiff")
     if not fs > 0 or abs(fs - round(fs)) > 1e-9 * fs:
         raise ValueError(
             f"sample rate {fs:g} Hz cannot be stored: audio files hold an integer rate in Hz"

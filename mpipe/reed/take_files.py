@@ -199,13 +199,17 @@ def write_virtual_take(
     return files
 
 
+#: The audio files a virtual take is written as: extension -> libsndfile's format.
+AUDIO_FORMATS = {".flac": "FLAC", ".wav": "WAV", ".aiff": "AIFF", ".aif": "AIFF"}
+
+
 def _write_audio(path: Path, take: VirtualTake, calibration: Calibration, subtype: str) -> None:
     """The file samples on the calibration's channels (unused channels silent)."""
     n_channels = max(m.channel for m in calibration.microphones)
     data = np.zeros((take.n_samples, n_channels))
     for i, mic in enumerate(calibration.microphones):
         data[:, mic.channel - 1] = take.file_samples[:, i]
-    fmt = {".flac": "FLAC", ".wav": "WAV", ".aiff": "AIFF", ".aif": "AIFF"}.get(path.suffix.lower())
+    fmt = AUDIO_FORMATS.get(path.suffix.lower())
     if fmt is None:
         raise ValueError(f"{path}: unsupported extension; use .flac, .wav or .aiff")
     write_atomic(

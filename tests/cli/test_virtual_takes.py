@@ -35,6 +35,16 @@ def test_file_rates_flac_cannot_store_are_refused_before_simulating():
         check_file_rate(path, fs)
 
 
+def test_an_extension_that_names_no_audio_format_is_refused_before_simulating(tmp_path):
+    # a 4 s take was once simulated and only then refused ("take4: take4: unsupported
+    # extension"): the check now comes first, and names the path once
+    for name in ("take4", "take.mp3"):
+        with pytest.raises(ValueError, match="unsupported extension") as caught:
+            make_take(SHIPPED, REED, tmp_path / name, SynthOptions(duration_s=1e6))
+        assert name not in str(caught.value)  # the CLI names the path, once
+    assert not list(tmp_path.iterdir())
+
+
 def test_the_options_of_mpipe_0_1_give_the_same_take_bit_for_bit(shipped_calibration):
     # the take of the old options, made as mpipe 0.1 made it: one run of the model with the
     # swell, onset and breath noise, then the virtual recording
