@@ -175,8 +175,9 @@ _INVERSION: tuple[Column, ...] = (
         "informs_note",
         FLAG,
         "the window's data inform its note's shared constants and the take's temperature; "
-        "false: a window of its note's release (p_m falling within it), fitted given them "
-        "(the per-window fit: true)",
+        "false: a window of its note's build-up (before its first steady window: the front "
+        "end's flow lacks the mean flow's rise) or release (p_m falling within it), fitted "
+        "given them (the per-window fit: true)",
     ),
     _col("error", TEXT, "why the window has no estimate (empty: it has one)"),
     _col("take_checks", TEXT, "take-level checks that failed"),

@@ -127,8 +127,9 @@ class WindowProblem:
     informs : bool
         The window informs its note's constants and the temperature. A window of its
         note's release (the player's p_m falls within it, which the model holds over a
-        window) does not, when its note has another: its controls are fitted given them
-        (:func:`informing`).
+        window) or build-up (before its first steady window: the front end's flow lacks
+        the mean flow's rise, ``take_fit._informs``) does not, when its note has another:
+        its controls are fitted given them (:func:`informing`).
     """
 
     start: int
