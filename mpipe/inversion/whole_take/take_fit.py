@@ -55,7 +55,7 @@ from mpipe.inversion.whole_take.gauss_newton import (
 )
 from mpipe.inversion.whole_take.note_starts import swapped_origin
 from mpipe.inversion.whole_take.passes import run_passes, set_slopes, slopes_at
-from mpipe.inversion.whole_take.rivals import RIVAL_MARGIN, apart, rival_costs
+from mpipe.inversion.whole_take.rivals import RIVAL_MARGIN, apart, best_run, rival_costs
 from mpipe.inversion.whole_take.shard_workers import Shards, shard_ranges
 from mpipe.inversion.whole_take.take_shards import DELTA_T_C, ShardSpec
 from mpipe.inversion.whole_take.warm_starts import Origin, chains, renumber, run_start
@@ -140,16 +140,23 @@ def fit_take(
         if len(thin) == len(problems):
             runs, _, colds = _note_start(fit_, stack, problems, (runs, origins_full, colds))
         costs = rival_costs(runs)
-        best = int(np.argmin(costs))
+        best = best_run(costs, [r.left for r in runs])
         rivals = [k for k, r in enumerate(runs) if k != best and not r.left
                   and apart(runs[best], r) > RIVAL_MARGIN]  # fmt: skip
         if len(runs) > 1:
-            log.info("take fit: %d starts in different basins, costs %s (%s); the lowest "
-                     "kept", len(runs), ", ".join(f"{c:.6g}" for c in costs),
-                     "; ".join(r.message for r in runs[1:]))  # fmt: skip
+            log.info("take fit: %d starts on the whole take, costs %s (%s); kept the %s, the "
+                     "lowest that ended at its own minimum", len(runs),
+                     ", ".join(f"{c:.6g}" for c in costs),
+                     "; ".join(r.message for r in runs[1:]), _ordinal(best))  # fmt: skip
         kept = tuple(costs[[best, *rivals]]) if rivals else ()
         fit = _finish(runs[best], data, kept)
     return fit, colds[best][0], colds[best][1]
+
+
+def _ordinal(k: int) -> str:
+    """ "first", "second", ... of a run's index (0-based)."""
+    words = ("first", "second", "third", "fourth", "fifth")
+    return words[k] if k < len(words) else f"run {k + 1}"
 
 
 #: The take's cold starts are followed on every ``THIN``-th window of each note (at least

@@ -45,3 +45,14 @@ def test_apart_is_the_cost_rise_with_every_windows_control_fitted_again(seed):
     assert apart(_run(flat, notes, slow, t), far) < 1e-3 * apart(run, far)
     # runs that kept different notes are never the same minimum
     assert apart(run, _run(jacobians[:3], notes[:3], slow[:1], t)) == np.inf
+
+
+def test_a_run_that_rejoined_the_first_is_never_the_estimate():
+    # the independent simulator's 45 dB crescendo: the second run left in the first's basin
+    # 1.4 below it on the windows both kept, was taken as the estimate and made the first
+    # its rival (CHECK); the estimate is the lowest of the runs that ended on their own
+    from mpipe.inversion.whole_take.rivals import best_run
+
+    assert best_run([5653.55, 5652.11], [False, True]) == 0
+    assert best_run([5653.55, 5652.11], [False, False]) == 1  # two minima of their own
+    assert best_run([10.0, 3.0, 7.0], [False, True, False]) == 2
