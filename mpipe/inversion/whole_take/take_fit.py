@@ -154,7 +154,7 @@ def fit_take(
 
 
 def _ordinal(k: int) -> str:
-    """ "first", "second", ... of a run's index (0-based)."""
+    """The ordinal word ("first", "second", ...) of a run's index (0-based)."""
     words = ("first", "second", "third", "fourth", "fifth")
     return words[k] if k < len(words) else f"run {k + 1}"
 
