@@ -78,9 +78,7 @@ def best_run(costs, left) -> int:
     foreign cylinder-crescendo), costs 1.4 apart, every window ok. The first run never
     leaves.
     """
-    costs = np.asarray(costs, float)
-    own = [k for k, gone in enumerate(left) if not gone] or list(range(costs.size))
-    return min(own, key=lambda k: costs[k])
+    return min((k for k, gone in enumerate(left) if not gone), key=lambda k: costs[k])
 
 
 __all__ = ["RIVAL_MARGIN", "apart", "best_run", "rival_costs"]

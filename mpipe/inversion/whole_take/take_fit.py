@@ -144,19 +144,13 @@ def fit_take(
         rivals = [k for k, r in enumerate(runs) if k != best and not r.left
                   and apart(runs[best], r) > RIVAL_MARGIN]  # fmt: skip
         if len(runs) > 1:
-            log.info("take fit: %d starts on the whole take, costs %s (%s); kept the %s, the "
+            log.info("take fit: %d starts on the whole take, costs %s (%s); kept run %d, the "
                      "lowest that ended at its own minimum", len(runs),
                      ", ".join(f"{c:.6g}" for c in costs),
-                     "; ".join(r.message for r in runs[1:]), _ordinal(best))  # fmt: skip
+                     "; ".join(r.message for r in runs[1:]), best + 1)  # fmt: skip
         kept = tuple(costs[[best, *rivals]]) if rivals else ()
         fit = _finish(runs[best], data, kept)
     return fit, colds[best][0], colds[best][1]
-
-
-def _ordinal(k: int) -> str:
-    """The ordinal word ("first", "second", ...) of a run's index (0-based)."""
-    words = ("first", "second", "third", "fourth", "fifth")
-    return words[k] if k < len(words) else f"run {k + 1}"
 
 
 #: The take's cold starts are followed on every ``THIN``-th window of each note (at least

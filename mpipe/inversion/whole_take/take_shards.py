@@ -179,17 +179,12 @@ class Shard:
         self.commit(False)
         taylor, accepted = self.taylor, self.accepted
         self.rebuild(self.t, dict(self.source.built), slopes)
-        self.taylor = taylor
-        points, parts = [], []
-        for i, (x, _, j0) in enumerate(accepted):
-            self.runs[i] += 1
-            r0 = self.objectives[i].residuals(x)
-            if self.objectives[i].infeasible(r0):
-                return None
-            points.append((x, r0, j0))
-            parts.append(self._block(i, r0, j0, t))
-        self.accepted = points
-        return self._blocks(parts)
+        self.taylor, self.accepted = taylor, accepted
+        # a trial at the accepted points themselves: their residuals under the new slopes,
+        # the secant update of a zero step leaving each Jacobian as it was
+        out = self.trial(np.array([x for x, _, _ in accepted]), t)
+        self.commit(True)
+        return out
 
     def _objective(self, q, t: float) -> F2Objective:
         kernel, _ = self.source.named(t, q.fingering)
